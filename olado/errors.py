@@ -1,0 +1,58 @@
+"""The small error hierarchy of olado (ARCHITECTURE.md, "Conventions").
+
+Non-convergence is never an exception: it is a :class:`olado.result.Status`. Exceptions are for
+input that cannot be used (a bad config value, a problem function returning a wrong shape) and
+for missing optional components.
+"""
+
+from __future__ import annotations
+
+
+class OladoError(Exception):
+    """Root of every error raised on purpose by olado."""
+
+
+class ConfigError(OladoError, ValueError):
+    """A configuration file or option is wrong; the message names file, section, key and the
+    allowed values or range where they are known."""
+
+    def __init__(self, message, file=None, section=None, key=None, allowed=None):
+        self.file, self.section, self.key, self.allowed = file, section, key, allowed
+        where = []
+        if file is not None:
+            where.append(f"file {file!s}")
+        if section is not None:
+            where.append(f"section [{section}]")
+        if key is not None:
+            where.append(f"key '{key}'")
+        text = message
+        if where:
+            text = ", ".join(where) + ": " + message
+        if allowed is not None:
+            text += f" (allowed: {allowed})"
+        super().__init__(text)
+
+
+class ProblemDefinitionError(OladoError, ValueError):
+    """A problem definition is inconsistent: wrong shapes or lengths, non-finite values returned
+    by a user function. The message names the function, the stage index and the array."""
+
+    def __init__(self, message, function=None, stage=None, array=None):
+        self.function, self.stage, self.array = function, stage, array
+        where = []
+        if function is not None:
+            where.append(f"{function}()")
+        if stage is not None:
+            where.append(f"stage k={stage}")
+        if array is not None:
+            where.append(f"array '{array}'")
+        text = message if not where else ", ".join(where) + ": " + message
+        super().__init__(text)
+
+
+class SolverError(OladoError, RuntimeError):
+    """A solver could not be set up or run (not: did not converge, which is a Result status)."""
+
+
+class SolverNotAvailableError(SolverError, ImportError):
+    """An optional solver backend is not installed; the message says how to install it."""
