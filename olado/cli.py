@@ -1,0 +1,236 @@
+"""The ``olado`` command line.
+
+    olado solve PROBLEM [--N N] [--start sif|balance] [--year Y] [--config INI]
+                        [--set section.key=value ...] [--save FILE.json] [--plot FILE.png] [--quiet]
+    olado list
+
+``solve`` builds a built-in problem (``olado list`` names them), prints its size (the counts of
+Table 1 of the paper), solves it and prints the result summary; ``--save`` writes the result
+(JSON + npz), ``--plot`` a figure. Problem settings come from the command line, else from the
+config's ``[problem]`` section, else the problem's defaults.
+
+Exit codes: 0 the solver converged (status success or acceptable); 1 it did not; 2 bad input (an
+unknown problem, a bad option or config file, a missing back-end): the message is printed to
+stderr without a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import sys
+
+EXIT_SUCCESS, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but usage errors raise instead of exiting (so ``main`` returns 2 itself)."""
+
+    def error(self, message):
+        raise _UsageError(self, message)
+
+
+class _UsageError(Exception):
+    def __init__(self, parser, message):
+        super().__init__(message)
+        self.parser = parser
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from . import __version__
+
+    parser = _Parser(prog="olado", description="Discrete-time optimal control problems: solve "
+                     "built-in problems and list what is available.")
+    parser.add_argument("--version", action="version", version=f"olado {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    p = sub.add_parser("solve", help="solve a built-in problem",
+                       description="Solve a built-in problem and print the result summary.")
+    p.add_argument("problem", nargs="?", metavar="PROBLEM",
+                   help="problem name (see 'olado list'); default: [problem] name of the config")
+    p.add_argument("--N", "-N", dest="N", type=int, metavar="N", help="horizon (number of stages)")
+    p.add_argument("--start", metavar="START", help="initial state of the reservoirs, e.g. sif or balance")
+    p.add_argument("--year", type=int, metavar="Y", help="hydrological year of the inflow data")
+    p.add_argument("--config", "-c", metavar="INI", help="solver configuration file (ini)")
+    p.add_argument("--solver", "-s", metavar="NAME", help="solver name (same as --set solver.name=NAME)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override one config value, e.g. --set ipopt.tol=1e-6 (repeatable)")
+    p.add_argument("--save", metavar="FILE.json", help="save the result (JSON + npz beside it)")
+    p.add_argument("--plot", metavar="FILE.png", help="save a plot of the solution")
+    p.add_argument("--quiet", "-q", action="store_true", help="print nothing but errors")
+
+    sub.add_parser("list", help="list the built-in problems and the solvers",
+                   description="List the built-in problems and the solvers.")
+    return parser
+
+
+# ---------------------------------------------------------------------------- problems
+def _problem_registry() -> dict:
+    from . import problems
+
+    registry = getattr(problems, "PROBLEMS", None)
+    if registry is None:
+        try:  # until olado.problems re-exports them
+            from .problems.zambezi import PROBLEMS as registry
+        except ImportError:
+            registry = {}
+    return dict(registry)
+
+
+def _first_line(obj) -> str:
+    doc = inspect.getdoc(obj) or ""
+    return doc.strip().splitlines()[0] if doc.strip() else ""
+
+
+def _build_problem(name, settings):
+    from .errors import ConfigError
+
+    registry = _problem_registry()
+    if name not in registry:
+        raise ConfigError(f"unknown problem {name!r}", allowed=", ".join(sorted(registry)) or "none")
+    factory = registry[name]
+    kwargs = {k: v for k, v in settings.items() if v is not None}
+    try:
+        params = inspect.signature(factory).parameters
+    except (TypeError, ValueError):
+        params = None
+    if params is not None and not any(p.kind is p.VAR_KEYWORD for p in params.values()):
+        unknown = [k for k in kwargs if k not in params]
+        if unknown:
+            raise ConfigError(f"problem {name!r} takes no setting {unknown[0]!r}", key=unknown[0],
+                              allowed=", ".join(k for k, p in params.items()
+                                                if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)))
+    try:
+        return factory(**kwargs)
+    except ValueError as exc:  # a factory rejecting a bad N, start or year
+        from .errors import OladoError
+
+        if isinstance(exc, OladoError):
+            raise
+        raise ConfigError(f"problem {name!r}: {exc}") from None
+
+
+def _counts_line(problem) -> str:
+    """One line with the sizes of Table 1: variables, equality and inequality constraints."""
+    dims = f"n={problem.n}, m={problem.m}, N={problem.N}"
+    try:
+        from .problems import StructuredNLP
+
+        counts = StructuredNLP(problem).counts()
+    except Exception as exc:  # counting is informative only
+        return f"problem {getattr(problem, 'name', type(problem).__name__)} ({dims}); counts unavailable: {exc}"
+    parts = ", ".join(f"{k} {counts[k]}" for k in ("variables", "equalities", "inequalities")
+                      if k in counts)
+    return f"problem {getattr(problem, 'name', type(problem).__name__)} ({dims}): {parts}"
+
+
+# ---------------------------------------------------------------------------- commands
+def _cmd_solve(args) -> int:
+    from .config import load_config, make_solver
+    from .errors import ConfigError
+
+    overrides = list(args.overrides)
+    if args.solver:
+        overrides.append(f"solver.name={args.solver}")
+    config = load_config(args.config, overrides)
+    settings = dict(config.problem)
+    name = args.problem or settings.pop("name", None)
+    settings.pop("name", None)
+    if not name:
+        raise ConfigError("no problem given: name one (see 'olado list') or set [problem] name",
+                          file=config.source if args.config else None)
+    for key in ("N", "start", "year"):
+        value = getattr(args, key)
+        if value is not None:
+            settings[key] = value
+    if "N" in settings and settings["N"] < 1:
+        raise ConfigError(f"N must be >= 1, got {settings['N']}", key="N", allowed=">= 1")
+    problem = _build_problem(name, settings)
+    solver = make_solver(config)
+    verbose = getattr(solver.options, "verbose", 0)
+    if args.quiet and verbose:
+        solver.options.verbose = 0
+        verbose = 0
+    if not args.quiet:
+        print(_counts_line(problem))
+        print(f"solver {config.solver} (config: {config.source})", flush=True)
+    result = solver.solve(problem)
+    if not args.quiet and verbose < 1:  # with verbose >= 1 the solver printed the summary itself
+        print(result.summary())
+    if args.save:
+        path = result.save(args.save)
+        if not args.quiet:
+            print(f"saved result to {path} (+ {path.with_suffix('.npz').name})")
+    if args.plot:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        fig = result.plot(args.plot, problem=problem)
+        try:
+            import matplotlib.pyplot as plt
+
+            plt.close(fig)
+        except Exception:
+            pass
+        if not args.quiet:
+            print(f"saved plot to {args.plot}")
+    return EXIT_SUCCESS if result.success else EXIT_NOT_CONVERGED
+
+
+def _cmd_list(args) -> int:
+    from .config import solver_available
+    from .solvers.registry import available_solvers
+
+    problems = _problem_registry()
+    print("problems:")
+    if not problems:
+        print("  (none registered)")
+    width = max([len(n) for n in problems] + [8])
+    for name in sorted(problems):
+        print(f"  {name:<{width}}  {_first_line(problems[name])}".rstrip())
+    solvers = available_solvers()
+    print("solvers:")
+    width = max([len(n) for n in solvers] + [8])
+    for name in sorted(solvers):
+        cls = solvers[name]
+        text = getattr(cls, "description", "") or _first_line(cls)
+        mark = "" if solver_available(cls) else "  [not installed"
+        if mark:
+            hint = getattr(cls, "install_hint", None) or (
+                "pip install 'olado[ipopt]'" if name == "ipopt" else None)
+            mark += f": {hint}]" if hint else "]"
+        print(f"  {name:<{width}}  {text}{mark}".rstrip())
+    return EXIT_SUCCESS
+
+
+def main(argv=None) -> int:
+    """Run the command line; returns the exit code (0 converged, 1 not converged, 2 bad input)."""
+    from .errors import OladoError
+
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except _UsageError as exc:
+        exc.parser.print_usage(sys.stderr)
+        print(f"{exc.parser.prog}: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if args.command is None:
+        parser.print_help(sys.stderr)
+        return EXIT_BAD_INPUT
+    try:
+        if args.command == "solve":
+            return _cmd_solve(args)
+        return _cmd_list(args)
+    except OladoError as exc:
+        print(f"olado: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except OSError as exc:  # e.g. --save/--plot into a folder that cannot be written
+        print(f"olado: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("olado: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
