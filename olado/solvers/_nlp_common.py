@@ -1,0 +1,303 @@
+"""Shared machinery of the solvers that work on the NLP view (paper 001 sec. 4.1, eq. (6)).
+
+External NLP solvers (IPOPT, SciPy's SLSQP and trust-constr) see only
+:class:`olado.problems.nlp.StructuredNLP`:
+
+    min_y J(y)  s.t.  cl <= c(y) <= cu,  lb <= y <= ub,     y = (x^0, u^0, ..., x^N).     (6)
+
+This module holds what they have in common, written once:
+
+* :class:`TimedNLP` -- counts and times every evaluation a back-end asks for (the share of the
+  solve time spent in olado's Python callbacks is reported as ``info["callback_share"]``);
+* :class:`FreeVariableNLP` -- the NLP with fixed variables (lb == ub, e.g. x^0) removed, for the
+  SciPy methods that do not handle them;
+* the KKT quantities at a point and :func:`build_result`, which turns y and multipliers into a
+  :class:`~olado.result.Result`.
+
+Multiplier sign convention (the one of IPOPT and of ``StructuredNLP.hessian``): with
+``lam`` for the constraints c and ``z_L, z_U >= 0`` for the variable bounds,
+
+    grad J(y) + Jc(y)^T lam - z_L + z_U = 0,                                             (28)
+
+i.e. the Lagrangian is L = J + lam . c - z_L . (y - lb) - z_U . (ub - y). For an active
+inequality ``g >= 0`` the multiplier is therefore <= 0; for the dynamics h = f - x^{k+1} = 0 the
+multiplier of stage k is the costate p^{k+1} of the discrete maximum principle with that sign.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from ..errors import ProblemDefinitionError
+from ..result import Result
+
+#: the evaluation kinds a back-end may ask for, in the order they are reported
+EVALUATION_KINDS = ("objective", "gradient", "constraints", "jacobian", "hessian")
+
+MULTIPLIER_CONVENTION = ("grad J + Jc^T lam - z_L + z_U = 0 (IPOPT's sign convention); "
+                         "inequality multipliers of active g >= 0 are <= 0, z_L, z_U >= 0")
+
+
+def make_nlp(problem):
+    """The NLP view of ``problem`` (imported late: problems know nothing of solvers)."""
+    from ..problems.nlp import StructuredNLP
+
+    return StructuredNLP(problem)
+
+
+def is_nonfinite_error(exc) -> bool:
+    """True for a ProblemDefinitionError about a non-finite value (an evaluation failure at a
+    trial point, which a line search can recover from), False for a definition bug."""
+    return isinstance(exc, ProblemDefinitionError) and "non-finite" in str(exc)
+
+
+class TimedNLP:
+    """Counts and times the evaluations of a StructuredNLP.
+
+    ``counts[kind]`` is the number of calls of each kind in :data:`EVALUATION_KINDS`;
+    ``time_s`` the wall time spent inside them (olado's Python side of the solve)."""
+
+    def __init__(self, nlp):
+        self.nlp = nlp
+        self.counts = {k: 0 for k in EVALUATION_KINDS}
+        self.time_s = 0.0
+        self._jac_structure = None
+        self._hess_structure = None
+
+    # the five evaluations, each counted and timed
+    def _timed(self, kind, fn, *args):
+        t0 = time.perf_counter()
+        try:
+            return fn(*args)
+        finally:
+            self.time_s += time.perf_counter() - t0
+            self.counts[kind] += 1
+
+    def objective(self, y):
+        return float(self._timed("objective", self.nlp.objective, y))
+
+    def gradient(self, y):
+        return self._timed("gradient", self.nlp.gradient, y)
+
+    def constraints(self, y):
+        return self._timed("constraints", self.nlp.constraints, y)
+
+    def jacobian(self, y):
+        return self._timed("jacobian", self.nlp.jacobian, y)
+
+    def hessian(self, y, lagrange, obj_factor):
+        return self._timed("hessian", self.nlp.hessian, y, lagrange, obj_factor)
+
+    # fixed sparsity patterns (computed once; timed, not counted)
+    def jacobian_structure(self):
+        if self._jac_structure is None:
+            t0 = time.perf_counter()
+            rows, cols = self.nlp.jacobian_structure()
+            self._jac_structure = (np.asarray(rows, dtype=np.int64), np.asarray(cols, dtype=np.int64))
+            self.time_s += time.perf_counter() - t0
+        return self._jac_structure
+
+    def hessian_structure(self):
+        if self._hess_structure is None:
+            t0 = time.perf_counter()
+            rows, cols = self.nlp.hessian_structure()
+            rows, cols = np.asarray(rows, dtype=np.int64), np.asarray(cols, dtype=np.int64)
+            if np.any(rows < cols):
+                raise ProblemDefinitionError("the NLP Hessian structure must be the lower triangle (row >= col)",
+                                             function="hessian_structure")
+            self._hess_structure = (rows, cols)
+            self.time_s += time.perf_counter() - t0
+        return self._hess_structure
+
+    # sparse matrices (CSR; the Hessian full and symmetric), counted as one evaluation each
+    def jacobian_matrix(self, y):
+        return self._timed("jacobian", self.nlp.jacobian_matrix, y)
+
+    def hessian_matrix(self, y, lagrange, obj_factor):
+        return self._timed("hessian", self.nlp.hessian_matrix, y, lagrange, obj_factor)
+
+
+def jacobian_matrix(nlp, y):
+    """Sparse constraint Jacobian of a plain StructuredNLP (not counted)."""
+    return nlp.jacobian_matrix(y)
+
+
+class FreeVariableNLP:
+    """The NLP restricted to its free variables: y = y_fixed + P z, where the fixed variables
+    (lb == ub, e.g. x^0) are held at their bound. Used by SciPy's methods, for which equal
+    bounds are either unsupported (trust-constr's barrier) or wasteful."""
+
+    def __init__(self, timed: TimedNLP):
+        self.timed = timed
+        self.lb, self.ub = (np.asarray(a, dtype=float) for a in timed.nlp.variable_bounds())
+        self.cl, self.cu = (np.asarray(a, dtype=float) for a in timed.nlp.constraint_bounds())
+        self.fixed = self.lb == self.ub
+        self.free = ~self.fixed
+        self.n_free = int(self.free.sum())
+        self._template = np.where(self.fixed, self.lb, 0.0)
+        self._cache_y = None
+
+    def full(self, z):
+        y = self._template.copy()
+        y[self.free] = z
+        return y
+
+    def reduce(self, y):
+        return np.asarray(y, dtype=float)[self.free]
+
+    def bounds(self):
+        return self.lb[self.free], self.ub[self.free]
+
+    def objective(self, z):
+        return self.timed.objective(self.full(z))
+
+    def gradient(self, z):
+        return np.asarray(self.timed.gradient(self.full(z)), dtype=float)[self.free]
+
+    def constraints(self, z):
+        return np.asarray(self.timed.constraints(self.full(z)), dtype=float)
+
+    def jacobian(self, z):
+        """Sparse (n_cons, n_free) Jacobian."""
+        return self.timed.jacobian_matrix(self.full(z))[:, self.free]
+
+    def hessian(self, z, lagrange, obj_factor):
+        """Sparse symmetric (n_free, n_free) Lagrangian Hessian."""
+        H = self.timed.hessian_matrix(self.full(z), lagrange, obj_factor)
+        return H[self.free][:, self.free]
+
+
+# ---------------------------------------------------------------------------- KKT quantities
+def stationarity_residual(grad, jac, lam, zl, zu):
+    """grad J + Jc^T lam - z_L + z_U (eq. (28) with bound multipliers)."""
+    r = np.asarray(grad, dtype=float).copy()
+    if jac.shape[0]:
+        r += jac.T @ lam
+    return r - zl + zu
+
+
+def bound_multipliers_from_residual(r, y, lb, ub, *, tol, only=None):
+    """Bound multipliers that cancel the residual r = grad J + Jc^T lam where a bound is active.
+
+    On a variable at its lower bound z_L = max(r, 0), at its upper bound z_U = max(-r, 0); fixed
+    variables (lb == ub) take the whole residual. ``only`` restricts the update to a mask."""
+    n = y.size
+    zl, zu = np.zeros(n), np.zeros(n)
+    scale = 1.0 + np.abs(np.where(np.isfinite(lb), lb, 0.0))
+    at_lo = np.isfinite(lb) & (y - lb <= tol * scale)
+    scale = 1.0 + np.abs(np.where(np.isfinite(ub), ub, 0.0))
+    at_hi = np.isfinite(ub) & (ub - y <= tol * scale)
+    if only is not None:
+        at_lo &= only
+        at_hi &= only
+    zl[at_lo] = np.maximum(r[at_lo], 0.0)
+    zu[at_hi] = np.maximum(-r[at_hi], 0.0)
+    return zl, zu
+
+
+def fill_fixed_bound_multipliers(nlp, y, lam, zl, zu, grad=None, jac=None):
+    """Give the fixed variables (lb == ub) bound multipliers that make eq. (28) hold there.
+
+    A fixed variable's multiplier is free in sign; it is split into z_L (positive part) and z_U.
+    Returns new (zl, zu)."""
+    lb, ub = (np.asarray(a, dtype=float) for a in nlp.variable_bounds())
+    fixed = lb == ub
+    zl, zu = np.array(zl, dtype=float), np.array(zu, dtype=float)
+    if not fixed.any():
+        return zl, zu
+    grad = np.asarray(nlp.gradient(y), dtype=float) if grad is None else grad
+    jac = jacobian_matrix(nlp, y) if jac is None else jac
+    r = stationarity_residual(grad, jac, lam, np.zeros_like(zl), np.zeros_like(zu))
+    zl[fixed] = np.maximum(r[fixed], 0.0)
+    zu[fixed] = np.maximum(-r[fixed], 0.0)
+    return zl, zu
+
+
+def stage_multipliers(nlp, lam, zl, zu) -> dict:
+    """The Result's multipliers dictionary, per stage (sign convention: module docstring).
+
+    ``dynamics`` (N, n), ``stage_constraints`` (N, r), ``final_constraints`` (rN,), and the bound
+    multipliers ``bound_lower_x`` / ``bound_upper_x`` (N+1, n), ``bound_lower_u`` /
+    ``bound_upper_u`` (N, m) (shaped like X and U; nonnegative)."""
+    parts = nlp.multipliers_to_stages(np.asarray(lam, dtype=float))
+    out = {
+        "dynamics": np.asarray(parts["dynamics"], dtype=float),
+        "stage_constraints": np.asarray(parts.get("stage", parts.get("stage_constraints")), dtype=float),
+        "final_constraints": np.asarray(parts.get("final", parts.get("final_constraints")), dtype=float),
+    }
+    Xl, Ul = nlp.unpack(np.asarray(zl, dtype=float))
+    Xu, Uu = nlp.unpack(np.asarray(zu, dtype=float))
+    out.update(bound_lower_x=np.asarray(Xl), bound_lower_u=np.asarray(Ul),
+               bound_upper_x=np.asarray(Xu), bound_upper_u=np.asarray(Uu))
+    return out
+
+
+def build_result(*, nlp, y, lam, zl, zu, status, message, iterations, history, timed,
+                 solve_time_s, objective=None, constraints=None, kkt_residual=None,
+                 kkt_note="", info=None, fill_fixed=True) -> Result:
+    """Assemble the Result of an NLP-view solver at the point y with multipliers (lam, zl, zu).
+
+    The constraint violation is computed here (max norm over c and the variable bounds). The KKT
+    residual, unless the caller gives one, is the unscaled max-norm of eq. (28) at the returned
+    point and multipliers. These after-the-fact evaluations use the plain NLP: they are not part
+    of the solver's evaluation counts or callback time."""
+    y = np.asarray(y, dtype=float)
+    lam = np.asarray(lam, dtype=float).reshape(-1)
+    c = np.asarray(nlp.constraints(y) if constraints is None else constraints, dtype=float)
+    grad = np.asarray(nlp.gradient(y), dtype=float)
+    jac = jacobian_matrix(nlp, y)
+    if fill_fixed:
+        zl, zu = fill_fixed_bound_multipliers(nlp, y, lam, zl, zu, grad=grad, jac=jac)
+    zl, zu = np.asarray(zl, dtype=float), np.asarray(zu, dtype=float)
+    residual = stationarity_residual(grad, jac, lam, zl, zu)
+    own_kkt = float(np.max(np.abs(residual), initial=0.0))
+    if kkt_residual is None:
+        kkt_residual = own_kkt
+        kkt_note = kkt_note or "unscaled max-norm of grad J + Jc^T lam - z_L + z_U at the returned point (olado)"
+    X, U = nlp.unpack(y)
+    obj = float(nlp.objective(y)) if objective is None else float(objective)
+    counts = timed.counts
+    info = dict(info or {})
+    info.update(
+        callback_time_s=timed.time_s,
+        solve_time_s=solve_time_s,
+        callback_share=(timed.time_s / solve_time_s) if solve_time_s > 0 else float("nan"),
+        kkt_residual_kind=kkt_note,
+        stationarity_residual=own_kkt,
+        multiplier_convention=MULTIPLIER_CONVENTION,
+    )
+    try:
+        info["nlp"] = {k: (int(v) if isinstance(v, (int, np.integer)) else v) for k, v in dict(nlp.counts()).items()}
+    except Exception:  # pragma: no cover - counts() is informative only
+        pass
+    return Result(
+        status=status,
+        message=message,
+        objective=obj,
+        x=np.asarray(X, dtype=float),
+        u=np.asarray(U, dtype=float),
+        multipliers=stage_multipliers(nlp, lam, zl, zu),
+        max_constraint_violation=float(nlp.max_violation(y, c)),
+        kkt_residual=None if kkt_residual is None else float(kkt_residual),
+        iterations=int(iterations),
+        evaluations={k: int(counts[k]) for k in EVALUATION_KINDS},
+        history=list(history),
+        info=info,
+    )
+
+
+class Deadline:
+    """Wall-clock limit helper: ``expired()`` after ``max_time`` seconds from construction."""
+
+    def __init__(self, max_time):
+        self.t0 = time.perf_counter()
+        self.max_time = float(max_time)
+
+    def elapsed(self):
+        return time.perf_counter() - self.t0
+
+    def expired(self):
+        return math.isfinite(self.max_time) and self.elapsed() >= self.max_time
