@@ -1,0 +1,511 @@
+"""The Zambezi reservoir system benchmark of paper 001 sec. 5 (eqs. (40)-(47), Fig. 3, Table 1).
+
+Four reservoirs with hydropower stations on the Zambezi river (Arnold, Tatjewski and
+Wolochowicz, JOTA 81(1994) 221-248), in the form of the CUTEr test problems ZAMB2*.SIF
+(E. Arnold, 1996); the numbers live in ``data/zambezi.json`` (written by
+``tools/extract_zambezi.py``). Monthly stages, k = 0..N-1, N a multiple of 12, the horizon
+starting in January of the start year.
+
+States (n = 6) and controls (m = 7, in the SIF's variable order)::
+
+    x = (V1, V2, V3, V4, F2(k-1), F2(k-2))      volumes [km^3]; delayed spillage of reservoir 2
+    u = (Q1, Q3, Q4, F1, F2, F3, F4)            turbine outflows Q_i, spillages F_i
+
+Reservoir 2 has no power station: its only outflow is F2, which reaches reservoir 3 two months
+later (the delay theta_2 = 2 of eq. (40), realised by the states x5, x6); reservoir 4 receives
+Q1 + F1 + Q3 + F3 without delay. Balance equations (eq. (40); SIF groups SE1..SE4)::
+
+    V1+ = V1 + Z1 - Q1 - F1                     - E1(mo) fa1(V1)
+    V2+ = V2 + Z2 - F2                          - E1(mo) fa2(V2)
+    V3+ = V3 + Z3 + F2(k-2) - Q3 - F3           - E1(mo) fa3(V3)
+    V4+ = V4 + Z4 + Q1 + F1 + Q3 + F3 - Q4 - F4 - E4(mo) fa4(V4)
+    F2(k-1)+ = F2,  F2(k-2)+ = F2(k-1)
+
+with fa_i(V) = A V^2 + B V + C, mo = k mod 12 the calendar month, Z_i the inflows IN1, IN2, IN3
+(constant), IN4 of record month j = (year - 1930)*12 + k. Note that, as in the SIF's GROUP USES,
+reservoirs 2 and 3 use the evaporation coefficients E1 of reservoir 1.
+
+Cost (eq. (44), exactly the SIF objective including its scaling; see :class:`Zambezi`)::
+
+    J = sum_k [ -alpha (Q1 (h1(V1)+h1(V1+)) + Q3 (h3(V3)+h3(V3+)) + Q4 (h4(V4)+h4(V4+)))
+                + psi ((Q1-Q1ref)^2 + (F2-F2ref)^2 + (Q3-Q3ref)^2 + (Q4-Q4ref)^2) ]
+        + sum_i phi_i (V_i(N) - V_i,ref)^2 - nu_E sum_i fe_i(V_i(N))
+
+where V_i+ is replaced by the right-hand side of the balance equation ("if only the volume
+V^{k+1} in the water-level term of the cost function is replaced by the right-hand side of the
+balance equation", paper 001 sec. 5), so that f_0^k depends on (x^k, u^k) only.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+
+import numpy as np
+
+from ..errors import ProblemDefinitionError
+from .docp import DOCP
+
+DATA_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "zambezi.json")
+
+STATE_NAMES = ("V1", "V2", "V3", "V4", "F2(k-1)", "F2(k-2)")
+CONTROL_NAMES = ("Q1", "Q3", "Q4", "F1", "F2", "F3", "F4")
+
+#: families of paper 001 sec. 5 and their default start years
+FAMILIES = ("zambezi", "zambezi8", "zambezi9", "zambezi10", "zambezi11", "zambezi12")
+
+_DATA_CACHE = {}
+
+
+def load_data(path=None):
+    """The extracted ZAMB2 numbers (dict, see ``tools/extract_zambezi.py``), cached."""
+    path = os.path.abspath(path or DATA_PATH)
+    if path not in _DATA_CACHE:
+        with open(path, encoding="utf-8") as fh:
+            _DATA_CACHE[path] = json.load(fh)
+    return _DATA_CACHE[path]
+
+
+# linear parts of the state equation: f = Lx x + Lu u + [Z - e fa(V), 0, 0]
+_LX = np.zeros((6, 6))
+_LX[[0, 1, 2, 3], [0, 1, 2, 3]] = 1.0
+_LX[2, 5] = 1.0            # reservoir 3 receives F2(k-2)
+_LX[5, 4] = 1.0            # F2(k-2)+ = F2(k-1)
+_LU = np.zeros((6, 7))
+_LU[0, [0, 3]] = -1.0      # Q1, F1 leave reservoir 1
+_LU[1, 4] = -1.0           # F2 leaves reservoir 2
+_LU[2, [1, 5]] = -1.0      # Q3, F3 leave reservoir 3
+_LU[3, [0, 3, 1, 5]] = 1.0  # ... and enter reservoir 4
+_LU[3, [2, 6]] = -1.0      # Q4, F4 leave reservoir 4
+_LU[4, 4] = 1.0            # F2(k-1)+ = F2
+#: reservoirs with a power station (0-based) and the column of their turbine flow in w = (x, u)
+_TURBINE_RES = np.array([0, 2, 3])
+_TURBINE_COL = np.array([6, 7, 8])   # Q1, Q3, Q4
+#: controls in the reference-outflow term (SIF groups F0Q1, F0F2, F0Q3, F0Q4), columns of u
+_REF_U = np.array([0, 4, 1, 2])
+
+
+class Zambezi(DOCP):
+    """Zambezi reservoir DOCP, paper 001 eqs. (40)-(44), vectorized with analytic first and
+    second derivatives.
+
+    Parameters
+    ----------
+    family : one of ``FAMILIES`` (paper 001 sec. 5): ``zambezi`` = ZAMB2.SIF (start 1931),
+        ``zambezi8`` = ZAMB2-8 (1948), ``zambezi9`` = ZAMB2-9 (1960), ``zambezi10`` = ZAMB2-10
+        (1960), ``zambezi11`` = ZAMB2-11 (1930), ``zambezi12`` = ZAMB2-10's parameters with the
+        reference-outflow term removed (PSI = 0), start 1945.
+    N : horizon in months; a positive multiple of 12.
+    start : initial control trajectory returned by :meth:`initial_guess`: ``"balance"``
+        (eqs. (46)-(47), see :meth:`balance_start`) or ``"sif"`` (the SIF START POINT).
+    year : start year (January); default the family's. 1930 <= year <= 1965.
+    extend : ``"cyclic"`` lets the horizon run past December 1965 by continuing with January
+        1930 (the 36-year inflow record 1930-1965 repeated; months stay aligned because the
+        record has 432 = 36*12 months). This is for scaling studies (N = 1200, 12000, 120000);
+        it is not historical data. ``None`` forbids N beyond the record.
+
+    Scaling of the objective (SIF 'SCALE'): a SIF group with scale factor s contributes
+    g/s to the objective. The SIF sets ALFA, PHI, PSI, VE := value*SC, SPSI = 1/PSI,
+    SPHI = 1/PHI, SPHI3 = 1/(PHI*PHI3), and scales the groups F0Q*, V*END by SPSI, SPHI, SPHI3;
+    so the weights of eq. (44) are psi = PSI*SC, phi_i = PHI*SC (phi_3 = PHI*PHI3*SC),
+    nu_E = VE*SC, alpha = ALFA*SC. Dividing by the scale is what makes the SIF's terms equal
+    the weights psi, phi of eq. (44); multiplying would give 1/psi.
+
+    Bounds (eqs. (41)-(43)): volume bounds at every stage k = 0..N (the SIF bounds V(1..N) and
+    fixes V(0) = V0, which lies inside them); the delayed-F2 states are unbounded; control
+    bounds per stage with the monthly lower bound of F2 (nonstationary ``u_lower``).
+    """
+
+    name = "zambezi"
+    vectorized = True
+    state_names = STATE_NAMES
+    control_names = CONTROL_NAMES
+
+    def __init__(self, family="zambezi12", N=24, start="balance", year=None, extend="cyclic",
+                 *, data=None, **docp_options):
+        d = data if isinstance(data, dict) else load_data(data)
+        if family not in d["families"]:
+            raise ProblemDefinitionError(
+                f"unknown Zambezi family {family!r}; choose one of {', '.join(d['families'])}",
+                function="Zambezi", array="family")
+        fam = d["families"][family]
+        first, months = int(d["first_year"]), int(d["record_months"])
+        last = first + months // 12 - 1
+        if year is None:
+            year = fam["YEAR"]
+        if isinstance(year, bool) or not isinstance(year, (int, np.integer)) or not first <= year <= last:
+            raise ProblemDefinitionError(
+                f"start year must be an integer in {first}..{last} (the inflow record), got {year!r}",
+                function="Zambezi", array="year")
+        if extend not in ("cyclic", None):
+            raise ProblemDefinitionError(f"extend must be 'cyclic' or None, got {extend!r}",
+                                         function="Zambezi", array="extend")
+        max_N = 12 * (last + 1 - int(year))
+        if isinstance(N, bool) or not isinstance(N, (int, np.integer)) or N <= 0 or N % 12:
+            raise ProblemDefinitionError(
+                f"N must be a positive multiple of 12 (whole years: the F2 lower bound and the "
+                f"evaporation are monthly and the horizon starts in January), got N={N!r}",
+                function="Zambezi", array="N")
+        if extend is None and N > max_N:
+            raise ProblemDefinitionError(
+                f"N={N} months from January {year} runs past the inflow record (1930-1965); "
+                f"N <= {max_N} for this start year, or use extend='cyclic' to repeat the record",
+                function="Zambezi", array="N")
+        if start not in ("balance", "sif"):
+            raise ProblemDefinitionError(f"start must be 'balance' or 'sif', got {start!r}",
+                                         function="Zambezi", array="start")
+        N = int(N)
+        self.family, self.start_year, self.extend, self.start = family, int(year), extend, start
+        self.max_N = max_N
+        self.params = dict(fam)
+        SC = fam["SC"]
+        #: weights of eq. (44) after the SIF scaling (see the class docstring)
+        self.alpha = fam["ALFA"] * SC
+        self.psi = fam["PSI"] * SC
+        self.nu_E = fam["VE"] * SC
+        self.phi = np.array([1.0, 1.0, fam["PHI3"], 1.0]) * fam["PHI"] * SC
+        self.V_ref = np.array([fam[f"V{i}REF"] for i in (1, 2, 3, 4)])
+        self.u_ref = np.array([fam["Q1REF"], fam["F2REF"], fam["Q3REF"], fam["Q4REF"]])  # _REF_U order
+        el = d["elements"]
+        abc = lambda kind, ids: np.array([[el[kind][str(i)][c] for c in "ABC"] for i in ids]).T  # noqa: E731
+        self.fa = abc("FA", (1, 2, 3, 4))        # (3, 4): rows A, B, C
+        self.fe = abc("FE", (1, 2, 3, 4))
+        self.fh = abc("FHQ", (1, 3, 4))          # (3, 3) for reservoirs 1, 3, 4
+
+        # stage data: record month j, calendar month, inflow Z (N, 4), evaporation e (N, 4)
+        k = np.arange(N)
+        self.record_index = ((self.start_year - first) * 12 + k) % months
+        self.month = k % 12
+        rec = d["record"]
+        self.inflow = np.column_stack([np.asarray(rec["IN1"])[self.record_index],
+                                       np.asarray(rec["IN2"])[self.record_index],
+                                       np.full(N, rec["IN3"]),
+                                       np.asarray(rec["IN4"])[self.record_index]])
+        E1 = np.asarray(d["evaporation"]["E1"])[self.month]
+        E4 = np.asarray(d["evaporation"]["E4"])[self.month]
+        self.evaporation = np.column_stack([E1, E1, E1, E4])
+
+        b = d["bounds"]
+        lo = lambda nm: -np.inf if b[nm][0] is None else b[nm][0]  # noqa: E731
+        hi = lambda nm: np.inf if b[nm][1] is None else b[nm][1]   # noqa: E731
+        x_lo = np.array([lo(f"V{i}") for i in (1, 2, 3, 4)] + [-np.inf, -np.inf])
+        x_hi = np.array([hi(f"V{i}") for i in (1, 2, 3, 4)] + [np.inf, np.inf])
+        u_lo = np.tile([lo(nm) for nm in CONTROL_NAMES], (N, 1))
+        u_hi = np.tile([hi(nm) for nm in CONTROL_NAMES], (N, 1))
+        u_lo[:, 4] = np.asarray(b["F2_lower_by_month"])[self.month]
+        x0 = np.array([fam["V10"], fam["V20"], fam["V30"], fam["V40"], fam["F2REF"], fam["F2REF"]])
+        super().__init__(6, 7, N, x0, x_bounds=(x_lo, x_hi), u_bounds=(u_lo, u_hi), **docp_options)
+        self.name = family
+        self._start_U = self.balance_start() if start == "balance" else self.sif_start()
+
+    # ------------------------------------------------------------------ helpers
+    @staticmethod
+    def _quad(c, V):
+        """A V^2 + B V + C, its first and second derivative; c is (3, r), V is (K, r)."""
+        A, B, C = c
+        return (A * V + B) * V + C, 2.0 * A * V + B, np.broadcast_to(2.0 * A, V.shape)
+
+    def _next_volumes(self, k, x, u):
+        """V^{k+1} (K, 4) of eq. (40), its derivative dV+/dV_i (diagonal, (K, 4)) and the
+        diagonal second derivative (K, 4)."""
+        V = x[:, :4]
+        fa, dfa, d2fa = self._quad(self.fa, V)
+        e = self.evaporation[k]
+        Vn = x @ _LX[:4].T + u @ _LU[:4].T + self.inflow[k] - e * fa
+        return Vn, 1.0 - e * dfa, -e * d2fa
+
+    # ------------------------------------------------------------------ DOCP functions
+    def dynamics(self, k, x, u):
+        """f^k(x, u) of eq. (40) plus the delay states, all stages at once, (K, 6)."""
+        Vn = self._next_volumes(k, x, u)[0]
+        return np.column_stack([Vn, u[:, 4], x[:, 4]])
+
+    def dynamics_jacobian(self, k, x, u):
+        """(f_x (K, 6, 6), f_u (K, 6, 7)) of eq. (40)."""
+        K = x.shape[0]
+        dV = self._next_volumes(k, x, u)[1]
+        fx = np.broadcast_to(_LX, (K, 6, 6)).copy()
+        idx = np.arange(4)
+        fx[:, idx, idx] = dV
+        return fx, np.broadcast_to(_LU, (K, 6, 7)).copy()
+
+    def _stage_parts(self, k, x, u):
+        K = x.shape[0]
+        Vn, dVn_dV, d2Vn = self._next_volumes(k, x, u)
+        J = np.concatenate([np.broadcast_to(_LX[:4], (K, 4, 6)),
+                            np.broadcast_to(_LU[:4], (K, 4, 7))], axis=2).copy()   # dV+/dw, w=(x,u)
+        idx = np.arange(4)
+        J[:, idx, idx] = dVn_dV
+        r = _TURBINE_RES
+        V, Vr = x[:, r], Vn[:, r]
+        h, dh, d2h = self._quad(self.fh, V)
+        hn, dhn, d2hn = self._quad(self.fh, Vr)
+        Q = u[:, [0, 1, 2]]
+        return K, Vn, J, d2Vn, V, Vr, h, dh, d2h, hn, dhn, d2hn, Q
+
+    def stage_cost(self, k, x, u):
+        """f_0^k of eq. (44) with V^{k+1} replaced by the balance equation, (K,)."""
+        V = x[:, _TURBINE_RES]
+        Vn = self._next_volumes(k, x, u)[0][:, _TURBINE_RES]
+        Q = u[:, [0, 1, 2]]
+        energy = np.sum(Q * (self._quad(self.fh, V)[0] + self._quad(self.fh, Vn)[0]), axis=1)
+        dev = u[:, _REF_U] - self.u_ref
+        return -self.alpha * energy + self.psi * np.sum(dev * dev, axis=1)
+
+    def stage_cost_gradient(self, k, x, u):
+        """(l_x (K, 6), l_u (K, 7)) of the stage cost."""
+        K, Vn, J, d2Vn, V, Vr, h, dh, d2h, hn, dhn, d2hn, Q = self._stage_parts(k, x, u)
+        g = np.zeros((K, 13))
+        r = _TURBINE_RES
+        # d/dw [Q (h(V) + h(V+))] = e_Q (h + h+) + Q h'(V) e_V + Q h'(V+) dV+/dw
+        g += np.einsum("kr,krw->kw", Q * dhn, J[:, r, :])
+        g[:, r] += Q * dh
+        g[:, _TURBINE_COL] += h + hn
+        g *= -self.alpha
+        g[:, 6 + _REF_U] += 2.0 * self.psi * (u[:, _REF_U] - self.u_ref)
+        return g[:, :6], g[:, 6:]
+
+    def stage_hessian(self, k, x, u, sigma, p, lam):
+        """Blocks of the Hessian of sigma*f_0^k + p.f^k (no stage constraints), all stages."""
+        K, Vn, J, d2Vn, V, Vr, h, dh, d2h, hn, dhn, d2hn, Q = self._stage_parts(k, x, u)
+        r = _TURBINE_RES
+        Jr = J[:, r, :]                                    # (K, 3, 13) dV+_r/dw
+        # a_r = dh/dw of h(V_r) + h(V+_r): h'(V) e_V + h'(V+) dV+/dw
+        a = dhn[:, :, None] * Jr
+        a[:, [0, 1, 2], r] += dh
+        H = np.zeros((K, 13, 13))
+        cols = _TURBINE_COL
+        for i in range(3):   # three turbines (fixed size, not a loop over stages)
+            H[:, cols[i], :] += a[:, i, :]
+            H[:, :, cols[i]] += a[:, i, :]
+        # Q (h''(V) e_V e_V^T + h''(V+) dV+ dV+^T + h'(V+) d2V+)
+        H += np.einsum("kr,kri,krj->kij", Q * d2hn, Jr, Jr)
+        H[:, r, r] += Q * d2h + Q * dhn * d2Vn[:, r]
+        H *= -self.alpha
+        refc = 6 + _REF_U
+        H[:, refc, refc] += 2.0 * self.psi
+        sig = np.asarray(sigma, dtype=float).reshape(-1, 1, 1) if np.ndim(sigma) else float(sigma)
+        H = sig * H
+        idx = np.arange(4)
+        H[:, idx, idx] += p[:, :4] * d2Vn               # p . f^k: only the evaporation terms
+        return H[:, :6, :6], H[:, :6, 6:], H[:, 6:, 6:]
+
+    def final_cost(self, x):
+        """F^N = sum_i phi_i (V_i - V_i,ref)^2 - nu_E sum_i fe_i(V_i), eq. (44)."""
+        V = x[:4]
+        dev = V - self.V_ref
+        A, B, C = self.fe
+        return float(np.sum(self.phi * dev * dev) - self.nu_E * np.sum((A * V + B) * V + C))
+
+    def final_cost_gradient(self, x):
+        V = x[:4]
+        A, B, _ = self.fe
+        g = np.zeros(6)
+        g[:4] = 2.0 * self.phi * (V - self.V_ref) - self.nu_E * (2.0 * A * V + B)
+        return g
+
+    def final_hessian(self, x, sigma, lam):
+        H = np.zeros((6, 6))
+        idx = np.arange(4)
+        H[idx, idx] = sigma * (2.0 * self.phi - self.nu_E * 2.0 * self.fe[0])
+        return H
+
+    def simulate(self, U):
+        """States X (N+1, 6) from x^0 under controls U, eq. (40): the same recursion as
+        :meth:`DOCP.simulate`, with the stage data precomputed, for long horizons."""
+        U = self.check_array(U, (self.N, self.m), "simulate", "u")
+        self.counters["dynamics"] += 1
+        N = self.N
+        # everything that does not depend on the states, per stage: Z + Lu u, and e
+        drive = (self.inflow + U @ _LU[:4].T).tolist()
+        e = self.evaporation.tolist()
+        A, B, C = (row.tolist() for row in self.fa)
+        F2 = U[:, 4].tolist()
+        X = np.empty((N + 1, 6))
+        X[0] = self.x0
+        v1, v2, v3, v4, d1, d2 = self.x0.tolist()
+        out = [None] * N
+        for k in range(N):
+            dk, ek = drive[k], e[k]
+            n1 = v1 + dk[0] - ek[0] * ((A[0] * v1 + B[0]) * v1 + C[0])
+            n2 = v2 + dk[1] - ek[1] * ((A[1] * v2 + B[1]) * v2 + C[1])
+            n3 = v3 + d2 + dk[2] - ek[2] * ((A[2] * v3 + B[2]) * v3 + C[2])
+            n4 = v4 + dk[3] - ek[3] * ((A[3] * v4 + B[3]) * v4 + C[3])
+            v1, v2, v3, v4, d1, d2 = n1, n2, n3, n4, F2[k], d1
+            out[k] = (v1, v2, v3, v4, d1, d2)
+        X[1:] = out
+        return self._check_stacked(X, (N + 1, 6), "simulate", "x")
+
+    # ------------------------------------------------------------------ start points
+    def initial_guess(self):
+        """Initial controls (N, 7): the balance start (default) or the SIF start point."""
+        return self._start_U.copy()
+
+    def sif_start(self):
+        """The SIF START POINT controls: Q1 = IN1, F2 = IN2, Q3 = IN2, Q4 = IN1, F1 = F3 = F4 = 0
+        (taken verbatim, not clipped to the bounds; the SIF also starts V(k) = V0)."""
+        U = np.zeros((self.N, 7))
+        U[:, 0] = self.inflow[:, 0]
+        U[:, 4] = self.inflow[:, 1]
+        U[:, 1] = self.inflow[:, 1]
+        U[:, 2] = self.inflow[:, 0]
+        return U
+
+    def balance_start(self):
+        """Initial controls from the reservoir balance, paper 001 eqs. (46)-(47).
+
+        Reservoirs in upstream order 1, 2, 3, 4 with U_3 = {2}, U_4 = {1, 3}:
+
+            Zbar_i = (sum_k Z_i^k - (V_ref,i - V_i^0)) / N + mean upstream inflow
+            Q_i = Q_max if Zbar_i > Q_max else max(Zbar_i, Q_min);  F_i = max(Zbar_i - Q_max, 0)
+
+        held constant over k and clipped to each stage's bounds. Readings: reservoir 2 has no
+        turbine, its outflow F2 plays the role of Q_2 (bounds [F2_min^k, F2_max]); reservoir 3
+        receives F2 two months late, so its mean upstream inflow is (2 F2ref + sum_{k<N-2}
+        F2^k) / N (the delay states start at F2ref) rather than F2^0; reservoir 4 receives
+        Q1 + F1 + Q3 + F3 of the same month. Evaporation is not in eq. (47) and is left out,
+        as in the paper. The controls lie within their bounds; the simulated volumes need not
+        (e.g. V2 can fall below its minimum when the monthly F2 minimum exceeds the inflow) --
+        it is a starting trajectory, not a feasible point.
+        """
+        N = self.N
+        lo, hi = self.u_lower, self.u_upper
+        Zsum = self.inflow.sum(axis=0)
+        dV = self.V_ref - self.x0[:4]
+        U = np.zeros((N, 7))
+
+        def release(zbar, q, f):
+            qmax, qmin = hi[0, q], lo[0, q]
+            if zbar > qmax:
+                Q, F = qmax, zbar - qmax
+            else:
+                Q, F = max(zbar, qmin), 0.0
+            U[:, q] = np.clip(Q, lo[:, q], hi[:, q])
+            if f is not None:
+                U[:, f] = np.clip(F, lo[:, f], hi[:, f])
+
+        release((Zsum[0] - dV[0]) / N, 0, 3)                          # Q1, F1
+        release((Zsum[1] - dV[1]) / N, 4, None)                       # F2 (no turbine)
+        upstream3 = (self.x0[4] + self.x0[5] + U[:max(N - 2, 0), 4].sum()) / N
+        release((Zsum[2] - dV[2]) / N + upstream3, 1, 5)              # Q3, F3
+        upstream4 = U[0, 0] + U[0, 3] + U[0, 1] + U[0, 5]
+        release((Zsum[3] - dV[3]) / N + upstream4, 2, 6)              # Q4, F4
+        return U
+
+    # ------------------------------------------------------------------ reporting
+    def month_labels(self):
+        """'YYYY-MM' of each stage k = 0..N-1 (cyclic extension continues the calendar)."""
+        return [f"{self.start_year + k // 12}-{k % 12 + 1:02d}" for k in range(self.N)]
+
+    def describe(self):
+        text = super().describe()
+        return (text + f"\n  family {self.family}, start January {self.start_year}, "
+                f"N={self.N} months{' (cyclic inflow extension)' if self.N > self.max_N else ''}, "
+                f"start={self.start}")
+
+
+def zambezi_problem(family="zambezi12", N=24, start="balance", year=None, extend="cyclic", **options):
+    """Build a Zambezi DOCP (paper 001 sec. 5). See :class:`Zambezi` for the arguments."""
+    return Zambezi(family=family, N=N, start=start, year=year, extend=extend, **options)
+
+
+def _factory(family):
+    def make(N=24, start="balance", year=None, extend="cyclic", **options):
+        return zambezi_problem(family, N=N, start=start, year=year, extend=extend, **options)
+    make.__name__ = f"{family}_problem"
+    make.__doc__ = f"The {family} Zambezi problem (paper 001 sec. 5); see :class:`Zambezi`."
+    return make
+
+
+#: name -> factory(N=24, start="balance", year=None, extend="cyclic", **options)
+PROBLEMS = {fam: _factory(fam) for fam in FAMILIES}
+
+
+def table1_counts(problem):
+    """Problem size as counted in paper 001 Table 1: variables, equality constraints including
+    fixed variables, inequality constraints including bounds.
+
+    variables   = (N+1) n + N m                  (y = x^0, u^0, ..., x^N)
+    equalities  = N n (balance/delay equations) + n (fixed x^0) + equality constraints
+    inequalities = finite bounds in x_lower, x_upper over k = 0..N (x^0 included, as its volume
+                   bounds are part of the stationary bounds) + finite bounds in u_lower, u_upper
+                   over k = 0..N-1 + inequality constraints.
+
+    For the Zambezi problem: 8 volume bounds (x5, x6 unbounded) at N+1 stages + 14 control
+    bounds (all 7 controls two-sided) at N stages, e.g. N = 12: 104 + 168 = 272.
+    """
+    N, n, m = problem.N, problem.n, problem.m
+    n_eq_g = int(problem.stage_equality_mask.sum()) * N + int(problem.final_equality_mask.sum())
+    n_in_g = (problem.r - int(problem.stage_equality_mask.sum())) * N + \
+        (problem.rN - int(problem.final_equality_mask.sum()))
+    xb = int(np.isfinite(problem.x_lower).sum() + np.isfinite(problem.x_upper).sum())
+    ub = int(np.isfinite(problem.u_lower).sum() + np.isfinite(problem.u_upper).sum())
+    return {"N": N, "variables": (N + 1) * n + N * m, "equalities": N * n + n + n_eq_g,
+            "inequalities": xb + ub + n_in_g, "state_bounds": xb, "control_bounds": ub}
+
+
+def plot_zambezi(result_or_XU, problem, path):
+    """Plot volumes, turbine outflows and spillages with their bounds, like paper 001 Fig. 3.
+
+    ``result_or_XU`` is a Result (``.x``, ``.u``) or a pair (X (N+1, 6), U (N, 7)). Rows:
+    volumes V1..V4; outflows Q1, Q3, Q4 (solid); spillages F1..F4 (dashed); bounds dotted;
+    x axis: month k from January of the start year (units as in the SIF data).
+    The figure is written to a temporary file and moved to ``path`` (atomic). Returns ``path``.
+    """
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if isinstance(result_or_XU, (tuple, list)):
+        X, U = result_or_XU
+    else:
+        X, U = result_or_XU.x, result_or_XU.u
+    X, U = np.asarray(X, float), np.asarray(U, float)
+    N = problem.N
+    kx = np.arange(N + 1)
+    ext = lambda a: np.append(a, a[-1])   # noqa: E731  piecewise-constant control over [k, k+1)
+    fig, axes = plt.subplots(3, 4, figsize=(14, 8), sharex=True)
+    bound = dict(color="k", linestyle=":", linewidth=1)
+    for i in range(4):
+        ax = axes[0, i]
+        ax.plot(kx, X[:, i], "b-")
+        ax.plot(kx, problem.x_lower[:, i], **bound)
+        ax.plot(kx, problem.x_upper[:, i], **bound)
+        ax.set_title(f"volume V{i + 1}")
+    for col, (j, nm) in zip((0, 2, 3), ((0, "Q1"), (1, "Q3"), (2, "Q4"))):
+        ax = axes[1, col]
+        ax.step(kx, ext(U[:, j]), "b-", where="post")
+        ax.step(kx, ext(problem.u_lower[:, j]), where="post", **bound)
+        ax.step(kx, ext(problem.u_upper[:, j]), where="post", **bound)
+        ax.set_title(f"turbine outflow {nm}")
+    axes[1, 1].text(0.5, 0.5, "reservoir 2:\nno power station\n(outflow F2 only)",
+                    ha="center", va="center", transform=axes[1, 1].transAxes)
+    axes[1, 1].set_frame_on(False)
+    axes[1, 1].tick_params(left=False, labelleft=False, bottom=False)
+    for i, j in enumerate((3, 4, 5, 6)):
+        ax = axes[2, i]
+        ax.step(kx, ext(U[:, j]), "r--", where="post")
+        ax.step(kx, ext(problem.u_lower[:, j]), where="post", **bound)
+        ax.step(kx, ext(problem.u_upper[:, j]), where="post", **bound)
+        ax.set_title(f"spillage F{i + 1}")
+        ax.set_xlabel("month k")
+    year = getattr(problem, "start_year", None)
+    fig.suptitle(f"{getattr(problem, 'name', 'zambezi')}, N = {N}"
+                 + (f", from January {year}" if year is not None else ""))
+    fig.tight_layout()
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    suffix = os.path.splitext(path)[1] or ".png"
+    fd, tmp = tempfile.mkstemp(dir=folder, suffix=suffix)
+    os.close(fd)
+    try:
+        fig.savefig(tmp, format=suffix.lstrip(".") or "png", dpi=100)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    finally:
+        plt.close(fig)
+    return path
