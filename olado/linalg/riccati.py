@@ -1,0 +1,697 @@
+"""Block Riccati solver for the equality-constrained LQ-DOCP (paper 001 sec. 4.2.3).
+
+Solves the KKT system of the linear-quadratic DOCP
+
+    min  sum_k 1/2 [x_k; u_k]^T [Q_k S_k; S_k^T R_k] [x_k; u_k] + q_k.x_k + r_k.u_k
+         + 1/2 x_N^T Q_N x_N + q_N.x_N
+    s.t. x_{k+1} = A_k x_k + B_k u_k + c_k,   x_0 = xbar_0,
+         E_k x_k + F_k u_k + e_k = 0  (k < N),   E_N x_N + e_N = 0,
+
+i.e. the equality part of QP (14) after the interior-point method has folded its inequalities
+into the Hessian (system (25)): the diagonal terms ``Dx`` (N+1, n), ``Du`` (N, m) of simple
+bounds and the terms C_k^T diag(sigma_k) C_k of linear stage inequalities are accepted directly.
+
+Algorithm (Arnold's block elimination, an extension of the Riccati recursion to equality
+constraints; written here in the constraint-propagating form): going backwards, the cost-to-go
+on x_{k+1} is 1/2 x^T P x + p.x restricted to the affine set G_{k+1} x + g_{k+1} = 0. At stage k
+the stage equalities and the propagated ones, [F_k; G_{k+1} B_k] u = -([E_k; G_{k+1} A_k] x + d),
+are split by a pivoted Householder QR of their u-part: the rank part fixes u in the range of
+Q_1, the rest is a pure state constraint G_k x + g_k = 0 passed to stage k-1, and u moves freely
+in the null space Q_2 where the reduced Hessian Q_2^T Quu Q_2 must be positive definite (its
+Cholesky factor is where a non-positive-definite problem is detected, with the stage index).
+The factorization depends only on the matrices; :meth:`RiccatiFactorization.solve` takes any
+number of right-hand sides (q, r, c, e, xbar_0), each in O(N (n+m)^2).
+
+Everything is compiled with numba; the stage loops run on preallocated arrays (no allocation
+inside the loops). Cost: O(N (n+m)^3) for the factorization.
+
+Multipliers: with the Lagrangian
+    L = J + sum_k lam_{k+1}.(A_k x_k + B_k u_k + c_k - x_{k+1}) + lam_0.(xbar_0 - x_0)
+          + sum_k nu_k.(E_k x_k + F_k u_k + e_k) + nu_N.(E_N x_N + e_N),
+``solve`` returns lam (N+1, n) and nu (N+1, ne). (The paper's p in (16) is -lam.)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numba as nb
+import numpy as np
+
+from ..errors import OladoError
+
+
+class NotPositiveDefiniteError(OladoError, np.linalg.LinAlgError):
+    """The reduced Hessian of a stage is not positive definite; ``stage`` says where."""
+
+    def __init__(self, stage, message=None):
+        self.stage = int(stage)
+        super().__init__(message or f"reduced Hessian Q_uu (projected on the null space of the stage "
+                                    f"equality constraints) is not positive definite at stage k={stage}")
+
+
+class RiccatiStatusError(OladoError):
+    """Equality constraints the recursion cannot handle (more than n independent state rows)."""
+
+
+# ============================================================================= numba kernels
+@nb.njit(cache=True)
+def _chol_inplace(a, d):
+    """Cholesky of the leading d x d block of a (lower, in place). Returns False if not PD."""
+    for j in range(d):
+        s = a[j, j]
+        for k in range(j):
+            s -= a[j, k] * a[j, k]
+        if not (s > 0.0):
+            return False
+        ljj = np.sqrt(s)
+        a[j, j] = ljj
+        for i in range(j + 1, d):
+            t = a[i, j]
+            for k in range(j):
+                t -= a[i, k] * a[j, k]
+            a[i, j] = t / ljj
+        for i in range(j):
+            a[i, j] = 0.0
+    return True
+
+
+@nb.njit(cache=True)
+def _chol_solve_vec(L, d, b):
+    """Solve (L L^T) x = b in place on the first d entries of b."""
+    for i in range(d):
+        t = b[i]
+        for k in range(i):
+            t -= L[i, k] * b[k]
+        b[i] = t / L[i, i]
+    for i in range(d - 1, -1, -1):
+        t = b[i]
+        for k in range(i + 1, d):
+            t -= L[k, i] * b[k]
+        b[i] = t / L[i, i]
+
+
+@nb.njit(cache=True)
+def _chol_solve_mat(L, d, B, ncol):
+    """Solve (L L^T) X = B in place on B[:d, :ncol]."""
+    for c in range(ncol):
+        for i in range(d):
+            t = B[i, c]
+            for k in range(i):
+                t -= L[i, k] * B[k, c]
+            B[i, c] = t / L[i, i]
+        for i in range(d - 1, -1, -1):
+            t = B[i, c]
+            for k in range(i + 1, d):
+                t -= L[k, i] * B[k, c]
+            B[i, c] = t / L[i, i]
+
+
+@nb.njit(cache=True)
+def _qr_pivot(M, rows, cols, Qacc, perm, vtmp, norms, rank_tol):
+    """Householder QR with column pivoting of M[:rows, :cols] in place (M <- R), accumulating
+    the orthogonal factor in Qacc[:rows, :rows] and the column permutation in perm. Returns the
+    numerical rank."""
+    for i in range(rows):
+        for j in range(rows):
+            Qacc[i, j] = 1.0 if i == j else 0.0
+    for j in range(cols):
+        perm[j] = j
+    kmax = min(rows, cols)
+    r00 = 0.0
+    rank = 0
+    for j in range(kmax):
+        # pivot: largest remaining column norm
+        best, p = -1.0, j
+        for c in range(j, cols):
+            s = 0.0
+            for i in range(j, rows):
+                s += M[i, c] * M[i, c]
+            norms[c] = s
+            if s > best:
+                best, p = s, c
+        if p != j:
+            for i in range(rows):
+                t = M[i, j]; M[i, j] = M[i, p]; M[i, p] = t
+            t2 = perm[j]; perm[j] = perm[p]; perm[p] = t2
+        nrm = np.sqrt(best)
+        if j == 0:
+            r00 = nrm
+        if nrm <= rank_tol * max(r00, 1e-300) or nrm == 0.0:
+            break
+        rank += 1
+        # Householder vector v for M[j:rows, j]
+        alpha = -nrm if M[j, j] >= 0.0 else nrm
+        for i in range(j, rows):
+            vtmp[i] = M[i, j]
+        vtmp[j] -= alpha
+        vn = 0.0
+        for i in range(j, rows):
+            vn += vtmp[i] * vtmp[i]
+        if vn > 0.0:
+            # apply H = I - 2 v v^T / (v.v) to M[j:, j:] and accumulate Q = Q H
+            for c in range(j, cols):
+                s = 0.0
+                for i in range(j, rows):
+                    s += vtmp[i] * M[i, c]
+                s = 2.0 * s / vn
+                for i in range(j, rows):
+                    M[i, c] -= s * vtmp[i]
+            for i in range(rows):
+                s = 0.0
+                for l in range(j, rows):
+                    s += Qacc[i, l] * vtmp[l]
+                s = 2.0 * s / vn
+                for l in range(j, rows):
+                    Qacc[i, l] -= s * vtmp[l]
+        for i in range(j + 1, rows):
+            M[i, j] = 0.0
+    return rank
+
+
+@nb.njit(cache=True)
+def _factor(Q, S, R, A, B, E, F, ne, EN, neN, Dx, Du, Ci, sig, ni, reg, rank_tol,
+            P, K, Quu_s, Qux_s, Lww, Qm, Rm, perm, rank, nc, Cx_s, G, ng, Wx, Dmat):
+    """Backward factorization sweep. Returns -1 on success, the stage index of a failure
+    (non-positive-definite reduced Hessian), or -(1000 + k) when more than n independent
+    state-only rows reach stage k."""
+    N = A.shape[0]
+    n = A.shape[1]
+    m = B.shape[2]
+    ncmax = Cx_s.shape[1]
+    # workspaces
+    PA = np.empty((n, n)); PB = np.empty((n, m))
+    M = np.empty((m, ncmax)); vt = np.empty(max(m, 1)); nr = np.empty(max(ncmax, 1))
+    T = np.empty((m, n)); Y = np.empty((m, n)); Qww = np.empty((m, m)); Qwx = np.empty((m, n)); tmp = np.empty((m, m))
+    Cu = np.empty((ncmax, m)); Cx = np.empty((ncmax, n))
+    # terminal stage
+    for i in range(n):
+        for j in range(n):
+            P[N, i, j] = Q[N, i, j]
+        P[N, i, i] += Dx[N, i]
+    ng[N] = neN
+    for i in range(neN):
+        for j in range(n):
+            G[N, i, j] = EN[i, j]
+    for k in range(N - 1, -1, -1):
+        # PA = P_{k+1} A_k, PB = P_{k+1} B_k
+        for i in range(n):
+            for j in range(n):
+                s = 0.0
+                for l in range(n):
+                    s += P[k + 1, i, l] * A[k, l, j]
+                PA[i, j] = s
+            for j in range(m):
+                s = 0.0
+                for l in range(n):
+                    s += P[k + 1, i, l] * B[k, l, j]
+                PB[i, j] = s
+        # Qxx -> P[k] (temporarily), Quu, Qux
+        for i in range(n):
+            for j in range(n):
+                s = Q[k, i, j]
+                for l in range(n):
+                    s += A[k, l, i] * PA[l, j]
+                P[k, i, j] = s
+            P[k, i, i] += Dx[k, i]
+        for i in range(m):
+            for j in range(m):
+                s = R[k, i, j]
+                for l in range(n):
+                    s += B[k, l, i] * PB[l, j]
+                Quu_s[k, i, j] = s
+            Quu_s[k, i, i] += Du[k, i] + reg
+            for j in range(n):
+                s = S[k, j, i]
+                for l in range(n):
+                    s += B[k, l, i] * PA[l, j]
+                Qux_s[k, i, j] = s
+        # stage inequality terms C^T diag(sig) C
+        for c in range(ni[k]):
+            w = sig[k, c]
+            if w != 0.0:
+                for i in range(n):
+                    ci = Ci[k, c, i] * w
+                    if ci != 0.0:
+                        for j in range(n):
+                            P[k, i, j] += ci * Ci[k, c, j]
+                        for j in range(m):
+                            Qux_s[k, j, i] += ci * Ci[k, c, n + j]
+                for i in range(m):
+                    ci = Ci[k, c, n + i] * w
+                    if ci != 0.0:
+                        for j in range(m):
+                            Quu_s[k, i, j] += ci * Ci[k, c, n + j]
+        # combined equality rows: [E_k; G_{k+1} A_k] x + [F_k; G_{k+1} B_k] u + d = 0
+        nck = ne[k] + ng[k + 1]
+        if nck > ncmax:
+            return -(1000 + k)
+        nc[k] = nck
+        for i in range(ne[k]):
+            for j in range(n):
+                Cx[i, j] = E[k, i, j]
+            for j in range(m):
+                Cu[i, j] = F[k, i, j]
+        for i in range(ng[k + 1]):
+            for j in range(n):
+                s = 0.0
+                for l in range(n):
+                    s += G[k + 1, i, l] * A[k, l, j]
+                Cx[ne[k] + i, j] = s
+            for j in range(m):
+                s = 0.0
+                for l in range(n):
+                    s += G[k + 1, i, l] * B[k, l, j]
+                Cu[ne[k] + i, j] = s
+        for i in range(nck):
+            for j in range(n):
+                Cx_s[k, i, j] = Cx[i, j]
+        rk = 0
+        if nck > 0:
+            for i in range(m):
+                for j in range(nck):
+                    M[i, j] = Cu[j, i]
+            rk = _qr_pivot(M, m, nck, Qm[k], perm[k], vt, nr, rank_tol)
+            for i in range(m):
+                for j in range(nck):
+                    Rm[k, i, j] = M[i, j]
+        else:
+            for i in range(m):
+                for j in range(m):
+                    Qm[k, i, j] = 1.0 if i == j else 0.0
+        rank[k] = rk
+        # Wx = R11^{-T} Pi_1^T Cx  (rk x n): forward substitution with R11^T (lower)
+        for i in range(rk):
+            for j in range(n):
+                s = Cx[perm[k, i], j]
+                for l in range(i):
+                    s -= Rm[k, l, i] * Wx[k, l, j]
+                Wx[k, i, j] = s / Rm[k, i, i]
+        # Dmat = -R11^{-1} R12  (rk x (nck - rk)), back substitution
+        for c in range(nck - rk):
+            for i in range(rk - 1, -1, -1):
+                s = -Rm[k, i, rk + c]
+                for l in range(i + 1, rk):
+                    s -= Rm[k, i, l] * Dmat[k, l, c]
+                Dmat[k, i, c] = s / Rm[k, i, i]
+        # passed-back state rows: G_k = R12^T Wx - Pi_2^T Cx
+        ngk = nck - rk
+        if ngk > ncmax:
+            return -(1000 + k)
+        ng[k] = ngk
+        for c in range(ngk):
+            for j in range(n):
+                s = -Cx[perm[k, rk + c], j]
+                for l in range(rk):
+                    s += Rm[k, l, rk + c] * Wx[k, l, j]
+                G[k, c, j] = s
+        # u = T x + Q2 w with T = -Q1 Wx
+        for i in range(m):
+            for j in range(n):
+                s = 0.0
+                for l in range(rk):
+                    s -= Qm[k, i, l] * Wx[k, l, j]
+                T[i, j] = s
+        dw = m - rk
+        # Qww = Q2^T Quu Q2 ; Qwx = Q2^T (Quu T + Qux)
+        for i in range(m):
+            for j in range(dw):
+                s = 0.0
+                for l in range(m):
+                    s += Quu_s[k, i, l] * Qm[k, l, rk + j]
+                tmp[i, j] = s
+        for i in range(dw):
+            for j in range(dw):
+                s = 0.0
+                for l in range(m):
+                    s += Qm[k, l, rk + i] * tmp[l, j]
+                Qww[i, j] = s
+        for i in range(m):
+            for j in range(n):
+                s = Qux_s[k, i, j]
+                for l in range(m):
+                    s += Quu_s[k, i, l] * T[l, j]
+                Y[i, j] = s
+        for i in range(dw):
+            for j in range(n):
+                s = 0.0
+                for l in range(m):
+                    s += Qm[k, l, rk + i] * Y[l, j]
+                Qwx[i, j] = s
+        for i in range(dw):
+            for j in range(dw):
+                Lww[k, i, j] = 0.5 * (Qww[i, j] + Qww[j, i])
+        if not _chol_inplace(Lww[k], dw):
+            return k
+        # Qwx <- Qww^{-1} Qwx
+        _chol_solve_mat(Lww[k], dw, Qwx, n)
+        # K = T - Q2 Qww^{-1} Qwx
+        for i in range(m):
+            for j in range(n):
+                s = T[i, j]
+                for l in range(dw):
+                    s -= Qm[k, i, rk + l] * Qwx[l, j]
+                K[k, i, j] = s
+        # P_k = Qxx + Qux^T K + K^T Qux + K^T Quu K
+        for i in range(m):
+            for j in range(n):
+                s = 0.0
+                for l in range(m):
+                    s += Quu_s[k, i, l] * K[k, l, j]
+                T[i, j] = s + Qux_s[k, i, j]  # Quu K + Qux
+        for i in range(n):
+            for j in range(n):
+                s = P[k, i, j]
+                for l in range(m):
+                    s += Qux_s[k, l, i] * K[k, l, j] + K[k, l, i] * T[l, j]
+                PA[i, j] = s
+        for i in range(n):
+            for j in range(n):
+                P[k, i, j] = 0.5 * (PA[i, j] + PA[j, i])
+    return -1
+
+
+@nb.njit(cache=True)
+def _solve(A, B, c, q, r, e, eN, x0, Dx, Du, S, Q, R, E, F, ne, EN, neN, Ci, sig, ni, ci_rhs,
+           P, K, Quu_s, Qux_s, Lww, Qm, Rm, perm, rank, nc, Cx_s, G, ng, Wx, Dmat,
+           X, U, lam, nu, kff, pvec, gvec, dvec):
+    """One right-hand side: backward vector sweep, forward simulation, multiplier sweeps.
+    Returns the residual of the state constraints reaching x_0 (max norm)."""
+    N = A.shape[0]
+    n = A.shape[1]
+    m = B.shape[2]
+    ncmax = Cx_s.shape[1]
+    t1 = np.empty(n); qx = np.empty(n); qu = np.empty(m); m0 = np.empty(m); w = np.empty(max(m, 1))
+    v1 = np.empty(max(ncmax, 1)); bu = np.empty(m); mu = np.empty(max(ncmax, 1)); mup = np.empty(max(ncmax, 1))
+    eta = np.empty(max(ncmax, 1)); a_next = np.empty(n); a_cur = np.empty(n)
+    # terminal
+    for i in range(n):
+        pvec[N, i] = q[N, i]
+    for i in range(neN):
+        gvec[N, i] = eN[i]
+    for k in range(N - 1, -1, -1):
+        # t1 = P_{k+1} c_k + p_{k+1}
+        for i in range(n):
+            s = pvec[k + 1, i]
+            for l in range(n):
+                s += P[k + 1, i, l] * c[k, l]
+            t1[i] = s
+        for i in range(n):
+            s = q[k, i]
+            for l in range(n):
+                s += A[k, l, i] * t1[l]
+            qx[i] = s
+        for i in range(m):
+            s = r[k, i]
+            for l in range(n):
+                s += B[k, l, i] * t1[l]
+            qu[i] = s
+        # linear terms of the stage inequality terms: C^T diag(sig) ci_rhs
+        for cc in range(ni[k]):
+            wgt = sig[k, cc] * ci_rhs[k, cc]
+            if wgt != 0.0:
+                for i in range(n):
+                    qx[i] += Ci[k, cc, i] * wgt
+                for i in range(m):
+                    qu[i] += Ci[k, cc, n + i] * wgt
+        # d = [e_k; G_{k+1} c_k + g_{k+1}]
+        nck = nc[k]
+        rk = rank[k]
+        for i in range(ne[k]):
+            dvec[k, i] = e[k, i]
+        for i in range(ng[k + 1]):
+            s = gvec[k + 1, i]
+            for l in range(n):
+                s += G[k + 1, i, l] * c[k, l]
+            dvec[k, ne[k] + i] = s
+        # v1 = R11^{-T} Pi_1^T d ; m0 = -Q1 v1
+        for i in range(rk):
+            s = dvec[k, perm[k, i]]
+            for l in range(i):
+                s -= Rm[k, l, i] * v1[l]
+            v1[i] = s / Rm[k, i, i]
+        for i in range(m):
+            s = 0.0
+            for l in range(rk):
+                s -= Qm[k, i, l] * v1[l]
+            m0[i] = s
+        # g_k = R12^T v1 - Pi_2^T d
+        for cc in range(ng[k]):
+            s = -dvec[k, perm[k, rk + cc]]
+            for l in range(rk):
+                s += Rm[k, l, rk + cc] * v1[l]
+            gvec[k, cc] = s
+        # w0 = -Qww^{-1} Q2^T (Quu m0 + qu)
+        dw = m - rk
+        for i in range(m):
+            s = qu[i]
+            for l in range(m):
+                s += Quu_s[k, i, l] * m0[l]
+            bu[i] = s
+        for i in range(dw):
+            s = 0.0
+            for l in range(m):
+                s += Qm[k, l, rk + i] * bu[l]
+            w[i] = -s
+        _chol_solve_vec(Lww[k], dw, w)
+        for i in range(m):
+            s = m0[i]
+            for l in range(dw):
+                s += Qm[k, i, rk + l] * w[l]
+            kff[k, i] = s
+        # p_k = qx + Qux^T kff + K^T (qu + Quu kff)
+        for i in range(m):
+            s = qu[i]
+            for l in range(m):
+                s += Quu_s[k, i, l] * kff[k, l]
+            bu[i] = s
+        for i in range(n):
+            s = qx[i]
+            for l in range(m):
+                s += Qux_s[k, l, i] * kff[k, l] + K[k, l, i] * bu[l]
+            pvec[k, i] = s
+    # forward simulation
+    for i in range(n):
+        X[0, i] = x0[i]
+    res = 0.0
+    for cc in range(ng[0]):
+        s = gvec[0, cc]
+        for l in range(n):
+            s += G[0, cc, l] * x0[l]
+        res = max(res, abs(s))
+    for k in range(N):
+        for i in range(m):
+            s = kff[k, i]
+            for l in range(n):
+                s += K[k, i, l] * X[k, l]
+            U[k, i] = s
+        for i in range(n):
+            s = c[k, i]
+            for l in range(n):
+                s += A[k, i, l] * X[k, l]
+            for l in range(m):
+                s += B[k, i, l] * U[k, l]
+            X[k + 1, i] = s
+    # multipliers, backward part: a_k (stored in lam), c-part of mu (stored in mup via nu scratch)
+    for i in range(n):
+        s = q[N, i] + Dx[N, i] * X[N, i]
+        for l in range(n):
+            s += Q[N, i, l] * X[N, l]
+        lam[N, i] = s
+    for k in range(N - 1, -1, -1):
+        for i in range(n):
+            a_next[i] = lam[k + 1, i]
+        # b_u = (R + Du) u + S^T x + r + B^T a_{k+1}  (+ inequality terms)
+        for i in range(m):
+            s = r[k, i] + Du[k, i] * U[k, i]
+            for l in range(m):
+                s += R[k, i, l] * U[k, l]
+            for l in range(n):
+                s += S[k, l, i] * X[k, l] + B[k, l, i] * a_next[l]
+            bu[i] = s
+        for i in range(n):
+            s = q[k, i] + Dx[k, i] * X[k, i]
+            for l in range(n):
+                s += Q[k, i, l] * X[k, l] + A[k, l, i] * a_next[l]
+            for l in range(m):
+                s += S[k, i, l] * U[k, l]
+            a_cur[i] = s
+        for cc in range(ni[k]):
+            wgt = ci_rhs[k, cc]
+            for l in range(n):
+                wgt += Ci[k, cc, l] * X[k, l]
+            for l in range(m):
+                wgt += Ci[k, cc, n + l] * U[k, l]
+            wgt *= sig[k, cc]
+            for i in range(n):
+                a_cur[i] += Ci[k, cc, i] * wgt
+            for i in range(m):
+                bu[i] += Ci[k, cc, n + i] * wgt
+        rk = rank[k]
+        nck = nc[k]
+        # c_k = -R11^{-1} (Q^T b_u)_{1:rk}  -> stored in Wx-free scratch: use dvec row as storage
+        for i in range(rk):
+            s = 0.0
+            for l in range(m):
+                s += Qm[k, l, i] * bu[l]
+            v1[i] = -s
+        for i in range(rk - 1, -1, -1):
+            s = v1[i]
+            for l in range(i + 1, rk):
+                s -= Rm[k, i, l] * v1[l]
+            v1[i] = s / Rm[k, i, i]
+        # keep c_k in dvec[k, :rk] (d is no longer needed)
+        for i in range(rk):
+            dvec[k, i] = v1[i]
+        # a_k += Cx^T Pi [c_k; 0]
+        for i in range(rk):
+            row = perm[k, i]
+            for j in range(n):
+                a_cur[j] += Cx_s[k, row, j] * v1[i]
+        for i in range(n):
+            lam[k, i] = a_cur[i]
+    # forward multiplier sweep: eta_0 = 0; mu' = [c_k + D eta_k; eta_k]; nu_k = mu[:ne]; eta_{k+1} = -mu[ne:]
+    ng0 = ng[0]
+    for i in range(ng0):
+        eta[i] = 0.0
+    for k in range(N):
+        rk = rank[k]
+        nck = nc[k]
+        ngk = ng[k]
+        # lam_k = a_k - G_k^T eta_k
+        for j in range(n):
+            s = lam[k, j]
+            for cc in range(ngk):
+                s -= G[k, cc, j] * eta[cc]
+            lam[k, j] = s
+        for i in range(rk):
+            s = dvec[k, i]
+            for cc in range(ngk):
+                s += Dmat[k, i, cc] * eta[cc]
+            mup[i] = s
+        for cc in range(ngk):
+            mup[rk + cc] = eta[cc]
+        for i in range(nck):
+            mu[perm[k, i]] = mup[i]
+        for i in range(ne[k]):
+            nu[k, i] = mu[i]
+        for i in range(ng[k + 1]):
+            eta[i] = -mu[ne[k] + i]
+    # terminal: lam_N = a_N - G_N^T eta_N, nu_N = -eta_N (G_N = E_N)
+    for j in range(n):
+        s = lam[N, j]
+        for cc in range(ng[N]):
+            s -= G[N, cc, j] * eta[cc]
+        lam[N, j] = s
+    for i in range(neN):
+        nu[N, i] = -eta[i]
+    return res
+
+
+# ============================================================================= Python API
+@dataclasses.dataclass
+class LQSolution:
+    """Solution of one right-hand side: states X (N+1, n), controls U (N, m), dynamics
+    multipliers lam (N+1, n) (lam[0] belongs to x_0 = xbar_0), equality multipliers nu
+    (N+1, ne) (nu[N] for E_N), and the residual of the equality constraints on x_0."""
+
+    X: np.ndarray
+    U: np.ndarray
+    lam: np.ndarray
+    nu: np.ndarray
+    x0_residual: float
+
+
+def _f64(a, shape, name):
+    arr = np.ascontiguousarray(a, dtype=np.float64)
+    if arr.shape != tuple(shape):
+        raise ValueError(f"{name}: expected shape {tuple(shape)}, got {arr.shape}")
+    return arr
+
+
+class RiccatiFactorization:
+    """Factorization of the LQ-DOCP KKT matrix; :meth:`solve` applies it to right-hand sides."""
+
+    def __init__(self, Q, S, R, A, B, *, E=None, F=None, n_eq=None, EN=None, Dx=None, Du=None,
+                 Ci=None, sigma=None, n_ineq=None, regularization=0.0, rank_tol=1e-10):
+        A = np.ascontiguousarray(A, dtype=np.float64)
+        if A.ndim != 3 or A.shape[1] != A.shape[2]:
+            raise ValueError(f"A: expected shape (N, n, n), got {A.shape}")
+        N, n = A.shape[0], A.shape[1]
+        B = np.ascontiguousarray(B, dtype=np.float64)
+        if B.ndim != 3 or B.shape[:2] != (N, n):
+            raise ValueError(f"B: expected shape ({N}, {n}, m), got {B.shape}")
+        m = B.shape[2]
+        self.N, self.n, self.m = N, n, m
+        self.Q = _f64(Q, (N + 1, n, n), "Q")
+        self.S = np.zeros((N, n, m)) if S is None else _f64(S, (N, n, m), "S")
+        self.R = _f64(R, (N, m, m), "R")
+        self.A, self.B = A, B
+        if E is None:
+            self.ne_max = 0
+            self.E = np.zeros((N, 0, n)); self.F = np.zeros((N, 0, m)); self.ne = np.zeros(N, dtype=np.int64)
+        else:
+            E = np.ascontiguousarray(E, dtype=np.float64)
+            self.ne_max = E.shape[1]
+            self.E = _f64(E, (N, self.ne_max, n), "E")
+            self.F = _f64(F, (N, self.ne_max, m), "F")
+            self.ne = (np.full(N, self.ne_max, dtype=np.int64) if n_eq is None
+                       else np.ascontiguousarray(n_eq, dtype=np.int64))
+        self.EN = np.zeros((0, n)) if EN is None else np.ascontiguousarray(np.atleast_2d(EN), dtype=np.float64)
+        if self.EN.shape[1] != n:
+            raise ValueError(f"EN: expected shape (neN, {n}), got {self.EN.shape}")
+        self.neN = self.EN.shape[0]
+        self.Dx = np.zeros((N + 1, n)) if Dx is None else _f64(Dx, (N + 1, n), "Dx")
+        self.Du = np.zeros((N, m)) if Du is None else _f64(Du, (N, m), "Du")
+        if Ci is None:
+            self.Ci = np.zeros((N, 0, n + m)); self.sig = np.zeros((N, 0)); self.ni = np.zeros(N, dtype=np.int64)
+        else:
+            self.Ci = np.ascontiguousarray(Ci, dtype=np.float64)
+            if self.Ci.ndim != 3 or self.Ci.shape[0] != N or self.Ci.shape[2] != n + m:
+                raise ValueError(f"Ci: expected shape ({N}, nineq, {n + m}), got {self.Ci.shape}")
+            self.sig = _f64(sigma, self.Ci.shape[:2], "sigma")
+            self.ni = (np.full(N, self.Ci.shape[1], dtype=np.int64) if n_ineq is None
+                       else np.ascontiguousarray(n_ineq, dtype=np.int64))
+        self.regularization = float(regularization)
+        ncmax = max(self.ne_max + n + self.neN, 1)
+        self.ncmax = ncmax
+        self.P = np.empty((N + 1, n, n)); self.K = np.empty((N, m, n))
+        self.Quu = np.empty((N, m, m)); self.Qux = np.empty((N, m, n)); self.Lww = np.zeros((N, m, m))
+        self.Qm = np.empty((N, m, m)); self.Rm = np.zeros((N, m, ncmax)); self.perm = np.zeros((N, ncmax), dtype=np.int64)
+        self.rank = np.zeros(N, dtype=np.int64); self.nc = np.zeros(N, dtype=np.int64)
+        self.Cx = np.zeros((N, ncmax, n)); self.G = np.zeros((N + 1, ncmax, n)); self.ng = np.zeros(N + 1, dtype=np.int64)
+        self.Wx = np.zeros((N, ncmax, n)); self.Dmat = np.zeros((N, ncmax, ncmax))
+        code = _factor(self.Q, self.S, self.R, self.A, self.B, self.E, self.F, self.ne, self.EN, self.neN,
+                       self.Dx, self.Du, self.Ci, self.sig, self.ni, self.regularization, float(rank_tol),
+                       self.P, self.K, self.Quu, self.Qux, self.Lww, self.Qm, self.Rm, self.perm, self.rank,
+                       self.nc, self.Cx, self.G, self.ng, self.Wx, self.Dmat)
+        if code >= 0:
+            raise NotPositiveDefiniteError(code)
+        if code <= -1000:
+            raise RiccatiStatusError(f"more than {ncmax} equality rows reach stage k={-code - 1000}; "
+                                     "the equality constraints are too many or dependent")
+
+    def solve(self, q, r, c, x0, e=None, eN=None, ci=None) -> LQSolution:
+        """Solve for one right-hand side: linear cost terms q (N+1, n), r (N, m); dynamics
+        offsets c (N, n); initial state x0 (n,); equality offsets e (N, ne), eN (neN,); for the
+        stage inequality terms, ci (N, nineq) is the constant in C_k z_k + ci_k (the Hessian term
+        sigma * C^T C adds sigma * C^T ci to the gradient)."""
+        N, n, m = self.N, self.n, self.m
+        q = _f64(q, (N + 1, n), "q"); r = _f64(r, (N, m), "r"); c = _f64(c, (N, n), "c"); x0 = _f64(x0, (n,), "x0")
+        e = np.zeros((N, self.ne_max)) if e is None else _f64(e, (N, self.ne_max), "e")
+        eN = np.zeros(self.neN) if eN is None else _f64(eN, (self.neN,), "eN")
+        ci = np.zeros(self.sig.shape) if ci is None else _f64(ci, self.sig.shape, "ci")
+        X = np.empty((N + 1, n)); U = np.empty((N, m)); lam = np.empty((N + 1, n))
+        nu = np.zeros((N + 1, max(self.ne_max, self.neN)))
+        kff = np.empty((N, m)); pvec = np.empty((N + 1, n)); gvec = np.zeros((N + 1, self.ncmax)); dvec = np.zeros((N, self.ncmax))
+        res = _solve(self.A, self.B, c, q, r, e, eN, x0, self.Dx, self.Du, self.S, self.Q, self.R, self.E, self.F,
+                     self.ne, self.EN, self.neN, self.Ci, self.sig, self.ni, ci,
+                     self.P, self.K, self.Quu, self.Qux, self.Lww, self.Qm, self.Rm, self.perm, self.rank, self.nc,
+                     self.Cx, self.G, self.ng, self.Wx, self.Dmat, X, U, lam, nu, kff, pvec, gvec, dvec)
+        return LQSolution(X, U, lam, nu, float(res))
+
+
+def solve_lq_docp(Q, S, R, q, r, A, B, c, x0, **kw) -> LQSolution:
+    """Factorize and solve in one call (see :class:`RiccatiFactorization`)."""
+    rhs = {k: kw.pop(k) for k in ("e", "eN", "ci") if k in kw}
+    return RiccatiFactorization(Q, S, R, A, B, **kw).solve(q, r, c, x0, **rhs)

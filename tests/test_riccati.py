@@ -1,0 +1,173 @@
+"""The Riccati LQ-DOCP solver against a dense solve of the same KKT system (paper 001 sec. 4.2.3)."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from olado.linalg import NotPositiveDefiniteError, RiccatiFactorization
+
+
+def dense_kkt(Q, S, R, q, r, A, B, c, x0, E=None, F=None, e=None, EN=None, eN=None, Dx=None, Du=None):
+    """Assemble and solve the full KKT system with numpy; multipliers in the order
+    [x0 rows, dynamics rows k=0..N-1, stage equality rows, final equality rows]."""
+    N, n, m = B.shape
+    nz = n + m
+    nv = N * nz + n
+
+    def xi(k):
+        return (k * nz if k < N else N * nz) + np.arange(n)
+
+    def ui(k):
+        return k * nz + n + np.arange(m)
+
+    H = np.zeros((nv, nv)); g = np.zeros(nv)
+    for k in range(N):
+        H[np.ix_(xi(k), xi(k))] += Q[k] + (np.diag(Dx[k]) if Dx is not None else 0)
+        H[np.ix_(xi(k), ui(k))] += S[k]; H[np.ix_(ui(k), xi(k))] += S[k].T
+        H[np.ix_(ui(k), ui(k))] += R[k] + (np.diag(Du[k]) if Du is not None else 0)
+        g[xi(k)] += q[k]; g[ui(k)] += r[k]
+    H[np.ix_(xi(N), xi(N))] += Q[N] + (np.diag(Dx[N]) if Dx is not None else 0); g[xi(N)] += q[N]
+    rows, rhs = [], []
+    C = np.zeros((n, nv)); C[:, xi(0)] = np.eye(n); rows.append(C); rhs.append(x0)
+    for k in range(N):
+        C = np.zeros((n, nv)); C[:, xi(k)] = A[k]; C[:, ui(k)] = B[k]; C[:, xi(k + 1)] = -np.eye(n)
+        rows.append(C); rhs.append(-c[k])
+    if E is not None:
+        for k in range(N):
+            C = np.zeros((E.shape[1], nv)); C[:, xi(k)] = E[k]; C[:, ui(k)] = F[k]; rows.append(C); rhs.append(-e[k])
+    if EN is not None:
+        C = np.zeros((EN.shape[0], nv)); C[:, xi(N)] = EN; rows.append(C); rhs.append(-eN)
+    C = np.vstack(rows); d = np.concatenate(rhs)
+    K = np.block([[H, C.T], [C, np.zeros((C.shape[0], C.shape[0]))]])
+    sol = np.linalg.solve(K, np.concatenate([-g, d]))
+    z = sol[:nv]
+    X = np.array([z[xi(k)] for k in range(N + 1)]); U = np.array([z[ui(k)] for k in range(N)])
+    return X, U, sol[nv:]
+
+
+def random_problem(rng, N, n, m, ne=0, neN=0, pure_state=False, cond=1.0):
+    def spd(d):
+        M = rng.standard_normal((d, d))
+        return M @ M.T + 0.5 * np.eye(d)
+
+    Q = np.array([spd(n) for _ in range(N + 1)]) * cond
+    R = np.array([spd(m) for _ in range(N)])
+    S = 0.1 * rng.standard_normal((N, n, m))
+    A = 0.8 * rng.standard_normal((N, n, n)) / np.sqrt(n); B = rng.standard_normal((N, n, m))  # mild growth
+    data = dict(Q=Q, S=S, R=R, A=A, B=B, q=rng.standard_normal((N + 1, n)), r=rng.standard_normal((N, m)),
+                c=rng.standard_normal((N, n)), x0=rng.standard_normal(n))
+    if ne:
+        E = rng.standard_normal((N, ne, n)); F = rng.standard_normal((N, ne, m)); e = rng.standard_normal((N, ne))
+        if pure_state:
+            # state-only rows on odd stages (passed back to the stage before); none on the fixed x0
+            F[1::2] = 0.0
+        data.update(E=E, F=F, e=e)
+    if neN:
+        data.update(EN=rng.standard_normal((neN, n)), eN=rng.standard_normal(neN))
+    return data
+
+
+def check_against_dense(d, tol=1e-8):
+    fac = RiccatiFactorization(d["Q"], d["S"], d["R"], d["A"], d["B"], E=d.get("E"), F=d.get("F"), EN=d.get("EN"),
+                               Dx=d.get("Dx"), Du=d.get("Du"))
+    sol = fac.solve(d["q"], d["r"], d["c"], d["x0"], e=d.get("e"), eN=d.get("eN"))
+    X, U, mult = dense_kkt(**{k: d.get(k) for k in ("Q", "S", "R", "q", "r", "A", "B", "c", "x0", "E", "F", "e", "EN", "eN", "Dx", "Du")})
+    N, n = d["B"].shape[:2]
+    scale = max(1.0, np.abs(X).max(), np.abs(U).max())
+    assert np.abs(sol.X - X).max() <= tol * scale
+    assert np.abs(sol.U - U).max() <= tol * scale
+    mscale = max(1.0, np.abs(mult).max())
+    assert np.abs(sol.lam[0] + mult[:n]).max() <= tol * mscale          # lam_0 multiplies (xbar0 - x0)
+    assert np.abs(sol.lam[1:] - mult[n:n + N * n].reshape(N, n)).max() <= tol * mscale
+    s = n + N * n
+    if "E" in d:
+        ne = d["E"].shape[1]
+        assert np.abs(sol.nu[:N, :ne] - mult[s:s + N * ne].reshape(N, ne)).max() <= tol * mscale
+        s += N * ne
+    if "EN" in d:
+        assert np.abs(sol.nu[N, :d["EN"].shape[0]] - mult[s:]).max() <= tol * mscale
+    return sol
+
+
+@settings(max_examples=40, deadline=None)
+@given(N=st.integers(1, 6), n=st.integers(1, 4), m=st.integers(1, 3), seed=st.integers(0, 10_000),
+       with_bounds=st.booleans())
+def test_unconstrained_recursion_matches_dense(N, n, m, seed, with_bounds):
+    rng = np.random.default_rng(seed)
+    d = random_problem(rng, N, n, m)
+    if with_bounds:  # diagonal interior-point terms of simple bounds, eq. (25)
+        d["Dx"] = rng.uniform(0, 100, (N + 1, n)); d["Du"] = rng.uniform(0, 100, (N, m))
+    check_against_dense(d)
+
+
+@settings(max_examples=40, deadline=None)
+@given(N=st.integers(2, 6), n=st.integers(2, 4), m=st.integers(1, 3), seed=st.integers(0, 10_000),
+       pure_state=st.booleans(), neN=st.integers(0, 2))
+def test_equality_constrained_recursion_matches_dense(N, n, m, seed, pure_state, neN):
+    rng = np.random.default_rng(seed)
+    if pure_state:  # enough controls to satisfy the propagated rows (else the KKT matrix is singular)
+        m, neN = m + 2, min(neN, 1)
+    else:
+        m = max(m, 1 + neN)
+    d = random_problem(rng, N, n, m, ne=1, neN=min(neN, n, m), pure_state=pure_state)
+    check_against_dense(d, tol=1e-7)
+
+
+def test_inconsistent_rows_on_the_fixed_initial_state_are_reported():
+    rng = np.random.default_rng(8)
+    d = random_problem(rng, 2, 2, 1, ne=1, neN=1)   # 3 rows, 2 controls: one row lands on x0
+    sol = RiccatiFactorization(d["Q"], d["S"], d["R"], d["A"], d["B"], E=d["E"], F=d["F"], EN=d["EN"]).solve(
+        d["q"], d["r"], d["c"], d["x0"], e=d["e"], eN=d["eN"])
+    assert sol.x0_residual > 1e-3
+
+
+def test_fixed_final_state():
+    rng = np.random.default_rng(1)
+    d = random_problem(rng, 8, 3, 2, neN=3)
+    d["EN"] = np.eye(3); d["eN"] = -np.array([1.0, 2.0, 3.0])
+    sol = check_against_dense(d)
+    assert np.allclose(sol.X[-1], [1, 2, 3])
+
+
+def test_ill_conditioned_blocks():
+    rng = np.random.default_rng(2)
+    d = random_problem(rng, 5, 3, 2)
+    d["Dx"] = np.full((6, 3), 1e8); d["Du"] = np.full((5, 2), 1e-8)
+    d["Dx"][:, 0] = 1e-8
+    check_against_dense(d, tol=1e-6)
+
+
+def test_stage_inequality_terms_equal_explicit_hessian_terms():
+    rng = np.random.default_rng(4)
+    d = random_problem(rng, 4, 3, 2)
+    Ci = rng.standard_normal((4, 2, 5)); sig = rng.uniform(0.1, 10, (4, 2)); ci = rng.standard_normal((4, 2))
+    a = RiccatiFactorization(d["Q"], d["S"], d["R"], d["A"], d["B"], Ci=Ci, sigma=sig).solve(d["q"], d["r"], d["c"], d["x0"], ci=ci)
+    Q, S, R, q, r = d["Q"].copy(), d["S"].copy(), d["R"].copy(), d["q"].copy(), d["r"].copy()
+    for k in range(4):
+        H = Ci[k].T @ np.diag(sig[k]) @ Ci[k]
+        Q[k] += H[:3, :3]; S[k] += H[:3, 3:]; R[k] += H[3:, 3:]
+        gk = Ci[k].T @ (sig[k] * ci[k]); q[k] += gk[:3]; r[k] += gk[3:]
+    b = RiccatiFactorization(Q, S, R, d["A"], d["B"]).solve(q, r, d["c"], d["x0"])
+    assert np.allclose(a.X, b.X) and np.allclose(a.U, b.U) and np.allclose(a.lam, b.lam)
+
+
+def test_several_right_hand_sides_one_factorization():
+    rng = np.random.default_rng(5)
+    d = random_problem(rng, 6, 3, 2, ne=1)
+    fac = RiccatiFactorization(d["Q"], d["S"], d["R"], d["A"], d["B"], E=d["E"], F=d["F"])
+    for seed in range(3):
+        r2 = np.random.default_rng(100 + seed)
+        d2 = dict(d, q=r2.standard_normal(d["q"].shape), c=r2.standard_normal(d["c"].shape), e=r2.standard_normal(d["e"].shape))
+        sol = fac.solve(d2["q"], d2["r"], d2["c"], d2["x0"], e=d2["e"])
+        X, U, _ = dense_kkt(d2["Q"], d2["S"], d2["R"], d2["q"], d2["r"], d2["A"], d2["B"], d2["c"], d2["x0"], d2["E"], d2["F"], d2["e"])
+        assert np.allclose(sol.X, X, atol=1e-9) and np.allclose(sol.U, U, atol=1e-9)
+
+
+def test_indefinite_reduced_hessian_names_the_stage_and_can_be_regularized():
+    rng = np.random.default_rng(6)
+    d = random_problem(rng, 5, 2, 2)
+    d["R"][3] = -np.eye(2) * 50.0
+    with pytest.raises(NotPositiveDefiniteError) as e:
+        RiccatiFactorization(d["Q"], d["S"], d["R"], d["A"], d["B"])
+    assert e.value.stage == 3 and "k=3" in str(e.value)
+    RiccatiFactorization(d["Q"], d["S"], d["R"], d["A"], d["B"], regularization=1e4)  # shifted: factorizes
