@@ -94,9 +94,16 @@ class _SciPyNLPSolver(Solver):
 # ============================================================================ SLSQP
 @dataclasses.dataclass
 class SLSQPOptions(SolverOptions):
-    """Options of :class:`SLSQPSolver`; ``tol`` is SLSQP's ``ftol`` (its stopping accuracy)."""
+    """Options of :class:`SLSQPSolver`.
+
+    SLSQP has no KKT tolerance: it stops when the objective changes by less than ``ftol``
+    (absolute). olado passes ``ftol = max(tol**2, 1e-15)`` -- near a nondegenerate minimum an
+    objective accurate to tol**2 means a point accurate to about tol; below 1e-15 rounding
+    errors make SLSQP wander until max_iter -- unless ``ftol`` is set."""
 
     max_iter: int = option(500, "maximum number of SLSQP iterations (scipy maxiter)", min=0)
+    ftol: float = option(0.0, "SLSQP's own stopping accuracy on the objective change; "
+                         "0 means max(tol**2, 1e-15)", min=0.0)
     active_tol: float = option(1e-8, "relative distance below which a bound counts as active "
                                "when bound multipliers are recovered", min=0.0)
 
@@ -165,7 +172,7 @@ class SLSQPSolver(_SciPyNLPSolver):
                 free.objective, z0, jac=free.gradient, method="SLSQP",
                 bounds=self._scipy_bounds(free), constraints=constraints, callback=callback,
                 options={"maxiter": max(int(opts.max_iter), 1),
-                         "ftol": float(opts.tol), "disp": opts.verbose >= 3,
+                         "ftol": float(opts.ftol or max(opts.tol ** 2, 1e-15)), "disp": opts.verbose >= 3,
                          "iprint": 2 if opts.verbose >= 3 else 0})
         solve_time = time.perf_counter() - t0
 
@@ -222,6 +229,9 @@ class TrustConstrOptions(SolverOptions):
     initial_barrier_parameter: float = option(0.1, "initial barrier parameter (interior-point branch)",
                                               min=0.0, min_exclusive=True)
     initial_constr_penalty: float = option(1.0, "initial merit-function penalty", min=0.0, min_exclusive=True)
+    barrier_restarts: int = option(5, "restarts of the barrier branch from its solution with a "
+                                   "smaller barrier parameter when SciPy stops while it is still "
+                                   "above tol (SciPy checks gtol before the barrier parameter)", min=0)
     factorization_method: str = option("auto", "factorization of the constraint Jacobian "
                                        "(sparse: NormalEquation or AugmentedSystem)",
                                        choices=("auto", "NormalEquation", "AugmentedSystem"))
@@ -276,11 +286,29 @@ class TrustConstrSolver(_SciPyNLPSolver):
         if opts.factorization_method != "auto":
             scipy_opts["factorization_method"] = opts.factorization_method
         t0 = time.perf_counter()
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)  # "delta_grad == 0.0" etc.
-            res = optimize.minimize(free.objective, z0, jac=free.gradient, hess=obj_hess,
-                                    method="trust-constr", bounds=self._scipy_bounds(free),
-                                    constraints=constraints, callback=callback, options=scipy_opts)
+        restarts, nit, cg_niter = 0, 0, 0
+        while True:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)  # "delta_grad == 0.0" etc.
+                res = optimize.minimize(free.objective, z0, jac=free.gradient, hess=obj_hess,
+                                        method="trust-constr", bounds=self._scipy_bounds(free),
+                                        constraints=constraints, callback=callback, options=scipy_opts)
+            nit += int(res.nit)
+            cg_niter += int(res.cg_niter)
+            # trust-constr's barrier branch may stop ("gtol satisfied") while the barrier
+            # parameter mu is still large: the point is then only about mu/z accurate near
+            # active bounds. Restart from it with a smaller mu until mu <= tol.
+            mu = float(getattr(res, "barrier_parameter", 0.0) or 0.0)
+            if (res.status != 1 or getattr(res, "method", "") != "tr_interior_point" or mu <= opts.tol
+                    or restarts >= opts.barrier_restarts or state.get("stop")
+                    or nit >= opts.max_iter):
+                break
+            restarts += 1
+            z0 = np.asarray(res.x, dtype=float)
+            scipy_opts["initial_barrier_parameter"] = max(mu * 1e-2, opts.tol)
+            scipy_opts["initial_barrier_tolerance"] = max(mu * 1e-2, opts.tol)
+            scipy_opts["initial_tr_radius"] = max(float(res.tr_radius), 1e-3)
+            scipy_opts["maxiter"] = max(int(opts.max_iter) - nit, 1)
         solve_time = time.perf_counter() - t0
 
         y = free.full(np.asarray(res.x, dtype=float))
@@ -307,10 +335,11 @@ class TrustConstrSolver(_SciPyNLPSolver):
                 message += f" (constraint violation {float(res.constr_violation):.2e} not met)"
         result = common.build_result(
             nlp=nlp, y=y, lam=lam, zl=zl, zu=zu, status=status, message=message,
-            iterations=int(res.nit), history=history, timed=timed, solve_time_s=solve_time,
+            iterations=nit, history=history, timed=timed, solve_time_s=solve_time,
             info={"scipy_status": code, "scipy_message": str(res.message),
-                  "scipy_method": getattr(res, "method", ""), "cg_iterations": int(res.cg_niter),
-                  "scipy_optimality": float(res.optimality)},
+                  "scipy_method": getattr(res, "method", ""), "cg_iterations": cg_niter,
+                  "scipy_optimality": float(res.optimality), "barrier_restarts": restarts,
+                  "barrier_parameter": float(getattr(res, "barrier_parameter", 0.0) or 0.0)},
         )
-        result.qp_iterations = int(res.cg_niter)  # projected-CG iterations of the subproblems
+        result.qp_iterations = cg_niter  # projected-CG iterations of the subproblems
         return result
