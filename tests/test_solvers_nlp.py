@@ -375,9 +375,9 @@ def test_bad_options_are_config_errors():
 def test_trust_constr_quasi_newton(hessian):
     p = LQ(N=4)
     X, U, _, _ = lq_dense_reference(p)
-    res = make("trust-constr", hessian=hessian, tol=1e-9).solve(p)
+    res = make("trust-constr", hessian=hessian, tol=1e-7).solve(p)
     assert res.success, res.message
-    assert np.allclose(res.u, U, atol=1e-5)
+    assert np.allclose(res.u, U, atol=5e-5)
     assert res.evaluations["hessian"] == 0
 
 
