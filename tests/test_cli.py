@@ -137,7 +137,20 @@ def test_python_dash_m(tmp_path):
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
 
 
-@pytest.mark.skipif(shutil.which("olado") is None, reason="olado is not installed as a command")
+def _console_script():
+    """The installed ``olado`` command of this interpreter's environment, else one on PATH."""
+    beside = Path(sys.executable).parent / "olado"
+    return str(beside) if beside.exists() else shutil.which("olado")
+
+
+@pytest.mark.skipif(_console_script() is None, reason="olado is not installed as a command")
 def test_console_script():
-    proc = subprocess.run(["olado", "--version"], capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 0 and proc.stdout.startswith("olado ")
+    import olado
+
+    proc = subprocess.run([_console_script(), "--version"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == f"olado {olado.__version__}"
+    proc = subprocess.run([_console_script(), "solve", "zambezi12", "--N", "12", "--solver", "slsqp",
+                           "--set", "slsqp.max_iter=1", "--quiet"], capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 1, proc.stderr
