@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import inspect
+import re
 import sys
 
 EXIT_SUCCESS, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
@@ -78,8 +79,10 @@ def _problem_registry() -> dict:
 
 
 def _first_line(obj) -> str:
-    doc = inspect.getdoc(obj) or ""
-    return doc.strip().splitlines()[0] if doc.strip() else ""
+    """First line of a docstring, with reST roles (:class:`X`) reduced to their text."""
+    doc = (inspect.getdoc(obj) or "").strip()
+    line = doc.splitlines()[0] if doc else ""
+    return re.sub(r":\w+:`~?([^`]+)`", r"\1", line).replace("``", "")
 
 
 def _build_problem(name, settings):
@@ -186,7 +189,7 @@ def _cmd_list(args) -> int:
     if not problems:
         print("  (none registered)")
     width = max([len(n) for n in problems] + [8])
-    for name in sorted(problems):
+    for name in problems:  # registry order (zambezi, zambezi8, ..., zambezi12)
         print(f"  {name:<{width}}  {_first_line(problems[name])}".rstrip())
     solvers = available_solvers()
     print("solvers:")
