@@ -199,3 +199,101 @@ class StageQP:
         ub = self.pack(self.x_upper, self.u_upper)
         return {"P": P.tocsc(), "q": qv, "A_eq": A_eq, "b_eq": b_eq, "G": G, "h_lower": h_lower,
                 "h_upper": h_upper, "lb": lb, "ub": ub}
+
+
+# ============================================================================= QP results
+@dataclasses.dataclass
+class QPResult:
+    """Solution of a :class:`StageQP` by any QP method (interior point, OSQP, Clarabel ...).
+
+    Multiplier convention (all inequality multipliers >= 0), with z_k = (x_k, u_k):
+
+        L = objective + sum_k lam_{k+1}.(A_k x_k + B_k u_k + c_k - x_{k+1}) + lam_0.(x0 - x_0)
+            + sum_k nu_k.(E_k x_k + F_k u_k + e_k) + nu_N.(E_N x_N + e_N)
+            - zx_lower.(x - x_lower) + zx_upper.(x - x_upper) - zu_lower.(u - u_lower) + zu_upper.(u - u_upper)
+            - yc_lower.(C z - c_lower) + yc_upper.(C z - c_upper) - yN_lower.(C_N x_N - cN_lower) + yN_upper.(C_N x_N - cN_upper)
+
+    ``status`` is an :class:`olado.result.Status`; ``kkt`` holds the residuals measured by
+    :func:`qp_kkt_residuals` (stationarity, primal infeasibility, complementarity), so results of
+    different solvers can be compared at the same accuracy.
+    """
+
+    status: object
+    message: str
+    X: np.ndarray
+    U: np.ndarray
+    lam: np.ndarray
+    nu: np.ndarray
+    zx_lower: np.ndarray
+    zx_upper: np.ndarray
+    zu_lower: np.ndarray
+    zu_upper: np.ndarray
+    yc_lower: np.ndarray
+    yc_upper: np.ndarray
+    yN_lower: np.ndarray
+    yN_upper: np.ndarray
+    objective: float = float("nan")
+    iterations: int = 0
+    time_s: float = 0.0
+    kkt: dict = dataclasses.field(default_factory=dict)
+    history: list = dataclasses.field(default_factory=list)
+    solver: str = ""
+
+    @property
+    def success(self) -> bool:
+        return getattr(self.status, "success", False)
+
+
+def qp_kkt_residuals(qp: StageQP, res: QPResult) -> dict:
+    """Max-norm KKT residuals of ``res`` for ``qp`` under the :class:`QPResult` convention:
+    ``stationarity`` (gradient of L w.r.t. x and u), ``primal`` (equality residuals and bound /
+    inequality violations), ``complementarity`` (max |multiplier * slack| over finite sides) and
+    ``dual_sign`` (most negative inequality multiplier, as a positive number)."""
+    N, n, m = qp.N, qp.n, qp.m
+    X, U = res.X, res.U
+    Z = np.concatenate([X[:-1], U], axis=1)
+    ne, ncs, neN, ncN = qp.E.shape[1], qp.C.shape[1], qp.EN.shape[0], qp.CN.shape[0]
+    nu = res.nu
+    # gradient of the objective
+    gx = np.einsum("kij,kj->ki", qp.Q[:-1], X[:-1]) + np.einsum("kij,kj->ki", qp.S, U) + qp.q[:-1]
+    gu = np.einsum("kji,kj->ki", qp.S, X[:-1]) + np.einsum("kij,kj->ki", qp.R, U) + qp.r
+    gN = qp.Q[-1] @ X[-1] + qp.q[-1]
+    lam = res.lam
+    gx = gx + np.einsum("kji,kj->ki", qp.A, lam[1:]) - lam[:-1]
+    gu = gu + np.einsum("kji,kj->ki", qp.B, lam[1:])
+    gN = gN - lam[-1]
+    if ne:
+        gx = gx + np.einsum("kji,kj->ki", qp.E, nu[:N, :ne]); gu = gu + np.einsum("kji,kj->ki", qp.F, nu[:N, :ne])
+    if neN:
+        gN = gN + qp.EN.T @ nu[N, :neN]
+    gx = gx - res.zx_lower[:-1] + res.zx_upper[:-1]
+    gN = gN - res.zx_lower[-1] + res.zx_upper[-1]
+    gu = gu - res.zu_lower + res.zu_upper
+    if ncs:
+        gz = np.einsum("kji,kj->ki", qp.C, res.yc_upper - res.yc_lower)
+        gx = gx + gz[:, :n]; gu = gu + gz[:, n:]
+    if ncN:
+        gN = gN + qp.CN.T @ (res.yN_upper - res.yN_lower)
+    stat = max(np.abs(gx).max(initial=0.0), np.abs(gu).max(initial=0.0), np.abs(gN).max(initial=0.0))
+    # primal
+    dyn = np.einsum("kij,kj->ki", qp.A, X[:-1]) + np.einsum("kij,kj->ki", qp.B, U) + qp.c - X[1:]
+    prim = max(np.abs(dyn).max(initial=0.0), np.abs(X[0] - qp.x0).max(initial=0.0))
+    if ne:
+        prim = max(prim, np.abs(np.einsum("kij,kj->ki", qp.E, X[:-1]) + np.einsum("kij,kj->ki", qp.F, U) + qp.e).max())
+    if neN:
+        prim = max(prim, np.abs(qp.EN @ X[-1] + qp.eN).max())
+    CZ = np.einsum("kij,kj->ki", qp.C, Z) if ncs else np.zeros((N, 0))
+    CNx = qp.CN @ X[-1] if ncN else np.zeros(0)
+    sides = [(X, qp.x_lower, qp.x_upper, res.zx_lower, res.zx_upper), (U, qp.u_lower, qp.u_upper, res.zu_lower, res.zu_upper),
+             (CZ, qp.c_lower, qp.c_upper, res.yc_lower, res.yc_upper), (CNx, qp.cN_lower, qp.cN_upper, res.yN_lower, res.yN_upper)]
+    comp, sign = 0.0, 0.0
+    for val, lo, hi, zl, zu in sides:
+        if val.size == 0:
+            continue
+        fl, fu = np.isfinite(lo), np.isfinite(hi)
+        sl = np.where(fl, val - lo, 0.0)
+        su = np.where(fu, hi - val, 0.0)
+        prim = max(prim, float(np.max(np.maximum(-sl, 0.0))), float(np.max(np.maximum(-su, 0.0))))
+        comp = max(comp, float(np.max(np.abs(np.where(fl, zl * sl, 0.0)))), float(np.max(np.abs(np.where(fu, zu * su, 0.0)))))
+        sign = max(sign, float(np.max(np.maximum(-zl, 0.0))), float(np.max(np.maximum(-zu, 0.0))))
+    return {"stationarity": float(stat), "primal": float(prim), "complementarity": comp, "dual_sign": sign}
