@@ -227,6 +227,12 @@ def main(argv=None) -> int:
     except OladoError as exc:
         print(f"olado: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except BrokenPipeError:  # output piped into e.g. head, which closed early: stop quietly
+        import os
+
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 128 + 13  # as a shell reports death by SIGPIPE
     except OSError as exc:  # e.g. --save/--plot into a folder that cannot be written
         print(f"olado: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
