@@ -49,3 +49,20 @@ def test_sparse_form_of_inequalities_and_bounds():
     eq = d["A_eq"] @ y - d["b_eq"]
     assert np.allclose(eq[:n], X[0] - qp2.x0)
     assert np.allclose(eq[n:].reshape(N, n), np.einsum("kij,kj->ki", qp2.A, X[:-1]) + np.einsum("kij,kj->ki", qp2.B, U) + qp2.c - X[1:])
+
+
+def test_kkt_residuals_vanish_at_the_riccati_solution_and_see_perturbations():
+    from olado.linalg.stageqp import QPResult, qp_kkt_residuals
+    from olado.result import Status
+
+    qp = _random_qp(3)
+    N, n, m = qp.N, qp.n, qp.m
+    s = RiccatiFactorization(qp.Q, qp.S, qp.R, qp.A, qp.B, E=qp.E, F=qp.F, EN=qp.EN).solve(
+        qp.q, qp.r, qp.c, qp.x0, e=qp.e, eN=qp.eN)
+    z = lambda *shape: np.zeros(shape)  # noqa: E731
+    res = QPResult(Status.SUCCESS, "", s.X, s.U, s.lam, s.nu, z(N + 1, n), z(N + 1, n), z(N, m), z(N, m),
+                   z(N, 0), z(N, 0), z(0), z(0))
+    k = qp_kkt_residuals(qp, res)
+    assert k["stationarity"] < 1e-10 and k["primal"] < 1e-10 and k["complementarity"] == 0.0
+    res.U = res.U + 1e-3
+    assert qp_kkt_residuals(qp, res)["primal"] > 1e-4
