@@ -223,22 +223,29 @@ class Result:
         return _jsonable(d)
 
     def save(self, path) -> Path:
-        """Save as JSON (``path``) plus an ``.npz`` of the exact arrays beside it, atomically.
+        """Save as JSON (``path``) plus an ``.npz`` of the arrays beside it, each written
+        atomically (temporary file + os.replace).
 
-        Returns the JSON path. The npz is written first so that a JSON that exists always has
-        its arrays."""
+        Both files carry the same random ``save_id``; :meth:`load` uses the npz only when the
+        ids match, so a crash between the two writes never pairs an old JSON with new arrays
+        (the JSON itself holds every array, with floats written exactly). Returns the JSON path."""
         path = Path(path)
         if path.suffix.lower() != ".json":
             path = path.with_suffix(".json")
         import io
 
+        import uuid
+
+        save_id = uuid.uuid4().hex
         buf = io.BytesIO()
-        arrays = {"x": np.asarray(self.x), "u": np.asarray(self.u)}
+        arrays = {"x": np.asarray(self.x), "u": np.asarray(self.u), "save_id": np.array(save_id)}
         for k, v in self.multipliers.items():
             arrays[f"multipliers__{k}"] = np.asarray(v)
         np.savez_compressed(buf, **arrays)
         atomic_write_bytes(path.with_suffix(".npz"), buf.getvalue())
-        text = json.dumps(self.to_dict(), indent=1)
+        doc = self.to_dict()
+        doc["save_id"] = save_id
+        text = json.dumps(doc, indent=1)
         atomic_write_bytes(path, text.encode("utf-8"))
         return path
 
@@ -260,10 +267,13 @@ class Result:
         npz = path.with_suffix(".npz")
         if npz.exists():
             with np.load(npz) as data:
-                x, u = data["x"], data["u"]
-                for name in data.files:
-                    if name.startswith("multipliers__"):
-                        mult[name[len("multipliers__"):]] = data[name]
+                if "save_id" not in data.files or str(data["save_id"]) != d.get("save_id"):
+                    data = None  # arrays from another save: keep the JSON's own (exact) values
+                if data is not None:
+                    x, u = data["x"], data["u"]
+                    for name in data.files:
+                        if name.startswith("multipliers__"):
+                            mult[name[len("multipliers__"):]] = data[name]
         return cls(
             status=Status(d["status"]),
             message=d.get("message", ""),

@@ -152,8 +152,6 @@ def test_failed_save_keeps_old_file_and_leaves_no_temp(tmp_path, monkeypatch, wh
     assert Result.load(path).objective == old.objective
 
 
-@pytest.mark.xfail(reason="Result.save writes the npz and the JSON as two separate atomic writes: a "
-                   "failure between them pairs the old JSON with the new arrays on load")
 def test_failure_between_npz_and_json_is_not_mixed(tmp_path, monkeypatch):
     old = make_result(seed=1)
     path = old.save(tmp_path / "res.json")
