@@ -198,7 +198,7 @@ def test_unknown_solver(tmp_path):
     path = write(tmp_path, "[solver]\nname = ipopt2\n")
     with pytest.raises(ConfigError) as exc:
         load_config(path)
-    assert_names(exc, path, "[solver]", "'name'", "ipopt2", "ipopt, slsqp, trust-constr")
+    assert_names(exc, path, "[solver]", "'name'", "ipopt2", "allowed: ", "ipopt", "slsqp", "trust-constr")
 
 
 def test_callback_and_raw_field_not_settable_as_values(tmp_path):
