@@ -22,6 +22,10 @@ Cholesky factor is where a non-positive-definite problem is detected, with the s
 The factorization depends only on the matrices; :meth:`RiccatiFactorization.solve` takes any
 number of right-hand sides (q, r, c, e, xbar_0), each in O(N (n+m)^2).
 
+Without any equality rows (the usual interior-point case: only bounds and inequalities, folded
+into Dx, Du, C^T diag(sigma) C) a separate plain-Riccati kernel is used: no QR, no propagated
+rows, and only P_k, K_k and the Cholesky factor of Q_uu are stored.
+
 Everything is compiled with numba; the stage loops run on preallocated arrays (no allocation
 inside the loops). Cost: O(N (n+m)^3) for the factorization.
 
@@ -588,6 +592,205 @@ def _solve(A, B, c, q, r, e, eN, x0, Dx, Du, S, Q, R, E, F, ne, EN, neN, Ci, sig
     return res
 
 
+# ------------------------------------------------------------------ fast path: no equality rows
+# Without stage or final equality rows the recursion is the plain Riccati recursion: no QR, no
+# propagated state rows, and only P, K and the Cholesky factor of Q_uu need to be stored. This is
+# the case of every interior-point iteration of a problem with only inequalities and bounds, so it
+# gets its own kernels (about 2x fewer flops, 4x less memory than the general path).
+@nb.njit(cache=True)
+def _factor_unconstrained(Q, S, R, A, B, Dx, Du, Ci, sig, ni, reg, P, K, L):
+    """Backward Riccati sweep without equality rows. With Q_uu = L L^T and V = L^{-1} Q_ux:
+    K_k = -L^{-T} V, P_k = Q_xx - V^T V. Returns -1 on success, else the failing stage index."""
+    N = A.shape[0]
+    n = A.shape[1]
+    m = B.shape[2]
+    PA = np.empty((n, n)); PB = np.empty((n, m)); Qux = np.empty((m, n)); V = np.empty((m, n))
+    Pk = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            P[N, i, j] = Q[N, i, j]
+        P[N, i, i] += Dx[N, i]
+    for k in range(N - 1, -1, -1):
+        # PA = P_{k+1} A_k, PB = P_{k+1} B_k (row-wise axpy form: contiguous inner loops)
+        for i in range(n):
+            for j in range(n):
+                PA[i, j] = 0.0
+            for j in range(m):
+                PB[i, j] = 0.0
+            for l in range(n):
+                p = P[k + 1, i, l]
+                for j in range(n):
+                    PA[i, j] += p * A[k, l, j]
+                for j in range(m):
+                    PB[i, j] += p * B[k, l, j]
+        # Q_xx = Q + diag(Dx) + A^T PA (into Pk)
+        for i in range(n):
+            for j in range(n):
+                Pk[i, j] = Q[k, i, j]
+            Pk[i, i] += Dx[k, i]
+        for l in range(n):
+            for i in range(n):
+                a = A[k, l, i]
+                for j in range(n):
+                    Pk[i, j] += a * PA[l, j]
+        # Q_uu = R + diag(Du) + reg I + B^T PB (into L[k]),  Q_ux = S^T + B^T PA
+        for i in range(m):
+            for j in range(m):
+                L[k, i, j] = R[k, i, j]
+            L[k, i, i] += Du[k, i] + reg
+            for j in range(n):
+                Qux[i, j] = S[k, j, i]
+        for l in range(n):
+            for i in range(m):
+                b = B[k, l, i]
+                for j in range(m):
+                    L[k, i, j] += b * PB[l, j]
+                for j in range(n):
+                    Qux[i, j] += b * PA[l, j]
+        # stage inequality terms C^T diag(sig) C
+        for c in range(ni[k]):
+            w = sig[k, c]
+            if w != 0.0:
+                for i in range(n):
+                    cw = Ci[k, c, i] * w
+                    if cw != 0.0:
+                        for j in range(n):
+                            Pk[i, j] += cw * Ci[k, c, j]
+                        for j in range(m):
+                            Qux[j, i] += cw * Ci[k, c, n + j]
+                for i in range(m):
+                    cw = Ci[k, c, n + i] * w
+                    if cw != 0.0:
+                        for j in range(m):
+                            L[k, i, j] += cw * Ci[k, c, n + j]
+        if not _chol_inplace(L[k], m):
+            return k
+        # V = L^{-1} Q_ux (forward substitution, row-wise)
+        for i in range(m):
+            for j in range(n):
+                V[i, j] = Qux[i, j]
+            for l in range(i):
+                a = L[k, i, l]
+                for j in range(n):
+                    V[i, j] -= a * V[l, j]
+            inv = 1.0 / L[k, i, i]
+            for j in range(n):
+                V[i, j] *= inv
+        # K = -L^{-T} V (back substitution, row-wise)
+        for i in range(m - 1, -1, -1):
+            for j in range(n):
+                K[k, i, j] = -V[i, j]
+            for l in range(i + 1, m):
+                a = L[k, l, i]
+                for j in range(n):
+                    K[k, i, j] -= a * K[k, l, j]
+            inv = 1.0 / L[k, i, i]
+            for j in range(n):
+                K[k, i, j] *= inv
+        # P_k = Q_xx - V^T V, symmetrized
+        for l in range(m):
+            for i in range(n):
+                v = V[l, i]
+                for j in range(n):
+                    Pk[i, j] -= v * V[l, j]
+        for i in range(n):
+            for j in range(n):
+                P[k, i, j] = 0.5 * (Pk[i, j] + Pk[j, i])
+    return -1
+
+
+@nb.njit(cache=True)
+def _solve_unconstrained(Q, S, A, B, Dx, Ci, sig, ni, P, K, L, q, r, c, x0, ci, X, U, lam, kff, pvec):
+    """One right-hand side without equality rows: backward vector sweep (kff_k = -Q_uu^{-1} q_u,
+    p_k = q_x + K_k^T q_u), forward simulation, and lam_k from the x-stationarity rows."""
+    N = A.shape[0]
+    n = A.shape[1]
+    m = B.shape[2]
+    t1 = np.empty(n); qu = np.empty(m); a_cur = np.empty(n)
+    for i in range(n):
+        pvec[N, i] = q[N, i]
+    for k in range(N - 1, -1, -1):
+        # t1 = P_{k+1} c_k + p_{k+1}
+        for i in range(n):
+            s = pvec[k + 1, i]
+            for l in range(n):
+                s += P[k + 1, i, l] * c[k, l]
+            t1[i] = s
+        # q_x = q + A^T t1 (into pvec[k]), q_u = r + B^T t1
+        for i in range(n):
+            pvec[k, i] = q[k, i]
+        for i in range(m):
+            qu[i] = r[k, i]
+        for l in range(n):
+            t = t1[l]
+            for i in range(n):
+                pvec[k, i] += A[k, l, i] * t
+            for i in range(m):
+                qu[i] += B[k, l, i] * t
+        for cc in range(ni[k]):
+            wgt = sig[k, cc] * ci[k, cc]
+            if wgt != 0.0:
+                for i in range(n):
+                    pvec[k, i] += Ci[k, cc, i] * wgt
+                for i in range(m):
+                    qu[i] += Ci[k, cc, n + i] * wgt
+        # kff = -Q_uu^{-1} q_u ;  p_k = q_x + K^T q_u
+        for i in range(m):
+            kff[k, i] = -qu[i]
+        _chol_solve_vec(L[k], m, kff[k])
+        for l in range(m):
+            t = qu[l]
+            for i in range(n):
+                pvec[k, i] += K[k, l, i] * t
+    # forward simulation
+    for i in range(n):
+        X[0, i] = x0[i]
+    for k in range(N):
+        for i in range(m):
+            s = kff[k, i]
+            for l in range(n):
+                s += K[k, i, l] * X[k, l]
+            U[k, i] = s
+        for i in range(n):
+            s = c[k, i]
+            for l in range(n):
+                s += A[k, i, l] * X[k, l]
+            for l in range(m):
+                s += B[k, i, l] * U[k, l]
+            X[k + 1, i] = s
+    # multipliers from the x-stationarity rows:
+    # lam_N = (Q_N + Dx_N) x_N + q_N,  lam_k = (Q + Dx) x + S u + q + A^T lam_{k+1} + C_x^T sig (C z + ci)
+    for i in range(n):
+        s = q[N, i] + Dx[N, i] * X[N, i]
+        for l in range(n):
+            s += Q[N, i, l] * X[N, l]
+        lam[N, i] = s
+    for k in range(N - 1, -1, -1):
+        for i in range(n):
+            s = q[k, i] + Dx[k, i] * X[k, i]
+            for l in range(n):
+                s += Q[k, i, l] * X[k, l]
+            for l in range(m):
+                s += S[k, i, l] * U[k, l]
+            a_cur[i] = s
+        for l in range(n):
+            t = lam[k + 1, l]
+            for i in range(n):
+                a_cur[i] += A[k, l, i] * t
+        for cc in range(ni[k]):
+            wgt = ci[k, cc]
+            for l in range(n):
+                wgt += Ci[k, cc, l] * X[k, l]
+            for l in range(m):
+                wgt += Ci[k, cc, n + l] * U[k, l]
+            wgt *= sig[k, cc]
+            if wgt != 0.0:
+                for i in range(n):
+                    a_cur[i] += Ci[k, cc, i] * wgt
+        for i in range(n):
+            lam[k, i] = a_cur[i]
+
+
 # ============================================================================= Python API
 @dataclasses.dataclass
 class LQSolution:
@@ -653,6 +856,17 @@ class RiccatiFactorization:
             self.ni = (np.full(N, self.Ci.shape[1], dtype=np.int64) if n_ineq is None
                        else np.ascontiguousarray(n_ineq, dtype=np.int64))
         self.regularization = float(regularization)
+        # fast path: no equality rows anywhere -> plain Riccati recursion, none of the constraint
+        # workspaces (QR factors, propagated rows) are allocated
+        self.unconstrained = self.neN == 0 and (self.ne_max == 0 or not self.ne.any())
+        if self.unconstrained:
+            self.ncmax = 0
+            self.P = np.empty((N + 1, n, n)); self.K = np.empty((N, m, n)); self.Lww = np.empty((N, m, m))
+            code = _factor_unconstrained(self.Q, self.S, self.R, self.A, self.B, self.Dx, self.Du, self.Ci,
+                                         self.sig, self.ni, self.regularization, self.P, self.K, self.Lww)
+            if code >= 0:
+                raise NotPositiveDefiniteError(code)
+            return
         ncmax = max(self.ne_max + n + self.neN, 1)
         self.ncmax = ncmax
         self.P = np.empty((N + 1, n, n)); self.K = np.empty((N, m, n))
@@ -683,7 +897,12 @@ class RiccatiFactorization:
         ci = np.zeros(self.sig.shape) if ci is None else _f64(ci, self.sig.shape, "ci")
         X = np.empty((N + 1, n)); U = np.empty((N, m)); lam = np.empty((N + 1, n))
         nu = np.zeros((N + 1, max(self.ne_max, self.neN)))
-        kff = np.empty((N, m)); pvec = np.empty((N + 1, n)); gvec = np.zeros((N + 1, self.ncmax)); dvec = np.zeros((N, self.ncmax))
+        kff = np.empty((N, m)); pvec = np.empty((N + 1, n))
+        if self.unconstrained:
+            _solve_unconstrained(self.Q, self.S, self.A, self.B, self.Dx, self.Ci, self.sig, self.ni,
+                                 self.P, self.K, self.Lww, q, r, c, x0, ci, X, U, lam, kff, pvec)
+            return LQSolution(X, U, lam, nu, 0.0)
+        gvec = np.zeros((N + 1, self.ncmax)); dvec = np.zeros((N, self.ncmax))
         res = _solve(self.A, self.B, c, q, r, e, eN, x0, self.Dx, self.Du, self.S, self.Q, self.R, self.E, self.F,
                      self.ne, self.EN, self.neN, self.Ci, self.sig, self.ni, ci,
                      self.P, self.K, self.Quu, self.Qux, self.Lww, self.Qm, self.Rm, self.perm, self.rank, self.nc,
