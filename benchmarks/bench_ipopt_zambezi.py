@@ -102,7 +102,9 @@ def markdown(rows, command, repeats) -> str:
         "tol 1e-8, MUMPS, monotone mu), balance start (46)-(47). Size columns are counted as in "
         "Table 1 (equalities include the fixed x^0, inequalities include bounds). Time is the "
         f"wall time of `solve` (best of {repeats}, after a warm-up solve); callback share is the "
-        "fraction of the IPOPT call spent in olado's Python evaluation callbacks. The last two "
+        "fraction of the IPOPT call spent in olado's Python evaluation callbacks. KKT residual: "
+        "olado's unscaled max-norm of stationarity and complementarity at the returned point "
+        "(IPOPT's interior-point complementarity, ~1e-9, dominates it). The last two "
         "columns are the paper's IPOPT figures (Athlon 64 X2 2.2 GHz, C++).",
         "",
         "| N | variables | m_e | m | status | iterations | objective | time (s) | callback share "

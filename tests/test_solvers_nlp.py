@@ -24,6 +24,11 @@ def make(name, **options):
     return get_solver_class(name)(**options)
 
 
+def tight(name):
+    """Options for a tight solve: SLSQP's own stopping accuracy (ftol) is set explicitly."""
+    return {"tol": 1e-10, "ftol": 1e-15} if name == "slsqp" else {"tol": 1e-10}
+
+
 # ============================================================================ test problems
 class LQ(DOCP):
     """Discrete double integrator, quadratic tracking cost, optional final equality v(N) = 0.
@@ -205,7 +210,7 @@ def stationarity(problem, result):
 def test_equality_constrained_lq_matches_dense_kkt(name):
     p = LQ(N=8)
     X, U, nu, nuN = lq_dense_reference(p)
-    res = make(name, tol=1e-9 if name == "trust-constr" else 1e-10).solve(p)
+    res = make(name, **(tight(name) if name != "trust-constr" else {"tol": 1e-9})).solve(p)
     assert res.status is Status.SUCCESS, res.message
     assert res.solver == name and res.N == 8 and res.problem == "lq"
     assert np.allclose(res.x, X, atol=1e-7) and np.allclose(res.u, U, atol=1e-6)
@@ -234,8 +239,7 @@ def test_ipopt_limited_memory_hessian_and_no_hessian_calls():
 def test_solvers_agree_with_bounds_and_inequalities(problem_cls):
     results = {}
     for name in SOLVERS:
-        opts = {"tol": 1e-10}
-        results[name] = make(name, **opts).solve(problem_cls())
+        results[name] = make(name, **tight(name)).solve(problem_cls())
         assert results[name].success, (name, results[name].message)
     ref = results["ipopt"]
     # the problem must actually have active bounds and inequalities
@@ -256,11 +260,13 @@ def test_solvers_agree_with_bounds_and_inequalities(problem_cls):
 @pytest.mark.parametrize("problem_cls", [BoundedLQ, Cart])
 def test_multipliers_satisfy_stationarity_and_signs(name, problem_cls):
     p = problem_cls()
-    res = make(name, tol=1e-10).solve(p)
+    res = make(name, **tight(name)).solve(p)
     assert res.success, res.message
     resid, nlp, y, lam, zl, zu = stationarity(p, res)
     assert resid < (1e-6 if name != "slsqp" else 1e-5), resid
-    assert res.kkt_residual == pytest.approx(resid, abs=1e-9)
+    assert res.info["stationarity_residual"] == pytest.approx(resid, abs=1e-9)
+    assert res.kkt_residual >= res.info["stationarity_residual"]
+    assert res.kkt_residual < 1e-6 and res.info["complementarity_residual"] < 1e-6
     # shapes of the multipliers dictionary
     m = res.multipliers
     assert m["dynamics"].shape == (p.N, p.n) and m["stage_constraints"].shape == (p.N, p.r)

@@ -97,13 +97,14 @@ class SLSQPOptions(SolverOptions):
     """Options of :class:`SLSQPSolver`.
 
     SLSQP has no KKT tolerance: it stops when the objective changes by less than ``ftol``
-    (absolute). olado passes ``ftol = max(tol**2, 1e-15)`` -- near a nondegenerate minimum an
-    objective accurate to tol**2 means a point accurate to about tol; below 1e-15 rounding
-    errors make SLSQP wander until max_iter -- unless ``ftol`` is set."""
+    (absolute). olado passes ``ftol = max(tol**2, 1e-12)`` unless ``ftol`` is set: near a
+    nondegenerate minimum an objective accurate to tol**2 means a point accurate to about tol,
+    but much below 1e-12 rounding errors can keep SLSQP wandering until max_iter (zambezi12 at
+    1e-14). Set ftol (down to ~1e-15) for tighter solutions of well-scaled small problems."""
 
     max_iter: int = option(500, "maximum number of SLSQP iterations (scipy maxiter)", min=0)
     ftol: float = option(0.0, "SLSQP's own stopping accuracy on the objective change; "
-                         "0 means max(tol**2, 1e-15)", min=0.0)
+                         "0 means max(tol**2, 1e-12)", min=0.0)
     active_tol: float = option(1e-8, "relative distance below which a bound counts as active "
                                "when bound multipliers are recovered", min=0.0)
 
@@ -172,7 +173,7 @@ class SLSQPSolver(_SciPyNLPSolver):
                 free.objective, z0, jac=free.gradient, method="SLSQP",
                 bounds=self._scipy_bounds(free), constraints=constraints, callback=callback,
                 options={"maxiter": max(int(opts.max_iter), 1),
-                         "ftol": float(opts.ftol or max(opts.tol ** 2, 1e-15)), "disp": opts.verbose >= 3,
+                         "ftol": float(opts.ftol or max(opts.tol ** 2, 1e-12)), "disp": opts.verbose >= 3,
                          "iprint": 2 if opts.verbose >= 3 else 0})
         solve_time = time.perf_counter() - t0
 
