@@ -23,7 +23,6 @@ import time
 import warnings
 
 import numpy as np
-import scipy.sparse as sp
 from scipy import optimize
 
 from ..result import Status
