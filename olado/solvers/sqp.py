@@ -1,0 +1,377 @@
+"""Powell's SQP method with structure-exploiting QP subproblems (paper 001 sec. 4.2.1).
+
+Each major iteration linearizes the DOCP at (X, U) into the QP (8)-(10) in stage form (a
+:class:`~olado.linalg.stageqp.StageQP`, so its KKT systems are LQ-DOCPs solved by the Riccati
+recursion), solves it with the chosen QP method, and takes a step along its solution s:
+
+    y^{i+1} = y^i + alpha s^i                                                   (11)
+
+with alpha from Armijo backtracking on the L1 exact penalty function
+
+    phi(y) = J(y) + sum_i rho_i |h_i(y)| + sum_j rho_j max(0, -g_j(y))  (+ bound violations)
+
+whose weights follow Powell's (1978) rule rho_i := max(|mu_i|, (rho_i + |mu_i|)/2) with mu the QP
+multipliers. The watchdog technique of Chamberlain, Powell, Lemarechal and Pedersen (1982) lets a
+full step through without merit decrease and returns to the last good point only when the
+merit function has not decreased within ``watchdog_steps`` iterations. The QP multipliers are the
+new multiplier estimates. The Hessian is one of :mod:`olado.solvers.hessian` (block BFGS, block
+SR1, exact with Gerschgorin or Levenberg convexification, Powell's BFGS with the gangster
+operator), always block diagonal (12).
+
+Stopping: KKT residual (max-norm of the NLP stationarity at the current point with the QP
+multipliers, relative to max(1, |grad J|)) <= tol, constraint violation <= constr_viol_tol; or a
+step shorter than step_tol (relative) with the constraints satisfied.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from ..linalg.stageqp import StageQP
+from ..result import Status
+from ._nlp_common import Deadline, TimedNLP, build_result, make_nlp
+from .base import Solver, SolverOptions, option
+from .hessian import ExactHessian, make_hessian
+from .registry import register
+
+QP_METHODS = ("mehrotra", "gondzio", "weighted", "osqp", "clarabel", "piqp", "proxqp", "highs", "quadprog", "cvxopt")
+KKT_SOLVERS = ("riccati", "superlu-full", "superlu-reduced", "minres", "gmres")
+
+
+def make_qp_solver(name, kkt="riccati", tol=1e-10, max_iter=200):
+    """QP method by name: olado's interior-point methods or an external qpsolvers backend."""
+    if name in ("mehrotra", "gondzio", "weighted"):
+        from . import qp_ip
+
+        cls = {"mehrotra": qp_ip.MehrotraQP, "gondzio": qp_ip.GondzioQP, "weighted": qp_ip.WeightedCorrectorQP}[name]
+        return cls(kkt=kkt, tol=tol, max_iter=max_iter)
+    from .qp_external import ExternalQP
+
+    return ExternalQP(backend=name)
+
+
+@dataclasses.dataclass
+class SQPOptions(SolverOptions):
+    """Options of :class:`SQPSolver` (``[sqp]`` section of an ini file)."""
+
+    max_iter: int = option(200, "maximum number of major (SQP) iterations", min=0)
+    tol: float = option(1e-7, "KKT residual tolerance, relative to max(1, |grad J|)", min=0.0, min_exclusive=True)
+    qp: str = option("mehrotra", "QP method for the subproblems", choices=QP_METHODS)
+    kkt: str = option("riccati", "KKT (matrix) solver inside the interior-point QP methods", choices=KKT_SOLVERS)
+    hessian: str = option("bfgs", "Hessian: block BFGS, block SR1, exact, or Powell's BFGS with the gangster operator",
+                          choices=("bfgs", "sr1", "exact", "powell-bfgs"))
+    convexify: str = option("levenberg", "convexification of the exact Hessian", choices=("levenberg", "gerschgorin"))
+    initial_hessian_scale: float = option(1.0, "initial quasi-Newton blocks: this times the identity", min=0.0, min_exclusive=True)
+    min_eigenvalue: float = option(1e-8, "smallest eigenvalue kept in a Hessian block", min=0.0, min_exclusive=True)
+    qp_tol: float = option(1e-10, "tolerance of the QP subproblem solver", min=0.0, min_exclusive=True)
+    qp_max_iter: int = option(200, "iteration limit of the QP subproblem solver", min=1)
+    watchdog: bool = option(True, "use the watchdog technique (Chamberlain et al. 1982)")
+    watchdog_steps: int = option(2, "relaxed iterations allowed before returning to the last good point", min=1)
+    armijo: float = option(1e-4, "sufficient-decrease constant of the line search", min=0.0, max=0.5, min_exclusive=True)
+    backtrack: float = option(0.5, "step reduction factor of the line search", min=0.01, max=0.99)
+    min_step: float = option(1e-10, "smallest step length before the line search gives up", min=0.0, min_exclusive=True)
+    step_tol: float = option(1e-12, "stop when |s| <= step_tol * (1 + |y|) and the point is feasible", min=0.0)
+    penalty_min: float = option(1e-8, "lower bound of the exact-penalty weights", min=0.0)
+
+
+class _Point:
+    """Values and derivatives of the DOCP at (X, U), evaluated together."""
+
+    def __init__(self, problem, X, U, derivatives=True):
+        p = problem
+        self.X, self.U = X, U
+        self.J = p.objective(X, U)
+        self.h = p.eval_dynamics(X, U) - X[1:]
+        self.g = p.eval_stage_constraints(X, U)
+        self.gN = p.eval_final_constraints(X[-1])
+        self.derivs = False
+        if derivatives:
+            self.add_derivatives(problem)
+
+    def add_derivatives(self, p):
+        if self.derivs:
+            return
+        X, U = self.X, self.U
+        self.lx, self.lu = p.eval_stage_cost_gradients(X, U)
+        self.lN = p.eval_final_cost_gradient(X[-1])
+        self.A, self.B = p.eval_dynamics_jacobians(X, U)
+        self.Cx, self.Cu = p.eval_stage_constraint_jacobians(X, U)
+        self.CN = p.eval_final_constraint_jacobian(X[-1])
+        self.derivs = True
+
+    def lagrangian_gradients(self, lam, Lg, LgN):
+        """Per-block gradients of the stage Lagrangians f0 + lam_{k+1}.f + Lg.g (z-blocks) and
+        of F + LgN.gN (final block); the terms linear in x_{k+1} cancel in differences."""
+        gx = self.lx + np.einsum("kij,ki->kj", self.A, lam[1:]) + np.einsum("kij,ki->kj", self.Cx, Lg)
+        gu = self.lu + np.einsum("kij,ki->kj", self.B, lam[1:]) + np.einsum("kij,ki->kj", self.Cu, Lg)
+        gN = self.lN + self.CN.T @ LgN
+        return np.concatenate([gx, gu], axis=1), gN
+
+
+@register
+class SQPSolver(Solver):
+    """Powell's SQP (paper 001 sec. 4.2.1) with structure-exploiting QP subproblems."""
+
+    name = "sqp"
+    Options = SQPOptions
+    description = "Powell's SQP, L1 merit + watchdog, block Hessians, interior-point QP with the Riccati KKT solver"
+
+    def _solve(self, problem, X0, U0):
+        o = self.options
+        p = problem
+        N, n, m, r, rN = p.N, p.n, p.m, p.r, p.rN
+        nlp = make_nlp(p)
+        timed = TimedNLP(nlp)
+        t_start = time.perf_counter()
+        deadline = Deadline(o.max_time)
+        eq, ineq = p.stage_equality_mask, ~p.stage_equality_mask
+        eqN, ineqN = p.final_equality_mask, ~p.final_equality_mask
+        qp_solver = make_qp_solver(o.qp, kkt=o.kkt, tol=o.qp_tol, max_iter=o.qp_max_iter)
+        hess = make_hessian(o.hessian, convexify=o.convexify, initial_scale=o.initial_hessian_scale, min_eig=o.min_eigenvalue)
+        hess.initial(N, n, m)
+        # start: controls clipped into their bounds, x0 exact
+        U = np.clip(U0, p.u_lower, p.u_upper)
+        X = np.array(X0, dtype=float)
+        X[0] = p.x0
+        pt = _Point(p, X, U)
+        lam = np.zeros((N + 1, n))
+        Lg = np.zeros((N, r))          # multiplier of g in "f0 + lam.f + Lg.g" (Lg = nu for =, -y for >=)
+        LgN = np.zeros(rN)
+        zl_x = np.zeros((N + 1, n)); zu_x = np.zeros((N + 1, n)); zl_u = np.zeros((N, m)); zu_u = np.zeros((N, m))
+        rho_h = np.zeros((N, n)); rho_g = np.zeros((N, r)); rho_gN = np.zeros(rN)
+        rho_bx = np.zeros((N + 1, n)); rho_bu = np.zeros((N, m))
+        history, qp_iters = [], 0
+        status, message = Status.MAX_ITERATIONS, f"maximum number of SQP iterations ({o.max_iter}) reached"
+        watch = None
+        warm = None
+        it = 0
+        kkt_res = float("nan")
+
+        def violations(q):
+            """Constraint violations (arrays) at a point, for the merit function."""
+            vg = np.where(eq, np.abs(q.g), np.maximum(-q.g, 0.0)) if r else q.g
+            vgN = np.where(eqN, np.abs(q.gN), np.maximum(-q.gN, 0.0)) if rN else q.gN
+            vbx = np.maximum(p.x_lower - q.X, 0.0) + np.maximum(q.X - p.x_upper, 0.0)
+            vbx[0] = 0.0
+            vbu = np.maximum(p.u_lower - q.U, 0.0) + np.maximum(q.U - p.u_upper, 0.0)
+            return np.abs(q.h), vg, vgN, vbx, vbu
+
+        def max_violation(q):
+            return max(float(np.max(v, initial=0.0)) for v in violations(q))
+
+        def merit(q):
+            vh, vg, vgN, vbx, vbu = violations(q)
+            return (q.J + np.sum(rho_h * vh) + np.sum(rho_g * vg) + np.sum(rho_gN * vgN)
+                    + np.sum(rho_bx * vbx) + np.sum(rho_bu * vbu))
+
+        while True:
+            if deadline.expired():
+                status, message = Status.MAX_TIME, f"time limit of {o.max_time:g} s reached after {it} SQP iterations"
+                break
+            if it >= o.max_iter:
+                break
+            # ---------------------------------------------------------------- QP subproblem (8)-(10)
+            if hess.needs_exact:
+                Hxx, Hxu, Huu = p.eval_stage_hessians(pt.X, pt.U, 1.0, lam[1:], Lg)
+                HN = p.eval_final_hessian(pt.X[-1], 1.0, LgN)
+                blocks = np.empty((N, n + m, n + m))
+                blocks[:, :n, :n] = Hxx; blocks[:, :n, n:] = Hxu
+                blocks[:, n:, :n] = np.transpose(Hxu, (0, 2, 1)); blocks[:, n:, n:] = Huu
+                hess.set_exact(blocks, HN)
+            Bk, BN = hess.current()
+            qp = self._build_qp(p, pt, Bk, BN, eq, ineq, eqN, ineqN)
+            qres = qp_solver.solve(qp, warm_start=None)
+            qp_iters += int(qres.iterations)
+            if not qres.success:
+                st = qres.status
+                if st == Status.INFEASIBLE:
+                    status = Status.INFEASIBLE
+                    message = (f"the QP subproblem of SQP iteration {it} is infeasible: the linearized constraints "
+                               f"are inconsistent ({qres.message})")
+                else:
+                    status = Status.NUMERICAL_ERROR
+                    message = f"the QP subproblem of SQP iteration {it} failed: {qres.message}"
+                break
+            dX, dU = qres.X, qres.U
+            # new multiplier estimates from the QP
+            lam_new = qres.lam.copy()
+            Lg_new = np.zeros((N, r))
+            if r:
+                Lg_new[:, eq] = qres.nu[:N, : int(eq.sum())]
+                Lg_new[:, ineq] = -(qres.yc_lower - qres.yc_upper)
+            LgN_new = np.zeros(rN)
+            if rN:
+                LgN_new[eqN] = qres.nu[N, : int(eqN.sum())]
+                LgN_new[ineqN] = -(qres.yN_lower - qres.yN_upper)
+            zl_x, zu_x, zl_u, zu_u = qres.zx_lower, qres.zx_upper, qres.zu_lower, qres.zu_upper
+            # ---------------------------------------------------------------- convergence test
+            kkt_res, grad_scale = self._kkt_residual(p, pt, lam_new, Lg_new, LgN_new, zl_x, zu_x, zl_u, zu_u)
+            viol = max_violation(pt)
+            step_norm = max(float(np.max(np.abs(dX))), float(np.max(np.abs(dU))))
+            y_norm = max(float(np.max(np.abs(pt.X))), float(np.max(np.abs(pt.U))))
+            if viol <= o.constr_viol_tol and kkt_res <= o.tol * grad_scale:
+                lam, Lg, LgN = lam_new, Lg_new, LgN_new
+                status, message = Status.SUCCESS, (f"converged in {it} SQP iterations: KKT residual {kkt_res:.2e}, "
+                                                   f"constraint violation {viol:.2e}")
+                break
+            if viol <= o.constr_viol_tol and step_norm <= o.step_tol * (1 + y_norm):
+                lam, Lg, LgN = lam_new, Lg_new, LgN_new
+                status, message = Status.ACCEPTABLE, (f"step below step_tol at SQP iteration {it} with a feasible point; "
+                                                      f"KKT residual {kkt_res:.2e}")
+                break
+            # ---------------------------------------------------------------- penalty update (Powell 1978)
+            rho_h = np.maximum(np.maximum(np.abs(lam_new[1:]), 0.5 * (rho_h + np.abs(lam_new[1:]))), o.penalty_min)
+            rho_g = np.maximum(np.maximum(np.abs(Lg_new), 0.5 * (rho_g + np.abs(Lg_new))), o.penalty_min)
+            rho_gN = np.maximum(np.maximum(np.abs(LgN_new), 0.5 * (rho_gN + np.abs(LgN_new))), o.penalty_min)
+            zbx = zl_x + zu_x; zbu = zl_u + zu_u
+            rho_bx = np.maximum(np.maximum(zbx, 0.5 * (rho_bx + zbx)), o.penalty_min)
+            rho_bu = np.maximum(np.maximum(zbu, 0.5 * (rho_bu + zbu)), o.penalty_min)
+            # ---------------------------------------------------------------- line search on phi
+            phi0 = merit(pt)
+            vh, vg, vgN, vbx, vbu = violations(pt)
+            D = (float(np.sum(pt.lx * dX[:-1]) + np.sum(pt.lu * dU) + pt.lN @ dX[-1])
+                 - np.sum(rho_h * vh) - np.sum(rho_g * vg) - np.sum(rho_gN * vgN) - np.sum(rho_bx * vbx) - np.sum(rho_bu * vbu))
+            alpha, new_pt, ls_trials, mode = self._line_search(p, pt, dX, dU, phi0, D, merit, watch)
+            if new_pt is None and watch is not None:
+                # back to the last good point and a monotone search along its direction
+                pt, dX, dU, phi0, D = watch["pt"], watch["dX"], watch["dU"], merit(watch["pt"]), watch["D"]
+                lam_new, Lg_new, LgN_new = watch["lam"], watch["Lg"], watch["LgN"]
+                watch = None
+                alpha, new_pt, ls_trials, mode = self._line_search(p, pt, dX, dU, phi0, D, merit, None)
+                mode = "watchdog-return"
+            if new_pt is None:
+                status, message = Status.NUMERICAL_ERROR, (f"line search failed at SQP iteration {it}: no step down to "
+                                                           f"{o.min_step:g} decreases the L1 merit function (D={D:.2e})")
+                lam, Lg, LgN = lam_new, Lg_new, LgN_new
+                break
+            # watchdog bookkeeping
+            if o.watchdog:
+                if mode == "relaxed":
+                    watch = {"pt": pt, "dX": dX, "dU": dU, "D": D, "phi": phi0, "count": 0,
+                             "lam": lam_new, "Lg": Lg_new, "LgN": LgN_new}
+                elif watch is not None:
+                    watch["count"] += 1
+                    if merit(new_pt) <= merit(watch["pt"]) + o.armijo * watch["D"]:
+                        watch = None
+                    elif watch["count"] >= o.watchdog_steps:
+                        watch["expired"] = True
+            # ---------------------------------------------------------------- Hessian update
+            new_pt.add_derivatives(p)
+            if not hess.needs_exact:
+                g_old, gN_old = pt.lagrangian_gradients(lam_new, Lg_new, LgN_new)
+                g_new, gN_new = new_pt.lagrangian_gradients(lam_new, Lg_new, LgN_new)
+                s_blocks = np.concatenate([new_pt.X[:-1] - pt.X[:-1], new_pt.U - pt.U], axis=1)
+                hess.update(s_blocks, new_pt.X[-1] - pt.X[-1], g_new - g_old, gN_new - gN_old)
+            pt = new_pt
+            lam, Lg, LgN = lam_new, Lg_new, LgN_new
+            it += 1
+            rec = {"iter": it, "objective": pt.J, "violation": max_violation(pt), "kkt": kkt_res, "step": alpha,
+                   "step_norm": step_norm, "merit": merit(pt), "penalty": float(max(rho_h.max(initial=0), rho_g.max(initial=0),
+                                                                                     rho_bx.max(initial=0), rho_bu.max(initial=0))),
+                   "qp_iterations": int(qres.iterations), "ls_trials": ls_trials, "mode": mode}
+            history.append(rec)
+            if o.verbose >= 2:
+                if it == 1:
+                    print(f"{'iter':>5} {'objective':>16} {'violation':>10} {'kkt':>10} {'alpha':>8} {'|s|':>10} {'penalty':>9} {'qp':>4}  mode")
+                print(f"{it:5d} {pt.J:16.9e} {rec['violation']:10.2e} {kkt_res:10.2e} {alpha:8.2e} {step_norm:10.2e} "
+                      f"{rec['penalty']:9.2e} {rec['qp_iterations']:4d}  {mode}")
+            if self._call_callback(dict(rec)):
+                status, message = Status.USER_STOP, f"stopped by the callback after SQP iteration {it}"
+                break
+            if watch is not None and watch.get("expired"):
+                # merit not below the watched point after watchdog_steps relaxed iterations: return
+                if merit(pt) > watch["phi"]:
+                    pt = watch["pt"]
+                    pt.add_derivatives(p)
+                    lam, Lg, LgN = watch["lam"], watch["Lg"], watch["LgN"]
+                    alpha, back_pt, _, _ = self._line_search(p, pt, watch["dX"], watch["dU"], merit(pt), watch["D"], merit, None)
+                    if back_pt is not None:
+                        back_pt.add_derivatives(p)
+                        pt = back_pt
+                watch = None
+        # ---------------------------------------------------------------- result
+        solve_time = time.perf_counter() - t_start
+        y = nlp.pack(pt.X, pt.U)
+        lam_nlp = np.concatenate([lam[1:].ravel(), Lg.ravel(), LgN])
+        zl, zu = nlp.pack(zl_x, zl_u), nlp.pack(zu_x, zu_u)
+        res = build_result(nlp=nlp, y=y, lam=lam_nlp, zl=zl, zu=zu, status=status, message=message,
+                           iterations=it, history=history, timed=timed, solve_time_s=solve_time,
+                           kkt_residual=kkt_res, kkt_note="max-norm NLP stationarity at the final point with the QP multipliers (olado SQP)",
+                           info={"qp": o.qp, "kkt": o.kkt, "hessian": o.hessian,
+                                 "hessian_updates": hess.updates, "hessian_skipped": hess.skipped})
+        res.qp_iterations = qp_iters
+        return res
+
+    # ------------------------------------------------------------------------------------------
+    @staticmethod
+    def _build_qp(p, pt, Bk, BN, eq, ineq, eqN, ineqN):
+        """The QP (8)-(10) in the step (dx, du) at the point pt, in stage form."""
+        N, n, m = p.N, p.n, p.m
+        X, U = pt.X, pt.U
+        Q = np.empty((N + 1, n, n))
+        Q[:-1] = Bk[:, :n, :n]; Q[-1] = BN
+        kw = {}
+        if p.r and eq.any():
+            kw.update(E=pt.Cx[:, eq, :], F=pt.Cu[:, eq, :], e=pt.g[:, eq])
+        if p.r and ineq.any():
+            C = np.concatenate([pt.Cx[:, ineq, :], pt.Cu[:, ineq, :]], axis=2)
+            kw.update(C=C, c_lower=-pt.g[:, ineq], c_upper=np.full((N, int(ineq.sum())), np.inf))
+        if p.rN and eqN.any():
+            kw.update(EN=pt.CN[eqN], eN=pt.gN[eqN])
+        if p.rN and ineqN.any():
+            kw.update(CN=pt.CN[ineqN], cN_lower=-pt.gN[ineqN], cN_upper=np.full(int(ineqN.sum()), np.inf))
+        xl = p.x_lower - X; xu = p.x_upper - X
+        xl[0] = -np.inf; xu[0] = np.inf      # x0 is fixed by the x0 row; its bounds are not the QP's business
+        return StageQP(Q=Q, R=Bk[:, n:, n:], S=Bk[:, :n, n:], q=np.vstack([pt.lx, pt.lN[None, :]]), r=pt.lu,
+                       A=pt.A, B=pt.B, c=pt.h, x0=p.x0 - X[0], x_lower=xl, x_upper=xu,
+                       u_lower=p.u_lower - U, u_upper=p.u_upper - U, **kw)
+
+    @staticmethod
+    def _kkt_residual(p, pt, lam, Lg, LgN, zl_x, zu_x, zl_u, zu_u):
+        """Max-norm of the NLP stationarity (x_1..x_N and u; x_0 is fixed) and the gradient scale."""
+        gz, gN = pt.lagrangian_gradients(lam, Lg, LgN)
+        n = p.n
+        gx = gz[:, :n].copy(); gu = gz[:, n:]
+        gx[1:] -= lam[1:-1]                      # the -lam_{k}.x_k term of the previous dynamics row
+        gN = gN - lam[-1]
+        gx = gx - zl_x[:-1] + zu_x[:-1]
+        gN = gN - zl_x[-1] + zu_x[-1]
+        gu = gu - zl_u + zu_u
+        res = max(float(np.max(np.abs(gx[1:]), initial=0.0)), float(np.max(np.abs(gu), initial=0.0)),
+                  float(np.max(np.abs(gN), initial=0.0)))
+        scale = max(1.0, float(np.max(np.abs(pt.lx), initial=0.0)), float(np.max(np.abs(pt.lu), initial=0.0)),
+                    float(np.max(np.abs(pt.lN), initial=0.0)))
+        return res, scale
+
+    def _line_search(self, p, pt, dX, dU, phi0, D, merit, watch):
+        """Armijo backtracking on the L1 merit. With the watchdog enabled and no watch active, a
+        full step that fails the Armijo test is still taken ("relaxed"). Returns (alpha, point,
+        trials, mode) or (alpha, None, trials, mode) when no acceptable step was found."""
+        o = self.options
+        alpha, trials = 1.0, 0
+        while alpha >= o.min_step:
+            trials += 1
+            X = pt.X + alpha * dX
+            U = pt.U + alpha * dU
+            try:
+                cand = _Point(p, X, U, derivatives=False)
+                phi = merit(cand)
+            except Exception as exc:  # non-finite values at the trial point: shorten the step
+                from ._nlp_common import is_nonfinite_error
+
+                if not is_nonfinite_error(exc):
+                    raise
+                phi = math.inf
+                cand = None
+            if cand is not None and phi <= phi0 + o.armijo * alpha * D:
+                return alpha, cand, trials, ("full" if alpha == 1.0 else "backtrack")
+            if alpha == 1.0 and cand is not None and o.watchdog and watch is None and math.isfinite(phi):
+                return alpha, cand, trials, "relaxed"
+            if watch is not None and alpha == 1.0 and cand is not None and math.isfinite(phi) and not watch.get("expired"):
+                return alpha, cand, trials, "watchdog"
+            alpha *= o.backtrack
+        return alpha, None, trials, "failed"
