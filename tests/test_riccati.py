@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import assume, given, settings, strategies as st
 
 from olado.linalg import NotPositiveDefiniteError, RiccatiFactorization
 
@@ -39,6 +39,7 @@ def dense_kkt(Q, S, R, q, r, A, B, c, x0, E=None, F=None, e=None, EN=None, eN=No
         C = np.zeros((EN.shape[0], nv)); C[:, xi(N)] = EN; rows.append(C); rhs.append(-eN)
     C = np.vstack(rows); d = np.concatenate(rhs)
     K = np.block([[H, C.T], [C, np.zeros((C.shape[0], C.shape[0]))]])
+    dense_kkt.last_condition = np.linalg.cond(K)
     sol = np.linalg.solve(K, np.concatenate([-g, d]))
     z = sol[:nv]
     X = np.array([z[xi(k)] for k in range(N + 1)]); U = np.array([z[ui(k)] for k in range(N)])
@@ -67,11 +68,14 @@ def random_problem(rng, N, n, m, ne=0, neN=0, pure_state=False, cond=1.0):
     return data
 
 
-def check_against_dense(d, tol=1e-8):
+def check_against_dense(d, tol=1e-8, max_condition=None):
     fac = RiccatiFactorization(d["Q"], d["S"], d["R"], d["A"], d["B"], E=d.get("E"), F=d.get("F"), EN=d.get("EN"),
                                Dx=d.get("Dx"), Du=d.get("Du"))
     sol = fac.solve(d["q"], d["r"], d["c"], d["x0"], e=d.get("e"), eN=d.get("eN"))
     X, U, mult = dense_kkt(**{k: d.get(k) for k in ("Q", "S", "R", "q", "r", "A", "B", "c", "x0", "E", "F", "e", "EN", "eN", "Dx", "Du")})
+    if max_condition is not None:
+        # the dense reference itself is unreliable on badly conditioned draws (closed-loop growth)
+        assume(dense_kkt.last_condition < max_condition)
     N, n = d["B"].shape[:2]
     scale = max(1.0, np.abs(X).max(), np.abs(U).max())
     assert np.abs(sol.X - X).max() <= tol * scale
@@ -110,7 +114,7 @@ def test_equality_constrained_recursion_matches_dense(N, n, m, seed, pure_state,
     else:
         m = max(m, 1 + neN)
     d = random_problem(rng, N, n, m, ne=1, neN=min(neN, n, m), pure_state=pure_state)
-    check_against_dense(d, tol=1e-7)
+    check_against_dense(d, tol=1e-7, max_condition=1e9)
 
 
 def test_inconsistent_rows_on_the_fixed_initial_state_are_reported():
