@@ -49,8 +49,14 @@ def option_fields(options_cls):
     return dataclasses.fields(options_cls)
 
 
+#: options class -> its resolved type hints (typing.get_type_hints is slow; classes do not change)
+_TYPE_HINTS: dict = {}
+
+
 def _field_type(options_cls, f):
-    hints = typing.get_type_hints(options_cls)
+    hints = _TYPE_HINTS.get(options_cls)
+    if hints is None:
+        hints = _TYPE_HINTS[options_cls] = typing.get_type_hints(options_cls)
     return hints.get(f.name, Any)
 
 
