@@ -40,6 +40,20 @@ _DERIVATIVE_OF = {
 }
 
 
+_count_nonfinite = None
+
+
+def _all_finite(arr):
+    """True when every entry of the float64 array ``arr`` is finite (one compiled pass over its
+    bit pattern: no temporary, no BLAS call -- BLAS threads compete with the solver's)."""
+    global _count_nonfinite
+    if _count_nonfinite is None:
+        from ._kernels import count_nonfinite   # noqa: PLC0415 - numba loads on first use
+        _count_nonfinite = count_nonfinite
+    flat = arr.reshape(-1)
+    return flat.size == 0 or _count_nonfinite(flat.view(np.int64)) == 0
+
+
 def _as_bool_mask(spec, size, name):
     """Turn None / bool mask / index list into a bool mask of length ``size``."""
     mask = np.zeros(size, dtype=bool)
@@ -216,16 +230,19 @@ class DOCP:
     # ======================================================================== validation
     def check_array(self, value, shape, function, array, stage=None):
         """Return ``value`` as a float array of ``shape``; ProblemDefinitionError otherwise."""
-        try:
-            arr = np.asarray(value, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise ProblemDefinitionError(f"cannot convert to a float array ({exc})", function=function, stage=stage, array=array) from None
+        if type(value) is np.ndarray and value.dtype == np.float64:
+            arr = value
+        else:
+            try:
+                arr = np.asarray(value, dtype=float)
+            except (TypeError, ValueError) as exc:
+                raise ProblemDefinitionError(f"cannot convert to a float array ({exc})", function=function, stage=stage, array=array) from None
         if arr.shape != tuple(shape):
             if arr.size == int(np.prod(shape)) and arr.ndim <= 1 and len(shape) <= 1:
                 arr = arr.reshape(shape)
             else:
                 raise ProblemDefinitionError(f"expected shape {tuple(shape)}, got {arr.shape}", function=function, stage=stage, array=array)
-        if not np.all(np.isfinite(arr)):
+        if not _all_finite(arr):
             bad = np.argwhere(~np.isfinite(arr))[0]
             where = stage
             if stage is None and arr.ndim >= 1 and len(shape) >= 2:
@@ -236,14 +253,17 @@ class DOCP:
 
     def _check_stacked(self, value, shape, function, array, stage0=0):
         """Validate an all-stages array (leading axis = stage); errors name the stage."""
-        try:
-            arr = np.asarray(value, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise ProblemDefinitionError(f"cannot convert to a float array ({exc})", function=function, array=array) from None
+        if type(value) is np.ndarray and value.dtype == np.float64:
+            arr = value
+        else:
+            try:
+                arr = np.asarray(value, dtype=float)
+            except (TypeError, ValueError) as exc:
+                raise ProblemDefinitionError(f"cannot convert to a float array ({exc})", function=function, array=array) from None
         if arr.shape != tuple(shape):
             raise ProblemDefinitionError(f"expected shape {tuple(shape)} (one row per stage), got {arr.shape}", function=function, array=array)
-        finite = np.isfinite(arr)
-        if not finite.all():
+        if not _all_finite(arr):
+            finite = np.isfinite(arr)
             bad = np.argwhere(~finite)[0]
             raise ProblemDefinitionError(f"non-finite value {arr[tuple(bad)]} at entry {tuple(int(b) for b in bad[1:])}",
                                          function=function, stage=stage0 + int(bad[0]), array=array)

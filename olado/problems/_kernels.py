@@ -1,0 +1,41 @@
+"""Compiled helpers of the evaluation path (numba), imported on first use by docp and nlp so
+that importing :mod:`olado.problems` does not load numba."""
+
+from __future__ import annotations
+
+import numba as nb
+
+_EXPONENT = 0x7FF0000000000000
+
+
+@nb.njit(cache=True)
+def count_nonfinite(bits):
+    """Number of inf/NaN entries of a float64 vector given as its int64 bit pattern (all
+    exponent bits set). Integer arithmetic: vectorized without fastmath, no BLAS, no threads."""
+    c = 0
+    for i in range(bits.size):
+        c += (bits[i] & _EXPONENT) == _EXPONENT
+    return c
+
+
+@nb.njit(cache=True)
+def gather_hessian_values(Hxx, Hxu, Huu, HN, out):
+    """Lower triangles of the stage blocks [[Hxx, Hxu], [Hxu^T, Huu]] (row by row, stage by
+    stage) followed by the lower triangle of HN: the order of ``np.tril_indices``."""
+    N, n, m = Hxu.shape
+    nz = n + m
+    pos = 0
+    for k in range(N):
+        for a in range(nz):
+            for b in range(a + 1):
+                if a < n:
+                    out[pos] = Hxx[k, a, b]
+                elif b < n:
+                    out[pos] = Hxu[k, b, a - n]
+                else:
+                    out[pos] = Huu[k, a - n, b - n]
+                pos += 1
+    for a in range(n):
+        for b in range(a + 1):
+            out[pos] = HN[a, b]
+            pos += 1
