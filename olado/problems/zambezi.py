@@ -42,6 +42,7 @@ import json
 import os
 import tempfile
 
+import numba as nb
 import numpy as np
 
 from ..errors import ProblemDefinitionError
@@ -84,6 +85,211 @@ _TURBINE_RES = np.array([0, 2, 3])
 _TURBINE_COL = np.array([6, 7, 8])   # Q1, Q3, Q4
 #: controls in the reference-outflow term (SIF groups F0Q1, F0F2, F0Q3, F0Q4), columns of u
 _REF_U = np.array([0, 4, 1, 2])
+
+
+# ============================================================================ compiled stage kernels
+# One pass over the stages per call, no temporaries: the same formulas as the numpy reference
+# Zambezi._next_volumes / Zambezi._quad, written out per stage (paper 001 eqs. (40), (44)).
+# k[i] is the stage of row i (it selects the inflow and evaporation of that month).
+
+@nb.njit(cache=True)
+def _volumes(kk, xi, ui, inflow, evap, fa, Vn, dV, d2V):
+    """V^{k+1} (4,) of eq. (40) at one stage, dV+_j/dV_j and d2V+_j/dV_j^2 (into Vn, dV, d2V)."""
+    lin0 = xi[0] + (-ui[0] - ui[3])
+    lin1 = xi[1] + (-ui[4])
+    lin2 = (xi[2] + xi[5]) + (-ui[1] - ui[5])
+    lin3 = xi[3] + (ui[0] + ui[1] - ui[2] + ui[3] + ui[5] - ui[6])
+    lin = (lin0, lin1, lin2, lin3)
+    for j in range(4):
+        V = xi[j]
+        e = evap[kk, j]
+        A, B, C = fa[0, j], fa[1, j], fa[2, j]
+        Vn[j] = (lin[j] + inflow[kk, j]) - e * ((A * V + B) * V + C)
+        dV[j] = 1.0 - e * (2.0 * A * V + B)
+        d2V[j] = -e * (2.0 * A)
+
+
+@nb.njit(cache=True)
+def _dynamics_kernel(k, x, u, inflow, evap, fa, out):
+    Vn, dV, d2V = np.empty(4), np.empty(4), np.empty(4)
+    for i in range(x.shape[0]):
+        _volumes(k[i], x[i], u[i], inflow, evap, fa, Vn, dV, d2V)
+        for j in range(4):
+            out[i, j] = Vn[j]
+        out[i, 4] = u[i, 4]
+        out[i, 5] = x[i, 4]
+
+
+@nb.njit(cache=True)
+def _dynamics_jacobian_kernel(k, x, evap, fa, LX, LU, fx, fu):
+    for i in range(x.shape[0]):
+        kk = k[i]
+        for a in range(6):
+            for b in range(6):
+                fx[i, a, b] = LX[a, b]
+            for b in range(7):
+                fu[i, a, b] = LU[a, b]
+        for j in range(4):
+            V = x[i, j]
+            fx[i, j, j] = 1.0 - evap[kk, j] * (2.0 * fa[0, j] * V + fa[1, j])
+
+
+@nb.njit(cache=True)
+def _turbine_heads(xi, Vn, fh, h, dh, hn, dhn, d2h):
+    """h(V_r), h(V+_r) and their derivatives for the turbine reservoirs r = 1, 3, 4 (0, 2, 3)."""
+    for t in range(3):
+        r = 0 if t == 0 else t + 1
+        A, B, C = fh[0, t], fh[1, t], fh[2, t]
+        V, W = xi[r], Vn[r]
+        h[t] = (A * V + B) * V + C
+        hn[t] = (A * W + B) * W + C
+        dh[t] = 2.0 * A * V + B
+        dhn[t] = 2.0 * A * W + B
+        d2h[t] = 2.0 * A
+
+
+@nb.njit(cache=True)
+def _stage_cost_kernel(k, x, u, inflow, evap, fa, fh, alpha, psi, uref, out):
+    Vn, dV, d2V = np.empty(4), np.empty(4), np.empty(4)
+    h, dh, hn, dhn, d2h = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    for i in range(x.shape[0]):
+        _volumes(k[i], x[i], u[i], inflow, evap, fa, Vn, dV, d2V)
+        _turbine_heads(x[i], Vn, fh, h, dh, hn, dhn, d2h)
+        energy = u[i, 0] * (h[0] + hn[0]) + u[i, 1] * (h[1] + hn[1]) + u[i, 2] * (h[2] + hn[2])
+        d0, d1, d2, d3 = u[i, 0] - uref[0], u[i, 4] - uref[1], u[i, 1] - uref[2], u[i, 2] - uref[3]
+        out[i] = -alpha * energy + psi * (d0 * d0 + d1 * d1 + d2 * d2 + d3 * d3)
+
+
+@nb.njit(cache=True)
+def _stage_jacobian_rows(dV, LX, LU, J):
+    """dV+/dw (4, 13), w = (x, u), at one stage."""
+    for j in range(4):
+        for b in range(6):
+            J[j, b] = LX[j, b]
+        for b in range(7):
+            J[j, 6 + b] = LU[j, b]
+        J[j, j] = dV[j]
+
+
+@nb.njit(cache=True)
+def _stage_cost_gradient_kernel(k, x, u, inflow, evap, fa, fh, alpha, psi, uref, LX, LU, gx, gu):
+    Vn, dV, d2V = np.empty(4), np.empty(4), np.empty(4)
+    h, dh, hn, dhn, d2h = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    J = np.empty((4, 13))
+    g = np.empty(13)
+    ref = (0, 4, 1, 2)
+    for i in range(x.shape[0]):
+        _volumes(k[i], x[i], u[i], inflow, evap, fa, Vn, dV, d2V)
+        _turbine_heads(x[i], Vn, fh, h, dh, hn, dhn, d2h)
+        _stage_jacobian_rows(dV, LX, LU, J)
+        # d/dw [Q (h(V) + h(V+))] = e_Q (h + h+) + Q h'(V) e_V + Q h'(V+) dV+/dw
+        c0, c1, c2 = u[i, 0] * dhn[0], u[i, 1] * dhn[1], u[i, 2] * dhn[2]
+        for w in range(13):
+            g[w] = c0 * J[0, w] + c1 * J[2, w] + c2 * J[3, w]
+        g[0] += u[i, 0] * dh[0]
+        g[2] += u[i, 1] * dh[1]
+        g[3] += u[i, 2] * dh[2]
+        for t in range(3):
+            g[6 + t] += h[t] + hn[t]
+        for w in range(13):
+            g[w] *= -alpha
+        for j in range(4):
+            g[6 + ref[j]] += 2.0 * psi * (u[i, ref[j]] - uref[j])
+        for w in range(6):
+            gx[i, w] = g[w]
+        for w in range(7):
+            gu[i, w] = g[6 + w]
+
+
+@nb.njit(cache=True)
+def _final_cost_kernel(x, V_ref, phi, fe, nu_E):
+    """F^N of eq. (44): sum_i phi_i (V_i - V_i,ref)^2 - nu_E sum_i fe_i(V_i)."""
+    dev, evap = 0.0, 0.0
+    for i in range(4):
+        V = x[i]
+        d = V - V_ref[i]
+        dev += phi[i] * d * d
+        evap += (fe[0, i] * V + fe[1, i]) * V + fe[2, i]
+    return dev - nu_E * evap
+
+
+@nb.njit(cache=True)
+def _final_gradient_kernel(x, V_ref, phi, fe, nu_E, g):
+    for i in range(4):
+        V = x[i]
+        g[i] = 2.0 * phi[i] * (V - V_ref[i]) - nu_E * (2.0 * fe[0, i] * V + fe[1, i])
+
+
+@nb.njit(cache=True)
+def _final_hessian_kernel(sigma, phi, fe, nu_E, H):
+    for i in range(4):
+        H[i, i] = sigma * (2.0 * phi[i] - nu_E * 2.0 * fe[0, i])
+
+
+#: nonzero columns of dV+_r/dw (w = (x, u)) for the turbine reservoirs r = 1, 3, 4 (rows 0, 2, 3 of
+#: [_LX | _LU] plus the diagonal entry dV+_r/dV_r), padded with -1
+_JCOLS = np.full((3, 7), -1, dtype=np.int64)
+for _t, _r in enumerate(_TURBINE_RES):
+    _nzc = sorted(set(np.flatnonzero(np.concatenate([_LX[_r], _LU[_r]])).tolist()) | {int(_r)})
+    _JCOLS[_t, :len(_nzc)] = _nzc
+del _t, _r, _nzc
+
+
+@nb.njit(cache=True)
+def _stage_hessian_kernel(k, x, u, inflow, evap, fa, fh, alpha, psi, sig, p, LX, LU, jcols,
+                          hxx, hxu, huu):
+    Vn, dV, d2V = np.empty(4), np.empty(4), np.empty(4)
+    h, dh, hn, dhn, d2h = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    J = np.empty((4, 13))
+    H = np.empty((13, 13))
+    ref = (0, 4, 1, 2)
+    for i in range(x.shape[0]):
+        _volumes(k[i], x[i], u[i], inflow, evap, fa, Vn, dV, d2V)
+        _turbine_heads(x[i], Vn, fh, h, dh, hn, dhn, d2h)
+        _stage_jacobian_rows(dV, LX, LU, J)
+        H[:, :] = 0.0
+        for t in range(3):
+            r = 0 if t == 0 else t + 1
+            # a_t = d/dw of h(V_r) + h(V+_r) = h'(V) e_V + h'(V+) dV+/dw, in row and column 6+t
+            for q in range(jcols.shape[1]):
+                w = jcols[t, q]
+                if w < 0:
+                    break
+                aw = dhn[t] * J[r, w]
+                if w == r:
+                    aw += dh[t]
+                H[6 + t, w] += aw
+                H[w, 6 + t] += aw
+        # Q (h''(V) e_V e_V^T + h''(V+) dV+ dV+^T + h'(V+) d2V+)
+        for t in range(3):
+            r = 0 if t == 0 else t + 1
+            c = u[i, t] * (2.0 * fh[0, t])
+            for q in range(jcols.shape[1]):
+                w = jcols[t, q]
+                if w < 0:
+                    break
+                cw = c * J[r, w]
+                for q2 in range(jcols.shape[1]):
+                    v = jcols[t, q2]
+                    if v < 0:
+                        break
+                    H[w, v] += cw * J[r, v]
+            H[r, r] += u[i, t] * d2h[t] + u[i, t] * dhn[t] * d2V[r]
+        # sigma (-alpha H + 2 psi on the reference-outflow diagonal) + p . d2f (evaporation terms)
+        s = sig[i]
+        for w in range(6):
+            for v in range(6):
+                hxx[i, w, v] = s * (H[w, v] * -alpha)
+            for v in range(7):
+                hxu[i, w, v] = s * (H[w, 6 + v] * -alpha)
+        for w in range(7):
+            for v in range(7):
+                huu[i, w, v] = s * (H[6 + w, 6 + v] * -alpha)
+        for j in range(4):
+            c = ref[j]
+            huu[i, c, c] = s * (H[6 + c, 6 + c] * -alpha + 2.0 * psi)
+        for j in range(4):
+            hxx[i, j, j] += p[i, j] * d2V[j]
 
 
 class Zambezi(DOCP):
@@ -208,107 +414,98 @@ class Zambezi(DOCP):
 
     def _next_volumes(self, k, x, u):
         """V^{k+1} (K, 4) of eq. (40), its derivative dV+/dV_i (diagonal, (K, 4)) and the
-        diagonal second derivative (K, 4)."""
+        diagonal second derivative (K, 4). (Reference numpy form; the stage functions below
+        use the compiled kernels of this module, which compute the same quantities.)"""
         V = x[:, :4]
         fa, dfa, d2fa = self._quad(self.fa, V)
         e = self.evaporation[k]
         Vn = x @ _LX[:4].T + u @ _LU[:4].T + self.inflow[k] - e * fa
         return Vn, 1.0 - e * dfa, -e * d2fa
 
+    @staticmethod
+    def _stages(k, K):
+        """The stage indices as an int64 array (K,) (a scalar k applies to every row)."""
+        if type(k) is np.ndarray and k.dtype == np.int64 and k.ndim == 1 and k.flags.c_contiguous:
+            return k
+        k = np.asarray(k)
+        if k.ndim == 0:
+            return np.full(K, int(k), dtype=np.int64)
+        return np.ascontiguousarray(k.reshape(-1), dtype=np.int64)
+
+    @staticmethod
+    def _rows(a):
+        """A stage array as C-contiguous float64 (K, d): no copy when it already is one."""
+        if type(a) is np.ndarray and a.dtype == np.float64 and a.flags.c_contiguous:
+            return a
+        return np.ascontiguousarray(a, dtype=np.float64)
+
+    def _args(self, k, x, u):
+        x, u = self._rows(x), self._rows(u)
+        return self._stages(k, x.shape[0]), x, u
+
     # ------------------------------------------------------------------ DOCP functions
     def dynamics(self, k, x, u):
         """f^k(x, u) of eq. (40) plus the delay states, all stages at once, (K, 6)."""
-        Vn = self._next_volumes(k, x, u)[0]
-        return np.column_stack([Vn, u[:, 4], x[:, 4]])
+        k, x, u = self._args(k, x, u)
+        out = np.empty((x.shape[0], 6))
+        _dynamics_kernel(k, x, u, self.inflow, self.evaporation, self.fa, out)
+        return out
 
     def dynamics_jacobian(self, k, x, u):
         """(f_x (K, 6, 6), f_u (K, 6, 7)) of eq. (40)."""
+        k, x, u = self._args(k, x, u)
         K = x.shape[0]
-        dV = self._next_volumes(k, x, u)[1]
-        fx = np.broadcast_to(_LX, (K, 6, 6)).copy()
-        idx = np.arange(4)
-        fx[:, idx, idx] = dV
-        return fx, np.broadcast_to(_LU, (K, 6, 7)).copy()
-
-    def _stage_parts(self, k, x, u):
-        K = x.shape[0]
-        Vn, dVn_dV, d2Vn = self._next_volumes(k, x, u)
-        J = np.concatenate([np.broadcast_to(_LX[:4], (K, 4, 6)),
-                            np.broadcast_to(_LU[:4], (K, 4, 7))], axis=2).copy()   # dV+/dw, w=(x,u)
-        idx = np.arange(4)
-        J[:, idx, idx] = dVn_dV
-        r = _TURBINE_RES
-        V, Vr = x[:, r], Vn[:, r]
-        h, dh, d2h = self._quad(self.fh, V)
-        hn, dhn, d2hn = self._quad(self.fh, Vr)
-        Q = u[:, [0, 1, 2]]
-        return K, Vn, J, d2Vn, V, Vr, h, dh, d2h, hn, dhn, d2hn, Q
+        fx, fu = np.empty((K, 6, 6)), np.empty((K, 6, 7))
+        _dynamics_jacobian_kernel(k, x, self.evaporation, self.fa, _LX, _LU, fx, fu)
+        return fx, fu
 
     def stage_cost(self, k, x, u):
         """f_0^k of eq. (44) with V^{k+1} replaced by the balance equation, (K,)."""
-        V = x[:, _TURBINE_RES]
-        Vn = self._next_volumes(k, x, u)[0][:, _TURBINE_RES]
-        Q = u[:, [0, 1, 2]]
-        energy = np.sum(Q * (self._quad(self.fh, V)[0] + self._quad(self.fh, Vn)[0]), axis=1)
-        dev = u[:, _REF_U] - self.u_ref
-        return -self.alpha * energy + self.psi * np.sum(dev * dev, axis=1)
+        k, x, u = self._args(k, x, u)
+        out = np.empty(x.shape[0])
+        _stage_cost_kernel(k, x, u, self.inflow, self.evaporation, self.fa, self.fh,
+                           self.alpha, self.psi, self.u_ref, out)
+        return out
 
     def stage_cost_gradient(self, k, x, u):
         """(l_x (K, 6), l_u (K, 7)) of the stage cost."""
-        K, Vn, J, d2Vn, V, Vr, h, dh, d2h, hn, dhn, d2hn, Q = self._stage_parts(k, x, u)
-        g = np.zeros((K, 13))
-        r = _TURBINE_RES
-        # d/dw [Q (h(V) + h(V+))] = e_Q (h + h+) + Q h'(V) e_V + Q h'(V+) dV+/dw
-        g += np.einsum("kr,krw->kw", Q * dhn, J[:, r, :])
-        g[:, r] += Q * dh
-        g[:, _TURBINE_COL] += h + hn
-        g *= -self.alpha
-        g[:, 6 + _REF_U] += 2.0 * self.psi * (u[:, _REF_U] - self.u_ref)
-        return g[:, :6], g[:, 6:]
+        k, x, u = self._args(k, x, u)
+        K = x.shape[0]
+        gx, gu = np.empty((K, 6)), np.empty((K, 7))
+        _stage_cost_gradient_kernel(k, x, u, self.inflow, self.evaporation, self.fa, self.fh,
+                                    self.alpha, self.psi, self.u_ref, _LX, _LU, gx, gu)
+        return gx, gu
 
     def stage_hessian(self, k, x, u, sigma, p, lam):
         """Blocks of the Hessian of sigma*f_0^k + p.f^k (no stage constraints), all stages."""
-        K, Vn, J, d2Vn, V, Vr, h, dh, d2h, hn, dhn, d2hn, Q = self._stage_parts(k, x, u)
-        r = _TURBINE_RES
-        Jr = J[:, r, :]                                    # (K, 3, 13) dV+_r/dw
-        # a_r = dh/dw of h(V_r) + h(V+_r): h'(V) e_V + h'(V+) dV+/dw
-        a = dhn[:, :, None] * Jr
-        a[:, [0, 1, 2], r] += dh
-        H = np.zeros((K, 13, 13))
-        cols = _TURBINE_COL
-        for i in range(3):   # three turbines (fixed size, not a loop over stages)
-            H[:, cols[i], :] += a[:, i, :]
-            H[:, :, cols[i]] += a[:, i, :]
-        # Q (h''(V) e_V e_V^T + h''(V+) dV+ dV+^T + h'(V+) d2V+)
-        H += np.einsum("kr,kri,krj->kij", Q * d2hn, Jr, Jr)
-        H[:, r, r] += Q * d2h + Q * dhn * d2Vn[:, r]
-        H *= -self.alpha
-        refc = 6 + _REF_U
-        H[:, refc, refc] += 2.0 * self.psi
-        sig = np.asarray(sigma, dtype=float).reshape(-1, 1, 1) if np.ndim(sigma) else float(sigma)
-        H = sig * H
-        idx = np.arange(4)
-        H[:, idx, idx] += p[:, :4] * d2Vn               # p . f^k: only the evaporation terms
-        return H[:, :6, :6], H[:, :6, 6:], H[:, 6:, 6:]
+        k, x, u = self._args(k, x, u)
+        K = x.shape[0]
+        if np.ndim(sigma):
+            sig = np.ascontiguousarray(np.broadcast_to(np.asarray(sigma, dtype=np.float64).reshape(-1), (K,)))
+        else:
+            sig = np.full(K, float(sigma))
+        p = self._rows(p)
+        hxx, hxu, huu = np.empty((K, 6, 6)), np.empty((K, 6, 7)), np.empty((K, 7, 7))
+        _stage_hessian_kernel(k, x, u, self.inflow, self.evaporation, self.fa, self.fh,
+                              self.alpha, self.psi, sig, p, _LX, _LU, _JCOLS, hxx, hxu, huu)
+        return hxx, hxu, huu
 
     def final_cost(self, x):
         """F^N = sum_i phi_i (V_i - V_i,ref)^2 - nu_E sum_i fe_i(V_i), eq. (44)."""
-        V = x[:4]
-        dev = V - self.V_ref
-        A, B, C = self.fe
-        return float(np.sum(self.phi * dev * dev) - self.nu_E * np.sum((A * V + B) * V + C))
+        return _final_cost_kernel(self._rows(x), self.V_ref, self.phi, self.fe, self.nu_E)
 
     def final_cost_gradient(self, x):
-        V = x[:4]
-        A, B, _ = self.fe
         g = np.zeros(6)
-        g[:4] = 2.0 * self.phi * (V - self.V_ref) - self.nu_E * (2.0 * A * V + B)
+        _final_gradient_kernel(self._rows(x), self.V_ref, self.phi, self.fe, self.nu_E, g)
         return g
 
     def final_hessian(self, x, sigma, lam):
         H = np.zeros((6, 6))
-        idx = np.arange(4)
-        H[idx, idx] = sigma * (2.0 * self.phi - self.nu_E * 2.0 * self.fe[0])
+        if np.ndim(sigma):
+            idx = np.arange(4)
+            H[idx, idx] = sigma * (2.0 * self.phi - self.nu_E * 2.0 * self.fe[0])
+        else:
+            _final_hessian_kernel(float(sigma), self.phi, self.fe, self.nu_E, H)
         return H
 
     def simulate(self, U):
