@@ -37,6 +37,28 @@ class StructuredNLP:
         self._xN = N * nz + np.arange(n)
         self._build_jacobian_structure()
         self._build_hessian_structure()
+        # stage parts of y as strided views: x^k starts at k (n+m), x^N at N (n+m), u^k at k (n+m) + n
+        self._x_geometry = ((N + 1, n), (nz * 8, 8), 0)
+        self._u_geometry = ((N, m), (nz * 8, 8), n * 8)
+
+    def _view(self, y, geometry):
+        """A strided (no copy) view of the states or controls inside the contiguous vector y."""
+        shape, strides, offset = geometry
+        return np.ndarray(shape, dtype=np.float64, buffer=y, offset=offset, strides=strides)
+
+    def _vector(self, y):
+        """y as a contiguous float vector of the right length (no copy when it already is one)."""
+        y = np.asarray(y, dtype=float)
+        if y.shape != (self.n_vars,):
+            raise ProblemDefinitionError(f"expected a vector of length {self.n_vars}, got shape {y.shape}", array="y")
+        if not y.flags.c_contiguous:
+            y = np.ascontiguousarray(y)
+        return y
+
+    def _trajectories(self, y):
+        """(X (N+1, n), U (N, m)) from y, fresh contiguous arrays (what unpack returns)."""
+        y = self._vector(y)
+        return self._view(y, self._x_geometry).copy(), self._view(y, self._u_geometry).copy()
 
     # ------------------------------------------------------------------ packing
     def pack(self, X, U):
@@ -44,23 +66,11 @@ class StructuredNLP:
         p = self.problem
         X = p.check_array(X, (self.N + 1, self.n), "pack", "X")
         U = p.check_array(U, (self.N, self.m), "pack", "U")
-        y = np.empty(self.n_vars)
-        stages = y[: self.N * self.nz].reshape(self.N, self.nz)
-        stages[:, : self.n] = X[:-1]
-        stages[:, self.n:] = U
-        y[self.N * self.nz:] = X[-1]
-        return y
+        return self._pack_raw(X, U)
 
     def unpack(self, y):
         """(X (N+1, n), U (N, m)) from y (copies)."""
-        y = np.asarray(y, dtype=float)
-        if y.shape != (self.n_vars,):
-            raise ProblemDefinitionError(f"expected a vector of length {self.n_vars}, got shape {y.shape}", array="y")
-        stages = y[: self.N * self.nz].reshape(self.N, self.nz)
-        X = np.empty((self.N + 1, self.n))
-        X[:-1] = stages[:, : self.n]
-        X[-1] = y[self.N * self.nz:]
-        return X, stages[:, self.n:].copy()
+        return self._trajectories(y)
 
     # ------------------------------------------------------------------ bounds
     def variable_bounds(self):
@@ -72,10 +82,8 @@ class StructuredNLP:
 
     def _pack_raw(self, X, U):
         y = np.empty(self.n_vars)
-        stages = y[: self.N * self.nz].reshape(self.N, self.nz)
-        stages[:, : self.n] = X[:-1]
-        stages[:, self.n:] = U
-        y[self.N * self.nz:] = X[-1]
+        self._view(y, self._x_geometry)[...] = X
+        self._view(y, self._u_geometry)[...] = U
         return y
 
     def constraint_bounds(self):
@@ -94,24 +102,29 @@ class StructuredNLP:
 
     # ------------------------------------------------------------------ values
     def objective(self, y):
-        X, U = self.unpack(y)
+        X, U = self._trajectories(y)
         return self.problem.objective(X, U)
 
     def gradient(self, y):
-        X, U = self.unpack(y)
+        X, U = self._trajectories(y)
         p = self.problem
         lx, lu = p.eval_stage_cost_gradients(X, U)
         gN = p.eval_final_cost_gradient(X[-1])
-        return self._pack_raw(np.vstack([lx, gN[None, :]]), lu)
+        out = np.empty(self.n_vars)
+        gx = self._view(out, self._x_geometry)
+        gx[:-1] = lx
+        gx[-1] = gN
+        self._view(out, self._u_geometry)[...] = lu
+        return out
 
     def constraints(self, y):
-        X, U = self.unpack(y)
+        X, U = self._trajectories(y)
         p = self.problem
         out = np.empty(self.n_cons)
-        out[: self.n_dyn] = (p.eval_dynamics(X, U) - X[1:]).ravel()
+        np.subtract(p.eval_dynamics(X, U), X[1:], out=out[: self.n_dyn].reshape(self.N, self.n))
         s = self.n_dyn
         if self.r:
-            out[s: s + self.N * self.r] = p.eval_stage_constraints(X, U).ravel()
+            out[s: s + self.N * self.r] = p.eval_stage_constraints(X, U).reshape(-1)
         s += self.N * self.r
         if self.rN:
             out[s:] = p.eval_final_constraints(X[-1])
@@ -162,16 +175,24 @@ class StructuredNLP:
 
     def jacobian(self, y):
         """Values of dc/dy in the order of :meth:`jacobian_structure`."""
-        X, U = self.unpack(y)
+        X, U = self._trajectories(y)
         p = self.problem
+        out = np.empty(self._jac_rows.size)
+
+        def put(s, block):
+            out[s: s + block.size].reshape(block.shape)[...] = block
+            return s + block.size
+
         A, B = p.eval_dynamics_jacobians(X, U)
-        parts = [A.ravel(), B.ravel(), np.full(self.n_dyn, -1.0)]
+        s = put(put(0, A), B)
+        out[s: s + self.n_dyn] = -1.0
+        s += self.n_dyn
         if self.r:
             Cx, Cu = p.eval_stage_constraint_jacobians(X, U)
-            parts += [Cx.ravel(), Cu.ravel()]
+            s = put(put(s, Cx), Cu)
         if self.rN:
-            parts.append(p.eval_final_constraint_jacobian(X[-1]).ravel())
-        return np.concatenate(parts)
+            out[s:] = p.eval_final_constraint_jacobian(X[-1]).reshape(-1)
+        return out
 
     def jacobian_matrix(self, y):
         """dc/dy as a scipy.sparse CSR matrix."""
@@ -199,7 +220,7 @@ class StructuredNLP:
     def stage_blocks(self, y, lagrange, obj_factor=1.0):
         """The Hessian blocks: (Hxx (N,n,n), Hxu (N,n,m), Huu (N,m,m), HN (n,n)) of
         obj_factor*J + lagrange.c."""
-        X, U = self.unpack(y)
+        X, U = self._trajectories(y)
         p = self.problem
         mult = self.multipliers_to_stages(lagrange)
         Hxx, Hxu, Huu = p.eval_stage_hessians(X, U, obj_factor, mult["dynamics"], mult["stage_constraints"])
@@ -210,15 +231,13 @@ class StructuredNLP:
         """Values (lower triangle, order of :meth:`hessian_structure`) of the Hessian of
         obj_factor*J(y) + lagrange . c(y)."""
         Hxx, Hxu, Huu, HN = self.stage_blocks(y, lagrange, obj_factor)
-        n, N = self.n, self.N
-        full = np.empty((N, self.nz, self.nz))
-        full[:, :n, :n] = Hxx
-        full[:, :n, n:] = Hxu
-        full[:, n:, :n] = np.transpose(Hxu, (0, 2, 1))
-        full[:, n:, n:] = Huu
-        a, b = self._tril_stage
-        af, bf = self._tril_final
-        return np.concatenate([full[:, a, b].ravel(), HN[af, bf]])
+        out = np.empty(self._hess_rows.size)
+        from . import _kernels   # noqa: PLC0415 - numba loads on first use
+
+        c = np.ascontiguousarray
+        _kernels.gather_hessian_values(c(Hxx, dtype=np.float64), c(Hxu, dtype=np.float64),
+                               c(Huu, dtype=np.float64), c(HN, dtype=np.float64), out)
+        return out
 
     def hessian_matrix(self, y, lagrange, obj_factor=1.0):
         """The full symmetric Lagrangian Hessian as a scipy.sparse CSR matrix."""
