@@ -1,0 +1,981 @@
+"""Primal-dual interior-point methods for the stage QP (14) (paper 001 sec. 4.2.2).
+
+Three methods share one base class, :class:`InteriorPointQP`, which owns the data preparation,
+the residuals, the Newton step through a pluggable KKT back-end and the bookkeeping; they differ
+only in how the search direction is built from one factorization per iteration:
+
+* :class:`MehrotraQP` -- Mehrotra's predictor-corrector (Mehrotra 1992) with the safeguard of
+  Salahi, Peng and Terlaky (2005 report; SIAM J. Optim. 18 (2007) 1377-1397);
+* :class:`GondzioQP` -- the same plus Gondzio's multiple centrality correctors (Gondzio 1996,
+  Comput. Optim. Appl. 6, 137-156; paper 003);
+* :class:`WeightedCorrectorQP` -- the same, every corrector weighted by a line search on its
+  weight (paper 003 "weighted correctors"; Colombo and Gondzio 2008, Comput. Optim. Appl. 41).
+
+Problem (the :class:`~olado.linalg.stageqp.StageQP`, z_k = (x_k, u_k))::
+
+    min 1/2 z^T H z + g.z  s.t.  dynamics, x_0 = x0, E z + e = 0,
+        c_lower <= C_k z_k <= c_upper,  cN_lower <= C_N x_N <= cN_upper,  bounds on x_k (k >= 1), u_k
+
+Inequalities (paper 003, "handling both sided constraints").  Every inequality is a box
+``lo <= w <= hi`` on w = (x_1..x_N, u_0..u_{N-1}, C_k z_k, C_N x_N).  Each *finite* side gets its
+own slack and multiplier (tl = w - lo >= 0 with zl, tu = hi - w >= 0 with zu) and an infinite side
+carries nothing; a two-sided row stays one row of C in the KKT matrix (no duplicated rows), its
+multiplier is zu - zl (paper 003's z_d).  The slacks are stored iterate variables (the relations
+w - lo - tl = 0, hi - w - tu = 0 are primal residuals of the infeasible method), so no slack is
+ever recomputed by a cancelling difference and a warm start may begin outside the boxes.  The
+bounds of x_0 are not iterated on (x_0 = x0 is fixed); ``solve`` checks x0 against them and
+reports INFEASIBLE when it violates them.
+
+Newton step (paper 001 (22)-(25)).  With r_l = w - lo - tl, r_u = hi - w - tu, the linearized
+complementarity equations zl*dtl + tl*dzl = rho_l, zu*dtu + tu*dzu = rho_u and dtl = dw + r_l,
+dtu = -dw + r_u eliminate to dzu - dzl = D dw + g with
+
+    D = zl/tl + zu/tu,   g = (rho_u - zu r_u)/tu - (rho_l - zl r_l)/tl
+
+(paper 003's (S_u^-1 Z_u + S_l^-1 Z_l)).  For bounds D goes into ``Dx``/``Du`` of the LQ-DOCP
+solver and g into the gradient; for stage rows into ``sigma`` with ``Ci = C_k`` and ``ci = g/D``;
+for final rows C_N^T diag(D) C_N is added to Q_N and C_N^T g to q_N.  The KKT back-end (option
+``kkt``) factorizes once per iteration; predictor and every corrector are further right-hand
+sides of the same factorization.  Each solve is followed by up to ``refinement_steps`` steps of
+iterative refinement on the unreduced Newton system (residuals of stationarity, dynamics and
+equalities recomputed, corrections from the same factorization), which keeps the directions
+accurate when D spans many orders of magnitude near the solution.  Primal and dual take one
+common step length alpha = min(1, step_to_boundary * alpha_max).  ``regularization`` (delta)
+adds delta*I to the Hessian of the Newton system only (the residuals are exact), a
+proximal-point regularization that keeps the step defined for merely semidefinite H (e.g. free
+controls with R = 0).
+
+Fixed variables and equal bounds (paper 003, "fixed variables are eliminated"):
+
+* a control with u_lower = u_upper (to 1e-12 relative) is eliminated: its column of B, S, F and C
+  times its value moves into c, q, r, e and the row bounds; in the reduced problem the component
+  is a decoupled dummy (unit Hessian, zero gradient) whose step is exactly zero.  Its bound
+  multipliers are recovered from the u-stationarity of the original Lagrangian;
+* a state with x_lower = x_upper (k >= 1) and a general row with c_lower = c_upper become
+  equality rows (E_k x_k + e_k = 0 at stage k, E_N at k = N) of the LQ-DOCP solver; their
+  multiplier nu is split into the two bound multipliers by sign (upper = max(nu, 0),
+  lower = max(-nu, 0)).
+
+Stopping (all norms max-norms; "relative" means scaled by 1 + the norm of the data and iterate
+terms that make up the residual, as in Clarabel/OSQP):
+
+* primal: |dynamics, x_0, equality and slack residuals| <= tol * (1 + max(|c|, |x0|, |e|, |z|));
+* dual: |gradient of the Lagrangian| <= tol * (1 + max(|q|, |r|, |H z|));
+* complementarity: the gap sum(zl*tl + zu*tu) (the duality gap at a feasible point)
+  <= tol * (1 + |objective|).
+
+Infeasibility (documented criterion).  Two certificates are evaluated at every iterate:
+
+* primal infeasibility (Farkas): the constraint part y = (lam, nu, zl, zu) of the multipliers
+  gives a Lagrangian term y.constraints(z) = G(y).z + kappa(y) that is <= 0 at every feasible z
+  (equalities vanish, inequality terms are <= 0).  If kappa > 0, every feasible z has
+  |z|_inf >= B := kappa / (n_z |G|_inf).  The quality of the certificate is
+  B / (1 + |z_k|_inf + |data|_inf), how much farther than the iterate and the data (bounds,
+  offsets) any feasible point would have to be;
+* dual infeasibility (recession direction): d = the last primal step (or the iterate itself once
+  it exceeds 1e10 (1 + data)), normalized to |d|_inf = 1.  If g.d < 0 and the largest of |H d|,
+  the homogeneous equality residuals of d and the violation of the recession cone of the boxes
+  is at most eps |g.d|, the objective decreases without bound along d.
+
+Strict test (every iteration): quality >= 1/``infeasibility_tol`` -> INFEASIBLE, eps =
+``infeasibility_tol`` -> UNBOUNDED.  In an infeasible QP the multipliers grow geometrically while
+the steps shrink, so the certificate sharpens but slowly; therefore, when the iterates *stall*
+(10 iterations without reducing the best scaled KKT measure by 1 %, or three steps below 1e-8),
+the loose test is applied: quality >= 10 -> INFEASIBLE, eps = 1e-3 -> UNBOUNDED.  A stall without
+any certificate is reported as INFEASIBLE when the scaled primal residual is what stalled
+(> 1e3 tol), else as NUMERICAL_ERROR; the message always says which rule fired and the numbers.
+
+A failed factorization (``NotPositiveDefiniteError``) ends the solve with NUMERICAL_ERROR naming
+the stage.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from ..linalg.kkt import KKT_SOLVERS, make_kkt_solver
+from ..linalg.riccati import NotPositiveDefiniteError
+from ..linalg.stageqp import QPResult, StageQP, qp_kkt_residuals
+from ..result import Status
+from .base import make_options, option
+
+KKT_BACKENDS = KKT_SOLVERS   # riccati, superlu-full, superlu-reduced, minres, gmres
+
+_FIX_RTOL = 1e-12
+
+
+# ============================================================================= options
+@dataclasses.dataclass
+class InteriorPointQPOptions:
+    """Options shared by the interior-point QP methods."""
+
+    tol: float = option(1e-8, "relative KKT tolerance (primal, dual residual and complementarity; see the module docstring)",
+                        min=0.0, min_exclusive=True)
+    max_iter: int = option(100, "maximum number of interior-point iterations", min=0)
+    kkt: str = option("riccati", "KKT back-end for the Newton systems", choices=KKT_BACKENDS)
+    step_to_boundary: float = option(0.995, "fraction of the step to the boundary that is taken", min=0.99, max=0.9995)
+    regularization: float = option(1e-10, "primal (proximal) regularization delta*I added to the Newton Hessian", min=0.0)
+    refinement_steps: int = option(3, "iterative refinement steps per Newton solve (0 = none)", min=0, max=20)
+    acceptable_tol: float = option(1e-6, "if the solve ends without meeting tol, the best iterate is returned as "
+                                   "ACCEPTABLE when it meets this looser tolerance", min=0.0, min_exclusive=True)
+    infeasibility_tol: float = option(1e-8, "tolerance of the infeasibility / unboundedness certificates",
+                                      min=0.0, min_exclusive=True)
+    safeguard_step: float = option(0.1, "Salahi-Peng-Terlaky: affine or corrector steps below this trigger the safeguard",
+                                   min=0.0, max=1.0)
+    safeguard_gamma: float = option(0.1, "Salahi-Peng-Terlaky safeguard sigma = gamma/(1-gamma)",
+                                    min=0.0, max=0.5, min_exclusive=True)
+    neighborhood: float = option(1e-3, "steps keep every product t_i z_i >= neighborhood * mu (N_inf^- neighbourhood)",
+                                 min=0.0, max=0.5)
+    warm_start_push: float = option(1e-2, "warm start: slacks and multipliers are raised to at least this (times 1 + their max)",
+                                    min=0.0, max=1.0, min_exclusive=True)
+    verbose: int = option(0, "0 silent, 1 summary, 2 iteration log", min=0, max=12)
+    kkt_options: dict = option({}, "extra keyword arguments for the KKT back-end", ini=False)
+
+
+@dataclasses.dataclass
+class GondzioQPOptions(InteriorPointQPOptions):
+    """Options of :class:`GondzioQP` (and :class:`WeightedCorrectorQP`)."""
+
+    max_correctors: int = option(3, "maximum number of centrality correctors per iteration", min=0, max=20)
+    aspiration_step: float = option(0.1, "delta_alpha: correctors aim at alpha + delta_alpha", min=0.0,
+                                    max=1.0, min_exclusive=True)
+    acceptance: float = option(0.1, "a corrector is kept if alpha grows by at least acceptance*delta_alpha", min=0.0,
+                               max=1.0)
+    beta_min: float = option(0.1, "centrality targets are projected on [beta_min*mu, beta_max*mu]", min=0.0,
+                             max=1.0, min_exclusive=True)
+    beta_max: float = option(10.0, "upper factor of the centrality box", min=1.0)
+
+
+@dataclasses.dataclass
+class WeightedCorrectorQPOptions(GondzioQPOptions):
+    """Options of :class:`WeightedCorrectorQP`."""
+
+    weight_points: int = option(10, "number of weights tried by the line search on [omega_min, 1]", min=2, max=100)
+
+
+# ============================================================================= internal data
+class _Prepared:
+    """The QP after elimination of fixed controls, with the inequality boxes flattened over
+    w = (x_1..x_N, u, C_k z_k, C_N x_N)."""
+
+    def __init__(self, qp: StageQP):
+        N, n, m = qp.N, qp.n, qp.m
+        self.N, self.n, self.m = N, n, m
+        self.qp = qp
+        self.Q = qp.Q; self.S = qp.S.copy(); self.R = qp.R.copy()
+        self.q = qp.q.copy(); self.r = qp.r.copy(); self.A = qp.A; self.B = qp.B.copy()
+        self.c = qp.c.copy(); self.x0 = qp.x0.copy()
+        ne0, neN0 = qp.E.shape[1], qp.EN.shape[0]
+        self.ne0, self.neN0 = ne0, neN0
+        F0, e0 = qp.F.copy(), qp.e.copy()
+        C = qp.C.copy(); clo = qp.c_lower.copy(); chi = qp.c_upper.copy()
+        nc, ncN = C.shape[1], qp.CN.shape[0]
+        self.nc, self.ncN = nc, ncN
+        self.CN = qp.CN; cNlo = qp.cN_lower; cNhi = qp.cN_upper
+
+        # ---- inconsistent boxes
+        self.bad_box = None
+        for name, lo, hi in (("x", qp.x_lower, qp.x_upper), ("u", qp.u_lower, qp.u_upper),
+                             ("C_k z_k", clo, chi), ("C_N x_N", cNlo, cNhi)):
+            viol = lo - hi
+            if viol.size and np.any(viol > _FIX_RTOL * (1 + np.abs(lo))):
+                idx = np.unravel_index(np.argmax(viol), viol.shape)
+                self.bad_box = f"lower bound above upper bound for {name} at index {tuple(int(i) for i in idx)}"
+        fix = lambda lo, hi: np.isfinite(lo) & np.isfinite(hi) & (hi - lo <= _FIX_RTOL * (1 + np.abs(lo)))  # noqa: E731
+
+        # ---- fixed controls: eliminated (their value moves into c, q, r, e and the row bounds)
+        self.ufix = fix(qp.u_lower, qp.u_upper)
+        self.uval = np.where(self.ufix, 0.5 * (np.where(self.ufix, qp.u_lower, 0.0) + np.where(self.ufix, qp.u_upper, 0.0)), 0.0)
+        if self.ufix.any():
+            v = self.uval
+            self.c += np.einsum("kij,kj->ki", self.B, v)
+            self.q[:-1] += np.einsum("kij,kj->ki", self.S, v)
+            self.r += np.einsum("kij,kj->ki", self.R, v)
+            e0 = e0 + np.einsum("kij,kj->ki", F0, v)
+            if nc:
+                Cv = np.einsum("kij,kj->ki", C[:, :, n:], v)
+                clo, chi = clo - Cv, chi - Cv
+            keep = ~self.ufix
+            self.B *= keep[:, None, :]
+            self.S *= keep[:, None, :]
+            F0 = F0 * keep[:, None, :]
+            if nc:
+                C[:, :, n:] *= keep[:, None, :]
+            self.R = self.R * (keep[:, :, None] & keep[:, None, :])
+            kk, ii = np.nonzero(self.ufix)
+            self.R[kk, ii, ii] = 1.0
+            self.r[self.ufix] = 0.0
+        self.C = C
+
+        # ---- fixed states (k >= 1) and equal-bound rows become equality rows
+        xfix = fix(qp.x_lower, qp.x_upper)
+        xfix[0] = False
+        cfix = fix(clo, chi) if nc else np.zeros((N, 0), bool)
+        cNfix = fix(cNlo, cNhi) if ncN else np.zeros(0, bool)
+        mid = lambda lo, hi, f: np.where(f, 0.5 * (np.where(f, lo, 0.0) + np.where(f, hi, 0.0)), 0.0)  # noqa: E731
+        xval = mid(qp.x_lower, qp.x_upper, xfix)
+        cval = mid(clo, chi, cfix)
+        cNval = mid(cNlo, cNhi, cNfix)
+        # rows of stage k < N: the QP's own rows, then fixed x_k, then equal-bound C_k rows
+        self.n_eq = (ne0 + xfix[:N].sum(axis=1) + cfix.sum(axis=1)).astype(np.int64)
+        ne = int(self.n_eq.max(initial=0))
+        self.ne = ne
+        E = np.zeros((N, ne, n)); F = np.zeros((N, ne, m)); e = np.zeros((N, ne))
+        E[:, :ne0] = qp.E; F[:, :ne0] = F0; e[:, :ne0] = e0
+        self.eq_map = []   # (k, row, kind, index) of the appended stage rows
+        for k in range(N):
+            row = ne0
+            for i in np.nonzero(xfix[k])[0]:
+                E[k, row, i] = 1.0; e[k, row] = -xval[k, i]; self.eq_map.append((k, row, "x", int(i))); row += 1
+            for i in np.nonzero(cfix[k])[0]:
+                E[k, row] = C[k, i, :n]; F[k, row] = C[k, i, n:]; e[k, row] = -cval[k, i]
+                self.eq_map.append((k, row, "c", int(i))); row += 1
+        rowsN = [qp.EN]; eN = [qp.eN]; self.eqN_map = []
+        row = neN0
+        for i in np.nonzero(xfix[N])[0]:
+            rowsN.append(np.eye(n)[i:i + 1]); eN.append([-xval[N, i]]); self.eqN_map.append((row, "x", int(i))); row += 1
+        for i in np.nonzero(cNfix)[0]:
+            rowsN.append(self.CN[i:i + 1]); eN.append([-cNval[i]]); self.eqN_map.append((row, "c", int(i))); row += 1
+        self.EN = np.vstack(rowsN)
+        self.eN = np.concatenate([np.asarray(a, float) for a in eN])
+        self.neN = self.EN.shape[0]
+        self.E, self.F, self.e = E, F, e
+        self.eq_mask = np.arange(ne)[None, :] < self.n_eq[:, None]
+        self.has_eq = bool(self.n_eq.any()) or self.neN > 0
+        self.n_nu = max(ne, self.neN)
+
+        # ---- flat boxes lo <= w <= hi; fixed entries (handled above) have none
+        inf = np.inf
+        xl = np.where(xfix[1:], -inf, qp.x_lower[1:]); xh = np.where(xfix[1:], inf, qp.x_upper[1:])
+        ul = np.where(self.ufix, -inf, qp.u_lower); uh = np.where(self.ufix, inf, qp.u_upper)
+        sl = np.where(cfix, -inf, clo); sh = np.where(cfix, inf, chi)
+        sNl = np.where(cNfix, -inf, cNlo); sNh = np.where(cNfix, inf, cNhi)
+        lo = np.concatenate([xl.ravel(), ul.ravel(), sl.ravel(), sNl])
+        hi = np.concatenate([xh.ravel(), uh.ravel(), sh.ravel(), sNh])
+        self.fl, self.fu = np.isfinite(lo), np.isfinite(hi)
+        self.lo = np.where(self.fl, lo, 0.0); self.hi = np.where(self.fu, hi, 0.0)
+        self.n_comp = int(self.fl.sum() + self.fu.sum())
+        o = np.cumsum([0, N * n, N * m, N * nc, ncN])
+        self.sl_x, self.sl_u, self.sl_s, self.sl_sN = (slice(int(o[i]), int(o[i + 1])) for i in range(4))
+        self.nw = int(o[-1])
+        self.n_z = N * (n + m) + n
+        fin = lambda a: float(np.max(np.abs(a), initial=0.0))  # noqa: E731
+        self.p_data = max(fin(self.c), fin(self.x0), fin(self.e), fin(self.eN), fin(self.lo), fin(self.hi))
+        self.d_data = max(fin(self.q), fin(self.r))
+        self.h_scale = max(fin(self.Q), fin(self.R), fin(self.S))
+
+    # ------------------------------------------------------------------ linear maps
+    def w_of(self, X, U):
+        """w = (x_1..x_N, u, C_k z_k, C_N x_N), flat."""
+        parts = [X[1:].ravel(), U.ravel()]
+        if self.nc:
+            parts.append(self.cz(X, U).ravel())
+        if self.ncN:
+            parts.append(self.CN @ X[-1])
+        return np.concatenate(parts)
+
+    def cz(self, X, U):
+        n = self.n
+        return np.einsum("kij,kj->ki", self.C[:, :, :n], X[:-1]) + np.einsum("kij,kj->ki", self.C[:, :, n:], U)
+
+    def hess_z(self, X, U):
+        """H z as (N+1, n) and (N, m) parts."""
+        hx = np.empty_like(X)
+        hx[:-1] = np.einsum("kij,kj->ki", self.Q[:-1], X[:-1]) + np.einsum("kij,kj->ki", self.S, U)
+        hx[-1] = self.Q[-1] @ X[-1]
+        hu = np.einsum("kji,kj->ki", self.S, X[:-1]) + np.einsum("kij,kj->ki", self.R, U)
+        return hx, hu
+
+    def constraint_grad(self, lam, nu, zd):
+        """Gradient in (x, u) of the constraint part of the Lagrangian for multipliers lam, nu and
+        zd = zu - zl (flat over the boxes)."""
+        N, n, m, nc = self.N, self.n, self.m, self.nc
+        gx = np.empty((N + 1, n))
+        gx[:-1] = np.einsum("kji,kj->ki", self.A, lam[1:]) - lam[:-1]
+        gx[-1] = -lam[-1]
+        gu = np.einsum("kji,kj->ki", self.B, lam[1:])
+        if self.ne:
+            nus = nu[:N, :self.ne] * self.eq_mask
+            gx[:-1] += np.einsum("kji,kj->ki", self.E, nus)
+            gu += np.einsum("kji,kj->ki", self.F, nus)
+        if self.neN:
+            gx[-1] += self.EN.T @ nu[N, :self.neN]
+        gx[1:] += zd[self.sl_x].reshape(N, n)
+        gu += zd[self.sl_u].reshape(N, m)
+        if nc:
+            zs = zd[self.sl_s].reshape(N, nc)
+            gx[:-1] += np.einsum("kji,kj->ki", self.C[:, :, :n], zs)
+            gu += np.einsum("kji,kj->ki", self.C[:, :, n:], zs)
+        if self.ncN:
+            gx[-1] += self.CN.T @ zd[self.sl_sN]
+        return gx, gu
+
+    def eq_residuals(self, X, U, hom=False):
+        """Dynamics (N, n), x_0 (n,), stage (N, ne) and final (neN,) equality residuals; with
+        ``hom`` only their linear parts (for recession directions)."""
+        dyn = np.einsum("kij,kj->ki", self.A, X[:-1]) + np.einsum("kij,kj->ki", self.B, U) - X[1:]
+        x0r = -X[0] if hom else self.x0 - X[0]
+        if not hom:
+            dyn = dyn + self.c
+        rE = np.zeros((self.N, self.ne))
+        if self.ne:
+            rE = np.einsum("kij,kj->ki", self.E, X[:-1]) + np.einsum("kij,kj->ki", self.F, U)
+            if not hom:
+                rE = rE + self.e
+            rE *= self.eq_mask
+        rEN = (self.EN @ X[-1] + (0.0 if hom else self.eN)) if self.neN else np.zeros(0)
+        return dyn, x0r, rE, rEN
+
+
+_FIELDS = ("X", "U", "lam", "nu", "tl", "tu", "zl", "zu")
+
+
+@dataclasses.dataclass
+class _Point:
+    """An iterate, or a direction (same fields): states, controls, dynamics and equality
+    multipliers, slacks and multipliers of the finite box sides (flat, 0 on infinite sides)."""
+
+    X: np.ndarray
+    U: np.ndarray
+    lam: np.ndarray
+    nu: np.ndarray
+    tl: np.ndarray
+    tu: np.ndarray
+    zl: np.ndarray
+    zu: np.ndarray
+
+    def plus(self, alpha, d):
+        return _Point(*(getattr(self, f) + alpha * getattr(d, f) for f in _FIELDS))
+
+    def finite(self):
+        return all(np.all(np.isfinite(getattr(self, f))) for f in _FIELDS)
+
+
+@dataclasses.dataclass
+class _Rhs:
+    """Residuals of the Newton system's equations (see :meth:`_StepContext.solve`)."""
+
+    rx: np.ndarray
+    ru: np.ndarray
+    dyn: np.ndarray
+    x0r: np.ndarray
+    rE: np.ndarray
+    rEN: np.ndarray
+    rl: np.ndarray
+    rup: np.ndarray
+
+    def zero(self):
+        return _Rhs(*(np.zeros_like(getattr(self, f.name)) for f in dataclasses.fields(self)))
+
+    def size(self):
+        return max(float(np.max(np.abs(getattr(self, f.name)), initial=0.0)) for f in dataclasses.fields(self))
+
+
+class _StepContext:
+    """One iteration: the factorization, and the map from right-hand sides to directions."""
+
+    def __init__(self, solver, P, it, res, mu):
+        self.solver, self.P, self.it, self.res, self.mu = solver, P, it, res, mu
+        self.zero_res = res.zero()
+        self.n_solves = 0
+        self.n_refine = 0
+        fl, fu = P.fl, P.fu
+        self.inv_tl = np.where(fl, 1.0 / np.where(fl, it.tl, 1.0), 0.0)
+        self.inv_tu = np.where(fu, 1.0 / np.where(fu, it.tu, 1.0), 0.0)
+        D = it.zl * self.inv_tl + it.zu * self.inv_tu
+        N, n, m, nc = P.N, P.n, P.m, P.nc
+        self.Ds = D[P.sl_s].reshape(N, nc)
+        Q = P.Q
+        if P.ncN:
+            Q = P.Q.copy()
+            Q[-1] = Q[-1] + P.CN.T @ (D[P.sl_sN][:, None] * P.CN)
+        kw = {}
+        if nc:
+            kw.update(Ci=P.C, sigma=self.Ds)
+        if P.has_eq:
+            kw.update(E=P.E, F=P.F, n_eq=P.n_eq, EN=P.EN)
+        kw.update(solver.options.kkt_options)
+        # factorize with the regularization delta; when the factorization fails (loss of
+        # definiteness by cancellation when D spans many orders of magnitude) retry with delta
+        # raised 100-fold, at most 3 times, up to 1e-4 (1 + |H|). Refinement works against the
+        # unregularized system, so delta only preconditions.
+        reg = solver.options.regularization
+        for attempt in range(4):
+            Dx = np.full((N + 1, n), reg); Dx[1:] += D[P.sl_x].reshape(N, n)
+            Du = reg + D[P.sl_u].reshape(N, m)
+            try:
+                self.fact = make_kkt_solver(solver.options.kkt, Q, P.S, P.R, P.A, P.B, Dx=Dx, Du=Du, **kw)
+                break
+            except NotPositiveDefiniteError:
+                nxt = max(100.0 * reg, 1e-10 * (1.0 + P.h_scale))
+                if attempt == 3 or nxt > 1e-4 * (1.0 + P.h_scale):
+                    raise
+                reg = nxt
+        self.reg = reg
+
+    # ------------------------------------------------------------------ solves
+    def _reduced_solve(self, res, rho_l, rho_u):
+        """Solve the Newton system
+
+            H dz + delta dz + (constraint gradient of dlam, dnu, dzu - dzl) = -rx, -ru
+            A dx + B du - dx_+ = -dyn,  dx_0 = x0r,  E dz = -rE,  E_N dx_N = -rEN
+            dtl = dw + rl,  dtu = -dw + rup,  zl dtl + tl dzl = rho_l,  zu dtu + tu dzu = rho_u
+
+        by elimination of (dtl, dtu, dzl, dzu) and one solve with the factorization."""
+        P, it = self.P, self.it
+        N, n, m, nc = P.N, P.n, P.m, P.nc
+        self.n_solves += 1
+        g = (rho_u - it.zu * res.rup) * self.inv_tu - (rho_l - it.zl * res.rl) * self.inv_tl
+        q = res.rx.copy(); q[1:] += g[P.sl_x].reshape(N, n)
+        r = res.ru + g[P.sl_u].reshape(N, m)
+        kw = {}
+        if nc:
+            Ds = self.Ds
+            kw["ci"] = np.where(Ds > 0, g[P.sl_s].reshape(N, nc) / np.where(Ds > 0, Ds, 1.0), 0.0)
+        if P.ncN:
+            q[-1] += P.CN.T @ g[P.sl_sN]
+        if P.has_eq:
+            kw["e"] = res.rE; kw["eN"] = res.rEN
+        sol = self.fact.solve(q, r, res.dyn, res.x0r, **kw)
+        dX, dU = np.asarray(sol.X), np.asarray(sol.U)
+        if not (np.all(np.isfinite(dX)) and np.all(np.isfinite(dU))):
+            raise FloatingPointError("non-finite Newton step")
+        dw = P.w_of(dX, dU)
+        dtl = np.where(P.fl, dw + res.rl, 0.0)
+        dtu = np.where(P.fu, -dw + res.rup, 0.0)
+        dzl = (rho_l - it.zl * dtl) * self.inv_tl
+        dzu = (rho_u - it.zu * dtu) * self.inv_tu
+        dnu = np.zeros((N + 1, P.n_nu))
+        if P.n_nu:
+            k = min(P.n_nu, sol.nu.shape[1])
+            dnu[:, :k] = sol.nu[:, :k]
+        return _Point(dX, dU, np.asarray(sol.lam), dnu, dtl, dtu, dzl, dzu)
+
+    def _newton_residual(self, d, res, rho_l, rho_u):
+        """The residual of the unreduced, unregularized Newton system at d, as a right-hand side
+        for the correction (the equations of :meth:`_reduced_solve` with delta = 0)."""
+        P, it = self.P, self.it
+        hx, hu = P.hess_z(d.X, d.U)
+        gx, gu = P.constraint_grad(d.lam, d.nu, d.zu - d.zl)
+        rx = hx + gx + res.rx
+        ru = hu + gu + res.ru
+        dyn, x0r, rE, rEN = P.eq_residuals(d.X, d.U, hom=True)
+        dw = P.w_of(d.X, d.U)
+        out = _Rhs(rx, ru, dyn + res.dyn, res.x0r + x0r, rE + res.rE, rEN + res.rEN,
+                   np.where(P.fl, dw + res.rl - d.tl, 0.0), np.where(P.fu, -dw + res.rup - d.tu, 0.0))
+        el = rho_l - it.zl * d.tl - it.tl * d.zl
+        eu = rho_u - it.zu * d.tu - it.tu * d.zu
+        return out, el, eu
+
+    def solve(self, res, rho_l, rho_u):
+        """Direction for the residuals ``res`` and complementarity right-hand sides rho_l,
+        rho_u (flat, 0 on infinite sides), refined on the unreduced system."""
+        d = self._reduced_solve(res, rho_l, rho_u)
+        opts = self.solver.options
+        target = 1e-3 * opts.tol * (1.0 + max(res.size(), float(np.max(np.abs(rho_l), initial=0.0)),
+                                              float(np.max(np.abs(rho_u), initial=0.0))))
+        for _ in range(opts.refinement_steps):
+            e, el, eu = self._newton_residual(d, res, rho_l, rho_u)
+            size = max(e.size(), float(np.max(np.abs(el), initial=0.0)), float(np.max(np.abs(eu), initial=0.0)))
+            if size <= target:
+                break
+            self.n_refine += 1
+            d = d.plus(1.0, self._reduced_solve(e, el, eu))
+        return d
+
+    # ------------------------------------------------------------------ steps
+    def max_step(self, d):
+        """Largest alpha (capped at 1e30) keeping tl, tu, zl, zu positive along d."""
+        P, it = self.P, self.it
+        a = 1e30
+        for v, dv, f in ((it.tl, d.tl, P.fl), (it.tu, d.tu, P.fu), (it.zl, d.zl, P.fl), (it.zu, d.zu, P.fu)):
+            msk = f & (dv < 0)
+            if msk.any():
+                a = min(a, float(np.min(v[msk] / -dv[msk])))
+        return a
+
+    def products_at(self, d, alpha):
+        """Complementarity products (lower, upper; flat) at the trial point it + alpha d."""
+        it = self.it
+        return (it.tl + alpha * d.tl) * (it.zl + alpha * d.zl), (it.tu + alpha * d.tu) * (it.zu + alpha * d.zu)
+
+    def step_length(self, d):
+        """alpha = min(1, step_to_boundary * alpha_max), then shortened (by factors 0.9) until the
+        new point lies in the neighbourhood N_inf^-(gamma) of Salahi, Peng and Terlaky:
+        t_i z_i >= gamma_eff mu for every finite side, gamma_eff = min(``neighborhood``, half the
+        current min_i t_i z_i / mu) (so a start outside the neighbourhood is not blocked)."""
+        P, it = self.P, self.it
+        alpha = min(1.0, self.solver.options.step_to_boundary * self.max_step(d))
+        if P.n_comp == 0:
+            return alpha
+        fl, fu = P.fl, P.fu
+        cur = np.concatenate([(it.tl * it.zl)[fl], (it.tu * it.zu)[fu]])
+        gamma = min(self.solver.options.neighborhood, 0.5 * float(cur.min()) / max(self.mu, 1e-300))
+        for _ in range(60):
+            vl, vu = self.products_at(d, alpha)
+            prod = np.concatenate([vl[fl], vu[fu]])
+            if prod.min() >= gamma * prod.mean():
+                break
+            alpha *= 0.9
+        return alpha
+
+
+# ============================================================================= the base class
+class InteriorPointQP:
+    """Infeasible primal-dual interior-point method for :class:`StageQP` (see the module docstring).
+
+    Subclasses choose the search direction (:meth:`_direction` and its hooks); everything else --
+    preparation, starting points, residuals, factorization, step, stopping, certificates and the
+    result -- lives here.  ``solve(qp, warm_start=None)`` returns a
+    :class:`~olado.linalg.stageqp.QPResult` with the multipliers in its documented convention,
+    ``kkt`` = :func:`~olado.linalg.stageqp.qp_kkt_residuals` and one history entry per iteration."""
+
+    name = "ip-qp"
+    Options = InteriorPointQPOptions
+
+    def __init__(self, options=None, **overrides):
+        self.options = make_options(self.Options, options, **overrides)
+
+    # ------------------------------------------------------------------ public entry
+    def solve(self, qp: StageQP, warm_start: QPResult | None = None) -> QPResult:
+        """Solve ``qp``; ``warm_start`` is a previous :class:`QPResult` of a QP of the same shape
+        (its primal and dual values are used, slacks and multipliers pushed into the interior)."""
+        t0 = time.perf_counter()
+        opts = self.options
+        P = _Prepared(qp)
+        history = []
+        if P.bad_box is not None:
+            return self._finish(P, None, Status.INFEASIBLE, f"{Status.INFEASIBLE.sentence} ({P.bad_box})", 0, history, t0)
+        x0tol = opts.tol * (1 + float(np.max(np.abs(qp.x0), initial=0.0)))
+        v0 = max(float(np.max(qp.x_lower[0] - qp.x0, initial=-np.inf)), float(np.max(qp.x0 - qp.x_upper[0], initial=-np.inf)))
+        if v0 > x0tol:
+            return self._finish(P, None, Status.INFEASIBLE,
+                                f"{Status.INFEASIBLE.sentence} (the fixed initial state x0 violates the bounds of x_0 "
+                                f"by {v0:.3g})", 0, history, t0)
+        try:
+            it = self._initial_point(P) if warm_start is None else self._warm_point(P, warm_start)
+        except NotPositiveDefiniteError as exc:
+            return self._finish(P, None, Status.NUMERICAL_ERROR,
+                                f"{Status.NUMERICAL_ERROR.sentence} (starting point: the KKT factorization failed at "
+                                f"stage k={exc.stage}: {exc})", 0, history, t0)
+        best, stall, k, last_d = math.inf, 0, 0, None
+        best_merit, best_it, best_k = math.inf, it, 0
+        status, message = Status.MAX_ITERATIONS, Status.MAX_ITERATIONS.sentence
+        while True:
+            res = self._residuals(P, it)
+            mu = float(it.zl @ it.tl + it.zu @ it.tu) / P.n_comp if P.n_comp else 0.0
+            pr, du, scales = self._measures(P, it, res)
+            obj = self._objective(P, it)
+            gap = mu * P.n_comp
+            if pr <= opts.tol * scales[0] and du <= opts.tol * scales[1] and gap <= opts.tol * (1.0 + abs(obj)):
+                status, message = Status.SUCCESS, Status.SUCCESS.sentence
+                break
+            cert = self._certificates(P, it, last_d)
+            if cert is not None:
+                status, message = cert
+                break
+            merit = max(pr / scales[0], du / scales[1], gap / (1.0 + abs(obj)))
+            if merit < 0.99 * best:
+                best, stall = merit, 0
+            else:
+                stall += 1
+            if merit < best_merit:
+                best_merit, best_it, best_k = merit, it, k
+            if stall >= 10 or (len(history) >= 3 and all(h["alpha"] < 1e-8 for h in history[-3:])):
+                status, message = self._certificates(P, it, last_d, loose=True) or self._stall_status(
+                    pr / scales[0], du / scales[1], gap / (1.0 + abs(obj)))
+                break
+            if k >= opts.max_iter:
+                break
+            try:
+                ctx = _StepContext(self, P, it, res, mu)
+                d, info = self._direction(ctx)
+            except NotPositiveDefiniteError as exc:
+                status = Status.NUMERICAL_ERROR
+                message = (f"{status.sentence} (iteration {k + 1}: the KKT factorization failed at stage "
+                           f"k={exc.stage}: {exc})")
+                break
+            except (np.linalg.LinAlgError, FloatingPointError, ValueError, ZeroDivisionError) as exc:
+                status = Status.NUMERICAL_ERROR
+                message = f"{status.sentence} (iteration {k + 1}: {type(exc).__name__}: {exc})"
+                break
+            alpha = ctx.step_length(d)
+            it = it.plus(alpha, d)
+            last_d = d
+            k += 1
+            entry = {"iter": k, "mu": mu, "primal": pr, "dual": du, "gap": gap, "objective": obj, "alpha": alpha}
+            entry.update(info)
+            entry["solves"] = ctx.n_solves
+            entry["refinements"] = ctx.n_refine
+            entry["regularization"] = ctx.reg
+            history.append(entry)
+            if opts.verbose >= 2:
+                print(f"{self.name} {k:3d}  mu {mu:9.2e}  pr {pr:9.2e}  du {du:9.2e}  alpha {alpha:6.4f}  "
+                      f"sigma {info['sigma']:7.1e}  corr {info['correctors']}  solves {ctx.n_solves}")
+            if not it.finite():
+                status = Status.NUMERICAL_ERROR
+                message = f"{status.sentence} (iteration {k}: non-finite iterate)"
+                break
+        if status in (Status.NUMERICAL_ERROR, Status.MAX_ITERATIONS) and best_merit <= opts.acceptable_tol:
+            message = (f"{Status.ACCEPTABLE.sentence} Returned the best iterate (iteration {best_k}, scaled KKT "
+                       f"measure {best_merit:.2g} <= acceptable_tol) after: {message}")
+            status, it = Status.ACCEPTABLE, best_it
+        return self._finish(P, it, status, message, k, history, t0)
+
+    # ------------------------------------------------------------------ direction (subclasses)
+    def _direction(self, ctx):
+        """Mehrotra's predictor-corrector direction with the Salahi-Peng-Terlaky safeguard (see
+        :class:`MehrotraQP`), then :meth:`_centrality_correctors`. Returns (direction, info)."""
+        P, it, mu = ctx.P, ctx.it, ctx.mu
+        opts = self.options
+        # predictor (affine scaling, sigma = 0)
+        d_aff = ctx.solve(ctx.res, -it.zl * it.tl, -it.zu * it.tu)
+        a_aff = min(1.0, ctx.max_step(d_aff))
+        if P.n_comp == 0:
+            return d_aff, {"alpha_aff": a_aff, "sigma": 0.0, "safeguard": False, "correctors": 0, "omega": 1.0}
+        # Mehrotra's second-order term: the products dt_aff * dz_aff
+        so_l, so_u = d_aff.tl * d_aff.zl, d_aff.tu * d_aff.zu
+        fl, fu = P.fl, P.fu
+        safeguard = a_aff < opts.safeguard_step
+        omega = 1.0
+        if not safeguard:
+            sigma = (1.0 - a_aff) ** 3
+            d_c = ctx.solve(ctx.zero_res, np.where(fl, sigma * mu - so_l, 0.0), np.where(fu, sigma * mu - so_u, 0.0))
+            omega = self._corrector_weight(ctx, d_aff, d_c, a_aff)
+            d = d_aff.plus(omega, d_c)
+            safeguard = min(1.0, ctx.max_step(d)) < opts.safeguard_step
+        if safeguard:
+            gam = opts.safeguard_gamma
+            sigma = gam / (1.0 - gam)
+            d_c = ctx.solve(ctx.zero_res, np.where(fl, sigma * mu - a_aff * so_l, 0.0),
+                            np.where(fu, sigma * mu - a_aff * so_u, 0.0))
+            omega = self._corrector_weight(ctx, d_aff, d_c, a_aff)
+            d = d_aff.plus(omega, d_c)
+        d, ncorr = self._centrality_correctors(ctx, d, sigma * mu)
+        return d, {"alpha_aff": a_aff, "sigma": sigma, "safeguard": bool(safeguard), "correctors": ncorr,
+                   "omega": omega}
+
+    def _corrector_weight(self, ctx, base, corr, omega_min):
+        """Weight of a corrector added to ``base``: 1 (plain correctors) unless overridden."""
+        return 1.0
+
+    def _centrality_correctors(self, ctx, d, mu_target):
+        """Further correctors after the predictor-corrector direction: none in the base class.
+        Returns (direction, number of correctors used)."""
+        return d, 0
+
+    # ------------------------------------------------------------------ starting points
+    def _initial_point(self, P):
+        """Cold start: (X, U) minimizes f + 1/2 |w - w_ref|^2 (+ 1/2 |z|^2 on unbounded
+        components) subject to the equality constraints -- one factorization -- with w_ref = 0
+        clipped into the boxes; its lam, nu are kept; slacks t = max(w - lo, 1) (resp.
+        max(hi - w, 1)) and multipliers z = 1/t on every finite side (a perfectly centred start, mu = 1)."""
+        N, n, m, nc = P.N, P.n, P.m, P.nc
+        ref = np.clip(np.zeros(P.nw), np.where(P.fl, P.lo, -np.inf), np.where(P.fu, P.hi, np.inf))
+        Dx = np.ones((N + 1, n)); Du = np.ones((N, m))
+        q = P.q.copy(); r = P.r.copy()
+        q[1:] -= ref[P.sl_x].reshape(N, n)
+        r -= ref[P.sl_u].reshape(N, m)
+        kw, rhs = dict(Dx=Dx, Du=Du), {}
+        if nc:
+            kw.update(Ci=P.C, sigma=np.ones((N, nc)))
+            rhs["ci"] = -ref[P.sl_s].reshape(N, nc)
+        Q = P.Q
+        if P.ncN:
+            Q = P.Q.copy(); Q[-1] = Q[-1] + P.CN.T @ P.CN
+            q[-1] -= P.CN.T @ ref[P.sl_sN]
+        if P.has_eq:
+            kw.update(E=P.E, F=P.F, n_eq=P.n_eq, EN=P.EN)
+            rhs.update(e=P.e, eN=P.eN)
+        kw.update(self.options.kkt_options)
+        sol = make_kkt_solver(self.options.kkt, Q, P.S, P.R, P.A, P.B, **kw).solve(q, r, P.c, P.x0, **rhs)
+        X, U = np.array(sol.X, dtype=float), np.array(sol.U, dtype=float)
+        w = P.w_of(X, U)
+        tl = np.where(P.fl, np.maximum(w - P.lo, 1.0), 0.0)
+        tu = np.where(P.fu, np.maximum(P.hi - w, 1.0), 0.0)
+        nu = np.zeros((N + 1, P.n_nu))
+        if P.n_nu:
+            k = min(P.n_nu, sol.nu.shape[1])
+            nu[:, :k] = sol.nu[:, :k]
+        zl = np.where(P.fl, 1.0 / np.where(P.fl, tl, 1.0), 0.0)
+        zu = np.where(P.fu, 1.0 / np.where(P.fu, tu, 1.0), 0.0)
+        return _Point(X, U, np.array(sol.lam, dtype=float), nu, tl, tu, zl, zu)
+
+    def _warm_point(self, P, ws: QPResult):
+        """Warm start from a previous result: X, U, lam, nu and the box multipliers are taken over
+        (multipliers of eliminated or equality-row entries mapped as in :meth:`_finish`); slacks
+        t = max(w - lo, theta) and multipliers z = max(z_ws, theta) on finite sides with
+        theta = ``warm_start_push`` * (1 + max |z_ws|)."""
+        N, n, m = P.N, P.n, P.m
+        X = np.array(ws.X, dtype=float).reshape(N + 1, n).copy()
+        U = np.array(ws.U, dtype=float).reshape(N, m).copy()
+        U[P.ufix] = 0.0   # eliminated controls are 0 in the reduced problem
+        lam = np.array(ws.lam, dtype=float).reshape(N + 1, n).copy()
+        nu = np.zeros((N + 1, P.n_nu))
+        wnu = np.asarray(ws.nu, dtype=float)
+        if wnu.ndim == 2 and wnu.shape[0] == N + 1:
+            a, b = min(P.ne0, wnu.shape[1]), min(P.neN0, wnu.shape[1])
+            nu[:N, :a] = wnu[:N, :a]
+            nu[N, :b] = wnu[N, :b]
+        for k, row, kind, i in P.eq_map:
+            nu[k, row] = (ws.zx_upper[k, i] - ws.zx_lower[k, i]) if kind == "x" else (ws.yc_upper[k, i] - ws.yc_lower[k, i])
+        for row, kind, i in P.eqN_map:
+            nu[N, row] = (ws.zx_upper[N, i] - ws.zx_lower[N, i]) if kind == "x" else (ws.yN_upper[i] - ws.yN_lower[i])
+        flat = lambda *a: np.concatenate([np.asarray(v, dtype=float).ravel() for v in a])  # noqa: E731
+        zl = flat(np.asarray(ws.zx_lower)[1:], ws.zu_lower, ws.yc_lower, ws.yN_lower)
+        zu = flat(np.asarray(ws.zx_upper)[1:], ws.zu_upper, ws.yc_upper, ws.yN_upper)
+        zl, zu = np.nan_to_num(zl), np.nan_to_num(zu)
+        theta = self.options.warm_start_push * (1.0 + float(np.max(np.abs(np.concatenate([zl, zu])), initial=0.0)))
+        w = P.w_of(X, U)
+        tl = np.where(P.fl, np.maximum(w - P.lo, theta), 0.0)
+        tu = np.where(P.fu, np.maximum(P.hi - w, theta), 0.0)
+        zl = np.where(P.fl, np.maximum(zl, theta), 0.0)
+        zu = np.where(P.fu, np.maximum(zu, theta), 0.0)
+        return _Point(X, U, lam, nu, tl, tu, zl, zu)
+
+    # ------------------------------------------------------------------ residuals and measures
+    def _residuals(self, P, it):
+        hx, hu = P.hess_z(it.X, it.U)
+        gx, gu = P.constraint_grad(it.lam, it.nu, it.zu - it.zl)
+        dyn, x0r, rE, rEN = P.eq_residuals(it.X, it.U)
+        w = P.w_of(it.X, it.U)
+        rl = np.where(P.fl, w - P.lo - it.tl, 0.0)
+        rup = np.where(P.fu, P.hi - w - it.tu, 0.0)
+        return _Rhs(hx + P.q + gx, hu + P.r + gu, dyn, x0r, rE, rEN, rl, rup)
+
+    @staticmethod
+    def _measures(P, it, res):
+        """Primal and dual residual (max-norms) and their scales (see the module docstring)."""
+        inf = lambda a: float(np.max(np.abs(a), initial=0.0))  # noqa: E731
+        pr = max(inf(res.dyn), inf(res.x0r), inf(res.rE), inf(res.rEN), inf(res.rl), inf(res.rup))
+        du = max(inf(res.rx), inf(res.ru))
+        hx, hu = P.hess_z(it.X, it.U)
+        pscale = 1.0 + max(P.p_data, inf(it.X), inf(it.U))
+        dscale = 1.0 + max(P.d_data, inf(hx), inf(hu))
+        return pr, du, (pscale, dscale)
+
+    @staticmethod
+    def _objective(P, it):
+        hx, hu = P.hess_z(it.X, it.U)
+        return float(0.5 * (np.sum(hx * it.X) + np.sum(hu * it.U)) + np.sum(P.q * it.X) + np.sum(P.r * it.U))
+
+    # ------------------------------------------------------------------ infeasibility
+    def _certificates(self, P, it, d, loose=False):
+        """(status, message) if a certificate of primal or dual infeasibility holds (strict or,
+        after a stall, loose thresholds; see the module docstring), else None."""
+        eps = 1e-3 if loose else self.options.infeasibility_tol
+        min_quality = 10.0 if loose else 1.0 / self.options.infeasibility_tol
+        inf = lambda a: float(np.max(np.abs(a), initial=0.0))  # noqa: E731
+        # primal infeasibility: y.constraints(z) = G.z + kappa <= 0 on the feasible set
+        if max(inf(it.lam), inf(it.nu), inf(it.zl), inf(it.zu)) > 0:
+            gx, gu = P.constraint_grad(it.lam, it.nu, it.zu - it.zl)
+            G = max(inf(gx), inf(gu))
+            kappa = float(np.sum(it.lam[1:] * P.c) + it.lam[0] @ P.x0 + it.zl @ P.lo - it.zu @ P.hi)
+            if P.ne:
+                kappa += float(np.sum(it.nu[:P.N, :P.ne] * P.eq_mask * P.e))
+            if P.neN:
+                kappa += float(it.nu[P.N, :P.neN] @ P.eN)
+            scale = 1.0 + max(inf(it.X), inf(it.U)) + P.p_data
+            if kappa > 0 and kappa >= min_quality * scale * P.n_z * G:
+                bound = kappa / (P.n_z * G) if G > 0 else math.inf
+                return Status.INFEASIBLE, (
+                    f"{Status.INFEASIBLE.sentence} Farkas certificate from the multipliers: every point satisfying the "
+                    f"constraints would have |z|_inf >= {bound:.3g}, {bound / scale:.3g} times the size of the iterate "
+                    f"and the data{' (loose test after the iterates stalled)' if loose else ''}.")
+        # dual infeasibility: a recession direction along which the objective decreases
+        cands = []
+        if d is not None:
+            cands.append(("step", d.X, d.U))
+        if max(inf(it.X), inf(it.U)) > 1e10 * (1.0 + P.p_data + P.d_data):
+            cands.append(("iterate", it.X, it.U))
+        for what, dX, dU in cands:
+            nrm = max(inf(dX), inf(dU))
+            if not nrm > 0:
+                continue
+            dX, dU = dX / nrm, dU / nrm
+            gd = float(np.sum(P.q * dX) + np.sum(P.r * dU))
+            if gd >= 0:
+                continue
+            hx, hu = P.hess_z(dX, dU)
+            dyn, x0r, rE, rEN = P.eq_residuals(dX, dU, hom=True)
+            dw = P.w_of(dX, dU)
+            cone = max(float(np.max(np.where(P.fl, -dw, 0.0), initial=0.0)), float(np.max(np.where(P.fu, dw, 0.0), initial=0.0)))
+            worst = max(inf(hx), inf(hu), inf(dyn), inf(x0r), inf(rE), inf(rEN), cone)
+            if worst <= eps * -gd:
+                return Status.UNBOUNDED, (
+                    f"{Status.UNBOUNDED.sentence} Certificate: along the normalized {what} direction d the objective "
+                    f"decreases (g.d = {gd:.3g}) while |H d|, the equality residuals and the bound violations of d "
+                    f"are at most {worst:.3g}{' (loose test after the iterates stalled)' if loose else ''}.")
+        return None
+
+    def _stall_status(self, pr, du, gap):
+        if pr > 1e3 * self.options.tol:
+            return Status.INFEASIBLE, (f"{Status.INFEASIBLE.sentence} The iterates stalled with the scaled primal "
+                                       f"residual at {pr:.3g} (dual {du:.3g}, gap {gap:.3g}); no certificate was found.")
+        return Status.NUMERICAL_ERROR, (f"{Status.NUMERICAL_ERROR.sentence} The iterates stalled (scaled primal "
+                                        f"{pr:.3g}, dual {du:.3g}, gap {gap:.3g}); no infeasibility certificate was found.")
+
+    # ------------------------------------------------------------------ result
+    def _finish(self, P, it, status, message, iters, history, t0):
+        qp = P.qp
+        N, n, m, nc, ncN = P.N, P.n, P.m, P.nc, P.ncN
+        ne_out = max(P.ne0, P.neN0)
+        if it is None:
+            z = np.zeros
+            res = QPResult(status, message, np.full((N + 1, n), np.nan), np.full((N, m), np.nan), z((N + 1, n)),
+                           z((N + 1, ne_out)), z((N + 1, n)), z((N + 1, n)), z((N, m)), z((N, m)), z((N, nc)),
+                           z((N, nc)), z(ncN), z(ncN), iterations=iters, history=history, solver=self.name)
+            res.time_s = time.perf_counter() - t0
+            return res
+        X = it.X.copy(); U = it.U.copy()
+        U[P.ufix] = P.uval[P.ufix]
+        lam = it.lam.copy()
+        nu = np.zeros((N + 1, ne_out))
+        nu[:N, :P.ne0] = it.nu[:N, :P.ne0]
+        nu[N, :P.neN0] = it.nu[N, :P.neN0]
+        zxl = np.zeros((N + 1, n)); zxu = np.zeros((N + 1, n))
+        zxl[1:] = it.zl[P.sl_x].reshape(N, n); zxu[1:] = it.zu[P.sl_x].reshape(N, n)
+        zul = it.zl[P.sl_u].reshape(N, m).copy(); zuu = it.zu[P.sl_u].reshape(N, m).copy()
+        ycl = it.zl[P.sl_s].reshape(N, nc).copy(); ycu = it.zu[P.sl_s].reshape(N, nc).copy()
+        yNl = it.zl[P.sl_sN].copy(); yNu = it.zu[P.sl_sN].copy()
+        for k, row, kind, i in P.eq_map:
+            v = float(it.nu[k, row])
+            tgt = (zxu, zxl, (k, i)) if kind == "x" else (ycu, ycl, (k, i))
+            tgt[0][tgt[2]], tgt[1][tgt[2]] = max(v, 0.0), max(-v, 0.0)
+        for row, kind, i in P.eqN_map:
+            v = float(it.nu[N, row])
+            if kind == "x":
+                zxu[N, i], zxl[N, i] = max(v, 0.0), max(-v, 0.0)
+            else:
+                yNu[i], yNl[i] = max(v, 0.0), max(-v, 0.0)
+        if P.ufix.any():
+            # multipliers of eliminated controls from the u-stationarity of the original Lagrangian
+            g = (np.einsum("kji,kj->ki", qp.S, X[:-1]) + np.einsum("kij,kj->ki", qp.R, U) + qp.r
+                 + np.einsum("kji,kj->ki", qp.B, lam[1:]))
+            if P.ne0:
+                g += np.einsum("kji,kj->ki", qp.F, nu[:N, :P.ne0])
+            if nc:
+                g += np.einsum("kji,kj->ki", qp.C[:, :, n:], ycu - ycl)
+            zuu[P.ufix] = np.maximum(-g[P.ufix], 0.0)
+            zul[P.ufix] = np.maximum(g[P.ufix], 0.0)
+        res = QPResult(status, message, X, U, lam, nu, zxl, zxu, zul, zuu, ycl, ycu, yNl, yNu,
+                       objective=qp.objective(X, U), iterations=iters, history=history, solver=self.name)
+        res.kkt = qp_kkt_residuals(qp, res)
+        res.time_s = time.perf_counter() - t0
+        if self.options.verbose >= 1:
+            kkt = ", ".join(f"{key} {val:.1e}" for key, val in res.kkt.items())
+            print(f"{self.name}: {status.value} after {iters} iterations, objective {res.objective:.10g}, {kkt}, "
+                  f"{res.time_s:.3f} s")
+        return res
+
+
+# ============================================================================= the three methods
+class MehrotraQP(InteriorPointQP):
+    """Mehrotra's predictor-corrector method with the Salahi-Peng-Terlaky safeguard.
+
+    Per iteration (one factorization, two solves plus refinement):
+
+    1. predictor: the affine-scaling direction (sigma = 0) and its largest step alpha_a;
+    2. if alpha_a >= ``safeguard_step`` (0.1): sigma = (1 - alpha_a)^3 (the form of Mehrotra's
+       heuristic analysed by Salahi, Peng and Terlaky) and the corrector with target sigma*mu and
+       Mehrotra's second-order term dt_aff*dz_aff;
+    3. safeguard (Salahi, Peng, Terlaky, "On Mehrotra-type predictor-corrector algorithms",
+       McMaster AdvOL report 2005/4; SIAM J. Optim. 18 (2007) 1377-1397): if alpha_a <
+       ``safeguard_step`` (a poor affine step, for which Mehrotra's heuristic would force an
+       almost pure centering step) or if the largest step of the direction of 2. is below
+       ``safeguard_step`` (the tiny corrector steps of their example), the corrector is recomputed
+       with the fixed sigma = gamma/(1 - gamma) (``safeguard_gamma`` gamma = 0.1 -> sigma = 1/9)
+       and the second-order term damped by alpha_a (their modified corrector system).
+
+    The thresholds are options; the complexity constants of the paper (steps of order gamma/n^2)
+    are far below what is useful in practice, so the practical 0.1 is the default.
+    """
+
+    name = "mehrotra"
+
+
+class GondzioQP(InteriorPointQP):
+    """Mehrotra's method (as :class:`MehrotraQP`) plus Gondzio's multiple centrality correctors.
+
+    After the predictor-corrector direction d with largest step alpha, up to ``max_correctors``
+    times: aim at alpha~ = min(1, alpha + delta_alpha) (``aspiration_step``), form the products
+    v = t(alpha~) * z(alpha~) at the trial point, project them on [beta_min mu_t, beta_max mu_t]
+    (mu_t = sigma mu; paper 003's gamma = beta_min = 1/beta_max) to get the targets, cap the
+    decrease of products above beta_max mu_t at -beta_max mu_t, and solve with right-hand side
+    (0, 0, target - v) for a corrector dc.  d + dc is accepted if its largest step is at least
+    alpha + ``acceptance`` * delta_alpha (Gondzio 1996's test); otherwise correcting stops.
+    All correctors reuse the iteration's factorization (Gondzio 1996, Comput. Optim. Appl. 6,
+    137-156)."""
+
+    name = "gondzio"
+    Options = GondzioQPOptions
+
+    def _centrality_correctors(self, ctx, d, mu_target):
+        opts = self.options
+        P = ctx.P
+        if P.n_comp == 0 or opts.max_correctors == 0:
+            return d, 0
+        alpha = min(1.0, ctx.max_step(d))
+        used = 0
+        lo_t, hi_t = opts.beta_min * mu_target, opts.beta_max * mu_target
+        for _ in range(opts.max_correctors):
+            if alpha >= 1.0:
+                break
+            a_asp = min(1.0, alpha + opts.aspiration_step)
+            vl, vu = ctx.products_at(d, a_asp)
+            rl = np.where(P.fl, np.maximum(np.clip(vl, lo_t, hi_t) - vl, -hi_t), 0.0)
+            ru = np.where(P.fu, np.maximum(np.clip(vu, lo_t, hi_t) - vu, -hi_t), 0.0)
+            dc = ctx.solve(ctx.zero_res, rl, ru)
+            omega = self._corrector_weight(ctx, d, dc, alpha)
+            d_new = d.plus(omega, dc)
+            a_new = min(1.0, ctx.max_step(d_new))
+            if a_new < alpha + opts.acceptance * opts.aspiration_step:
+                break
+            d, alpha = d_new, a_new
+            used += 1
+        return d, used
+
+
+class WeightedCorrectorQP(GondzioQP):
+    """Gondzio's method with weighted correctors (paper 003; Colombo and Gondzio 2008).
+
+    Every corrector dc -- Mehrotra's and each centrality corrector -- enters as d + omega*dc
+    instead of d + dc.  The weight comes from a simple line search (paper 003: "use simple line
+    search to avoid bi-level optimization"): ``weight_points`` equally spaced values of omega on
+    [omega_min, 1] are tried and the one with the largest step to the boundary is kept (ties go
+    to the larger omega).  omega_min is the step already reached (alpha_aff for Mehrotra's
+    corrector, the step of d for a centrality corrector) -- the lower end Colombo and Gondzio use,
+    so a corrector is never damped below the progress the predictor already makes.  With
+    ``max_correctors = 0`` this is a weighted Mehrotra method without centrality correctors."""
+
+    name = "weighted"
+    Options = WeightedCorrectorQPOptions
+
+    def _corrector_weight(self, ctx, base, corr, omega_min):
+        omega_min = min(max(omega_min, 0.0), 1.0)
+        best_w, best_a = 1.0, -1.0
+        for w in np.linspace(1.0, omega_min, self.options.weight_points):
+            a = ctx.max_step(base.plus(w, corr))
+            if a > best_a * (1 + 1e-12):
+                best_w, best_a = float(w), a
+        return best_w
+
+
+QP_METHODS = {cls.name: cls for cls in (MehrotraQP, GondzioQP, WeightedCorrectorQP)}
+
+
+def make_qp_solver(method="mehrotra", options=None, **overrides):
+    """An interior-point QP solver by name: ``mehrotra``, ``gondzio`` or ``weighted``."""
+    try:
+        cls = QP_METHODS[method]
+    except KeyError:
+        raise ValueError(f"unknown QP method {method!r}; choose from {', '.join(QP_METHODS)}") from None
+    return cls(options, **overrides)
+
+
+__all__ = ["InteriorPointQP", "MehrotraQP", "GondzioQP", "WeightedCorrectorQP", "InteriorPointQPOptions",
+           "GondzioQPOptions", "WeightedCorrectorQPOptions", "QP_METHODS", "KKT_BACKENDS", "make_qp_solver"]
