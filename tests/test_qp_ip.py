@@ -1,0 +1,367 @@
+"""Interior-point QP methods (olado.solvers.qp_ip) against Clarabel, each other and known statuses."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from olado.errors import ConfigError
+from olado.linalg import RiccatiFactorization
+from olado.linalg.stageqp import StageQP, qp_kkt_residuals
+from olado.result import Status
+from olado.solvers.qp_ip import (KKT_BACKENDS, GondzioQP, MehrotraQP, WeightedCorrectorQP, make_qp_solver)
+
+METHODS = (MehrotraQP, GondzioQP, WeightedCorrectorQP)
+
+
+# ============================================================================= test problems
+def random_qp(seed=0, N=6, n=3, m=2, nc=2, ncN=1, fixed=False, eq=False):
+    """A convex stage QP with two-sided bounds on x and u (some sides infinite), two general rows
+    per stage (one one-sided), one final row; optional fixed variables, an equal-bound row and
+    stage equality rows. Feasible by construction: boxes and rows contain a simulated point."""
+    rng = np.random.default_rng(seed)
+    M = rng.standard_normal((N + 1, n, n)); Q = M @ M.transpose(0, 2, 1) / n + 0.1 * np.eye(n)
+    M2 = rng.standard_normal((N, m, m)); R = M2 @ M2.transpose(0, 2, 1) / m + 0.1 * np.eye(m)
+    A = 0.8 * rng.standard_normal((N, n, n)) / np.sqrt(n)
+    B = rng.standard_normal((N, n, m))
+    c = 0.1 * rng.standard_normal((N, n))
+    x0 = rng.uniform(-0.3, 0.3, n)
+    Us = 0.1 * rng.standard_normal((N, m))
+    if fixed:
+        Us[1, 1] = 0.03
+    Xs = np.empty((N + 1, n)); Xs[0] = x0
+    for k in range(N):
+        Xs[k + 1] = A[k] @ Xs[k] + B[k] @ Us[k] + c[k]
+    xl = np.minimum(-rng.uniform(0.5, 1.5, (N + 1, n)), Xs - 0.05); xu = np.maximum(rng.uniform(0.5, 1.5, (N + 1, n)), Xs + 0.05)
+    xl[:, -1] = -np.inf
+    ul = np.minimum(-rng.uniform(0.2, 1, (N, m)), Us - 0.05); uu = np.maximum(rng.uniform(0.2, 1, (N, m)), Us + 0.05)
+    uu[:, 0] = np.inf
+    kw = {}
+    if nc:
+        C = rng.standard_normal((N, nc, n + m))
+        CZ = np.einsum("kij,kj->ki", C, np.hstack([Xs[:-1], Us]))
+        lo = np.minimum(-rng.uniform(0.5, 2, (N, nc)), CZ - 0.05); hi = np.maximum(rng.uniform(0.5, 2, (N, nc)), CZ + 0.05)
+        lo[:, 0] = -np.inf
+        if fixed:
+            lo[3, 1] = hi[3, 1] = CZ[3, 1]          # an equal-bound row
+        kw.update(C=C, c_lower=lo, c_upper=hi)
+    if ncN:
+        CN = rng.standard_normal((ncN, n))
+        kw.update(CN=CN, cN_lower=np.minimum(-0.5, CN @ Xs[-1] - 0.05), cN_upper=np.full(ncN, np.inf))
+    if fixed:
+        ul[1, 1] = uu[1, 1] = Us[1, 1]                # a fixed control
+        xl[2, 0] = xu[2, 0] = Xs[2, 0]                # a fixed state
+        xl[N, 1] = xu[N, 1] = Xs[N, 1]                # a fixed final state
+    if eq:
+        E = rng.standard_normal((N, 1, n)); F = rng.standard_normal((N, 1, m))
+        kw.update(E=E, F=F, e=-(np.einsum("kij,kj->ki", E, Xs[:-1]) + np.einsum("kij,kj->ki", F, Us)))
+    return StageQP(Q=Q, R=R, q=rng.standard_normal((N + 1, n)), r=rng.standard_normal((N, m)), A=A, B=B, c=c, x0=x0,
+                   S=0.05 * rng.standard_normal((N, n, m)), x_lower=xl, x_upper=xu, u_lower=ul, u_upper=uu, **kw)
+
+
+def replace(qp, **kw):
+    d = {f.name: getattr(qp, f.name) for f in dataclasses.fields(qp)}
+    d.update(kw)
+    return StageQP(**d)
+
+
+def clarabel_solution(qp):
+    """(X, U, objective) from Clarabel (through qpsolvers) on the sparse form, at tight tolerances."""
+    qpsolvers = pytest.importorskip("qpsolvers")
+    pytest.importorskip("clarabel")
+    d = qp.to_sparse()
+    G, hl, hu = d["G"], d["h_lower"], d["h_upper"]
+    Gi = hi = None
+    if G.shape[0]:
+        fu, fl = np.isfinite(hu), np.isfinite(hl)
+        Gi = sp.vstack([G[fu], -G[fl]]).tocsc()
+        hi = np.concatenate([hu[fu], -hl[fl]])
+    lb = np.where(np.isfinite(d["lb"]), d["lb"], -1e30)
+    ub = np.where(np.isfinite(d["ub"]), d["ub"], 1e30)
+    y = qpsolvers.solve_qp(d["P"], d["q"], Gi, hi, d["A_eq"], d["b_eq"], lb=lb, ub=ub, solver="clarabel",
+                           tol_gap_abs=1e-12, tol_gap_rel=1e-12, tol_feas=1e-12)
+    assert y is not None, "Clarabel failed on the reference problem"
+    X, U = qp.unpack(y)
+    return X, U, qp.objective(X, U)
+
+
+def zambezi_qp(N=120, shift=1e-4):
+    """The QP of the first SQP step of zambezi12 at its balance start: A, B from the dynamics
+    Jacobians, Hessian blocks of the stage costs (zero multipliers) shifted per stage to be
+    positive definite (most negative eigenvalue + ``shift``), bounds shifted to the step."""
+    from olado.problems.zambezi import zambezi_problem
+
+    p = zambezi_problem("zambezi12", N=N)
+    U = p.initial_guess(); X = p.simulate(U)
+    A, B = p.eval_dynamics_jacobians(X, U)
+    hxx, hxu, huu = p.eval_stage_hessians(X, U, 1.0, np.zeros((N, p.n)))
+    H = np.block([[hxx, hxu], [np.transpose(hxu, (0, 2, 1)), huu]])
+    H = H + (np.maximum(0.0, -np.linalg.eigvalsh(H)[:, 0]) + shift)[:, None, None] * np.eye(p.n + p.m)
+    HN = p.eval_final_hessian(X[-1], 1.0)
+    HN = HN + (max(0.0, -np.linalg.eigvalsh(HN)[0]) + shift) * np.eye(p.n)
+    lx, lu = p.eval_stage_cost_gradients(X, U)
+    return StageQP(Q=np.concatenate([H[:, :p.n, :p.n], HN[None]]), S=H[:, :p.n, p.n:], R=H[:, p.n:, p.n:],
+                   q=np.vstack([lx, p.eval_final_cost_gradient(X[-1])]), r=lu, A=A, B=B,
+                   c=p.eval_dynamics(X, U) - X[1:], x0=np.zeros(p.n),
+                   x_lower=p.x_lower - X, x_upper=p.x_upper - X, u_lower=p.u_lower - U, u_upper=p.u_upper - U)
+
+
+def assert_kkt_small(res, tol=1e-7):
+    assert res.kkt["stationarity"] <= tol, res.kkt
+    assert res.kkt["primal"] <= tol, res.kkt
+    assert res.kkt["complementarity"] <= tol, res.kkt
+    assert res.kkt["dual_sign"] == 0.0, res.kkt
+
+
+# ============================================================================= agreement with Clarabel
+@pytest.mark.parametrize("cls", METHODS, ids=lambda c: c.name)
+@pytest.mark.parametrize("case", [dict(seed=0), dict(seed=3), dict(seed=4, N=10, n=4, m=3),
+                                  dict(seed=1, fixed=True), dict(seed=2, eq=True), dict(seed=5, fixed=True, eq=True)],
+                         ids=lambda c: "-".join(f"{k}{v}" for k, v in c.items()))
+def test_random_qps_agree_with_clarabel(cls, case):
+    qp = random_qp(**case)
+    Xr, Ur, Jr = clarabel_solution(qp)
+    res = cls(tol=1e-10).solve(qp)
+    assert res.status is Status.SUCCESS, res.message
+    assert res.objective == pytest.approx(Jr, rel=1e-9, abs=1e-9)
+    assert np.max(np.abs(res.X - Xr)) < 1e-6 and np.max(np.abs(res.U - Ur)) < 1e-6
+    assert_kkt_small(res, 1e-8)
+    assert res.kkt == qp_kkt_residuals(qp, res)
+    assert res.solver == cls.name and res.iterations == len(res.history) and res.time_s > 0
+
+
+def test_default_tolerance_gives_small_kkt_residuals():
+    qp = random_qp(7)
+    for cls in METHODS:
+        res = cls().solve(qp)
+        assert res.success, res.message
+        assert_kkt_small(res, 1e-6)
+
+
+def test_history_records_every_iteration():
+    res = GondzioQP().solve(random_qp(0))
+    assert len(res.history) == res.iterations > 0
+    keys = {"iter", "mu", "primal", "dual", "gap", "objective", "alpha", "alpha_aff", "sigma", "safeguard", "correctors",
+            "omega", "solves", "refinements", "regularization"}
+    for i, h in enumerate(res.history, 1):
+        assert keys <= set(h) and h["iter"] == i
+        assert 0 < h["alpha"] <= 1 and 0 <= h["correctors"] <= 3
+    mus = [h["mu"] for h in res.history]
+    assert mus[-1] < 1e-6 * mus[0]
+
+
+# ============================================================================= structure
+def test_fixed_variables_are_held_and_their_multipliers_recovered():
+    qp = random_qp(1, fixed=True)
+    N = qp.N
+    for cls in METHODS:
+        res = cls(tol=1e-10).solve(qp)
+        assert res.status is Status.SUCCESS, res.message
+        assert res.U[1, 1] == qp.u_lower[1, 1]                         # eliminated control: exact value
+        assert res.X[2, 0] == pytest.approx(qp.x_lower[2, 0], abs=1e-12)  # equality rows
+        assert res.X[N, 1] == pytest.approx(qp.x_lower[N, 1], abs=1e-12)
+        cz = qp.C[3, 1] @ np.concatenate([res.X[3], res.U[3]])
+        assert cz == pytest.approx(qp.c_lower[3, 1], abs=1e-12)
+        # multipliers of the fixed entries: one side only, and the KKT conditions hold
+        for lo, hi in ((res.zu_lower[1, 1], res.zu_upper[1, 1]), (res.zx_lower[2, 0], res.zx_upper[2, 0]),
+                       (res.zx_lower[N, 1], res.zx_upper[N, 1]), (res.yc_lower[3, 1], res.yc_upper[3, 1])):
+            assert lo >= 0 and hi >= 0 and lo * hi == 0
+        assert_kkt_small(res, 1e-8)
+
+
+def test_horizon_one():
+    qp = random_qp(11, N=1, n=2, m=2)
+    Xr, Ur, Jr = clarabel_solution(qp)
+    for cls in METHODS:
+        res = cls(tol=1e-10).solve(qp)
+        assert res.status is Status.SUCCESS, res.message
+        assert np.allclose(res.X, Xr, atol=1e-6) and np.allclose(res.U, Ur, atol=1e-6)
+        assert res.objective == pytest.approx(Jr, rel=1e-9)
+
+
+def test_equality_only_qp_is_one_newton_step():
+    qp = random_qp(2, nc=0, ncN=0, eq=True)
+    qp = replace(qp, x_lower=None, x_upper=None, u_lower=None, u_upper=None)
+    ref = RiccatiFactorization(qp.Q, qp.S, qp.R, qp.A, qp.B, E=qp.E, F=qp.F).solve(qp.q, qp.r, qp.c, qp.x0, e=qp.e)
+    res = MehrotraQP().solve(qp)
+    assert res.status is Status.SUCCESS and res.iterations == 1
+    assert np.allclose(res.X, ref.X, atol=1e-10) and np.allclose(res.lam, ref.lam, atol=1e-9)
+
+
+def test_x0_outside_its_bounds_and_crossed_bounds_are_infeasible():
+    qp = random_qp(0)
+    xl = qp.x_lower.copy(); xl[0, 0] = qp.x0[0] + 1.0
+    res = MehrotraQP().solve(replace(qp, x_lower=xl, x_upper=np.maximum(qp.x_upper, xl)))
+    assert res.status is Status.INFEASIBLE and "x0" in res.message
+    ul = qp.u_lower.copy(); ul[2, 1] = qp.u_upper[2, 1] + 0.5
+    res = MehrotraQP().solve(replace(qp, u_lower=ul))
+    assert res.status is Status.INFEASIBLE and "lower bound above upper bound for u" in res.message
+
+
+# ============================================================================= KKT back-ends
+@pytest.mark.parametrize("cls", METHODS, ids=lambda c: c.name)
+def test_all_kkt_backends_give_the_same_iterates(cls):
+    qp = random_qp(5, fixed=True, eq=True)
+    runs = {kkt: cls(kkt=kkt, tol=1e-10).solve(qp) for kkt in KKT_BACKENDS}
+    ref = runs["riccati"]
+    assert ref.status is Status.SUCCESS
+    for kkt, res in runs.items():
+        assert res.status is Status.SUCCESS, (kkt, res.message)
+        assert res.iterations == ref.iterations, kkt
+        for h, h0 in zip(res.history, ref.history):
+            assert h["alpha"] == pytest.approx(h0["alpha"], abs=1e-8), kkt
+            assert h["mu"] == pytest.approx(h0["mu"], rel=1e-6, abs=1e-14), kkt
+            assert h["correctors"] == h0["correctors"], kkt
+        assert np.allclose(res.X, ref.X, atol=1e-9) and np.allclose(res.U, ref.U, atol=1e-9), kkt
+
+
+# ============================================================================= methods
+def test_gondzio_without_correctors_is_mehrotra():
+    qp = random_qp(4)
+    a, b = MehrotraQP().solve(qp), GondzioQP(max_correctors=0).solve(qp)
+    assert a.iterations == b.iterations and np.array_equal(a.X, b.X)
+
+
+def test_safeguard_path_converges():
+    # safeguard_step = 1 forces the Salahi-Peng-Terlaky safeguard (sigma = gamma/(1-gamma)) every iteration
+    qp = random_qp(0)
+    res = MehrotraQP(safeguard_step=1.0, tol=1e-10).solve(qp)
+    assert res.status is Status.SUCCESS, res.message
+    assert all(h["safeguard"] and h["sigma"] == pytest.approx(1 / 9) for h in res.history)
+    Xr, _, _ = clarabel_solution(qp)
+    assert np.allclose(res.X, Xr, atol=1e-6)
+
+
+def test_weighted_corrector_weights_lie_in_their_interval():
+    res = WeightedCorrectorQP().solve(random_qp(3))
+    assert res.success
+    for h in res.history:
+        assert min(h["alpha_aff"], 1.0) - 1e-12 <= h["omega"] <= 1.0
+
+
+def test_make_qp_solver_and_options():
+    assert isinstance(make_qp_solver("gondzio", max_correctors=2), GondzioQP)
+    with pytest.raises(ValueError):
+        make_qp_solver("simplex")
+    with pytest.raises(ConfigError):
+        MehrotraQP(step_to_boundary=0.5)
+    with pytest.raises(ConfigError):
+        MehrotraQP(kkt="cholmod")
+    with pytest.raises(ConfigError):
+        MehrotraQP(max_correctors=3)   # a Gondzio option, not Mehrotra's
+
+
+# ============================================================================= warm start
+@pytest.mark.parametrize("cls", METHODS, ids=lambda c: c.name)
+def test_warm_start_needs_fewer_iterations_on_a_perturbed_qp(cls):
+    qp = random_qp(1, fixed=True)
+    rng = np.random.default_rng(9)
+    qp2 = replace(qp, q=qp.q + 0.01 * rng.standard_normal(qp.q.shape), r=qp.r + 0.01 * rng.standard_normal(qp.r.shape))
+    solver = cls(tol=1e-10)
+    first = solver.solve(qp)
+    cold, warm = solver.solve(qp2), solver.solve(qp2, warm_start=first)
+    assert cold.success and warm.success
+    assert warm.iterations < cold.iterations
+    assert np.allclose(warm.X, cold.X, atol=1e-6) and warm.objective == pytest.approx(cold.objective, rel=1e-9)
+
+
+# ============================================================================= statuses
+def _infeasible_qps():
+    qp = random_qp(1)
+    N, n, m = qp.N, qp.n, qp.m
+    xl = np.full((N + 1, n), -np.inf); xl[N, 0] = 100.0
+    C = np.zeros((N, 2, n + m)); C[:, 0, n] = 1.0; C[:, 1, n] = -1.0
+    return {
+        # the final row asks C_N x_N >= 50 of a boxed x_N
+        "final-row": replace(qp, CN=np.eye(n)[:1], cN_lower=[50.0], cN_upper=[np.inf],
+                             x_upper=np.where(np.isfinite(qp.x_upper), qp.x_upper, 1.0)),
+        # x_N >= 100 is out of reach of |u| <= 0.1
+        "dynamics": StageQP(Q=qp.Q, R=qp.R, q=qp.q, r=qp.r, A=qp.A, B=qp.B, c=qp.c, x0=qp.x0, x_lower=xl,
+                            u_lower=-0.1 * np.ones((N, m)), u_upper=0.1 * np.ones((N, m))),
+        # u_0 >= 1 and -u_0 >= 1
+        "rows": StageQP(Q=qp.Q, R=qp.R, q=qp.q, r=qp.r, A=qp.A, B=qp.B, c=qp.c, x0=qp.x0, C=C, c_lower=np.ones((N, 2))),
+    }
+
+
+@pytest.mark.parametrize("cls", METHODS, ids=lambda c: c.name)
+@pytest.mark.parametrize("name", ["final-row", "dynamics", "rows"])
+def test_infeasible_qps_are_detected(cls, name):
+    res = cls().solve(_infeasible_qps()[name])
+    assert res.status is Status.INFEASIBLE, res.message
+    assert "certificate" in res.message
+
+
+def _unbounded_qps():
+    qp = random_qp(2, nc=0, ncN=0)
+    R = qp.R.copy(); R[:, 1, :] = 0.0; R[:, :, 1] = 0.0
+    S = qp.S.copy(); S[:, :, 1] = 0.0
+    B = qp.B.copy(); B[:, :, 1] = 0.0
+    ul, uu = qp.u_lower.copy(), qp.u_upper.copy()
+    ul[:, 1], uu[:, 1] = -np.inf, np.inf
+    N = 5
+    return {
+        # u_1 is free, has no curvature and no influence on the dynamics, and a linear cost
+        "free-control": replace(qp, R=R, S=S, B=B, u_lower=ul, u_upper=uu),
+        # x_{k+1} = x_k + u_k with u_k >= 0 and the cost -x_N
+        "dynamics": StageQP(Q=np.zeros((N + 1, 1, 1)), R=np.zeros((N, 1, 1)), q=np.vstack([np.zeros((N, 1)), [[-1.0]]]),
+                            r=np.zeros((N, 1)), A=np.ones((N, 1, 1)), B=np.ones((N, 1, 1)), c=np.zeros((N, 1)),
+                            x0=np.zeros(1), u_lower=np.zeros((N, 1))),
+    }
+
+
+@pytest.mark.parametrize("cls", METHODS, ids=lambda c: c.name)
+@pytest.mark.parametrize("name", ["free-control", "dynamics"])
+def test_unbounded_qps_are_detected(cls, name):
+    res = cls().solve(_unbounded_qps()[name])
+    assert res.status is Status.UNBOUNDED, res.message
+    assert "Certificate" in res.message
+
+
+def test_max_iterations():
+    res = MehrotraQP(max_iter=2).solve(random_qp(0))
+    assert res.status is Status.MAX_ITERATIONS and res.iterations == 2
+    assert np.all(np.isfinite(res.X))
+
+
+def test_failed_factorization_is_a_numerical_error_naming_the_stage():
+    qp = random_qp(0, nc=0, ncN=0)
+    R = qp.R.copy(); R[2] = -1e3 * np.eye(qp.m)                  # strongly nonconvex in the free u_2
+    ul, uu = qp.u_lower.copy(), qp.u_upper.copy()
+    ul[2], uu[2] = -np.inf, np.inf
+    res = MehrotraQP().solve(replace(qp, R=R, u_lower=ul, u_upper=uu))
+    assert res.status is Status.NUMERICAL_ERROR
+    assert "stage k=2" in res.message
+
+
+# ============================================================================= Zambezi
+@pytest.fixture(scope="module")
+def zambezi():
+    qp = zambezi_qp()
+    return qp, clarabel_solution(qp)
+
+
+@pytest.mark.parametrize("cls", METHODS, ids=lambda c: c.name)
+def test_zambezi_qp_agrees_with_clarabel(cls, zambezi):
+    qp, (Xr, Ur, Jr) = zambezi
+    assert (qp.N, qp.n, qp.m) == (120, 6, 7)
+    res = cls(tol=1e-10).solve(qp)
+    assert res.status is Status.SUCCESS, res.message
+    assert res.objective == pytest.approx(Jr, rel=1e-9)
+    # volumes are O(10..100): compare relative to the size of the trajectory
+    assert np.max(np.abs(res.X - Xr)) <= 1e-6 * (1 + np.max(np.abs(Xr)))
+    assert np.max(np.abs(res.U - Ur)) <= 1e-6 * (1 + np.max(np.abs(Ur)))
+    assert_kkt_small(res, 1e-8)
+    assert res.iterations <= 30
+
+
+def test_zambezi_warm_start(zambezi):
+    qp, _ = zambezi
+    rng = np.random.default_rng(3)
+    scale = np.abs(qp.r).max()
+    qp2 = replace(qp, r=qp.r + 0.01 * scale * rng.standard_normal(qp.r.shape))
+    solver = WeightedCorrectorQP()
+    first = solver.solve(qp)
+    cold, warm = solver.solve(qp2), solver.solve(qp2, warm_start=first)
+    assert cold.success and warm.success
+    assert warm.iterations < cold.iterations
