@@ -85,8 +85,17 @@ the loose test is applied: quality >= 10 -> INFEASIBLE, eps = 1e-3 -> UNBOUNDED.
 any certificate is reported as INFEASIBLE when the scaled primal residual is what stalled
 (> 1e3 tol), else as NUMERICAL_ERROR; the message always says which rule fired and the numbers.
 
-A failed factorization (``NotPositiveDefiniteError``) ends the solve with NUMERICAL_ERROR naming
-the stage.
+Step length: alpha = min(1, step_to_boundary * alpha_max), shortened by factors 0.9 until every
+product t_i z_i >= gamma mu (the N_inf^- neighbourhood of Salahi, Peng and Terlaky, gamma =
+``neighborhood`` or half the current min t_i z_i / mu if the iterate is already outside), which
+keeps the products from collapsing far below mu and the Newton systems from degenerating.
+
+Failures: a factorization that fails (``NotPositiveDefiniteError``, usually loss of definiteness
+when D spans many orders of magnitude) is retried with the regularization raised 100-fold, at
+most three times and up to 1e-4 (1 + |H|); if it still fails the solve ends with
+NUMERICAL_ERROR naming the stage.  When a solve ends with NUMERICAL_ERROR or MAX_ITERATIONS but
+an earlier iterate met ``acceptable_tol``, that iterate is returned with status ACCEPTABLE and a
+message saying what happened.
 """
 
 from __future__ import annotations
