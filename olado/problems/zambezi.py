@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 
 import numba as nb
 import numpy as np
@@ -535,6 +534,12 @@ class Zambezi(DOCP):
         return self._check_stacked(X, (N + 1, 6), "simulate", "x")
 
     # ------------------------------------------------------------------ start points
+    def plot_result(self, result, path=None, **kwargs):
+        """Fig. 3-style plot of a result (used by ``Result.plot(path, problem=...)``)."""
+        if path is None:
+            raise ValueError("plot_result needs a file path for the Zambezi figure")
+        return plot_zambezi(result, self, path)
+
     def initial_guess(self):
         """Initial controls (N, 7): the balance start (default) or the SIF start point."""
         return self._start_U.copy()
@@ -691,18 +696,10 @@ def plot_zambezi(result_or_XU, problem, path):
     fig.suptitle(f"{getattr(problem, 'name', 'zambezi')}, N = {N}"
                  + (f", from January {year}" if year is not None else ""))
     fig.tight_layout()
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    suffix = os.path.splitext(path)[1] or ".png"
-    fd, tmp = tempfile.mkstemp(dir=folder, suffix=suffix)
-    os.close(fd)
+    from ..result import save_figure   # the one atomic writer (temporary file + os.replace)
+
     try:
-        fig.savefig(tmp, format=suffix.lstrip(".") or "png", dpi=100)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+        save_figure(fig, path)
     finally:
         plt.close(fig)
-    return path
+    return os.fspath(path)
