@@ -58,7 +58,10 @@ class HessianApproximation:
     name = "hessian"
 
     def __init__(self, initial_scale=1.0, min_eig=1e-8):
+        # initial_scale 0 means "automatic": the identity is rescaled at the first update by
+        # y.y / s.y block by block (Shanno & Phua 1978; Nocedal & Wright 1999 eq. (6.20))
         self.initial_scale = float(initial_scale)
+        self.auto_scale = self.initial_scale == 0.0
         self.min_eig = float(min_eig)
         self.B = None
         self.BN = None
@@ -66,8 +69,25 @@ class HessianApproximation:
         self.skipped = 0
 
     def initial(self, N, n, m):
-        self.B = np.tile(self.initial_scale * np.eye(n + m), (N, 1, 1))
-        self.BN = self.initial_scale * np.eye(n)
+        scale = 1.0 if self.auto_scale else self.initial_scale
+        self.B = np.tile(scale * np.eye(n + m), (N, 1, 1))
+        self.BN = scale * np.eye(n)
+        self._first = self.auto_scale
+
+    def _rescale_first(self, s, sN, y, yN):
+        """Automatic initial scaling: B0 = (y.y / s.y) I per block where s.y > 0."""
+        if not self._first:
+            return
+        self._first = False
+
+        def gamma(s_, y_):
+            sy = np.einsum("...i,...i->...", s_, y_)
+            yy = np.einsum("...i,...i->...", y_, y_)
+            return np.where(sy > 1e-300, yy / np.where(sy > 1e-300, sy, 1.0), 1.0)
+
+        g = gamma(s, y)
+        self.B = self.B * g[:, None, None]
+        self.BN = self.BN * float(gamma(sN, yN))
 
     def current(self):
         return self.B, self.BN
@@ -101,6 +121,7 @@ class BlockBFGS(HessianApproximation):
         return B + safe[..., None, None] * upd
 
     def update(self, s, sN, y, yN):
+        self._rescale_first(s, sN, y, yN)
         self.B = self._bfgs(self.B, s, y)
         self.BN = self._bfgs(self.BN, sN, yN)
 
@@ -124,6 +145,7 @@ class BlockSR1(HessianApproximation):
         return _psd_floor(B + np.where(ok, 1.0, 0.0)[..., None, None] * upd, self.min_eig)
 
     def update(self, s, sN, y, yN):
+        self._rescale_first(s, sN, y, yN)
         self.B = self._sr1(self.B, s, y)
         self.BN = self._sr1(self.BN, sN, yN)
 
@@ -139,6 +161,7 @@ class PowellBFGS(HessianApproximation):
         self.damping = float(damping)
 
     def update(self, s, sN, y, yN):
+        self._rescale_first(s, sN, y, yN)
         Bs = np.einsum("kij,kj->ki", self.B, s)
         BsN = self.BN @ sN
         sBs = float(np.sum(s * Bs) + sN @ BsN)

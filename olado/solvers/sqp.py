@@ -65,7 +65,8 @@ class SQPOptions(SolverOptions):
     hessian: str = option("bfgs", "Hessian: block BFGS, block SR1, exact, or Powell's BFGS with the gangster operator",
                           choices=("bfgs", "sr1", "exact", "powell-bfgs"))
     convexify: str = option("levenberg", "convexification of the exact Hessian", choices=("levenberg", "gerschgorin"))
-    initial_hessian_scale: float = option(1.0, "initial quasi-Newton blocks: this times the identity", min=0.0, min_exclusive=True)
+    initial_hessian_scale: float = option(0.0, "initial quasi-Newton blocks: this times the identity; 0 = automatic "
+                                          "(y.y/s.y per block at the first update)", min=0.0)
     min_eigenvalue: float = option(1e-8, "smallest eigenvalue kept in a Hessian block", min=0.0, min_exclusive=True)
     qp_tol: float = option(1e-10, "tolerance of the QP subproblem solver", min=0.0, min_exclusive=True)
     qp_max_iter: int = option(200, "iteration limit of the QP subproblem solver", min=1)
