@@ -192,8 +192,8 @@ class ExactHessian(HessianApproximation):
 
     def __init__(self, convexify="levenberg", **kw):
         super().__init__(**kw)
-        if convexify not in ("levenberg", "gerschgorin", "none"):
-            raise ValueError(f"convexify must be levenberg, gerschgorin or none, got {convexify!r}")
+        if convexify not in ("levenberg", "gerschgorin", "inertia", "none"):
+            raise ValueError(f"convexify must be levenberg, gerschgorin, inertia or none, got {convexify!r}")
         self.convexify = convexify
 
     def set_exact(self, blocks, final):

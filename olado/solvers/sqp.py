@@ -43,14 +43,16 @@ KKT_SOLVERS = ("riccati", "superlu-full", "superlu-reduced", "minres", "gmres")
 
 
 def make_qp_solver(name, kkt="riccati", tol=1e-10, max_iter=200):
-    """QP method by name: olado's interior-point methods or an external qpsolvers backend."""
+    """QP method by name: olado's interior-point methods (the KKT systems solved by ``kkt``) or
+    an external qpsolvers backend (OSQP, Clarabel, ...)."""
     if name in ("mehrotra", "gondzio", "weighted"):
-        from . import qp_ip
+        from .qp_ip import make_qp_solver as make_ip
 
-        cls = {"mehrotra": qp_ip.MehrotraQP, "gondzio": qp_ip.GondzioQP, "weighted": qp_ip.WeightedCorrectorQP}[name]
-        return cls(kkt=kkt, tol=tol, max_iter=max_iter)
+        return make_ip(name, kkt=kkt, tol=tol, max_iter=max_iter)
     from .qp_external import ExternalQP
 
+    if name == "osqp":   # first-order method: its default iteration limit is far too low here
+        return ExternalQP(backend=name, max_iter=max(100 * max_iter, 50_000))
     return ExternalQP(backend=name)
 
 
@@ -64,11 +66,14 @@ class SQPOptions(SolverOptions):
     kkt: str = option("riccati", "KKT (matrix) solver inside the interior-point QP methods", choices=KKT_SOLVERS)
     hessian: str = option("bfgs", "Hessian: block BFGS, block SR1, exact, or Powell's BFGS with the gangster operator",
                           choices=("bfgs", "sr1", "exact", "powell-bfgs"))
-    convexify: str = option("levenberg", "convexification of the exact Hessian", choices=("levenberg", "gerschgorin"))
+    convexify: str = option("inertia", "exact Hessian: 'inertia' passes it unmodified and adds delta*I only when the "
+                            "QP's KKT factorization finds a non-positive-definite reduced Hessian; 'levenberg' "
+                            "shifts every block to be positive definite; 'gerschgorin' is modification (13)",
+                            choices=("inertia", "levenberg", "gerschgorin"))
     initial_hessian_scale: float = option(0.0, "initial quasi-Newton blocks: this times the identity; 0 = automatic "
                                           "(y.y/s.y per block at the first update)", min=0.0)
     min_eigenvalue: float = option(1e-8, "smallest eigenvalue kept in a Hessian block", min=0.0, min_exclusive=True)
-    qp_tol: float = option(1e-10, "tolerance of the QP subproblem solver", min=0.0, min_exclusive=True)
+    qp_tol: float = option(1e-9, "tolerance of the QP subproblem solver", min=0.0, min_exclusive=True)
     qp_max_iter: int = option(200, "iteration limit of the QP subproblem solver", min=1)
     watchdog: bool = option(True, "use the watchdog technique (Chamberlain et al. 1982)")
     watchdog_steps: int = option(2, "relaxed iterations allowed before returning to the last good point", min=1)
@@ -132,7 +137,13 @@ class SQPSolver(Solver):
         eq, ineq = p.stage_equality_mask, ~p.stage_equality_mask
         eqN, ineqN = p.final_equality_mask, ~p.final_equality_mask
         qp_solver = make_qp_solver(o.qp, kkt=o.kkt, tol=o.qp_tol, max_iter=o.qp_max_iter)
-        hess = make_hessian(o.hessian, convexify=o.convexify, initial_scale=o.initial_hessian_scale, min_eig=o.min_eigenvalue)
+        convexify = o.convexify
+        if o.hessian == "exact" and convexify == "inertia" and o.qp not in ("mehrotra", "gondzio", "weighted"):
+            # external QP solvers need a convex QP and do not report a failed factorization:
+            # shift every block to positive definiteness instead
+            convexify = "levenberg"
+        self._convexify = convexify
+        hess = make_hessian(o.hessian, convexify=convexify, initial_scale=o.initial_hessian_scale, min_eig=o.min_eigenvalue)
         hess.initial(N, n, m)
         # start: controls clipped into their bounds, x0 exact
         U = np.clip(U0, p.u_lower, p.u_upper)
@@ -148,7 +159,7 @@ class SQPSolver(Solver):
         history, qp_iters = [], 0
         status, message = Status.MAX_ITERATIONS, f"maximum number of SQP iterations ({o.max_iter}) reached"
         watch = None
-        warm = None
+        shift = 0.0
         it = 0
         kkt_res = float("nan")
 
@@ -184,9 +195,9 @@ class SQPSolver(Solver):
                 blocks[:, n:, :n] = np.transpose(Hxu, (0, 2, 1)); blocks[:, n:, n:] = Huu
                 hess.set_exact(blocks, HN)
             Bk, BN = hess.current()
-            qp = self._build_qp(p, pt, Bk, BN, eq, ineq, eqN, ineqN)
-            qres = qp_solver.solve(qp, warm_start=None)
-            qp_iters += int(qres.iterations)
+            qres, shift = self._solve_qp(qp_solver, p, pt, Bk, BN, eq, ineq, eqN, ineqN,
+                                         inertia=hess.needs_exact and convexify == "inertia", shift=shift)
+            qp_iters += self._qp_iterations
             if not qres.success:
                 st = qres.status
                 if st == Status.INFEASIBLE:
@@ -302,12 +313,37 @@ class SQPSolver(Solver):
         res = build_result(nlp=nlp, y=y, lam=lam_nlp, zl=zl, zu=zu, status=status, message=message,
                            iterations=it, history=history, timed=timed, solve_time_s=solve_time,
                            kkt_residual=kkt_res, kkt_note="max-norm NLP stationarity at the final point with the QP multipliers (olado SQP)",
-                           info={"qp": o.qp, "kkt": o.kkt, "hessian": o.hessian,
+                           info={"qp": o.qp, "kkt": o.kkt, "hessian": o.hessian, "convexify": convexify,
                                  "hessian_updates": hess.updates, "hessian_skipped": hess.skipped})
         res.qp_iterations = qp_iters
         return res
 
     # ------------------------------------------------------------------------------------------
+    def _solve_qp(self, qp_solver, p, pt, Bk, BN, eq, ineq, eqN, ineqN, inertia, shift):
+        """Solve the QP subproblem. With ``inertia`` (exact Hessian, convexify="inertia") a QP
+        whose KKT factorization fails -- a reduced Hessian that is not positive definite --
+        is solved again with delta*I added to every block, delta growing tenfold from a third
+        of the last successful shift (the inertia correction of Waechter & Biegler 2006 sec.
+        3.1, applied to the QP). Returns (QPResult, shift used)."""
+        self._qp_iterations = 0
+        scale = max(1e-300, float(np.max(np.abs(Bk), initial=0.0)), float(np.max(np.abs(BN), initial=0.0)))
+        delta = 0.0 if not inertia else (shift / 3.0 if shift > 1e-20 * scale else 0.0)
+        n, m = p.n, p.m
+        for attempt in range(30):
+            if delta > 0:
+                Bd = Bk + delta * np.eye(n + m)
+                BNd = BN + delta * np.eye(n)
+            else:
+                Bd, BNd = Bk, BN
+            qp = self._build_qp(p, pt, Bd, BNd, eq, ineq, eqN, ineqN)
+            qres = qp_solver.solve(qp, warm_start=None)
+            self._qp_iterations += int(qres.iterations)
+            if not inertia or qres.success or qres.status not in (Status.NUMERICAL_ERROR, Status.UNBOUNDED,
+                                                                  Status.MAX_ITERATIONS, Status.FAILED):
+                return qres, delta
+            delta = max(10.0 * delta, 1e-8 * scale)
+        return qres, delta
+
     @staticmethod
     def _build_qp(p, pt, Bk, BN, eq, ineq, eqN, ineqN):
         """The QP (8)-(10) in the step (dx, du) at the point pt, in stage form."""
