@@ -1,5 +1,9 @@
-"""The matrix work the solvers share: stage-block containers and the Riccati LQ-DOCP solver."""
+"""The matrix work the solvers share (ARCHITECTURE.md, "The matrix side"): the stage-wise QP
+container, the Riccati LQ-DOCP solver and the general sparse KKT back-ends."""
 
+from .kkt import KKT_SOLVERS, KKTSolveError, make_kkt_solver
 from .riccati import LQSolution, NotPositiveDefiniteError, RiccatiFactorization, solve_lq_docp
+from .stageqp import QPResult, StageQP, qp_kkt_residuals
 
-__all__ = ["LQSolution", "NotPositiveDefiniteError", "RiccatiFactorization", "solve_lq_docp"]
+__all__ = ["KKT_SOLVERS", "KKTSolveError", "make_kkt_solver", "LQSolution", "NotPositiveDefiniteError",
+           "RiccatiFactorization", "solve_lq_docp", "QPResult", "StageQP", "qp_kkt_residuals"]

@@ -82,6 +82,9 @@ class SQPOptions(SolverOptions):
     min_step: float = option(1e-10, "smallest step length before the line search gives up", min=0.0, min_exclusive=True)
     step_tol: float = option(1e-12, "stop when |s| <= step_tol * (1 + |y|) and the point is feasible", min=0.0)
     penalty_min: float = option(1e-8, "lower bound of the exact-penalty weights", min=0.0)
+    proximal: float = option(1e-6, "proximal term delta*I added to the QP Hessian, delta = proximal * max|H|: picks the "
+                             "shortest step when the reduced Hessian is singular (flat directions, degenerate "
+                             "optima); it vanishes at the solution (s = 0)", min=0.0)
 
 
 class _Point:
@@ -328,11 +331,12 @@ class SQPSolver(Solver):
         self._qp_iterations = 0
         scale = max(1e-300, float(np.max(np.abs(Bk), initial=0.0)), float(np.max(np.abs(BN), initial=0.0)))
         delta = 0.0 if not inertia else (shift / 3.0 if shift > 1e-20 * scale else 0.0)
+        prox = self.options.proximal * scale
         n, m = p.n, p.m
         for attempt in range(30):
-            if delta > 0:
-                Bd = Bk + delta * np.eye(n + m)
-                BNd = BN + delta * np.eye(n)
+            if delta + prox > 0:
+                Bd = Bk + (delta + prox) * np.eye(n + m)
+                BNd = BN + (delta + prox) * np.eye(n)
             else:
                 Bd, BNd = Bk, BN
             qp = self._build_qp(p, pt, Bd, BNd, eq, ineq, eqN, ineqN)

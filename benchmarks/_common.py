@@ -1,0 +1,48 @@
+"""What the benchmark scripts share: the machine line and the section writer of RESULTS.md."""
+
+from __future__ import annotations
+
+import os
+import platform
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+RESULTS = HERE / "RESULTS.md"
+sys.path.insert(0, str(HERE.parent))
+
+from olado.result import atomic_write_bytes  # noqa: E402
+
+
+def machine(with_ipopt=True) -> str:
+    """CPU model and core count (lscpu), Python and, when installed, IPOPT versions."""
+    model, cores = platform.processor() or "unknown CPU", os.cpu_count()
+    try:
+        out = subprocess.run(["lscpu"], capture_output=True, text=True, check=True).stdout
+        fields = {k.strip(): v.strip() for k, v in (line.split(":", 1) for line in out.splitlines() if ":" in line)}
+        model = fields.get("Model name", model)
+        cores = fields.get("CPU(s)", cores)
+    except (OSError, subprocess.CalledProcessError, ValueError):
+        pass
+    text = f"{model}, {cores} CPU(s); Python {platform.python_version()}"
+    if with_ipopt:
+        try:
+            import cyipopt
+
+            text += f"; cyipopt {cyipopt.__version__}, IPOPT {'.'.join(map(str, cyipopt.IPOPT_VERSION))} (MUMPS)"
+        except Exception:  # pragma: no cover - informative only
+            pass
+    return text
+
+
+def write_section(section: str, text: str, path: Path = RESULTS) -> None:
+    """Replace (or append) the '## <section>' part of a markdown file, atomically."""
+    old = path.read_text(encoding="utf-8") if path.exists() else "# olado benchmark results\n\n"
+    pattern = re.compile(rf"^## {re.escape(section)}\n.*?(?=^## |\Z)", re.S | re.M)
+    if pattern.search(old):
+        new = pattern.sub(lambda _m: text.rstrip("\n") + "\n\n", old, count=1)
+    else:
+        new = old.rstrip("\n") + "\n\n" + text.rstrip("\n") + "\n"
+    atomic_write_bytes(path, new.encode("utf-8"))
