@@ -64,7 +64,7 @@ class SQPOptions(SolverOptions):
     tol: float = option(1e-7, "KKT residual tolerance, relative to max(1, |grad J|)", min=0.0, min_exclusive=True)
     qp: str = option("mehrotra", "QP method for the subproblems", choices=QP_METHODS)
     kkt: str = option("riccati", "KKT (matrix) solver inside the interior-point QP methods", choices=KKT_SOLVERS)
-    hessian: str = option("bfgs", "Hessian: block BFGS, block SR1, exact, or Powell's BFGS with the gangster operator",
+    hessian: str = option("exact", "Hessian: block BFGS, block SR1, exact, or Powell's BFGS with the gangster operator",
                           choices=("bfgs", "sr1", "exact", "powell-bfgs"))
     convexify: str = option("inertia", "exact Hessian: 'inertia' passes it unmodified and adds delta*I only when the "
                             "QP's KKT factorization finds a non-positive-definite reduced Hessian; 'levenberg' "
@@ -82,6 +82,9 @@ class SQPOptions(SolverOptions):
     min_step: float = option(1e-10, "smallest step length before the line search gives up", min=0.0, min_exclusive=True)
     step_tol: float = option(1e-12, "stop when |s| <= step_tol * (1 + |y|) and the point is feasible", min=0.0)
     penalty_min: float = option(1e-8, "lower bound of the exact-penalty weights", min=0.0)
+    qp_adaptive_tol: bool = option(False, "inexact SQP: solve early QPs to tolerance min(1e-4, 0.1 * previous KKT "
+                                   "residual), never below qp_tol (olado's interior-point QP methods only)")
+    qp_warm_start: bool = option(False, "start each QP from the previous QP's multipliers (and a zero step)")
     proximal: float = option(1e-6, "proximal term delta*I added to the QP Hessian, delta = proximal * max|H|: picks the "
                              "shortest step when the reduced Hessian is singular (flat directions, degenerate "
                              "optima); it vanishes at the solution (s = 0)", min=0.0)
@@ -162,6 +165,7 @@ class SQPSolver(Solver):
         history, qp_iters = [], 0
         status, message = Status.MAX_ITERATIONS, f"maximum number of SQP iterations ({o.max_iter}) reached"
         watch = None
+        self._warm = None
         shift = 0.0
         it = 0
         kkt_res = float("nan")
@@ -198,6 +202,9 @@ class SQPSolver(Solver):
                 blocks[:, n:, :n] = np.transpose(Hxu, (0, 2, 1)); blocks[:, n:, n:] = Huu
                 hess.set_exact(blocks, HN)
             Bk, BN = hess.current()
+            if o.qp_adaptive_tol and hasattr(qp_solver, "options") and hasattr(qp_solver.options, "acceptable_tol"):
+                prev = kkt_res if math.isfinite(kkt_res) else 1.0
+                qp_solver.options.tol = max(o.qp_tol, min(1e-4, 0.1 * prev))
             qres, shift = self._solve_qp(qp_solver, p, pt, Bk, BN, eq, ineq, eqN, ineqN,
                                          inertia=hess.needs_exact and convexify == "inertia", shift=shift)
             qp_iters += self._qp_iterations
@@ -340,10 +347,12 @@ class SQPSolver(Solver):
             else:
                 Bd, BNd = Bk, BN
             qp = self._build_qp(p, pt, Bd, BNd, eq, ineq, eqN, ineqN)
-            qres = qp_solver.solve(qp, warm_start=None)
+            qres = qp_solver.solve(qp, warm_start=self._warm)
             self._qp_iterations += int(qres.iterations)
             if not inertia or qres.success or qres.status not in (Status.NUMERICAL_ERROR, Status.UNBOUNDED,
                                                                   Status.MAX_ITERATIONS, Status.FAILED):
+                if self.options.qp_warm_start and qres.success:
+                    self._warm = dataclasses.replace(qres, X=np.zeros_like(qres.X), U=np.zeros_like(qres.U))
                 return qres, delta
             delta = max(10.0 * delta, 1e-8 * scale)
         return qres, delta
