@@ -33,7 +33,7 @@ import numpy as np
 
 from ..linalg.stageqp import StageQP
 from ..result import Status
-from ._nlp_common import Deadline, TimedNLP, build_result, make_nlp
+from ._nlp_common import EVALUATION_KINDS, Deadline, build_result, make_nlp
 from .base import Solver, SolverOptions, option
 from .hessian import ExactHessian, make_hessian
 from .registry import register
@@ -90,16 +90,33 @@ class SQPOptions(SolverOptions):
                              "optima); it vanishes at the solution (s = 0)", min=0.0)
 
 
+class _Clock:
+    """Counts and times the problem evaluations of the SQP (the share of solve time spent in
+    olado's evaluation code is reported as info["callback_share"], as for the NLP solvers)."""
+
+    def __init__(self):
+        self.counts = {k: 0 for k in EVALUATION_KINDS}
+        self.time_s = 0.0
+
+    def add(self, kinds, t0):
+        self.time_s += time.perf_counter() - t0
+        for k in kinds:
+            self.counts[k] += 1
+
+
 class _Point:
     """Values and derivatives of the DOCP at (X, U), evaluated together."""
 
-    def __init__(self, problem, X, U, derivatives=True):
+    def __init__(self, problem, X, U, derivatives=True, clock=None):
         p = problem
+        self.clock = clock if clock is not None else _Clock()
+        t0 = time.perf_counter()
         self.X, self.U = X, U
         self.J = p.objective(X, U)
         self.h = p.eval_dynamics(X, U) - X[1:]
         self.g = p.eval_stage_constraints(X, U)
         self.gN = p.eval_final_constraints(X[-1])
+        self.clock.add(("objective", "constraints"), t0)
         self.derivs = False
         if derivatives:
             self.add_derivatives(problem)
@@ -107,6 +124,7 @@ class _Point:
     def add_derivatives(self, p):
         if self.derivs:
             return
+        t0 = time.perf_counter()
         X, U = self.X, self.U
         self.lx, self.lu = p.eval_stage_cost_gradients(X, U)
         self.lN = p.eval_final_cost_gradient(X[-1])
@@ -114,6 +132,7 @@ class _Point:
         self.Cx, self.Cu = p.eval_stage_constraint_jacobians(X, U)
         self.CN = p.eval_final_constraint_jacobian(X[-1])
         self.derivs = True
+        self.clock.add(("gradient", "jacobian"), t0)
 
     def lagrangian_gradients(self, lam, Lg, LgN):
         """Per-block gradients of the stage Lagrangians f0 + lam_{k+1}.f + Lg.g (z-blocks) and
@@ -137,7 +156,7 @@ class SQPSolver(Solver):
         p = problem
         N, n, m, r, rN = p.N, p.n, p.m, p.r, p.rN
         nlp = make_nlp(p)
-        timed = TimedNLP(nlp)
+        timed = _Clock()
         t_start = time.perf_counter()
         deadline = Deadline(o.max_time)
         eq, ineq = p.stage_equality_mask, ~p.stage_equality_mask
@@ -155,7 +174,7 @@ class SQPSolver(Solver):
         U = np.clip(U0, p.u_lower, p.u_upper)
         X = np.array(X0, dtype=float)
         X[0] = p.x0
-        pt = _Point(p, X, U)
+        pt = _Point(p, X, U, clock=timed)
         lam = np.zeros((N + 1, n))
         Lg = np.zeros((N, r))          # multiplier of g in "f0 + lam.f + Lg.g" (Lg = nu for =, -y for >=)
         LgN = np.zeros(rN)
@@ -195,8 +214,10 @@ class SQPSolver(Solver):
                 break
             # ---------------------------------------------------------------- QP subproblem (8)-(10)
             if hess.needs_exact:
+                t0 = time.perf_counter()
                 Hxx, Hxu, Huu = p.eval_stage_hessians(pt.X, pt.U, 1.0, lam[1:], Lg)
                 HN = p.eval_final_hessian(pt.X[-1], 1.0, LgN)
+                timed.add(("hessian",), t0)
                 blocks = np.empty((N, n + m, n + m))
                 blocks[:, :n, :n] = Hxx; blocks[:, :n, n:] = Hxu
                 blocks[:, n:, :n] = np.transpose(Hxu, (0, 2, 1)); blocks[:, n:, n:] = Huu
@@ -408,7 +429,7 @@ class SQPSolver(Solver):
             X = pt.X + alpha * dX
             U = pt.U + alpha * dU
             try:
-                cand = _Point(p, X, U, derivatives=False)
+                cand = _Point(p, X, U, derivatives=False, clock=pt.clock)
                 phi = merit(cand)
             except Exception as exc:  # non-finite values at the trial point: shorten the step
                 from ._nlp_common import is_nonfinite_error
