@@ -68,7 +68,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import ConfigError, OladoError
-from .riccati import LQSolution, RiccatiFactorization
+from .riccati import LQSolution, RiccatiFactorization, StageData
 
 __all__ = ["KKT_SOLVERS", "KKTSolveError", "make_kkt_solver", "SuperLUReducedKKT", "SuperLUFullKKT",
            "MinresKKT", "GmresKKT"]
@@ -89,73 +89,6 @@ class KKTSolveError(OladoError, np.linalg.LinAlgError):
         super().__init__(text)
 
 
-def _f64(a, shape, name):
-    arr = np.ascontiguousarray(a, dtype=np.float64)
-    if arr.shape != tuple(shape):
-        raise ValueError(f"{name}: expected shape {tuple(shape)}, got {arr.shape}")
-    return arr
-
-
-class _StageData:
-    """Validated stage arrays, with the conventions (defaults, n_eq, n_ineq) of RiccatiFactorization."""
-
-    def __init__(self, Q, S, R, A, B, E=None, F=None, n_eq=None, EN=None, Dx=None, Du=None, Ci=None,
-                 sigma=None, n_ineq=None, regularization=0.0):
-        A = np.ascontiguousarray(A, dtype=np.float64)
-        if A.ndim != 3 or A.shape[1] != A.shape[2]:
-            raise ValueError(f"A: expected shape (N, n, n), got {A.shape}")
-        N, n = A.shape[0], A.shape[1]
-        B = np.ascontiguousarray(B, dtype=np.float64)
-        if B.ndim != 3 or B.shape[:2] != (N, n):
-            raise ValueError(f"B: expected shape ({N}, {n}, m), got {B.shape}")
-        m = B.shape[2]
-        self.N, self.n, self.m = N, n, m
-        self.A, self.B = A, B
-        self.Q = _f64(Q, (N + 1, n, n), "Q")
-        self.S = np.zeros((N, n, m)) if S is None else _f64(S, (N, n, m), "S")
-        self.R = _f64(R, (N, m, m), "R")
-        if E is None:
-            self.ne_max = 0
-            self.E, self.F = np.zeros((N, 0, n)), np.zeros((N, 0, m))
-            self.ne = np.zeros(N, dtype=np.int64)
-        else:
-            E = np.asarray(E, dtype=np.float64)
-            self.ne_max = E.shape[1]
-            self.E = _f64(E, (N, self.ne_max, n), "E")
-            self.F = _f64(F, (N, self.ne_max, m), "F")
-            self.ne = (np.full(N, self.ne_max, dtype=np.int64) if n_eq is None
-                       else _f64(n_eq, (N,), "n_eq").astype(np.int64))
-        self.EN = np.zeros((0, n)) if EN is None else np.ascontiguousarray(np.atleast_2d(EN), dtype=np.float64)
-        if self.EN.shape[1] != n:
-            raise ValueError(f"EN: expected shape (neN, {n}), got {self.EN.shape}")
-        self.neN = self.EN.shape[0]
-        self.Dx = np.zeros((N + 1, n)) if Dx is None else _f64(Dx, (N + 1, n), "Dx")
-        self.Du = np.zeros((N, m)) if Du is None else _f64(Du, (N, m), "Du")
-        if Ci is None:
-            self.Ci, self.sig = np.zeros((N, 0, n + m)), np.zeros((N, 0))
-            self.ni = np.zeros(N, dtype=np.int64)
-        else:
-            self.Ci = np.ascontiguousarray(Ci, dtype=np.float64)
-            if self.Ci.ndim != 3 or self.Ci.shape[0] != N or self.Ci.shape[2] != n + m:
-                raise ValueError(f"Ci: expected shape ({N}, nineq, {n + m}), got {self.Ci.shape}")
-            self.sig = _f64(sigma, self.Ci.shape[:2], "sigma")
-            self.ni = (np.full(N, self.Ci.shape[1], dtype=np.int64) if n_ineq is None
-                       else _f64(n_ineq, (N,), "n_ineq").astype(np.int64))
-        self.ni_max = self.Ci.shape[1]
-        self.regularization = float(regularization)
-        # active masks of the padded row slots
-        self.eq_mask = np.arange(self.ne_max)[None, :] < self.ne[:, None]                      # (N, ne_max)
-        self.ineq_w = np.where(np.arange(self.ni_max)[None, :] < self.ni[:, None], self.sig, 0.0)  # (N, ni_max)
-
-    def rhs_arrays(self, q, r, c, x0, e, eN, ci):
-        N, n, m = self.N, self.n, self.m
-        q = _f64(q, (N + 1, n), "q"); r = _f64(r, (N, m), "r"); c = _f64(c, (N, n), "c"); x0 = _f64(x0, (n,), "x0")
-        e = np.zeros((N, self.ne_max)) if e is None else _f64(e, (N, self.ne_max), "e")
-        eN = np.zeros(self.neN) if eN is None else _f64(eN, (self.neN,), "eN")
-        ci = np.zeros(self.sig.shape) if ci is None else _f64(ci, self.sig.shape, "ci")
-        return q, r, c, x0, e, eN, ci
-
-
 def _block_entries(rows, cols, vals):
     """COO triplets of dense blocks: rows (K, a), cols (K, b), vals (K, a, b)."""
     rr = np.broadcast_to(rows[:, :, None], vals.shape)
@@ -170,7 +103,7 @@ class _SparseKKT:
     full = False            # True: system (24), inequality and bound rows kept
 
     def __init__(self, Q, S, R, A, B, *, bounds_as_rows=True, **stage_kw):
-        d = self.data = _StageData(Q, S, R, A, B, **stage_kw)
+        d = self.data = StageData(Q, S, R, A, B, **stage_kw)
         self.bounds_as_rows = bool(bounds_as_rows) and self.full
         N, n, m, ne, ni, neN = d.N, d.n, d.m, d.ne_max, d.ni_max, d.neN
         nz = n + m

@@ -812,11 +812,13 @@ def _f64(a, shape, name):
     return arr
 
 
-class RiccatiFactorization:
-    """Factorization of the LQ-DOCP KKT matrix; :meth:`solve` applies it to right-hand sides."""
+class StageData:
+    """Validated stage arrays of an LQ-DOCP KKT system (the constructor arguments of
+    :class:`RiccatiFactorization` and of the sparse back-ends in :mod:`olado.linalg.kkt`):
+    defaults for the optional parts, per-stage counts n_eq / n_ineq."""
 
-    def __init__(self, Q, S, R, A, B, *, E=None, F=None, n_eq=None, EN=None, Dx=None, Du=None,
-                 Ci=None, sigma=None, n_ineq=None, regularization=0.0, rank_tol=1e-10):
+    def __init__(self, Q, S, R, A, B, E=None, F=None, n_eq=None, EN=None, Dx=None, Du=None, Ci=None,
+                 sigma=None, n_ineq=None, regularization=0.0):
         A = np.ascontiguousarray(A, dtype=np.float64)
         if A.ndim != 3 or A.shape[1] != A.shape[2]:
             raise ValueError(f"A: expected shape (N, n, n), got {A.shape}")
@@ -826,20 +828,21 @@ class RiccatiFactorization:
             raise ValueError(f"B: expected shape ({N}, {n}, m), got {B.shape}")
         m = B.shape[2]
         self.N, self.n, self.m = N, n, m
+        self.A, self.B = A, B
         self.Q = _f64(Q, (N + 1, n, n), "Q")
         self.S = np.zeros((N, n, m)) if S is None else _f64(S, (N, n, m), "S")
         self.R = _f64(R, (N, m, m), "R")
-        self.A, self.B = A, B
         if E is None:
             self.ne_max = 0
-            self.E = np.zeros((N, 0, n)); self.F = np.zeros((N, 0, m)); self.ne = np.zeros(N, dtype=np.int64)
+            self.E, self.F = np.zeros((N, 0, n)), np.zeros((N, 0, m))
+            self.ne = np.zeros(N, dtype=np.int64)
         else:
-            E = np.ascontiguousarray(E, dtype=np.float64)
+            E = np.asarray(E, dtype=np.float64)
             self.ne_max = E.shape[1]
             self.E = _f64(E, (N, self.ne_max, n), "E")
             self.F = _f64(F, (N, self.ne_max, m), "F")
             self.ne = (np.full(N, self.ne_max, dtype=np.int64) if n_eq is None
-                       else np.ascontiguousarray(n_eq, dtype=np.int64))
+                       else _f64(n_eq, (N,), "n_eq").astype(np.int64))
         self.EN = np.zeros((0, n)) if EN is None else np.ascontiguousarray(np.atleast_2d(EN), dtype=np.float64)
         if self.EN.shape[1] != n:
             raise ValueError(f"EN: expected shape (neN, {n}), got {self.EN.shape}")
@@ -847,15 +850,39 @@ class RiccatiFactorization:
         self.Dx = np.zeros((N + 1, n)) if Dx is None else _f64(Dx, (N + 1, n), "Dx")
         self.Du = np.zeros((N, m)) if Du is None else _f64(Du, (N, m), "Du")
         if Ci is None:
-            self.Ci = np.zeros((N, 0, n + m)); self.sig = np.zeros((N, 0)); self.ni = np.zeros(N, dtype=np.int64)
+            self.Ci, self.sig = np.zeros((N, 0, n + m)), np.zeros((N, 0))
+            self.ni = np.zeros(N, dtype=np.int64)
         else:
             self.Ci = np.ascontiguousarray(Ci, dtype=np.float64)
             if self.Ci.ndim != 3 or self.Ci.shape[0] != N or self.Ci.shape[2] != n + m:
                 raise ValueError(f"Ci: expected shape ({N}, nineq, {n + m}), got {self.Ci.shape}")
             self.sig = _f64(sigma, self.Ci.shape[:2], "sigma")
             self.ni = (np.full(N, self.Ci.shape[1], dtype=np.int64) if n_ineq is None
-                       else np.ascontiguousarray(n_ineq, dtype=np.int64))
+                       else _f64(n_ineq, (N,), "n_ineq").astype(np.int64))
+        self.ni_max = self.Ci.shape[1]
         self.regularization = float(regularization)
+        # active masks of the padded row slots
+        self.eq_mask = np.arange(self.ne_max)[None, :] < self.ne[:, None]                      # (N, ne_max)
+        self.ineq_w = np.where(np.arange(self.ni_max)[None, :] < self.ni[:, None], self.sig, 0.0)  # (N, ni_max)
+
+    def rhs_arrays(self, q, r, c, x0, e, eN, ci):
+        N, n, m = self.N, self.n, self.m
+        q = _f64(q, (N + 1, n), "q"); r = _f64(r, (N, m), "r"); c = _f64(c, (N, n), "c"); x0 = _f64(x0, (n,), "x0")
+        e = np.zeros((N, self.ne_max)) if e is None else _f64(e, (N, self.ne_max), "e")
+        eN = np.zeros(self.neN) if eN is None else _f64(eN, (self.neN,), "eN")
+        ci = np.zeros(self.sig.shape) if ci is None else _f64(ci, self.sig.shape, "ci")
+        return q, r, c, x0, e, eN, ci
+
+
+
+class RiccatiFactorization(StageData):
+    """Factorization of the LQ-DOCP KKT matrix; :meth:`solve` applies it to right-hand sides."""
+
+    def __init__(self, Q, S, R, A, B, *, E=None, F=None, n_eq=None, EN=None, Dx=None, Du=None,
+                 Ci=None, sigma=None, n_ineq=None, regularization=0.0, rank_tol=1e-10):
+        StageData.__init__(self, Q, S, R, A, B, E=E, F=F, n_eq=n_eq, EN=EN, Dx=Dx, Du=Du, Ci=Ci, sigma=sigma,
+                           n_ineq=n_ineq, regularization=regularization)
+        N, n, m = self.N, self.n, self.m
         # fast path: no equality rows anywhere -> plain Riccati recursion, none of the constraint
         # workspaces (QR factors, propagated rows) are allocated
         self.unconstrained = self.neN == 0 and (self.ne_max == 0 or not self.ne.any())
@@ -891,10 +918,7 @@ class RiccatiFactorization:
         stage inequality terms, ci (N, nineq) is the constant in C_k z_k + ci_k (the Hessian term
         sigma * C^T C adds sigma * C^T ci to the gradient)."""
         N, n, m = self.N, self.n, self.m
-        q = _f64(q, (N + 1, n), "q"); r = _f64(r, (N, m), "r"); c = _f64(c, (N, n), "c"); x0 = _f64(x0, (n,), "x0")
-        e = np.zeros((N, self.ne_max)) if e is None else _f64(e, (N, self.ne_max), "e")
-        eN = np.zeros(self.neN) if eN is None else _f64(eN, (self.neN,), "eN")
-        ci = np.zeros(self.sig.shape) if ci is None else _f64(ci, self.sig.shape, "ci")
+        q, r, c, x0, e, eN, ci = self.rhs_arrays(q, r, c, x0, e, eN, ci)
         X = np.empty((N + 1, n)); U = np.empty((N, m)); lam = np.empty((N + 1, n))
         nu = np.zeros((N + 1, max(self.ne_max, self.neN)))
         kff = np.empty((N, m)); pvec = np.empty((N + 1, n))
