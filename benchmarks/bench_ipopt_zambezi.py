@@ -17,18 +17,15 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import os
-import platform
-import re
-import subprocess
 import sys
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
+from _common import machine, write_section  # noqa: E402
+
 from olado.problems.zambezi import table1_counts, zambezi_problem  # noqa: E402
-from olado.result import atomic_write_bytes  # noqa: E402
 from olado.solvers.ipopt import IpoptSolver  # noqa: E402
 
 SECTION = "IPOPT on zambezi12 (Table 1 horizons)"
@@ -40,26 +37,6 @@ PAPER_IPOPT = {
     144: (44, 4.41), 156: (45, 4.82), 168: (51, 6.17), 180: (50, 6.59), 192: (48, 6.98),
     204: (48, 7.69), 216: (47, 8.25), 228: (51, 9.96), 240: (50, 10.49), 252: (50, 11.43),
 }
-
-
-def machine() -> str:
-    """CPU model and core count (lscpu), Python and IPOPT versions."""
-    model, cores = platform.processor() or "unknown CPU", os.cpu_count()
-    try:
-        out = subprocess.run(["lscpu"], capture_output=True, text=True, check=True).stdout
-        fields = dict(line.split(":", 1) for line in out.splitlines() if ":" in line)
-        fields = {k.strip(): v.strip() for k, v in fields.items()}
-        model = fields.get("Model name", model)
-        cores = fields.get("CPU(s)", cores)
-    except (OSError, subprocess.CalledProcessError, ValueError):
-        pass
-    try:
-        import cyipopt
-
-        ipopt = f"cyipopt {cyipopt.__version__}, IPOPT {'.'.join(map(str, cyipopt.IPOPT_VERSION))}"
-    except Exception:  # pragma: no cover - informative only
-        ipopt = "cyipopt ?"
-    return f"{model}, {cores} CPU(s); Python {platform.python_version()}; {ipopt} (MUMPS)"
 
 
 def run(horizons, repeats, family="zambezi12"):
@@ -122,17 +99,6 @@ def markdown(rows, command, repeats) -> str:
     return "\n".join(lines)
 
 
-def write_section(path: Path, text: str) -> None:
-    """Replace (or append) the '## SECTION' part of a markdown file, atomically."""
-    old = path.read_text(encoding="utf-8") if path.exists() else "# olado benchmark results\n\n"
-    pattern = re.compile(rf"^## {re.escape(SECTION)}\n.*?(?=^## |\Z)", re.S | re.M)
-    if pattern.search(old):
-        new = pattern.sub(lambda _m: text + "\n", old, count=1)
-    else:
-        new = old.rstrip("\n") + "\n\n" + text + "\n"
-    atomic_write_bytes(path, new.encode("utf-8"))
-
-
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--N", type=int, nargs="*", default=list(range(12, 253, 12)),
@@ -149,7 +115,7 @@ def main(argv=None):
     print()
     print(text)
     if not args.no_write:
-        write_section(args.output, text)
+        write_section(SECTION, text, args.output)
         print(f"written to {args.output}")
     bad = [r["N"] for r in rows if r["status"] not in ("success", "acceptable")]
     return 1 if bad else 0

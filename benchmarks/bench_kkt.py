@@ -20,23 +20,17 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import pathlib
-import platform
-import re
 import statistics
-import subprocess
 import sys
 import time
 
 import numpy as np
 import scipy
-
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
+from _common import RESULTS, machine, write_section
 
 from olado.linalg.kkt import make_kkt_solver  # noqa: E402
 
 SECTION = "KKT solve scaling (Riccati vs SuperLU)"
-RESULTS = pathlib.Path(__file__).with_name("RESULTS.md")
 
 
 def problem(N, n=6, m=7, seed=0):
@@ -87,16 +81,6 @@ def measure(name, mats, rhs, repeats, opts):
     return statistics.median(factor_solve), statistics.median(rhs_only), res, extra, sol
 
 
-def machine():
-    try:
-        out = subprocess.run(["lscpu"], capture_output=True, text=True, check=True).stdout
-        model = re.search(r"Model name:\s*(.+)", out).group(1).strip()
-    except Exception:  # noqa: BLE001
-        model = platform.processor() or "unknown CPU"
-    import os
-    return f"{model}, {os.cpu_count()} CPU(s); Python {platform.python_version()}, numpy {np.__version__}, scipy {scipy.__version__}"
-
-
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[100, 1000, 10000, 100000])
@@ -145,10 +129,10 @@ def main(argv=None):
     print()
     print(table)
     if args.write:
-        write_section(table, " ".join(["python", "benchmarks/bench_kkt.py"] + sys.argv[1:]), rows)
+        write_kkt_section(table, " ".join(["python", "benchmarks/bench_kkt.py"] + sys.argv[1:]), rows)
 
 
-def write_section(table, command, rows):
+def write_kkt_section(table, command, rows):
     ric = [r for r in rows if r["backend"] == "riccati"]
     lu = {r["N"]: r for r in rows if r["backend"] == "superlu-reduced"}
     ratio = ", ".join(f"N={r['N']}: {lu[r['N']]['tf'] / r['tf']:.0f}x" for r in ric if r["N"] in lu)
@@ -156,7 +140,7 @@ def write_section(table, command, rows):
 
 Command: `{command}`  
 Date: {datetime.date.today().isoformat()}  
-Machine: {machine()}
+Machine: {machine(with_ipopt=False)}, numpy {np.__version__}, scipy {scipy.__version__}
 
 One KKT solve of an interior-point iteration, system (25) of paper 001 at the Zambezi dimensions
 n=6, m=7: random SPD stage costs, random dynamics, random simple-bound terms Dx, Du in
@@ -173,13 +157,7 @@ Riccati vs superlu-reduced, factor + 1 RHS: {ratio} slower for SuperLU.
 
 {table}
 """
-    text = RESULTS.read_text() if RESULTS.exists() else "# olado benchmark results\n"
-    pattern = re.compile(rf"^## {re.escape(SECTION)}\n.*?(?=^## |\Z)", re.S | re.M)
-    if pattern.search(text):
-        text = pattern.sub(lambda _m: body + "\n", text)
-    else:
-        text = text.rstrip("\n") + "\n\n" + body
-    RESULTS.write_text(text.rstrip("\n") + "\n")
+    write_section(SECTION, body)
     print(f"wrote section '{SECTION}' to {RESULTS}")
 
 

@@ -46,7 +46,6 @@ from __future__ import annotations
 
 import configparser
 import dataclasses
-import math
 import typing
 from pathlib import Path
 from typing import Any

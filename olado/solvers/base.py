@@ -15,12 +15,12 @@ import dataclasses
 import math
 import time
 import typing
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from ..errors import ConfigError
-from ..result import Result, Status
+from ..result import Result
 
 
 def option(default, help="", *, choices=None, min=None, max=None, min_exclusive=False, ini=True):

@@ -35,7 +35,7 @@ from ..linalg.stageqp import StageQP
 from ..result import Status
 from ._nlp_common import EVALUATION_KINDS, Deadline, build_result, make_nlp
 from .base import Solver, SolverOptions, option
-from .hessian import ExactHessian, make_hessian
+from .hessian import make_hessian
 from .registry import register
 
 QP_METHODS = ("mehrotra", "gondzio", "weighted", "osqp", "clarabel", "piqp", "proxqp", "highs", "quadprog", "cvxopt")
@@ -381,7 +381,7 @@ class SQPSolver(Solver):
     @staticmethod
     def _build_qp(p, pt, Bk, BN, eq, ineq, eqN, ineqN):
         """The QP (8)-(10) in the step (dx, du) at the point pt, in stage form."""
-        N, n, m = p.N, p.n, p.m
+        N, n = p.N, p.n
         X, U = pt.X, pt.U
         Q = np.empty((N + 1, n, n))
         Q[:-1] = Bk[:, :n, :n]; Q[-1] = BN
