@@ -12,6 +12,8 @@ def _registry():
         problems.update(_z)
     except ImportError:  # pragma: no cover - during development only
         pass
+    from .testproblems import PROBLEMS as _t
+    problems.update(_t)
     return problems
 
 
