@@ -244,3 +244,25 @@ def test_line_search_at_rounding_level_uses_slopes():
     dfun = lambda a: 2e-14 * (a - 1.0)
     ls = strong_wolfe(fun, dfun, fun(0.0), dfun(0.0), 0.3, c2=0.1)
     assert ls.success and abs(ls.alpha - 1.0) <= 0.1
+
+
+# ----------------------------------------------------------------------------- built-in problems
+BUILTIN = [("lq", 1e-6), ("vanderpol", 1e-6), ("rayleigh", 1e-6), ("cstr", 1e-5)]
+
+
+@pytest.mark.parametrize("problem,u_tol", BUILTIN, ids=[b[0] for b in BUILTIN])
+@pytest.mark.parametrize("name,kw", METHODS, ids=IDS)
+def test_builtin_test_problems_match_ipopt(problem, u_tol, name, kw):
+    from olado.problems.testproblems import PROBLEMS
+
+    if name == "gradient" and problem == "lq":
+        # the unstable mode of lq makes the reduced Hessian too ill-conditioned for steepest
+        # descent: it is still far away after 20000 iterations (measured)
+        pytest.skip("steepest descent does not reach tol on lq in reasonable time")
+    ref = _ipopt(PROBLEMS[problem]())
+    res = olado.solve(PROBLEMS[problem](), solver=name, **kw)
+    assert res.status == Status.SUCCESS, res.message
+    assert res.kkt_residual <= 1e-8
+    assert res.objective == pytest.approx(ref.objective, rel=1e-12, abs=1e-12)
+    # cstr's optimum is flat in u: |u - u*| ~ |g| / lambda_min(H) is larger there
+    assert np.max(np.abs(res.u - ref.u)) <= u_tol
