@@ -365,3 +365,45 @@ def test_zambezi_warm_start(zambezi):
     cold, warm = solver.solve(qp2), solver.solve(qp2, warm_start=first)
     assert cold.success and warm.success
     assert warm.iterations < cold.iterations
+
+
+# ============================================================================= compiled kernels
+def test_compiled_residuals_match_the_numpy_formulas():
+    from olado.solvers.qp_ip import _Prepared
+
+    qp = random_qp(5, fixed=True, eq=True)
+    P = _Prepared(qp)
+    solver = MehrotraQP()
+    it = solver._initial_point(P)
+    rng = np.random.default_rng(1)
+    it = it.plus(1.0, P.point(rng.standard_normal(it.v.shape)))     # a generic point (slacks != box gaps)
+    res, pr, du, scales, obj, znorm, comp = solver._residuals(P, it)
+    hx, hu = P.hess_z(it.X, it.U)
+    gx, gu = P.constraint_grad(it.lam, it.nu, it.zu - it.zl)
+    dyn, x0r, rE, rEN = P.eq_residuals(it.X, it.U)
+    w = P.w_of(it.X, it.U)
+    ref = dict(rx=hx + P.q + gx, ru=hu + P.r + gu, dyn=dyn, x0r=x0r, rE=rE, rEN=rEN,
+               rl=np.where(P.fl, w - P.lo - it.tl, 0.0), rup=np.where(P.fu, P.hi - w - it.tu, 0.0))
+    for name, val in ref.items():
+        assert np.allclose(getattr(res, name), val, rtol=1e-12, atol=1e-12), name
+    assert pr == pytest.approx(max(np.abs(ref[k]).max(initial=0.0) for k in ("dyn", "x0r", "rE", "rEN", "rl", "rup")))
+    assert du == pytest.approx(max(np.abs(ref["rx"]).max(), np.abs(ref["ru"]).max()))
+    obj_ref = 0.5 * (np.sum(hx * it.X) + np.sum(hu * it.U)) + np.sum(P.q * it.X) + np.sum(P.r * it.U)
+    assert obj == pytest.approx(obj_ref, rel=1e-12)   # of the prepared (fixed-control-free) problem
+    assert comp == pytest.approx(it.zl @ it.tl + it.zu @ it.tu, rel=1e-12)
+    assert scales[1] == pytest.approx(1.0 + max(P.d_data, np.abs(hx).max(), np.abs(hu).max()))
+
+
+@pytest.mark.parametrize("cls", METHODS, ids=lambda c: c.name)
+def test_refinement_threshold_keeps_the_iterates(cls):
+    # refinement_tol = 0 refines every solve down to 1e-3 tol; the default refines only solves
+    # whose Newton residual is large relative to their right-hand side (none here)
+    qp = random_qp(3)
+    lazy, eager = cls(tol=1e-10).solve(qp), cls(tol=1e-10, refinement_tol=0.0).solve(qp)
+    assert lazy.status is eager.status is Status.SUCCESS
+    assert lazy.iterations == eager.iterations
+    assert sum(h["refinements"] for h in lazy.history) <= sum(h["refinements"] for h in eager.history)
+    for h, h0 in zip(lazy.history, eager.history):
+        assert h["alpha"] == pytest.approx(h0["alpha"], abs=1e-8)
+        assert h["mu"] == pytest.approx(h0["mu"], rel=1e-6, abs=1e-14)
+    assert np.allclose(lazy.X, eager.X, atol=1e-10) and np.allclose(lazy.U, eager.U, atol=1e-10)
