@@ -11,6 +11,7 @@ import pytest
 import olado
 from olado.config import load_config
 from olado.problems import DOCP
+from olado.problems.testproblems import PROBLEMS, REGRESSION_VALUES
 from olado.result import Result, Status
 from olado.solvers import ddp  # noqa: F401 - registers "ddp" and "stagewise-newton"
 from olado.solvers.control_space import ReducedProblem
@@ -189,6 +190,32 @@ def test_lq_one_iteration_matches_ipopt(method):
     assert np.allclose(r.multipliers["dynamics"], ref.multipliers["dynamics"], atol=1e-8)
 
 
+# ============================================================================ built-in problems
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("name", ["lq", "vanderpol", "rayleigh", "cstr"])
+def test_builtin_problems_reach_the_ipopt_solution(method, name):
+    ref = ipopt_reference(PROBLEMS[name](N=50))
+    r = olado.solve(PROBLEMS[name](N=50), solver=method, tol=1e-9)
+    assert r.status == Status.SUCCESS, r.message
+    assert np.allclose(r.u, ref.u, atol=1e-7, rtol=0)
+    assert r.objective == pytest.approx(ref.objective, rel=1e-11)
+    key = (name, None) if name == "lq" else (name, "rk4")
+    assert r.objective == pytest.approx(REGRESSION_VALUES[key], rel=1e-9)
+    if name == "lq":
+        assert r.iterations == 1
+    else:   # quadratic tail (e.g. rayleigh, DDP: 7.0e-03 7.4e-05 2.7e-08 1.6e-15)
+        g = grad_norms(r)
+        tail = [(a, b) for a, b in zip(g, g[1:]) if a < 0.1 and b > 1e-14]
+        assert tail and all(b <= 100.0 * a * a for a, b in tail[-2:]), g
+
+
+@pytest.mark.parametrize("name", ["lq-box", "vanderpol-box", "vanderpol-path", "rayleigh-box"])
+def test_builtin_bounded_problems_are_pointed_elsewhere(name):
+    for method in METHODS:
+        r = olado.solve(PROBLEMS[name](N=20), solver=method)
+        assert r.status == Status.INVALID_PROBLEM and "pdmin" in r.message
+
+
 # ============================================================================ nonlinear problems
 @pytest.mark.parametrize("method", METHODS)
 @pytest.mark.parametrize("make", [lambda: Swing(), lambda: Swing(derivatives="fd"),
@@ -270,13 +297,13 @@ def test_newton_step_refuses_an_indefinite_hessian():
 
 # ============================================================================ shift on a nonconvex start
 @pytest.mark.parametrize("method", METHODS)
-@pytest.mark.parametrize("regularization", ["control", "state"])
-def test_shift_kicks_in_on_a_nonconvex_start(method, regularization):
+@pytest.mark.parametrize("regularization,schedule", [("control", "tassa"), ("state", "tassa"), ("control", "inertia")])
+def test_shift_kicks_in_on_a_nonconvex_start(method, regularization, schedule):
     p = DoubleWell()
     U0 = np.full((p.N, 1), 0.01)
     H0, _ = dense_reduced_hessian(p, U0)
     assert np.linalg.eigvalsh(H0).min() < 0
-    r = olado.solve(p, solver=method, guess=U0, regularization=regularization)
+    r = olado.solve(p, solver=method, guess=U0, regularization=regularization, shift_schedule=schedule)
     assert r.status == Status.SUCCESS, r.message
     assert r.history[0]["shift"] > 0 and r.history[0]["backward_passes"] > 1
     assert r.history[-1]["shift"] < r.history[0]["shift"]
@@ -361,3 +388,10 @@ def test_ini_presets(method):
     assert cfg.solver == method
     r = olado.solve(Swing(), config=path)
     assert r.solver == method and r.status == Status.SUCCESS
+
+
+def test_iteration_log(capsys):
+    olado.solve(Swing(), solver="stagewise-newton", verbose=2)
+    out = capsys.readouterr().out
+    assert "|grad|" in out and "shift" in out and "exp.decr" in out
+    assert "status       : success" in out

@@ -43,9 +43,13 @@ Shift (regularization) mu >= 0, the "shifting of the Hessian eigenvalues" of the
 
 mu is raised until every stage's Qt_uu has a Cholesky factor (all Qt_uu positive definite; for
 stagewise Newton with control shift exactly when H + mu I is positive definite) and when the line
-search fails, and lowered after every successful iteration, with the schedule of Tassa et al.
-(2012, sec. II.F): increase  delta <- max(f, f delta), mu <- max(mu_min, mu delta); decrease
-delta <- min(1/f, delta/f), mu <- mu delta, or 0 once below mu_min (f = ``shift_factor``).
+search fails, and lowered after every successful iteration. ``shift_schedule = tassa``
+(default; Tassa et al. 2012, sec. II.F): increase delta <- max(f, f delta), mu <- max(mu_min,
+mu delta); decrease delta <- min(1/f, delta/f), mu <- mu delta, or 0 once below mu_min
+(f = ``shift_factor``). ``shift_schedule = inertia`` (the inertia correction of Waechter and
+Biegler 2006, sec. 3.1, also used by olado's SQP): every iteration tries mu = 0 first, then
+max(mu_min, last/3) (1e-4 if no shift was needed before), multiplied by 8 (100 the first time)
+until it succeeds.
 
 Line search (both methods): alpha = 1, backtrack, ... accepted when the actual change of J is at
 least ``armijo`` times the expected one, dV(alpha) = alpha sum k.Q_u + alpha^2/2 sum k.Qv_uu k < 0
@@ -418,12 +422,15 @@ class _DPOptions(SolverOptions):
     regularization: str = option("control", "where the shift mu goes: 'control' adds mu*I to Q_uu (the reduced "
                                  "Hessian's eigenvalues shifted by mu), 'state' adds mu*I to V_xx' (Tassa et al. "
                                  "2012)", choices=("control", "state"))
-    shift_init: float = option(0.0, "initial shift mu", min=0.0)
+    shift_schedule: str = option("tassa", "'tassa': mu lowered geometrically after each success (Tassa et al. 2012); "
+                                 "'inertia': every iteration tries mu = 0 first, then the last shift / 3, x8 "
+                                 "(Waechter and Biegler 2006)", choices=("tassa", "inertia"))
+    shift_init: float = option(0.0, "initial shift mu ('tassa' schedule)", min=0.0)
     shift_min: float = option(1e-6, "smallest nonzero shift; a decrease below it sets mu = 0", min=0.0,
                               min_exclusive=True)
     shift_max: float = option(1e10, "largest shift before the solver gives up (NUMERICAL_ERROR)", min=0.0,
                               min_exclusive=True)
-    shift_factor: float = option(2.0, "base factor of the shift schedule (Tassa et al. 2012)", min=1.0,
+    shift_factor: float = option(2.0, "base factor of the 'tassa' shift schedule", min=1.0,
                                  min_exclusive=True)
     armijo: float = option(1e-4, "accept a step when the actual decrease is >= armijo * the expected decrease",
                            min=0.0, max=0.5, min_exclusive=True)
@@ -480,7 +487,14 @@ class _DynamicProgrammingSolver(Solver):
         status, message = Status.MAX_ITERATIONS, f"maximum number of iterations ({o.max_iter}) reached"
         name = self.name
 
+        inertia = o.shift_schedule == "inertia"
+        last_shift = 0.0          # inertia schedule: the last nonzero shift that worked
+
         def raise_shift(mu, delta):
+            if inertia:            # Waechter & Biegler (2006) sec. 3.1, kappa- = 1/3, kappa+ = 8, 100
+                if mu == 0.0:
+                    return (max(o.shift_min, last_shift / 3.0) if last_shift > 0 else max(o.shift_min, 1e-4)), delta
+                return mu * (8.0 if last_shift > 0 else 100.0), delta
             delta = max(o.shift_factor, delta * o.shift_factor)
             return max(o.shift_min, mu * delta), delta
 
@@ -506,6 +520,8 @@ class _DynamicProgrammingSolver(Solver):
                 status, message = Status.NUMERICAL_ERROR, f"non-finite second derivatives at iteration {it}: {exc}"
                 break
             # ---------------------------------------------------------- backward pass + line search
+            if inertia:
+                mu = 0.0          # the unshifted (Newton) step first
             shift_used = mu
             accepted = None
             passes = 0
@@ -556,8 +572,11 @@ class _DynamicProgrammingSolver(Solver):
                 break
             alpha, Xn, Un, Jn, dV = accepted
             # ---------------------------------------------------------- shift decrease (Tassa et al. 2012)
-            delta = min(1.0 / o.shift_factor, delta / o.shift_factor)
-            mu = mu * delta if mu * delta >= o.shift_min else 0.0
+            if inertia:
+                last_shift = mu if mu > 0 else last_shift
+            else:
+                delta = min(1.0 / o.shift_factor, delta / o.shift_factor)
+                mu = mu * delta if mu * delta >= o.shift_min else 0.0
             step_norm = float(np.max(np.abs(Un - U), initial=0.0))
             J_old, d_old = J, d
             X, U, J = Xn, Un, Jn
