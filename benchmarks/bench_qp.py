@@ -1,0 +1,196 @@
+"""QP subproblem: the interior-point Riccati QP against OSQP and Clarabel.
+
+The QP is the Zambezi QP subproblem (14) of the first SQP step at the balance start, built as
+tests/test_qp_ip.py builds it: A, B from the dynamics Jacobians, the Hessian blocks of the stage
+costs (zero multipliers) shifted per stage to be positive definite (most negative eigenvalue +
+1e-4), bounds shifted to the step. n = 6, m = 7, two-sided bounds on every control and on 4 of
+the 6 states. N = 252 is zambezi12; larger N use the 'zambezi' family (any multiple of 12,
+inflows repeated cyclically).
+
+Side by side in one run, on the same QP:
+
+- Mehrotra and Gondzio (olado.solvers.qp_ip, KKT back-end Riccati, default tol 1e-8);
+- OSQP and Clarabel through olado.solvers.qp_external.ExternalQP (sparse form; OSQP eps_abs =
+  eps_rel = 1e-7 with polishing, Clarabel gap and feasibility tolerances 1e-8 -- the accuracy
+  of the default interior-point tolerance, checked by the KKT residuals in the table);
+
+each solve timed as the best of several repeats after a warm-up solve (numba compilation,
+imports). Every result's KKT residuals come from olado.linalg.stageqp.qp_kkt_residuals
+(max-norms of stationarity, primal infeasibility, complementarity), so the accuracy is measured
+the same way for all solvers. ``--before REV`` also times the interior-point methods of
+olado/solvers/qp_ip.py as of git revision REV (loaded from ``git show``), for a before/after
+per-iteration table.
+
+    python benchmarks/bench_qp.py                          # N = 1200, 12000; print the tables
+    python benchmarks/bench_qp.py --before 3bef525 --write # and replace the RESULTS.md section
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import importlib.util
+import subprocess
+import sys
+import time
+
+import numpy as np
+from _common import HERE, RESULTS, machine, write_section
+
+from olado.linalg.stageqp import StageQP  # noqa: E402
+from olado.solvers import qp_ip  # noqa: E402
+from olado.solvers.qp_external import ExternalQP, available_qp_backends  # noqa: E402
+
+SECTION = "QP subproblem: interior-point Riccati QP vs OSQP and Clarabel"
+
+
+def zambezi_qp(N, shift=1e-4):
+    """The Zambezi step QP at the balance start (as tests/test_qp_ip.py's zambezi_qp)."""
+    from olado.problems.zambezi import zambezi_problem
+
+    p = zambezi_problem("zambezi12" if N <= 252 else "zambezi", N=N, extend="cyclic")
+    U = p.initial_guess(); X = p.simulate(U)
+    A, B = p.eval_dynamics_jacobians(X, U)
+    hxx, hxu, huu = p.eval_stage_hessians(X, U, 1.0, np.zeros((N, p.n)))
+    H = np.block([[hxx, hxu], [np.transpose(hxu, (0, 2, 1)), huu]])
+    H = H + (np.maximum(0.0, -np.linalg.eigvalsh(H)[:, 0]) + shift)[:, None, None] * np.eye(p.n + p.m)
+    HN = p.eval_final_hessian(X[-1], 1.0)
+    HN = HN + (max(0.0, -np.linalg.eigvalsh(HN)[0]) + shift) * np.eye(p.n)
+    lx, lu = p.eval_stage_cost_gradients(X, U)
+    return StageQP(Q=np.concatenate([H[:, :p.n, :p.n], HN[None]]), S=H[:, :p.n, p.n:], R=H[:, p.n:, p.n:],
+                   q=np.vstack([lx, p.eval_final_cost_gradient(X[-1])]), r=lu, A=A, B=B,
+                   c=p.eval_dynamics(X, U) - X[1:], x0=np.zeros(p.n),
+                   x_lower=p.x_lower - X, x_upper=p.x_upper - X, u_lower=p.u_lower - U, u_upper=p.u_upper - U)
+
+
+def load_revision(rev):
+    """olado/solvers/qp_ip.py as of git revision ``rev``, imported as a sibling module."""
+    src = subprocess.run(["git", "show", f"{rev}:olado/solvers/qp_ip.py"], cwd=HERE.parent, check=True,
+                         capture_output=True, text=True).stdout
+    path = HERE / f".qp_ip_{rev}.py"
+    path.write_text(src, encoding="utf-8")
+    try:
+        name = f"olado.solvers._qp_ip_{rev}"
+        spec = importlib.util.spec_from_file_location(name, path)
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules[name] = mod
+        spec.loader.exec_module(mod)
+    finally:
+        path.unlink()
+    return mod
+
+
+def timed(solver, qp, repeats):
+    """(best wall time of ``repeats`` solves after a warm-up, last result)."""
+    res = solver.solve(qp)
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        res = solver.solve(qp)
+        best = min(best, time.perf_counter() - t0)
+    return best, res
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--N", type=int, nargs="+", default=[1200, 12000], help="horizons of the solver comparison")
+    ap.add_argument("--iteration-N", type=int, nargs="+", default=[252, 1200, 12000],
+                    help="horizons of the per-iteration table")
+    ap.add_argument("--before", metavar="REV", help="also time qp_ip.py of this git revision (per-iteration table)")
+    ap.add_argument("--repeats", type=int, default=5, help="timed repeats per solver at N <= 2000 (2 above)")
+    ap.add_argument("--write", action="store_true", help=f"replace the section in {RESULTS.name}")
+    args = ap.parse_args(argv)
+
+    backends = [b for b in ("osqp", "clarabel") if b in available_qp_backends()]
+    ip = {"Mehrotra (Riccati)": qp_ip.MehrotraQP(), "Gondzio (Riccati)": qp_ip.GondzioQP()}
+    ext = {"OSQP": ExternalQP("osqp", eps_abs=1e-7, eps_rel=1e-7, polish=True),
+           "Clarabel": ExternalQP("clarabel", tol_gap_abs=1e-8, tol_gap_rel=1e-8, tol_feas=1e-8)}
+    ext = {k: v for k, v in ext.items() if v.backend in backends}
+    old = load_revision(args.before) if args.before else None
+
+    qps = {N: zambezi_qp(N) for N in sorted(set(args.N) | set(args.iteration_N))}
+    reps = lambda N: args.repeats if N <= 2000 else 2  # noqa: E731
+
+    # ---- solver comparison
+    rows = []
+    for N in args.N:
+        qp = qps[N]
+        times = {}
+        for name, solver in list(ip.items()) + list(ext.items()):
+            t, res = timed(solver, qp, reps(N) if name in ip else max(1, reps(N) // 2))
+            times[name] = t
+            rows.append((N, name, res, t))
+            print(f"N={N:6d} {name:20s} {res.status.value:10s} it={res.iterations:5d} {t:9.4f} s  "
+                  f"obj={res.objective:.10g}  " + "  ".join(f"{k} {v:.1e}" for k, v in res.kkt.items()), flush=True)
+        ref = times["Mehrotra (Riccati)"]
+        rows[-len(times):] = [(N, name, res, t, t / ref) for (N, name, res, t) in rows[-len(times):]]
+    lines = ["| N | solver | status | iterations | time (s) | time / Mehrotra | objective | stationarity | primal | "
+             "complementarity |", "|---:|:--|:--|---:|---:|---:|---:|---:|---:|---:|"]
+    for N, name, res, t, ratio in rows:
+        k = res.kkt
+        lines.append(f"| {N} | {name} | {res.status.value} | {res.iterations} | {t:.4f} | {ratio:.1f}x | "
+                     f"{res.objective:.10g} | {k['stationarity']:.1e} | {k['primal']:.1e} | {k['complementarity']:.1e} |")
+    table = "\n".join(lines)
+
+    # ---- per-iteration cost of the interior-point methods
+    it_lines = ["| N | method | iterations | ms per iteration | µs per stage and iteration |"
+                + (f" before ({args.before}): ms per iteration | before: µs per stage and iteration | speed-up |"
+                   if old else ""),
+                "|---:|:--|---:|---:|---:|" + ("---:|---:|---:|" if old else "")]
+    for N in args.iteration_N:
+        qp = qps[N]
+        for name, cls in (("Mehrotra", "MehrotraQP"), ("Gondzio", "GondzioQP")):
+            t, res = timed(getattr(qp_ip, cls)(), qp, reps(N))
+            per = t / res.iterations
+            line = f"| {N} | {name} | {res.iterations} | {per * 1e3:.3f} | {per / N * 1e6:.2f} |"
+            if old:
+                t0, res0 = timed(getattr(old, cls)(), qp, reps(N) if N <= 2000 else 1)
+                per0 = t0 / res0.iterations
+                line += f" {per0 * 1e3:.3f} | {per0 / N * 1e6:.2f} | {per0 / per:.1f}x |"
+            it_lines.append(line)
+            print(it_lines[-1], flush=True)
+    it_table = "\n".join(it_lines)
+    print(table)
+    print(it_table)
+
+    if args.write:
+        import numba
+        import scipy
+
+        versions = f"numpy {np.__version__}, scipy {scipy.__version__}, numba {numba.__version__}"
+        try:
+            import clarabel
+            import osqp
+
+            versions += f", OSQP {osqp.__version__}, Clarabel {clarabel.__version__} (through qpsolvers)"
+        except ImportError:
+            pass
+        cmd = "python benchmarks/bench_qp.py" + (f" --before {args.before}" if args.before else "") + " --write"
+        text = f"""## {SECTION}
+
+Command: `{cmd}`  
+Date: {datetime.date.today().isoformat()}  
+Machine: {machine(with_ipopt=False)}; {versions}
+
+The Zambezi QP subproblem (first SQP step at the balance start, stage Hessians shifted to be
+positive definite, as in tests/test_qp_ip.py; n = 6, m = 7, 14 control and 8 state bounds per
+stage), N = 252 from zambezi12, larger N from the 'zambezi' family (cyclic inflows). Mehrotra and
+Gondzio are olado's interior-point QP methods with the Riccati KKT back-end at the default
+tol = 1e-8; OSQP (eps 1e-7, polishing) and Clarabel (tolerances 1e-8) solve the sparse form through
+`ExternalQP`. KKT residuals are `qp_kkt_residuals` of each result (unscaled max-norms), so the
+accuracy is compared on one measure. Times are wall times of `solve` (best of several repeats after
+a warm-up solve), including each method's set-up and result assembly.
+
+{table}
+
+Per interior-point iteration (time of a whole solve divided by its iterations, so the set-up,
+starting point and result assembly are included){'; "before" is qp_ip.py at ' + args.before + ', timed in the same run' if old else ''}:
+
+{it_table}
+"""
+        write_section(SECTION, text)
+        print(f"wrote section '{SECTION}' of {RESULTS}")
+
+
+if __name__ == "__main__":
+    main()
