@@ -53,7 +53,7 @@ from collections import Counter
 
 import numpy as np
 
-from ..errors import ConfigError, ProblemDefinitionError, SolverNotAvailableError
+from ..errors import ProblemDefinitionError, SolverNotAvailableError
 from ..problems.docp import DOCP
 from ..result import Result, Status
 from .base import Solver, SolverOptions, option
@@ -377,7 +377,7 @@ def solve_lbfgsb(problem, U0, *, tol, max_iter, memory=20, ftol=1e-15, max_resta
     # point reached continues. Converged: projected gradient <= tol, or a restart that cannot
     # decrease f any more (the floating-point limit of the penalized function).
     u = u0
-    total, restarts, f_prev, messages = 0, 0, math.inf, []
+    total, restarts, f_prev = 0, 0, math.inf
     converged = False
     while True:
         try:
