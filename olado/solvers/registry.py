@@ -28,4 +28,4 @@ def available_solvers() -> dict:
 
 def _load_builtin():
     # Importing the modules registers their solvers.
-    from . import ddp, ipopt, pdmin, reduced_gradient, scipy_nlp, sqp  # noqa: F401
+    from . import ddp, ipopt, pdmin, penalty, reduced_gradient, scipy_nlp, sqp  # noqa: F401
