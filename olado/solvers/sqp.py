@@ -19,8 +19,11 @@ SR1, exact with Gerschgorin or Levenberg convexification, Powell's BFGS with the
 operator), always block diagonal (12).
 
 Stopping: KKT residual (max-norm of the NLP stationarity at the current point with the QP
-multipliers, relative to max(1, |grad J|)) <= tol, constraint violation <= constr_viol_tol; or a
-step shorter than step_tol (relative) with the constraints satisfied.
+multipliers, relative to the largest |grad J| seen) <= tol, constraint violation <=
+constr_viol_tol; or a step shorter than step_tol (relative) with the constraints satisfied. When
+the KKT test holds but the violation does not, a least-change feasibility step (the QP without its
+gradient term) is taken instead of a full SQP step. A proximal term proximal*max|H|*I in the QP
+Hessian picks the shortest step along flat directions of degenerate optima.
 """
 
 from __future__ import annotations
@@ -61,7 +64,9 @@ class SQPOptions(SolverOptions):
     """Options of :class:`SQPSolver` (``[sqp]`` section of an ini file)."""
 
     max_iter: int = option(200, "maximum number of major (SQP) iterations", min=0)
-    tol: float = option(1e-7, "KKT residual tolerance, relative to max(1, |grad J|)", min=0.0, min_exclusive=True)
+    tol: float = option(1e-7, "KKT residual tolerance, relative to the largest gradient max-norm |grad J| seen "
+                        "(at the start or later), so that the test does not depend on the objective's scale",
+                        min=0.0, min_exclusive=True)
     qp: str = option("mehrotra", "QP method for the subproblems", choices=QP_METHODS)
     kkt: str = option("riccati", "KKT (matrix) solver inside the interior-point QP methods", choices=KKT_SOLVERS)
     hessian: str = option("exact", "Hessian: block BFGS, block SR1, exact, or Powell's BFGS with the gangster operator",
@@ -84,8 +89,10 @@ class SQPOptions(SolverOptions):
     penalty_min: float = option(1e-8, "lower bound of the exact-penalty weights", min=0.0)
     qp_adaptive_tol: bool = option(False, "inexact SQP: solve early QPs to tolerance min(1e-4, 0.1 * previous KKT "
                                    "residual), never below qp_tol (olado's interior-point QP methods only)")
+    feasibility_steps: bool = option(False, "when the KKT test holds but the constraint violation does not, take a "
+                                     "least-change correction step (the QP without its gradient) instead of a full SQP step")
     qp_warm_start: bool = option(False, "start each QP from the previous QP's multipliers (and a zero step)")
-    proximal: float = option(1e-6, "proximal term delta*I added to the QP Hessian, delta = proximal * max|H|: picks the "
+    proximal: float = option(1e-4, "proximal term delta*I added to the QP Hessian, delta = proximal * max|H|: picks the "
                              "shortest step when the reduced Hessian is singular (flat directions, degenerate "
                              "optima); it vanishes at the solution (s = 0)", min=0.0)
 
@@ -184,6 +191,7 @@ class SQPSolver(Solver):
         history, qp_iters = [], 0
         status, message = Status.MAX_ITERATIONS, f"maximum number of SQP iterations ({o.max_iter}) reached"
         watch = None
+        grad_scale = 1e-300
         self._warm = None
         shift = 0.0
         it = 0
@@ -252,7 +260,8 @@ class SQPSolver(Solver):
                 LgN_new[ineqN] = -(qres.yN_lower - qres.yN_upper)
             zl_x, zu_x, zl_u, zu_u = qres.zx_lower, qres.zx_upper, qres.zu_lower, qres.zu_upper
             # ---------------------------------------------------------------- convergence test
-            kkt_res, grad_scale = self._kkt_residual(p, pt, lam_new, Lg_new, LgN_new, zl_x, zu_x, zl_u, zu_u)
+            kkt_res, gscale = self._kkt_residual(p, pt, lam_new, Lg_new, LgN_new, zl_x, zu_x, zl_u, zu_u)
+            grad_scale = max(grad_scale, gscale)
             viol = max_violation(pt)
             step_norm = max(float(np.max(np.abs(dX))), float(np.max(np.abs(dU))))
             y_norm = max(float(np.max(np.abs(pt.X))), float(np.max(np.abs(pt.U))))
@@ -266,6 +275,29 @@ class SQPSolver(Solver):
                 status, message = Status.ACCEPTABLE, (f"step below step_tol at SQP iteration {it} with a feasible point; "
                                                       f"KKT residual {kkt_res:.2e}")
                 break
+            if o.feasibility_steps and kkt_res <= o.tol * grad_scale and viol > o.constr_viol_tol:
+                # optimal to tolerance but not feasible enough: a QP with the gradient removed gives
+                # the least-change (H-norm) correction onto the linearized constraints; it keeps the
+                # iterate from wandering along flat directions of degenerate optima
+                fres, _ = self._solve_qp(qp_solver, p, pt, Bk, BN, eq, ineq, eqN, ineqN,
+                                         inertia=hess.needs_exact and convexify == "inertia", shift=shift,
+                                         zero_gradient=True)
+                qp_iters += self._qp_iterations
+                if fres.success:
+                    cand = _Point(p, pt.X + fres.X, pt.U + fres.U, derivatives=False, clock=timed)
+                    if max_violation(cand) < viol:
+                        cand.add_derivatives(p)
+                        pt = cand
+                        lam, Lg, LgN = lam_new, Lg_new, LgN_new
+                        it += 1
+                        history.append({"iter": it, "objective": pt.J, "violation": max_violation(pt), "kkt": kkt_res,
+                                        "step": 1.0, "step_norm": max(float(np.max(np.abs(fres.X))), float(np.max(np.abs(fres.U)))),
+                                        "merit": float("nan"), "penalty": float("nan"),
+                                        "qp_iterations": int(fres.iterations), "ls_trials": 0, "mode": "feasibility"})
+                        if o.verbose >= 2:
+                            print(f"{it:5d} {pt.J:16.9e} {history[-1]['violation']:10.2e} {kkt_res:10.2e} {1.0:8.2e} "
+                                  f"{history[-1]['step_norm']:10.2e} {'':9s} {int(fres.iterations):4d}  feasibility")
+                        continue
             # ---------------------------------------------------------------- penalty update (Powell 1978)
             rho_h = np.maximum(np.maximum(np.abs(lam_new[1:]), 0.5 * (rho_h + np.abs(lam_new[1:]))), o.penalty_min)
             rho_g = np.maximum(np.maximum(np.abs(Lg_new), 0.5 * (rho_g + np.abs(Lg_new))), o.penalty_min)
@@ -350,7 +382,7 @@ class SQPSolver(Solver):
         return res
 
     # ------------------------------------------------------------------------------------------
-    def _solve_qp(self, qp_solver, p, pt, Bk, BN, eq, ineq, eqN, ineqN, inertia, shift):
+    def _solve_qp(self, qp_solver, p, pt, Bk, BN, eq, ineq, eqN, ineqN, inertia, shift, zero_gradient=False):
         """Solve the QP subproblem. With ``inertia`` (exact Hessian, convexify="inertia") a QP
         whose KKT factorization fails -- a reduced Hessian that is not positive definite --
         is solved again with delta*I added to every block, delta growing tenfold from a third
@@ -368,6 +400,9 @@ class SQPSolver(Solver):
             else:
                 Bd, BNd = Bk, BN
             qp = self._build_qp(p, pt, Bd, BNd, eq, ineq, eqN, ineqN)
+            if zero_gradient:
+                qp.q[:] = 0.0
+                qp.r[:] = 0.0
             qres = qp_solver.solve(qp, warm_start=self._warm)
             self._qp_iterations += int(qres.iterations)
             if not inertia or qres.success or qres.status not in (Status.NUMERICAL_ERROR, Status.UNBOUNDED,
@@ -414,7 +449,7 @@ class SQPSolver(Solver):
         gu = gu - zl_u + zu_u
         res = max(float(np.max(np.abs(gx[1:]), initial=0.0)), float(np.max(np.abs(gu), initial=0.0)),
                   float(np.max(np.abs(gN), initial=0.0)))
-        scale = max(1.0, float(np.max(np.abs(pt.lx), initial=0.0)), float(np.max(np.abs(pt.lu), initial=0.0)),
+        scale = max(float(np.max(np.abs(pt.lx), initial=0.0)), float(np.max(np.abs(pt.lu), initial=0.0)),
                     float(np.max(np.abs(pt.lN), initial=0.0)))
         return res, scale
 
