@@ -83,6 +83,25 @@ def test_every_direction_reaches_the_ipopt_solution_and_active_set(references, n
     assert r.info["n_active"] == int(active.sum())
 
 
+@pytest.mark.parametrize("direction", DIRECTIONS)
+@pytest.mark.parametrize("name, N", [("lq-box", 20), ("vanderpol-box", 100), ("rayleigh-box", 100)])
+def test_builtin_bound_constrained_problems(name, N, direction):
+    """olado.problems.testproblems: lq-box only at a short horizon -- its open-loop eigenvalue 1.1
+    makes the reduced Hessian's condition grow like 1.1^(2N), which no control-space (single
+    shooting) method survives at N = 100."""
+    from olado.problems.testproblems import PROBLEMS as BUILTIN
+
+    p = BUILTIN[name](N=N)
+    ref = ipopt_reference(p)
+    r = PDMINSolver(direction=direction, tol=1e-9, max_iter=5000).solve(p)
+    assert r.status == Status.SUCCESS, r.message
+    assert r.objective == pytest.approx(ref.objective, rel=1e-11)
+    assert np.allclose(r.u, ref.u, atol=1e-6)
+    z_ref = np.maximum(ref.multipliers["bound_lower_u"], ref.multipliers["bound_upper_u"])
+    active = at_bounds(p, r.u)
+    assert active.any() and np.array_equal(active, z_ref > 1e-6)
+
+
 def test_nonstationary_bounds_are_respected_per_stage(references):
     p, _ = references["lq-nonstationary"]
     r = PDMINSolver(tol=1e-9).solve(p)
@@ -178,6 +197,10 @@ def test_status_invalid_problem_for_general_constraints_and_state_bounds():
     assert r.status == Status.INVALID_PROBLEM
     assert "stage constraint" in r.message and "final constraint" in r.message
     assert "penalty" in r.message and "sqp" in r.message
+    from olado.problems.testproblems import PROBLEMS as BUILTIN
+
+    r = olado.solve(BUILTIN["vanderpol-path"](N=20), solver="pdmin")
+    assert r.status == Status.INVALID_PROBLEM and "bounds on the states" in r.message
     p = scalar_tracking(50)
     p.x_bounds = (-1.0, 1.0)
     r = olado.solve(p, solver="pdmin")
