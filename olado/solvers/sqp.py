@@ -91,6 +91,10 @@ class SQPOptions(SolverOptions):
                                    "residual), never below qp_tol (olado's interior-point QP methods only)")
     feasibility_steps: bool = option(False, "when the KKT test holds but the constraint violation does not, take a "
                                      "least-change correction step (the QP without its gradient) instead of a full SQP step")
+    adaptive_proximal: bool = option(False, "proximal term delta = min(proximal, relative KKT residual) * max|H| "
+                                     "(Levenberg-Marquardt rule) instead of the fixed proximal * max|H|")
+    curvature_tol: float = option(1e-6, "inertia correction: the QP step must satisfy s.H s >= curvature_tol * "
+                                  "max|H| * |s|^2, else the Hessian is shifted and the QP solved again", min=0.0)
     qp_warm_start: bool = option(False, "start each QP from the previous QP's multipliers (and a zero step)")
     proximal: float = option(1e-4, "proximal term delta*I added to the QP Hessian, delta = proximal * max|H|: picks the "
                              "shortest step when the reduced Hessian is singular (flat directions, degenerate "
@@ -192,6 +196,7 @@ class SQPSolver(Solver):
         status, message = Status.MAX_ITERATIONS, f"maximum number of SQP iterations ({o.max_iter}) reached"
         watch = None
         grad_scale = 1e-300
+        self._kkt_rel = 1.0
         self._warm = None
         shift = 0.0
         it = 0
@@ -262,6 +267,7 @@ class SQPSolver(Solver):
             # ---------------------------------------------------------------- convergence test
             kkt_res, gscale = self._kkt_residual(p, pt, lam_new, Lg_new, LgN_new, zl_x, zu_x, zl_u, zu_u)
             grad_scale = max(grad_scale, gscale)
+            self._kkt_rel = kkt_res / grad_scale
             viol = max_violation(pt)
             step_norm = max(float(np.max(np.abs(dX))), float(np.max(np.abs(dU))))
             y_norm = max(float(np.max(np.abs(pt.X))), float(np.max(np.abs(pt.U))))
@@ -347,7 +353,7 @@ class SQPSolver(Solver):
             rec = {"iter": it, "objective": pt.J, "violation": max_violation(pt), "kkt": kkt_res, "step": alpha,
                    "step_norm": step_norm, "merit": merit(pt), "penalty": float(max(rho_h.max(initial=0), rho_g.max(initial=0),
                                                                                      rho_bx.max(initial=0), rho_bu.max(initial=0))),
-                   "qp_iterations": int(qres.iterations), "ls_trials": ls_trials, "mode": mode}
+                   "qp_iterations": int(qres.iterations), "ls_trials": ls_trials, "mode": mode, "shift": shift}
             history.append(rec)
             if o.verbose >= 2:
                 if it == 1:
@@ -390,8 +396,10 @@ class SQPSolver(Solver):
         3.1, applied to the QP). Returns (QPResult, shift used)."""
         self._qp_iterations = 0
         scale = max(1e-300, float(np.max(np.abs(Bk), initial=0.0)), float(np.max(np.abs(BN), initial=0.0)))
-        delta = 0.0 if not inertia else (shift / 3.0 if shift > 1e-20 * scale else 0.0)
-        prox = self.options.proximal * scale
+        delta = 0.0   # Waechter & Biegler 2006, Alg. IC: try the unmodified Hessian first
+        # Levenberg-Marquardt-like: delta shrinks with the relative KKT residual of the last
+        # iterate (kept superlinear), but never exceeds proximal * max|H|
+        prox = min(self.options.proximal, self._kkt_rel) * scale if self.options.adaptive_proximal else self.options.proximal * scale
         n, m = p.n, p.m
         for attempt in range(30):
             if delta + prox > 0:
@@ -405,13 +413,30 @@ class SQPSolver(Solver):
                 qp.r[:] = 0.0
             qres = qp_solver.solve(qp, warm_start=self._warm)
             self._qp_iterations += int(qres.iterations)
+            if inertia and qres.success and not self._curvature_ok(Bd, BNd, qres, scale):
+                # inertia-free curvature test (Chiang & Zavala 2016): a step along which the QP
+                # Hessian has (almost) no positive curvature is no descent direction of the merit
+                # function -- shift and solve again
+                delta = max(10.0 * delta, 1e-8 * scale)
+                continue
             if not inertia or qres.success or qres.status not in (Status.NUMERICAL_ERROR, Status.UNBOUNDED,
                                                                   Status.MAX_ITERATIONS, Status.FAILED):
                 if self.options.qp_warm_start and qres.success:
                     self._warm = dataclasses.replace(qres, X=np.zeros_like(qres.X), U=np.zeros_like(qres.U))
                 return qres, delta
-            delta = max(10.0 * delta, 1e-8 * scale)
+            if delta == 0.0 and shift > 1e-20 * scale:
+                delta = shift / 3.0          # as IPOPT: after delta = 0 failed, start from the last shift
+            else:
+                delta = max(10.0 * delta, 1e-8 * scale)
         return qres, delta
+
+    def _curvature_ok(self, Bd, BNd, qres, scale):
+        """s^T H s >= curvature_tol * max|H| * |s|^2 for the QP step s."""
+        n = qres.X.shape[1]
+        z = np.concatenate([qres.X[:-1], qres.U], axis=1)
+        sHs = float(np.einsum("ki,kij,kj->", z, Bd, z) + qres.X[-1] @ BNd @ qres.X[-1])
+        ss = float(np.sum(z * z) + qres.X[-1] @ qres.X[-1])
+        return sHs >= self.options.curvature_tol * scale * ss
 
     @staticmethod
     def _build_qp(p, pt, Bk, BN, eq, ineq, eqN, ineqN):
