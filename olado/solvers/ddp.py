@@ -76,6 +76,7 @@ import numba as nb
 import numpy as np
 
 from ..errors import ProblemDefinitionError
+from ..linalg.riccati import _chol_inplace, _chol_solve_vec
 from ..result import Result, Status
 from .base import Solver, SolverOptions, option
 from .control_space import _adjoint
@@ -86,40 +87,6 @@ __all__ = ["DDPSolver", "StagewiseNewtonSolver", "DDPOptions", "StagewiseNewtonO
 
 
 # ============================================================================ compiled sweeps
-@nb.njit(cache=True)
-def _chol(M, L, d):
-    """Cholesky factor L (lower) of the d x d matrix M; False when M is not positive definite."""
-    for j in range(d):
-        s = M[j, j]
-        for q in range(j):
-            s -= L[j, q] * L[j, q]
-        if not (s > 0.0):
-            return False
-        ljj = math.sqrt(s)
-        L[j, j] = ljj
-        for i in range(j + 1, d):
-            t = M[i, j]
-            for q in range(j):
-                t -= L[i, q] * L[j, q]
-            L[i, j] = t / ljj
-    return True
-
-
-@nb.njit(cache=True)
-def _chol_solve(L, d, b):
-    """Overwrite b (d,) with (L L^T)^{-1} b."""
-    for i in range(d):
-        t = b[i]
-        for q in range(i):
-            t -= L[i, q] * b[q]
-        b[i] = t / L[i, i]
-    for i in range(d - 1, -1, -1):
-        t = b[i]
-        for q in range(i + 1, d):
-            t -= L[q, i] * b[q]
-        b[i] = t / L[i, i]
-
-
 @nb.njit(cache=True)
 def _backward_pass(lx, lu, A, B, Hxx, Hxu, Huu, Txx, Txu, Tuu, use_tensor, VxN, VxxN, mu, state_reg,
                    kff, Kfb, Vx, Vxx):
@@ -222,18 +189,21 @@ def _backward_pass(lx, lu, A, B, Hxx, Hxu, Huu, Txx, Txu, Tuu, use_tensor, VxN, 
             for i in range(m):
                 for j in range(m):
                     Qvuu[i, j] = Qtuu[i, j]
-        if not _chol(Qtuu, L, m):
+        for i in range(m):
+            for j in range(m):
+                L[i, j] = Qtuu[i, j]
+        if not _chol_inplace(L, m):
             return k, d1, d2
         # gains
         for i in range(m):
             col[i] = -Qu[i]
-        _chol_solve(L, m, col)
+        _chol_solve_vec(L, m, col)
         for i in range(m):
             kff[k, i] = col[i]
         for j in range(n):
             for i in range(m):
                 col[i] = -Qtux[i, j]
-            _chol_solve(L, m, col)
+            _chol_solve_vec(L, m, col)
             for i in range(m):
                 Kfb[k, i, j] = col[i]
         # value function: V_x = Q_x + K^T Qv k + K^T Q_u + Q_ux^T k
