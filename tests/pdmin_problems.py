@@ -2,26 +2,10 @@
 analytic first and second derivatives; the linear one simulates in a compiled loop so that
 N = 100 000 is cheap."""
 
-import numba as nb
 import numpy as np
 
 from olado.problems import DOCP
-
-
-@nb.njit(cache=True)
-def _simulate_linear(A, B, x0, U, X):
-    N, m = U.shape
-    n = x0.shape[0]
-    for i in range(n):
-        X[0, i] = x0[i]
-    for k in range(N):
-        for i in range(n):
-            s = 0.0
-            for j in range(n):
-                s += A[i, j] * X[k, j]
-            for j in range(m):
-                s += B[i, j] * U[k, j]
-            X[k + 1, i] = s
+from olado.problems.testproblems import _linear_simulate as _simulate_linear
 
 
 class LinearTracking(DOCP):
