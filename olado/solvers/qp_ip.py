@@ -105,10 +105,11 @@ neighbourhood test and the corrector right-hand sides are numba kernels over the
 arrays of the prepared problem (which also holds the work arrays), so an iteration costs one
 factorization, its solves and a few O(N (n+m)^2) passes.
 
-Failures: a factorization that fails (``NotPositiveDefiniteError``, usually loss of definiteness
-when D spans many orders of magnitude) is retried with the regularization raised 100-fold, at
-most three times and up to 1e-4 (1 + |H|); if it still fails the solve ends with
-NUMERICAL_ERROR naming the stage.  When a solve ends with NUMERICAL_ERROR or MAX_ITERATIONS but
+Failures: a factorization that fails (``NotPositiveDefiniteError``: loss of definiteness when D
+spans many orders of magnitude, or a Hessian that is indefinite on the null space of the
+equalities while the slacks are still large, as the exact Hessian of an SQP subproblem can be)
+is retried with the regularization raised tenfold, up to ``max_regularization`` * max|H|; if it
+still fails the solve ends with NUMERICAL_ERROR naming the stage.  When a solve ends with NUMERICAL_ERROR or MAX_ITERATIONS but
 an earlier iterate met ``acceptable_tol``, that iterate is returned with status ACCEPTABLE and a
 message saying what happened.
 """
@@ -144,6 +145,8 @@ class InteriorPointQPOptions:
     kkt: str = option("riccati", "KKT back-end for the Newton systems", choices=KKT_BACKENDS)
     step_to_boundary: float = option(0.995, "fraction of the step to the boundary that is taken", min=0.99, max=0.9995)
     regularization: float = option(1e-10, "primal (proximal) regularization delta*I added to the Newton Hessian", min=0.0)
+    max_regularization: float = option(100.0, "largest primal regularization tried when a KKT factorization fails, "
+                                       "relative to max|H| (inertia correction per Newton step)", min=0.0)
     refinement_steps: int = option(3, "maximum iterative refinement steps per Newton solve (0 = none)", min=0, max=20)
     refinement_tol: float = option(1e-6, "a Newton solve is refined only when its residual exceeds this times the "
                                    "size of the right-hand side (and 1e-3 tol (1 + that size)); 0 = refine down to "
@@ -899,20 +902,22 @@ class _StepContext:
             kw.update(E=P.E, F=P.F, n_eq=P.n_eq, EN=P.EN)
         kw.update(solver.options.kkt_options)
         # factorize with the regularization delta; when the factorization fails (loss of
-        # definiteness by cancellation when D spans many orders of magnitude) retry with delta
-        # raised 100-fold, at most 3 times, up to 1e-4 (1 + |H|). Refinement works against the
-        # unregularized system, so delta only preconditions.
+        # definiteness by cancellation when D spans many orders of magnitude, or a Hessian that is
+        # indefinite on the null space of the equalities -- the exact Hessian of an SQP step --
+        # while the slacks are still large) retry with delta raised 10-fold, up to
+        # max_regularization * max|H| (the inertia correction of Waechter & Biegler 2006, applied
+        # per Newton step). Refinement works against the unregularized system.
         reg = solver.options.regularization
         Dxb, Dub = D[P.sl_x].reshape(N, n), D[P.sl_u].reshape(N, m)
-        for attempt in range(4):
+        for attempt in range(12):
             Dx = np.empty((N + 1, n)); Dx[0] = reg; np.add(Dxb, reg, out=Dx[1:])
             Du = Dub + reg
             try:
                 self.fact = make_kkt_solver(solver.options.kkt, Q, P.S, P.R, P.A, P.B, Dx=Dx, Du=Du, **kw)
                 break
             except NotPositiveDefiniteError:
-                nxt = max(100.0 * reg, 1e-10 * (1.0 + P.h_scale))
-                if attempt == 3 or nxt > 1e-4 * (1.0 + P.h_scale):
+                nxt = max(10.0 * reg, 1e-10 * (1.0 + P.h_scale))
+                if attempt == 11 or nxt > solver.options.max_regularization * max(P.h_scale, 1e-300):
                     raise
                 reg = nxt
         self.reg = reg
