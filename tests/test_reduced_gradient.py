@@ -159,12 +159,12 @@ def test_relative_tolerance_and_acceptable_stops():
 def test_bounds_and_constraints_are_rejected_with_a_clear_status(name):
     res = olado.solve(LQ(u_bounds=(-1.0, 1.0)), solver=name)
     assert res.status == Status.INVALID_PROBLEM
-    assert "control bounds" in res.message and "pdmin" in res.message
+    assert "bounds on the controls" in res.message and "pdmin" in res.message
     res = olado.solve(ConstrainedPendulum(u_bounds=None), solver=name)
     assert res.status == Status.INVALID_PROBLEM
     assert "stage constraints" in res.message and "penalty" in res.message
     res = olado.solve(LQ(x_bounds=(-5.0, 5.0)), solver=name)
-    assert res.status == Status.INVALID_PROBLEM and "state bounds" in res.message
+    assert res.status == Status.INVALID_PROBLEM and "bounds on the states" in res.message
 
 
 def test_dense_bfgs_only_for_small_problems():

@@ -84,6 +84,21 @@ def _second_order_adjoint(A, B, Hxx, Hxu, Huu, HN, V, dx, dp, out):
             out[k, j] = s
 
 
+def unsupported_features(problem, control_bounds=False) -> list:
+    """What ``problem`` has beyond an unconstrained control-space problem (empty: nothing);
+    ``control_bounds=True`` for methods that handle simple control bounds (PDMIN)."""
+    out = []
+    if problem.r:
+        out.append(f"{problem.r} stage constraints g^k")
+    if problem.rN:
+        out.append(f"{problem.rN} final constraints g^N")
+    if not control_bounds and (np.isfinite(problem.u_lower).any() or np.isfinite(problem.u_upper).any()):
+        out.append("bounds on the controls")
+    if np.isfinite(problem.x_lower[1:]).any() or np.isfinite(problem.x_upper[1:]).any():
+        out.append("bounds on the states")
+    return out
+
+
 class ReducedProblem:
     """J(u) of a DOCP with the states eliminated; caches the last point's derivatives."""
 

@@ -79,7 +79,7 @@ from ..errors import ProblemDefinitionError
 from ..linalg.riccati import _chol_inplace, _chol_solve_vec
 from ..result import Result, Status
 from .base import Solver, SolverOptions, option
-from .control_space import _adjoint
+from .control_space import _adjoint, unsupported_features
 from .registry import register
 
 __all__ = ["DDPSolver", "StagewiseNewtonSolver", "DDPOptions", "StagewiseNewtonOptions",
@@ -264,18 +264,6 @@ def _linear_forward(A, B, kff, Kfb, dU, dX):
 
 
 # ============================================================================ helpers
-def unsupported_features(problem) -> list:
-    """What in ``problem`` the unconstrained DP methods cannot handle (empty list: nothing)."""
-    out = []
-    if problem.r:
-        out.append(f"{problem.r} stage constraint(s) g^k")
-    if problem.rN:
-        out.append(f"{problem.rN} final constraint(s) g^N")
-    if np.isfinite(problem.u_lower).any() or np.isfinite(problem.u_upper).any():
-        out.append("bounds on the controls")
-    if np.isfinite(problem.x_lower[1:]).any() or np.isfinite(problem.x_upper[1:]).any():
-        out.append("bounds on the states")
-    return out
 
 
 class _Derivatives:

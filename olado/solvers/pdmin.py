@@ -58,7 +58,7 @@ import numpy as np
 from ..result import Result, Status
 from ._nlp_common import MULTIPLIER_CONVENTION, is_nonfinite_error
 from .base import Solver, SolverOptions, option
-from .control_space import ReducedProblem
+from .control_space import ReducedProblem, unsupported_features
 from .registry import register
 
 DIRECTIONS = ("steepest-descent", "polak-ribiere", "lbfgs")
@@ -118,14 +118,7 @@ class PDMINSolver(Solver):
     @staticmethod
     def unsupported(problem) -> str:
         """Why PDMIN cannot solve ``problem`` ('' when it can)."""
-        why = []
-        if problem.r:
-            why.append(f"{problem.r} stage constraint(s) g^k")
-        if problem.rN:
-            why.append(f"{problem.rN} final constraint(s) g^N")
-        xb = np.isfinite(problem.x_lower[1:]).any() or np.isfinite(problem.x_upper[1:]).any()
-        if xb:
-            why.append("bounds on the states")
+        why = unsupported_features(problem, control_bounds=True)
         if not why:
             return ""
         return ("PDMIN handles simple bounds on the controls only; this problem has " + ", ".join(why)

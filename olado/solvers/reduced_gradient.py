@@ -62,26 +62,12 @@ from ..errors import ProblemDefinitionError
 from ..result import Result, Status
 from ._nlp_common import Deadline, is_nonfinite_error
 from .base import Solver, SolverOptions, option
-from .control_space import ReducedProblem
+from .control_space import ReducedProblem, unsupported_features
 from .line_search import strong_wolfe
 from .registry import register
 
 __all__ = ["GradientSolver", "ConjugateGradientSolver", "VariableMetricSolver", "NewtonSolver",
            "unsupported_features"]
-
-
-def unsupported_features(problem) -> list:
-    """What a DOCP has that the unconstrained control-space methods cannot handle."""
-    out = []
-    if np.any(np.isfinite(problem.u_lower)) or np.any(np.isfinite(problem.u_upper)):
-        out.append("finite control bounds")
-    if np.any(np.isfinite(problem.x_lower[1:])) or np.any(np.isfinite(problem.x_upper[1:])):
-        out.append("finite state bounds")
-    if problem.r:
-        out.append(f"{problem.r} stage constraints")
-    if problem.rN:
-        out.append(f"{problem.rN} final constraints")
-    return out
 
 
 @dataclasses.dataclass
