@@ -616,8 +616,18 @@ def _factory(family):
     def make(N=24, start="balance", year=None, extend="cyclic", **options):
         return zambezi_problem(family, N=N, start=start, year=year, extend=extend, **options)
     make.__name__ = f"{family}_problem"
-    make.__doc__ = f"The {family} Zambezi problem (paper 001 sec. 5); see :class:`Zambezi`."
+    make.__doc__ = f"Zambezi reservoirs (paper 001 sec. 5): {_FAMILY_NOTES[family]}; see :class:`Zambezi`."
     return make
+
+
+_FAMILY_NOTES = {
+    "zambezi": "CUTEr ZAMB2, from January 1931, N <= 420",
+    "zambezi8": "CUTEr ZAMB2-8, from 1948, N <= 216",
+    "zambezi9": "CUTEr ZAMB2-9, from 1960, N <= 72",
+    "zambezi10": "CUTEr ZAMB2-10, from 1960, N <= 72",
+    "zambezi11": "CUTEr ZAMB2-11, from 1930, N <= 432",
+    "zambezi12": "ZAMB2-10 without the reference-outflow term, from 1945, N <= 252 (Table 1)",
+}
 
 
 #: name -> factory(N=24, start="balance", year=None, extend="cyclic", **options)
