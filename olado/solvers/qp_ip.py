@@ -907,10 +907,7 @@ class _StepContext:
         # while the slacks are still large) retry with delta raised 10-fold, up to
         # max_regularization * max|H| (the inertia correction of Waechter & Biegler 2006, applied
         # per Newton step). Refinement works against the unregularized system.
-        # start from a tenth of the regularization the previous factorization of this solve
-        # needed: an indefinite Hessian then costs one failed factorization per solve, not one
-        # per iteration
-        reg = max(solver.options.regularization, getattr(solver, "_reg_hint", 0.0) / 10.0)
+        reg = solver.options.regularization
         Dxb, Dub = D[P.sl_x].reshape(N, n), D[P.sl_u].reshape(N, m)
         for attempt in range(12):
             Dx = np.empty((N + 1, n)); Dx[0] = reg; np.add(Dxb, reg, out=Dx[1:])
@@ -924,8 +921,6 @@ class _StepContext:
                     raise
                 reg = nxt
         self.reg = reg
-        if reg > solver.options.regularization:
-            solver._reg_hint = reg
 
     # ------------------------------------------------------------------ solves
     def _reduced_solve(self, res, rho_l, rho_u):
@@ -1050,7 +1045,6 @@ class InteriorPointQP:
     def solve(self, qp: StageQP, warm_start: QPResult | None = None) -> QPResult:
         """Solve ``qp``; ``warm_start`` is a previous :class:`QPResult` of a QP of the same shape
         (its primal and dual values are used, slacks and multipliers pushed into the interior)."""
-        self._reg_hint = 0.0   # regularization needed by the last factorization of this solve
         t0 = time.perf_counter()
         opts = self.options
         P = _Prepared(qp)
