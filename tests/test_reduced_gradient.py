@@ -266,3 +266,13 @@ def test_builtin_test_problems_match_ipopt(problem, u_tol, name, kw):
     assert res.objective == pytest.approx(ref.objective, rel=1e-12, abs=1e-12)
     # cstr's optimum is flat in u: |u - u*| ~ |g| / lambda_min(H) is larger there
     assert np.max(np.abs(res.u - ref.u)) <= u_tol
+
+
+def test_sinnot_luenberger_survives_a_restart():
+    """Regression: the SL formula used the previous direction after a restart had cleared it
+    (ValueError on lq at N = 100, found by benchmarks/bench_unconstrained.py)."""
+    from olado.problems import get_problems
+
+    r = olado.solve(get_problems()["lq"](N=100), config="configs/cg-sl.ini", max_iter=300)
+    assert r.status in (Status.SUCCESS, Status.ACCEPTABLE, Status.MAX_ITERATIONS, Status.NUMERICAL_ERROR)
+    assert r.iterations > 0

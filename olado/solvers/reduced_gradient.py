@@ -374,6 +374,8 @@ class ConjugateGradientSolver(ReducedGradientSolver):
             beta = float(np.vdot(gp, gp)) / gg
         elif f == "polak-ribiere":
             beta = max(0.0, float(np.vdot(gp, y)) / gg)
+        elif self._d is None:   # just restarted: no previous direction to be conjugate to
+            beta = None
         else:
             dy = float(np.vdot(self._d, y))
             beta = float(np.vdot(gp, y)) / dy if dy != 0.0 else None
