@@ -174,6 +174,25 @@ def _qr_pivot(M, rows, cols, Qacc, perm, vtmp, norms, rank_tol):
 
 
 @nb.njit(cache=True)
+def _closed_loop(A, B, c, K, kff, X, U):
+    """Forward sweep u_k = K_k x_k + k_k, x_{k+1} = A_k x_k + B_k u_k + c_k (X[0] given)."""
+    N, n, m = B.shape
+    for k in range(N):
+        for i in range(m):
+            s = kff[k, i]
+            for l in range(n):
+                s += K[k, i, l] * X[k, l]
+            U[k, i] = s
+        for i in range(n):
+            s = c[k, i]
+            for l in range(n):
+                s += A[k, i, l] * X[k, l]
+            for l in range(m):
+                s += B[k, i, l] * U[k, l]
+            X[k + 1, i] = s
+
+
+@nb.njit(cache=True)
 def _factor(Q, S, R, A, B, E, F, ne, EN, neN, Dx, Du, Ci, sig, ni, reg, rank_tol,
             P, K, Quu_s, Qux_s, Lww, Qm, Rm, perm, rank, nc, Cx_s, G, ng, Wx, Dmat):
     """Backward factorization sweep. Returns -1 on success, the stage index of a failure
@@ -483,19 +502,7 @@ def _solve(A, B, c, q, r, e, eN, x0, Dx, Du, S, Q, R, E, F, ne, EN, neN, Ci, sig
         for l in range(n):
             s += G[0, cc, l] * x0[l]
         res = max(res, abs(s))
-    for k in range(N):
-        for i in range(m):
-            s = kff[k, i]
-            for l in range(n):
-                s += K[k, i, l] * X[k, l]
-            U[k, i] = s
-        for i in range(n):
-            s = c[k, i]
-            for l in range(n):
-                s += A[k, i, l] * X[k, l]
-            for l in range(m):
-                s += B[k, i, l] * U[k, l]
-            X[k + 1, i] = s
+    _closed_loop(A, B, c, K, kff, X, U)
     # multipliers, backward part: a_k (stored in lam), c-part of mu (stored in mup via nu scratch)
     for i in range(n):
         s = q[N, i] + Dx[N, i] * X[N, i]
@@ -745,19 +752,7 @@ def _solve_unconstrained(Q, S, A, B, Dx, Ci, sig, ni, P, K, L, q, r, c, x0, ci, 
     # forward simulation
     for i in range(n):
         X[0, i] = x0[i]
-    for k in range(N):
-        for i in range(m):
-            s = kff[k, i]
-            for l in range(n):
-                s += K[k, i, l] * X[k, l]
-            U[k, i] = s
-        for i in range(n):
-            s = c[k, i]
-            for l in range(n):
-                s += A[k, i, l] * X[k, l]
-            for l in range(m):
-                s += B[k, i, l] * U[k, l]
-            X[k + 1, i] = s
+    _closed_loop(A, B, c, K, kff, X, U)
     # multipliers from the x-stationarity rows:
     # lam_N = (Q_N + Dx_N) x_N + q_N,  lam_k = (Q + Dx) x + S u + q + A^T lam_{k+1} + C_x^T sig (C z + ci)
     for i in range(n):
