@@ -37,7 +37,6 @@ import time
 import numpy as np
 from _common import HERE, RESULTS, machine, write_section
 
-from olado.linalg.stageqp import StageQP  # noqa: E402
 from olado.solvers import qp_ip  # noqa: E402
 from olado.solvers.qp_external import ExternalQP, available_qp_backends  # noqa: E402
 
@@ -45,22 +44,11 @@ SECTION = "QP subproblem: interior-point Riccati QP vs OSQP and Clarabel"
 
 
 def zambezi_qp(N, shift=1e-4):
-    """The Zambezi step QP at the balance start (as tests/test_qp_ip.py's zambezi_qp)."""
+    """The Zambezi step QP at the balance start (olado.solvers.sqp.convex_step_qp)."""
     from olado.problems.zambezi import zambezi_problem
+    from olado.solvers.sqp import convex_step_qp
 
-    p = zambezi_problem("zambezi12" if N <= 252 else "zambezi", N=N, extend="cyclic")
-    U = p.initial_guess(); X = p.simulate(U)
-    A, B = p.eval_dynamics_jacobians(X, U)
-    hxx, hxu, huu = p.eval_stage_hessians(X, U, 1.0, np.zeros((N, p.n)))
-    H = np.block([[hxx, hxu], [np.transpose(hxu, (0, 2, 1)), huu]])
-    H = H + (np.maximum(0.0, -np.linalg.eigvalsh(H)[:, 0]) + shift)[:, None, None] * np.eye(p.n + p.m)
-    HN = p.eval_final_hessian(X[-1], 1.0)
-    HN = HN + (max(0.0, -np.linalg.eigvalsh(HN)[0]) + shift) * np.eye(p.n)
-    lx, lu = p.eval_stage_cost_gradients(X, U)
-    return StageQP(Q=np.concatenate([H[:, :p.n, :p.n], HN[None]]), S=H[:, :p.n, p.n:], R=H[:, p.n:, p.n:],
-                   q=np.vstack([lx, p.eval_final_cost_gradient(X[-1])]), r=lu, A=A, B=B,
-                   c=p.eval_dynamics(X, U) - X[1:], x0=np.zeros(p.n),
-                   x_lower=p.x_lower - X, x_upper=p.x_upper - X, u_lower=p.u_lower - U, u_upper=p.u_upper - U)
+    return convex_step_qp(zambezi_problem("zambezi12" if N <= 252 else "zambezi", N=N, extend="cyclic"), shift=shift)
 
 
 def load_revision(rev):

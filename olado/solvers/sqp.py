@@ -59,6 +59,29 @@ def make_qp_solver(name, kkt="riccati", tol=1e-10, max_iter=200):
     return ExternalQP(backend=name)
 
 
+def convex_step_qp(problem, shift=1e-4, U=None):
+    """The QP of a first SQP step at U (default: the problem's initial guess), convexified for
+    comparisons with external convex QP solvers: A, B from the dynamics Jacobians, Hessian blocks
+    of the stage and final costs (zero multipliers) shifted per block by (most negative
+    eigenvalue) + ``shift``, bounds shifted to the step. Stage and final constraints are not
+    included. Used by the QP benchmark and the QP tests."""
+    p = problem
+    N, n, m = p.N, p.n, p.m
+    U = p.initial_guess() if U is None else np.asarray(U, dtype=float)
+    X = p.simulate(U)
+    A, B = p.eval_dynamics_jacobians(X, U)
+    hxx, hxu, huu = p.eval_stage_hessians(X, U, 1.0, np.zeros((N, n)))
+    H = np.block([[hxx, hxu], [np.transpose(hxu, (0, 2, 1)), huu]])
+    H = H + (np.maximum(0.0, -np.linalg.eigvalsh(H)[:, 0]) + shift)[:, None, None] * np.eye(n + m)
+    HN = p.eval_final_hessian(X[-1], 1.0)
+    HN = HN + (max(0.0, -np.linalg.eigvalsh(HN)[0]) + shift) * np.eye(n)
+    lx, lu = p.eval_stage_cost_gradients(X, U)
+    return StageQP(Q=np.concatenate([H[:, :n, :n], HN[None]]), S=H[:, :n, n:], R=H[:, n:, n:],
+                   q=np.vstack([lx, p.eval_final_cost_gradient(X[-1])]), r=lu, A=A, B=B,
+                   c=p.eval_dynamics(X, U) - X[1:], x0=np.zeros(n),
+                   x_lower=p.x_lower - X, x_upper=p.x_upper - X, u_lower=p.u_lower - U, u_upper=p.u_upper - U)
+
+
 @dataclasses.dataclass
 class SQPOptions(SolverOptions):
     """Options of :class:`SQPSolver` (``[sqp]`` section of an ini file)."""
