@@ -329,11 +329,12 @@ def zambezi():
     return qp, clarabel_solution(qp)
 
 
+@pytest.mark.parametrize("step_rule", ["primal-dual", "common"])
 @pytest.mark.parametrize("cls", METHODS, ids=lambda c: c.name)
-def test_zambezi_qp_agrees_with_clarabel(cls, zambezi):
+def test_zambezi_qp_agrees_with_clarabel(cls, step_rule, zambezi):
     qp, (Xr, Ur, Jr) = zambezi
     assert (qp.N, qp.n, qp.m) == (120, 6, 7)
-    res = cls(tol=1e-10).solve(qp)
+    res = cls(tol=1e-10, step_rule=step_rule).solve(qp)
     assert res.status is Status.SUCCESS, res.message
     assert res.objective == pytest.approx(Jr, rel=1e-9)
     # volumes are O(10..100): compare relative to the size of the trajectory
@@ -395,3 +396,21 @@ def test_refinement_threshold_keeps_the_iterates(cls):
         assert h["alpha"] == pytest.approx(h0["alpha"], abs=1e-8)
         assert h["mu"] == pytest.approx(h0["mu"], rel=1e-6, abs=1e-14)
     assert np.allclose(lazy.X, eager.X, atol=1e-10) and np.allclose(lazy.U, eager.U, atol=1e-10)
+
+
+def test_primal_dual_step_rule_switches_to_common_steps_once_primal_feasible(zambezi):
+    """step_rule = "primal-dual": separate step lengths while the primal residual is above its
+    tolerance (they differ on the Zambezi QP), one common step length afterwards, so that the dual
+    residual is not refilled by (alpha - alpha_dual) H dz and falls to the tolerance."""
+    qp, _ = zambezi
+    res = MehrotraQP(tol=1e-10, step_rule="primal-dual").solve(qp)
+    assert res.status is Status.SUCCESS, res.message
+    hist = res.history
+    assert any(h["alpha"] != h["alpha_dual"] for h in hist)
+    scale = 1.0 + max(np.max(np.abs(qp.c)), np.max(np.abs(np.concatenate([res.X.ravel(), res.U.ravel()]))))
+    late = [h for h in hist if h["primal"] <= 1e-10 * scale]
+    assert late and all(h["alpha"] == h["alpha_dual"] for h in late)
+    assert_kkt_small(res, 1e-8)
+    common = MehrotraQP(tol=1e-10, step_rule="common").solve(qp)
+    assert all(h["alpha"] == h["alpha_dual"] for h in common.history)
+    assert res.objective == pytest.approx(common.objective, rel=1e-10)

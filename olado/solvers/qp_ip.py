@@ -44,8 +44,9 @@ refinement (corrections from the same factorization), which keeps the directions
 D spans many orders of magnitude near the solution.  The first solve of a factorization
 measures its relative error |residual| / |rhs|; later solves with it (corrector, centrality
 correctors) skip the measurement when that relative error times their |rhs| is below 10 % of
-their target.  Primal and dual take one
-common step length alpha = min(1, step_to_boundary * alpha_max).  ``regularization`` (delta)
+their target.  Primal and dual variables
+take separate step lengths alpha = min(1, step_to_boundary * alpha_max) (option ``step_rule``;
+``common`` takes the smaller one for both).  ``regularization`` (delta)
 adds delta*I to the Hessian of the Newton system only (the residuals are exact), a
 proximal-point regularization that keeps the step defined for merely semidefinite H (e.g. free
 controls with R = 0).
@@ -144,6 +145,9 @@ class InteriorPointQPOptions:
     max_iter: int = option(100, "maximum number of interior-point iterations", min=0)
     kkt: str = option("riccati", "KKT back-end for the Newton systems", choices=KKT_BACKENDS)
     step_to_boundary: float = option(0.995, "fraction of the step to the boundary that is taken", min=0.99, max=0.9995)
+    step_rule: str = option("primal-dual", "'common': one step length for primal and dual variables; 'primal-dual': "
+                            "separate step lengths for (x, u, slacks) and (multipliers) (Mehrotra 1992 sec. 7)",
+                            choices=("common", "primal-dual"))
     regularization: float = option(1e-10, "primal (proximal) regularization delta*I added to the Newton Hessian", min=0.0)
     max_regularization: float = option(100.0, "largest primal regularization tried when a KKT factorization fails, "
                                        "relative to max|H| (inertia correction per Newton step)", min=0.0)
@@ -531,10 +535,40 @@ def _max_step(tl, tu, zl, zu, fl, fu, dtl, dtu, dzl, dzu, ctl, ctu, czl, czu, om
     return a
 
 
+@nb.njit(cache=True)
+def _max_step_split(tl, tu, zl, zu, fl, fu, dtl, dtu, dzl, dzu):
+    """Largest primal (slacks) and dual (multipliers) step lengths (capped at 1e30) keeping
+    tl, tu resp. zl, zu positive along d."""
+    ap = 1e30
+    ad = 1e30
+    for i in range(tl.shape[0]):
+        if fl[i]:
+            ap = _ratio(tl[i], dtl[i], ap)
+            ad = _ratio(zl[i], dzl[i], ad)
+        if fu[i]:
+            ap = _ratio(tu[i], dtu[i], ap)
+            ad = _ratio(zu[i], dzu[i], ad)
+    return ap, ad
+
+
+@nb.njit(cache=True)
+def _axpy_split(x, ap, ad, y, dual):
+    """x + a y in a new array with a = ad where ``dual`` else ap (one pass)."""
+    out = np.empty_like(x)
+    for i in range(x.shape[0]):
+        out[i] = x[i] + (ad if dual[i] else ap) * y[i]
+    return out
+
+
 @nb.njit(cache=True, fastmath=_REASSOC)
-def _neighbourhood_step(tl, tu, zl, zu, fl, fu, dtl, dtu, dzl, dzu, alpha, neighborhood, mu):
+def _neighbourhood_step(tl, tu, zl, zu, fl, fu, dtl, dtu, dzl, dzu, alpha, neighborhood, mu, alpha_dual=-1.0):
     """Shorten alpha by factors 0.9 (at most 60 times) until min t_i z_i >= gamma mean t_i z_i at
-    it + alpha d, gamma = min(neighborhood, 1/2 min_i t_i z_i / mu) at the current iterate."""
+    it + alpha d, gamma = min(neighborhood, 1/2 min_i t_i z_i / mu) at the current iterate.
+    With ``alpha_dual`` >= 0 the multipliers move by alpha_dual (shortened by the same factors) and
+    the slacks by alpha; returns the (primal) alpha (the dual one is alpha_dual * alpha / alpha_in)."""
+    if alpha_dual < 0.0:
+        alpha_dual = alpha
+    ratio = alpha_dual / alpha if alpha > 0.0 else 1.0
     nw = tl.shape[0]
     cur = np.inf
     cnt = 0
@@ -551,13 +585,14 @@ def _neighbourhood_step(tl, tu, zl, zu, fl, fu, dtl, dtu, dzl, dzu, alpha, neigh
     for _ in range(60):
         pmin = np.inf
         psum = 0.0
+        ad = ratio * alpha
         for i in range(nw):
             if fl[i]:
-                v = (tl[i] + alpha * dtl[i]) * (zl[i] + alpha * dzl[i])
+                v = (tl[i] + alpha * dtl[i]) * (zl[i] + ad * dzl[i])
                 pmin = min(pmin, v)
                 psum += v
             if fu[i]:
-                v = (tu[i] + alpha * dtu[i]) * (zu[i] + alpha * dzu[i])
+                v = (tu[i] + alpha * dtu[i]) * (zu[i] + ad * dzu[i])
                 pmin = min(pmin, v)
                 psum += v
         if pmin >= gamma * (psum / cnt):
@@ -744,6 +779,9 @@ class _Prepared:
                                      ("tl", (self.nw,)), ("tu", (self.nw,)), ("zl", (self.nw,)), ("zu", (self.nw,))))
         self.rhs_layout = _layout((("rx", (N + 1, n)), ("ru", (N, m)), ("dyn", (N, n)), ("x0r", (n,)), ("rE", (N, ne)),
                                    ("rEN", (self.neN,)), ("rl", (self.nw,)), ("rup", (self.nw,))))
+        self.dual_mask = np.zeros(self.point_layout[1], dtype=np.bool_)
+        for name, a, b, _ in self.point_layout[0]:
+            self.dual_mask[a:b] = name in ("lam", "nu", "zl", "zu")
         self.zero_res = _Rhs(self, np.zeros(self.rhs_layout[1]))
         self.zero_res._size = 0.0
         self.stats = np.empty(6)
@@ -848,6 +886,10 @@ class _Point:
     def plus(self, alpha, d):
         return _Point(self._P, _axpy(self.v, float(alpha), d.v))
 
+    def plus_split(self, alpha, alpha_dual, d):
+        """The point + alpha d on (X, U, tl, tu) and + alpha_dual d on (lam, nu, zl, zu)."""
+        return _Point(self._P, _axpy_split(self.v, float(alpha), float(alpha_dual), d.v, self._P.dual_mask))
+
     def finite(self):
         return _all_finite(self.v)
 
@@ -880,6 +922,7 @@ class _StepContext:
 
     def __init__(self, solver, P, it, res, mu):
         self.solver, self.P, self.it, self.res, self.mu = solver, P, it, res, mu
+        self.split = False   # separate primal and dual step lengths (set by the caller)
         self.zero_res = P.zero_res
         self.n_solves = 0
         self.n_refine = 0
@@ -1012,17 +1055,29 @@ class _StepContext:
         return (it.tl + alpha * d.tl) * (it.zl + alpha * d.zl), (it.tu + alpha * d.tu) * (it.zu + alpha * d.zu)
 
     def step_length(self, d):
-        """alpha = min(1, step_to_boundary * alpha_max), then shortened (by factors 0.9) until the
-        new point lies in the neighbourhood N_inf^-(gamma) of Salahi, Peng and Terlaky:
-        t_i z_i >= gamma_eff mu for every finite side, gamma_eff = min(``neighborhood``, half the
-        current min_i t_i z_i / mu) (so a start outside the neighbourhood is not blocked)."""
+        """(alpha, alpha_dual): alpha = min(1, step_to_boundary * alpha_max) -- with
+        ``step_rule = "primal-dual"`` separately for the primal variables (alpha_max of the
+        slacks) and the multipliers (alpha_max of zl, zu), as in Mehrotra (1992) sec. 7 --
+        then both shortened (by factors 0.9) until the new point lies in the neighbourhood
+        N_inf^-(gamma) of Salahi, Peng and Terlaky: t_i z_i >= gamma_eff mu for every finite side,
+        gamma_eff = min(``neighborhood``, half the current min_i t_i z_i / mu) (so a start outside
+        the neighbourhood is not blocked).
+
+        With separate step lengths the primal residuals still fall by the factor 1 - alpha; the
+        dual residual becomes (1 - alpha_dual) r_d + (alpha - alpha_dual) H dz."""
         P, it = self.P, self.it
         opts = self.solver.options
-        alpha = min(1.0, opts.step_to_boundary * self.max_step(d))
+        if not self.split or P.n_comp == 0:
+            alpha = min(1.0, opts.step_to_boundary * self.max_step(d))
+            alpha_dual = alpha
+        else:
+            ap, ad = _max_step_split(it.tl, it.tu, it.zl, it.zu, P.fl, P.fu, d.tl, d.tu, d.zl, d.zu)
+            alpha, alpha_dual = min(1.0, opts.step_to_boundary * ap), min(1.0, opts.step_to_boundary * ad)
         if P.n_comp == 0:
-            return alpha
-        return _neighbourhood_step(it.tl, it.tu, it.zl, it.zu, P.fl, P.fu, d.tl, d.tu, d.zl, d.zu, alpha,
-                                   opts.neighborhood, self.mu)
+            return alpha, alpha_dual
+        a = _neighbourhood_step(it.tl, it.tu, it.zl, it.zu, P.fl, P.fu, d.tl, d.tu, d.zl, d.zu, alpha,
+                                opts.neighborhood, self.mu, alpha_dual)
+        return a, alpha_dual * (a / alpha) if alpha > 0 else alpha_dual
 
 
 # ============================================================================= the base class
@@ -1091,7 +1146,7 @@ class InteriorPointQP:
                 stall += 1
             if merit < best_merit:
                 best_merit, best_it, best_k = merit, it, k
-            if stall >= 10 or (len(history) >= 3 and all(h["alpha"] < 1e-8 for h in history[-3:])):
+            if stall >= 10 or (len(history) >= 3 and all(max(h["alpha"], h["alpha_dual"]) < 1e-8 for h in history[-3:])):
                 status, message = self._certificates(P, it, last_d, loose=True) or self._stall_status(
                     pr / scales[0], du / scales[1], gap / (1.0 + abs(obj)))
                 break
@@ -1099,6 +1154,10 @@ class InteriorPointQP:
                 break
             try:
                 ctx = _StepContext(self, P, it, res, mu)
+                # separate primal and dual step lengths only until the primal residual meets its
+                # tolerance: after that a dual step shorter than the primal one would put
+                # (alpha - alpha_dual) H dz back into the dual residual at every iteration
+                ctx.split = opts.step_rule == "primal-dual" and pr > opts.tol * scales[0]
                 d, info = self._direction(ctx)
             except NotPositiveDefiniteError as exc:
                 status = Status.NUMERICAL_ERROR
@@ -1109,18 +1168,19 @@ class InteriorPointQP:
                 status = Status.NUMERICAL_ERROR
                 message = f"{status.sentence} (iteration {k + 1}: {type(exc).__name__}: {exc})"
                 break
-            alpha = ctx.step_length(d)
-            it = it.plus(alpha, d)
+            alpha, alpha_dual = ctx.step_length(d)
+            it = it.plus(alpha, d) if alpha_dual == alpha else it.plus_split(alpha, alpha_dual, d)
             last_d = d
             k += 1
-            entry = {"iter": k, "mu": mu, "primal": pr, "dual": du, "gap": gap, "objective": obj, "alpha": alpha}
+            entry = {"iter": k, "mu": mu, "primal": pr, "dual": du, "gap": gap, "objective": obj, "alpha": alpha,
+                     "alpha_dual": alpha_dual}
             entry.update(info)
             entry["solves"] = ctx.n_solves
             entry["refinements"] = ctx.n_refine
             entry["regularization"] = ctx.reg
             history.append(entry)
             if opts.verbose >= 2:
-                print(f"{self.name} {k:3d}  mu {mu:9.2e}  pr {pr:9.2e}  du {du:9.2e}  alpha {alpha:6.4f}  "
+                print(f"{self.name} {k:3d}  mu {mu:9.2e}  pr {pr:9.2e}  du {du:9.2e}  alpha {alpha:6.4f}/{alpha_dual:6.4f}  "
                       f"sigma {info['sigma']:7.1e}  corr {info['correctors']}  solves {ctx.n_solves}")
             if not it.finite():
                 status = Status.NUMERICAL_ERROR
