@@ -414,3 +414,23 @@ def test_primal_dual_step_rule_switches_to_common_steps_once_primal_feasible(zam
     common = MehrotraQP(tol=1e-10, step_rule="common").solve(qp)
     assert all(h["alpha"] == h["alpha_dual"] for h in common.history)
     assert res.objective == pytest.approx(common.objective, rel=1e-10)
+
+
+def test_failed_factorization_reports_the_regularization_tried():
+    """QPResult.regularization: the delta at which the factorization last failed, so that a caller
+    with a nonconvex Hessian (the SQP's inertia correction) knows the shift it must at least add.
+    R_2 = -3 I with free u_2 (max|H| ~ 3): the start (unit diagonal) factorizes, later iterations
+    need delta ~ 1, more than max_regularization = 0.1 relative allows."""
+    qp = random_qp(0, nc=0, ncN=0)
+    R = qp.R.copy(); R[2] = -3.0 * np.eye(qp.m)
+    ul, uu = qp.u_lower.copy(), qp.u_upper.copy()
+    ul[2], uu[2] = -np.inf, np.inf
+    bad = replace(qp, R=R, u_lower=ul, u_upper=uu)
+    res = MehrotraQP(max_regularization=0.1).solve(bad)
+    assert res.status is Status.NUMERICAL_ERROR
+    assert 1e-3 < res.regularization <= 0.1 * 3.0
+    assert "with regularization" in res.message
+    # shifted by more than that the QP is convex: solved without extra regularization
+    ok = MehrotraQP().solve(replace(bad, R=R + 5.0 * np.eye(qp.m)[None]))
+    assert ok.status is Status.SUCCESS, ok.message
+    assert ok.regularization == pytest.approx(1e-10)

@@ -238,6 +238,10 @@ class QPResult:
     kkt: dict = dataclasses.field(default_factory=dict)
     history: list = dataclasses.field(default_factory=list)
     solver: str = ""
+    #: largest primal regularization delta (delta*I added to the Hessian of the Newton systems)
+    #: the solve needed -- for a failed solve the value at which the factorization last failed;
+    #: a caller with a nonconvex Hessian (the SQP's inertia correction) can shift by at least this
+    regularization: float = 0.0
 
     @property
     def success(self) -> bool:

@@ -958,9 +958,10 @@ class _StepContext:
             try:
                 self.fact = make_kkt_solver(solver.options.kkt, Q, P.S, P.R, P.A, P.B, Dx=Dx, Du=Du, **kw)
                 break
-            except NotPositiveDefiniteError:
+            except NotPositiveDefiniteError as exc:
                 nxt = max(10.0 * reg, 1e-10 * (1.0 + P.h_scale))
                 if attempt == 11 or nxt > solver.options.max_regularization * max(P.h_scale, 1e-300):
+                    exc.regularization = reg
                     raise
                 reg = nxt
         self.reg = reg
@@ -1115,10 +1116,13 @@ class InteriorPointQP:
         try:
             it = self._initial_point(P) if warm_start is None else self._warm_point(P, warm_start)
         except NotPositiveDefiniteError as exc:
-            return self._finish(P, None, Status.NUMERICAL_ERROR,
-                                f"{Status.NUMERICAL_ERROR.sentence} (starting point: the KKT factorization failed at "
-                                f"stage k={exc.stage}: {exc})", 0, history, t0)
+            res = self._finish(P, None, Status.NUMERICAL_ERROR,
+                               f"{Status.NUMERICAL_ERROR.sentence} (starting point: the KKT factorization with unit "
+                               f"diagonal terms failed at stage k={exc.stage}: {exc})", 0, history, t0)
+            res.regularization = 1.0   # the unit diagonal of the starting-point system
+            return res
         best, stall, k, last_d = math.inf, 0, 0, None
+        failed_reg = 0.0
         best_merit, best_it, best_k = math.inf, it, 0
         pr_prev = du_prev = math.inf
         huge = 1e10 * (1.0 + P.p_data + P.d_data)
@@ -1161,8 +1165,9 @@ class InteriorPointQP:
                 d, info = self._direction(ctx)
             except NotPositiveDefiniteError as exc:
                 status = Status.NUMERICAL_ERROR
+                failed_reg = getattr(exc, "regularization", 0.0)
                 message = (f"{status.sentence} (iteration {k + 1}: the KKT factorization failed at stage "
-                           f"k={exc.stage}: {exc})")
+                           f"k={exc.stage} with regularization {failed_reg:.3g}: {exc})")
                 break
             except (np.linalg.LinAlgError, FloatingPointError, ValueError, ZeroDivisionError) as exc:
                 status = Status.NUMERICAL_ERROR
@@ -1190,7 +1195,9 @@ class InteriorPointQP:
             message = (f"{Status.ACCEPTABLE.sentence} Returned the best iterate (iteration {best_k}, scaled KKT "
                        f"measure {best_merit:.2g} <= acceptable_tol) after: {message}")
             status, it = Status.ACCEPTABLE, best_it
-        return self._finish(P, it, status, message, k, history, t0)
+        res = self._finish(P, it, status, message, k, history, t0)
+        res.regularization = max([failed_reg] + [h["regularization"] for h in history])
+        return res
 
     # ------------------------------------------------------------------ direction (subclasses)
     def _direction(self, ctx):
