@@ -434,3 +434,29 @@ def test_failed_factorization_reports_the_regularization_tried():
     ok = MehrotraQP().solve(replace(bad, R=R + 5.0 * np.eye(qp.m)[None]))
     assert ok.status is Status.SUCCESS, ok.message
     assert ok.regularization == pytest.approx(1e-10)
+
+
+@pytest.mark.parametrize("cls", METHODS, ids=lambda c: c.name)
+def test_nonconvex_shift_mode_solves_the_shifted_qp(cls):
+    """nonconvex = "shift": the delta a failed factorization needed becomes part of the Hessian;
+    the result is the solution of the QP with H + delta I (checked against a solve of that QP
+    given explicitly), QPResult.regularization is delta and the message says so."""
+    qp = random_qp(0, nc=0, ncN=0)
+    R = qp.R.copy(); R[2] = -3.0 * np.eye(qp.m)
+    ul, uu = qp.u_lower.copy(), qp.u_upper.copy()
+    ul[2], uu[2] = -np.inf, np.inf
+    bad = replace(qp, R=R, u_lower=ul, u_upper=uu)
+    res = cls(nonconvex="shift", tol=1e-10).solve(bad)
+    assert res.status is Status.SUCCESS, res.message
+    d = res.regularization
+    assert 0.1 < d < 100.0
+    assert "shifted by" in res.message
+    ref = cls(tol=1e-10).solve(replace(bad, Q=bad.Q + d * np.eye(qp.n), R=bad.R + d * np.eye(qp.m)))
+    assert ref.status is Status.SUCCESS
+    assert np.max(np.abs(res.U - ref.U)) <= 1e-7 * (1 + np.max(np.abs(ref.U)))
+    assert res.objective == pytest.approx(ref.objective, rel=1e-9)
+    assert res.kkt["stationarity"] <= 1e-8
+    # a convex QP is not shifted
+    ok = cls(nonconvex="shift").solve(qp)
+    assert ok.status is Status.SUCCESS and "shifted" not in ok.message
+    assert ok.regularization <= 1e-9

@@ -110,7 +110,12 @@ Failures: a factorization that fails (``NotPositiveDefiniteError``: loss of defi
 spans many orders of magnitude, or a Hessian that is indefinite on the null space of the
 equalities while the slacks are still large, as the exact Hessian of an SQP subproblem can be)
 is retried with the regularization raised tenfold, up to ``max_regularization`` * max|H|; if it
-still fails the solve ends with NUMERICAL_ERROR naming the stage.  When a solve ends with NUMERICAL_ERROR or MAX_ITERATIONS but
+still fails the solve ends with NUMERICAL_ERROR naming the stage and the delta tried
+(``QPResult.regularization``).  With ``nonconvex = "shift"`` a delta above the base
+``regularization`` is instead added to the QP's Hessian for the rest of the solve (residuals
+recomputed, progress measures restarted): the solve returns the solution of the convexified QP
+with H + delta I and delta in ``QPResult.regularization`` -- what the SQP's inertia correction
+needs, in one solve instead of a sequence of failing ones.  When a solve ends with NUMERICAL_ERROR or MAX_ITERATIONS but
 an earlier iterate met ``acceptable_tol``, that iterate is returned with status ACCEPTABLE and a
 message saying what happened.
 """
@@ -151,6 +156,11 @@ class InteriorPointQPOptions:
     regularization: float = option(1e-10, "primal (proximal) regularization delta*I added to the Newton Hessian", min=0.0)
     max_regularization: float = option(100.0, "largest primal regularization tried when a KKT factorization fails, "
                                        "relative to max|H| (inertia correction per Newton step)", min=0.0)
+    nonconvex: str = option("regularize", "a KKT factorization that needs delta*I (a Hessian that is not positive "
+                            "definite on the null space of the equalities): 'regularize' adds delta to that Newton "
+                            "matrix only; 'shift' adds it to the QP's Hessian for the rest of the solve, which then "
+                            "solves the shifted (convexified) QP and reports the total shift in "
+                            "QPResult.regularization", choices=("regularize", "shift"))
     refinement_steps: int = option(3, "maximum iterative refinement steps per Newton solve (0 = none)", min=0, max=20)
     refinement_tol: float = option(1e-6, "a Newton solve is refined only when its residual exceeds this times the "
                                    "size of the right-hand side (and 1e-3 tol (1 + that size)); 0 = refine down to "
@@ -790,9 +800,25 @@ class _Prepared:
         self.newton_res = _Rhs(self, np.empty(self.rhs_layout[1]))
         self.work_el, self.work_eu, self.work_w = np.empty(self.nw), np.empty(self.nw), np.empty(self.nw)
         self.Q_final = self.Q.copy() if ncN else self.Q   # Q with C_N^T diag(D) C_N added to Q_N
+        self.shift = 0.0   # delta added to the Hessian by the nonconvex = "shift" mode
 
     def point(self, v):
         return _Point(self, v)
+
+    def shift_hessian(self, delta):
+        """H <- H + delta I on every stage block and on Q_N (the ``nonconvex = "shift"`` mode)."""
+        if self.Q is self.qp.Q:
+            self.Q = self.Q.copy()
+        idx = np.arange(self.n)
+        self.Q[:, idx, idx] += delta
+        iu = np.arange(self.m)
+        self.R[:, iu, iu] += delta
+        iz = np.arange(self.n + self.m)
+        self.Ht[:, iz, iz] += delta
+        self.QNt[idx, idx] += delta
+        if self.ncN:
+            self.Q_final = self.Q.copy()
+        self.shift += delta
 
     def point_from(self, X, U, lam, nu, tl, tu, zl, zu):
         return _Point(self, np.concatenate([np.asarray(a, dtype=float).ravel() for a in (X, U, lam, nu, tl, tu, zl, zu)]))
@@ -965,6 +991,13 @@ class _StepContext:
                     raise
                 reg = nxt
         self.reg = reg
+        # nonconvex = "shift": a factorization that needed more than the base regularization makes
+        # the delta part of the QP's Hessian (the caller recomputes the residuals); the factored
+        # matrix is already the one of the shifted QP
+        self.shifted = 0.0
+        if solver.options.nonconvex == "shift" and reg > solver.options.regularization:
+            self.shifted = reg - solver.options.regularization
+            P.shift_hessian(self.shifted)
 
     # ------------------------------------------------------------------ solves
     def _reduced_solve(self, res, rho_l, rho_u):
@@ -1162,6 +1195,10 @@ class InteriorPointQP:
                 # tolerance: after that a dual step shorter than the primal one would put
                 # (alpha - alpha_dual) H dz back into the dual residual at every iteration
                 ctx.split = opts.step_rule == "primal-dual" and pr > opts.tol * scales[0]
+                if ctx.shifted:
+                    res, pr, du, scales, obj, znorm, comp = self._residuals(P, it)
+                    ctx.res = res
+                    best, stall, best_merit = math.inf, 0, math.inf   # a new QP: progress measures restart
                 d, info = self._direction(ctx)
             except NotPositiveDefiniteError as exc:
                 status = Status.NUMERICAL_ERROR
@@ -1195,8 +1232,14 @@ class InteriorPointQP:
             message = (f"{Status.ACCEPTABLE.sentence} Returned the best iterate (iteration {best_k}, scaled KKT "
                        f"measure {best_merit:.2g} <= acceptable_tol) after: {message}")
             status, it = Status.ACCEPTABLE, best_it
+        if P.shift > 0.0:
+            message += (f" (nonconvex QP: its Hessian was shifted by {P.shift:.3g} I to make the Newton systems "
+                        "positive definite; the result solves the shifted QP)")
         res = self._finish(P, it, status, message, k, history, t0)
-        res.regularization = max([failed_reg] + [h["regularization"] for h in history])
+        # the total shift (plus the delta at which a factorization failed on top of it), or the
+        # largest Newton-system regularization
+        res.regularization = (P.shift + failed_reg if P.shift > 0.0
+                              else max([failed_reg] + [h["regularization"] for h in history]))
         return res
 
     # ------------------------------------------------------------------ direction (subclasses)
@@ -1387,6 +1430,9 @@ class InteriorPointQP:
     # ------------------------------------------------------------------ result
     def _finish(self, P, it, status, message, iters, history, t0):
         qp = P.qp
+        if P.shift > 0.0:   # the QP that was solved (nonconvex = "shift")
+            d = P.shift
+            qp = dataclasses.replace(qp, Q=qp.Q + d * np.eye(P.n), R=qp.R + d * np.eye(P.m))
         N, n, m, nc, ncN = P.N, P.n, P.m, P.nc, P.ncN
         ne_out = max(P.ne0, P.neN0)
         if it is None:
