@@ -175,3 +175,83 @@ def test_indefinite_reduced_hessian_names_the_stage_and_can_be_regularized():
         RiccatiFactorization(d["Q"], d["S"], d["R"], d["A"], d["B"])
     assert e.value.stage == 3 and "k=3" in str(e.value)
     RiccatiFactorization(d["Q"], d["S"], d["R"], d["A"], d["B"], regularization=1e4)  # shifted: factorizes
+
+
+def stationarity_residuals(d, sol, Ci=None, sig=None, ci=None, reg=0.0):
+    """Residuals of the KKT rows of the plain (no equality rows) LQ-DOCP at sol, with the stage
+    inequality terms sig * C^T (C z + ci) and the regularization reg * u in the u rows."""
+    Q, S, R, A, B, q, r, c, x0 = (d[k] for k in ("Q", "S", "R", "A", "B", "q", "r", "c", "x0"))
+    Dx, Du = d.get("Dx"), d.get("Du")
+    N, n, m = B.shape
+    X, U, lam = sol.X, sol.U, sol.lam
+    gx, gu = np.zeros((N, n)), np.zeros((N, m))
+    for k in range(N):
+        gx[k] = Q[k] @ X[k] + S[k] @ U[k] + q[k] + A[k].T @ lam[k + 1] - lam[k]
+        gu[k] = S[k].T @ X[k] + R[k] @ U[k] + r[k] + B[k].T @ lam[k + 1] + reg * U[k]
+        if Dx is not None:
+            gx[k] += Dx[k] * X[k]; gu[k] += Du[k] * U[k]
+        if Ci is not None:
+            g = Ci[k].T @ (sig[k] * (Ci[k] @ np.concatenate([X[k], U[k]]) + ci[k]))
+            gx[k] += g[:n]; gu[k] += g[n:]
+    gN = Q[N] @ X[N] + q[N] - lam[N] + (Dx[N] * X[N] if Dx is not None else 0.0)
+    dyn = np.einsum("kij,kj->ki", A, X[:-1]) + np.einsum("kij,kj->ki", B, U) + c - X[1:]
+    return max(np.abs(gx).max(), np.abs(gu).max(), np.abs(gN).max(), np.abs(dyn).max(), np.abs(X[0] - x0).max())
+
+
+@settings(max_examples=30, deadline=None)
+@given(N=st.integers(1, 6), n=st.integers(1, 5), m=st.integers(1, 4), seed=st.integers(0, 10_000),
+       with_bounds=st.booleans(), ni=st.integers(0, 2), reg=st.sampled_from([0.0, 0.5]))
+def test_fixed_size_and_any_size_plain_kernels_agree(N, n, m, seed, with_bounds, ni, reg):
+    """The plain recursion compiled for the sizes (n + m <= _FIXED_SIZE_MAX) and with run-time sizes
+    give the same factorization and solution (up to rounding), and the multipliers lam_k = P_k x_k + p_k
+    satisfy the KKT rows, with the stage inequality terms and the regularization."""
+    import olado.linalg.riccati as ric
+
+    rng = np.random.default_rng(seed)
+    d = random_problem(rng, N, n, m)
+    if with_bounds:
+        d["Dx"] = rng.uniform(0, 100, (N + 1, n)); d["Du"] = rng.uniform(0, 100, (N, m))
+    kw = dict(Dx=d.get("Dx"), Du=d.get("Du"), regularization=reg)
+    rhs = {}
+    if ni:
+        kw.update(Ci=rng.standard_normal((N, ni, n + m)), sigma=rng.uniform(0.0, 10.0, (N, ni)))
+        kw["sigma"][0, 0] = 0.0   # a zero weight
+        rhs["ci"] = rng.standard_normal((N, ni))
+    results = []
+    for fixed_max in (ric._FIXED_SIZE_MAX, 0):
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(ric, "_FIXED_SIZE_MAX", fixed_max)
+            fac = RiccatiFactorization(d["Q"], d["S"], d["R"], d["A"], d["B"], **kw)
+            assert fac.unconstrained and (fac._size_tags is None) == (fixed_max == 0)
+            results.append((fac, fac.solve(d["q"], d["r"], d["c"], d["x0"], **rhs)))
+    (fa, sa), (fb, sb) = results
+    for a, b in ((fa.P, fb.P), (fa.K, fb.K), (fa.Lww, fb.Lww), (sa.X, sb.X), (sa.U, sb.U), (sa.lam, sb.lam)):
+        assert np.abs(a - b).max() <= 1e-10 * max(1.0, np.abs(a).max())
+    assert np.array_equal(fa.P, fa.P.transpose(0, 2, 1)) and not np.triu(fa.Lww, 1).any()
+    scale = max(1.0, np.abs(sa.X).max(), np.abs(sa.U).max(), np.abs(sa.lam).max())
+    assert stationarity_residuals(d, sa, kw.get("Ci"), kw.get("sigma"), rhs.get("ci"), reg) <= 1e-9 * scale
+
+
+@pytest.mark.parametrize("fixed", [True, False])
+def test_indefinite_stage_hessian_on_both_plain_kernels(monkeypatch, fixed):
+    """The failing stage is reported by the fixed-size and the any-size kernels alike, also when
+    Q_uu is indefinite only through a stage inequality term, or is NaN."""
+    import olado.linalg.riccati as ric
+
+    if not fixed:
+        monkeypatch.setattr(ric, "_FIXED_SIZE_MAX", 0)
+    rng = np.random.default_rng(7)
+    d = random_problem(rng, 6, 3, 2)
+    d["R"][4] = np.diag([1.0, -100.0])
+    with pytest.raises(NotPositiveDefiniteError) as e:
+        RiccatiFactorization(d["Q"], d["S"], d["R"], d["A"], d["B"])
+    assert e.value.stage == 4
+    d = random_problem(rng, 6, 3, 2)
+    Ci = np.zeros((6, 1, 5)); Ci[2, 0, 3] = 1.0
+    with pytest.raises(NotPositiveDefiniteError) as e:
+        RiccatiFactorization(d["Q"], d["S"], d["R"], d["A"], d["B"], Ci=Ci, sigma=np.full((6, 1), -1e4))
+    assert e.value.stage == 2
+    d["R"][1, 0, 0] = np.nan
+    with pytest.raises(NotPositiveDefiniteError) as e:
+        RiccatiFactorization(d["Q"], d["S"], d["R"], d["A"], d["B"])
+    assert e.value.stage == 1
