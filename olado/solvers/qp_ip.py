@@ -956,6 +956,7 @@ class _StepContext:
         self.refinement_steps = solver.options.refinement_steps
         self.refinement_tol = solver.options.refinement_tol
         self.rel_error = None   # Newton residual / |rhs| of this factorization's first solve, unrefined
+        self.rel_prior = None   # bound on it from an earlier iteration's measurement (set by the caller)
         self.inv_tl, self.inv_tu, D = P.inv_tl, P.inv_tu, P.D
         _scaling(it.tl, it.tu, it.zl, it.zu, P.fl, P.fu, self.inv_tl, self.inv_tu, D)
         N, n, m, nc = P.N, P.n, P.m, P.nc
@@ -1052,13 +1053,16 @@ class _StepContext:
         solve of a factorization gives its relative error |residual| / |rhs|; later solves with
         the same factorization skip the measurement when that relative error times their |rhs|
         is below 10 % of their target (their relative errors stay within a small factor of the
-        first one's: same matrix, same conditioning)."""
+        first one's: same matrix, same conditioning).  The first solve itself may skip it on
+        ``rel_prior``, a bound carried over from the last measured iteration (see
+        :meth:`InteriorPointQP.solve`)."""
         d = self._reduced_solve(res, rho_l, rho_u)
         if self.refinement_steps == 0:
             return d
         rhs = max(res.size(), _max_abs(rho_l), _max_abs(rho_u))
         target = max(1e-3 * self.tol * (1.0 + rhs), self.refinement_tol * rhs)
-        if self.rel_error is not None and self.rel_error * rhs <= 0.1 * target:
+        est = self.rel_error if self.rel_error is not None else self.rel_prior
+        if est is not None and est * rhs <= 0.1 * target:
             return d
         for step in range(self.refinement_steps):
             e, el, eu, size = self._newton_residual(d, res, rho_l, rho_u)
@@ -1156,6 +1160,11 @@ class InteriorPointQP:
             return res
         best, stall, k, last_d = math.inf, 0, 0, None
         failed_reg = 0.0
+        # the relative error of the Newton solves grows with the conditioning of the Newton matrix,
+        # i.e. slowly from one iteration to the next (a few-fold per iteration as mu falls): a
+        # measurement bounds the next two iterations' errors by 100 x its value, and their first
+        # solves skip the measurement (a kkt_map pass) when that bound is well within the target
+        rel_last, rel_age = None, 0
         best_merit, best_it, best_k = math.inf, it, 0
         pr_prev = du_prev = math.inf
         huge = 1e10 * (1.0 + P.p_data + P.d_data)
@@ -1199,7 +1208,13 @@ class InteriorPointQP:
                     res, pr, du, scales, obj, znorm, comp = self._residuals(P, it)
                     ctx.res = res
                     best, stall, best_merit = math.inf, 0, math.inf   # a new QP: progress measures restart
+                if rel_last is not None and rel_age < 2 and ctx.reg <= opts.regularization:
+                    ctx.rel_prior = 100.0 * rel_last
                 d, info = self._direction(ctx)
+                if ctx.rel_error is not None:
+                    rel_last, rel_age = ctx.rel_error, 0
+                else:
+                    rel_age += 1
             except NotPositiveDefiniteError as exc:
                 status = Status.NUMERICAL_ERROR
                 failed_reg = getattr(exc, "regularization", 0.0)
