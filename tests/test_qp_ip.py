@@ -460,3 +460,24 @@ def test_nonconvex_shift_mode_solves_the_shifted_qp(cls):
     ok = cls(nonconvex="shift").solve(qp)
     assert ok.status is Status.SUCCESS and "shifted" not in ok.message
     assert ok.regularization <= 1e-9
+
+
+def test_kkt_map_fixed_size_kernel_agrees_with_any_size_kernel():
+    """_kkt_map compiled for the block sizes (size tags) and for run-time sizes: same residuals
+    and measures (up to rounding), on a QP with stage rows, final rows and equalities."""
+    from olado.solvers import qp_ip
+
+    qp = random_qp(3, nc=2, ncN=1)
+    P = qp_ip._Prepared(qp)
+    it = MehrotraQP()._initial_point(P)
+    out = []
+    for sizes in (P.sizes, (P.n, P.m, P.n + P.m)):
+        res = qp_ip._Rhs(P, np.full(P.rhs_layout[1], np.nan))
+        qp_ip._kkt_map(sizes, P.H, P.QN, P.AB, P.EF, P.EFt, P.eqm, P.EN, P.C, P.Ct, P.CN, P.neg_lo, P.hi, P.fl, P.fu,
+                       it.X, it.U, it.lam, it.nu, it.tl, it.tu, it.zl, it.zu, P.q, P.r, P.c, P.x0, P.be, P.eN,
+                       res.rx, res.ru, res.dyn, res.x0r, res.rE, res.rEN, res.rl, res.rup, P.work_w, P.stats)
+        out.append((res.buf.copy(), P.stats.copy()))
+    assert isinstance(P.sizes[0], tuple)   # the fixed-size kernel was the first one
+    assert np.all(np.isfinite(out[0][0]))
+    np.testing.assert_allclose(out[0][0], out[1][0], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(out[0][1], out[1][1], rtol=1e-12, atol=1e-12)

@@ -128,9 +128,11 @@ import time
 
 import numba as nb
 import numpy as np
+from numba import types
+from numba.extending import overload
 
 from ..linalg.kkt import KKT_SOLVERS, make_kkt_solver
-from ..linalg.riccati import NotPositiveDefiniteError
+from ..linalg.riccati import _FIXED_SIZE_MAX, NotPositiveDefiniteError, _size_tags, _stack_vector
 from ..linalg.stageqp import QPResult, StageQP, qp_kkt_residuals
 from ..result import Status
 from .base import make_options, option
@@ -213,10 +215,35 @@ class WeightedCorrectorQPOptions(GondzioQPOptions):
 # assumptions, so non-finite values still propagate): results agree with the plain loops up to rounding.
 _REASSOC = {"reassoc", "contract", "nsz"}
 
+def _size(x):
+    """Block size from a size argument of a compiled kernel: an int (run-time size) or a size tag
+    (olado.linalg.riccati._size_tags: a tuple whose length is the size, a compile-time constant)."""
+    return x if isinstance(x, int) else len(x)
+
+
+@overload(_size)
+def _size_overload(x):
+    if isinstance(x, types.Integer):
+        return lambda x: x
+    return lambda x: len(x)
+
+
+def _work(x):
+    """A float workspace of size _size(x): on the heap for an int, on the stack for a size tag."""
+    return np.empty(_size(x))
+
+
+@overload(_work)
+def _work_overload(x):
+    if isinstance(x, types.Integer):
+        return lambda x: np.empty(x)
+    return lambda x: _stack_vector(x)
+
+
 @nb.njit(cache=True, fastmath=_REASSOC)
-def _kkt_map(Ht, QNt, AB, ABt, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu,
-             X, U, lam, nu, tl, tu, zl, zu, bx, bu, bdyn, bx0, be, beN,
-             rx, ru, dyn, x0r, rE, rEN, rl, rup, w, stats):
+def _kkt_map(sizes, H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu,
+                  X, U, lam, nu, tl, tu, zl, zu, bx, bu, bdyn, bx0, be, beN,
+                  rx, ru, dyn, x0r, rE, rEN, rl, rup, w, stats):
     """The equations of the KKT system at (X, U, lam, nu, tl, tu, zl, zu) with offsets b:
 
         rx, ru = H z + (A^T lam_+ - lam, B^T lam_+) + E^T nu + C^T (zu - zl) + box (zu - zl) + (bx, bu)
@@ -227,12 +254,14 @@ def _kkt_map(Ht, QNt, AB, ABt, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu,
     Newton residual of a direction with b = the right-hand side's residuals).  stats receives
     max |primal parts|, max |rx, ru|, max |X, U|, max |H z|, 1/2 z.H z + bx.X + bu.U and the
     complementarity sum(zl tl + zu tu).
-    Matrix-vector products run over the transposed blocks (suffix t) in axpy form: independent
-    accumulators instead of one latency-bound dot product per row."""
+    H (N, n+m, n+m) and QN are symmetric (the symmetric parts of the QP's blocks), so H z is
+    computed row-wise; AB = [A B] serves both A x + B u (rows) and A^T lam, B^T lam (axpy).
+    ``sizes`` = (n, m, n + m) as ints, or as size tags for a kernel compiled for those sizes
+    (_kkt_map_call chooses)."""
+    nt, mt, zt = sizes
+    n, m, nz = _size(nt), _size(mt), _size(zt)
+    z, hz, g, ax = _work(zt), _work(zt), _work(zt), _work(nt)
     N = AB.shape[0]
-    n = AB.shape[1]
-    nz = AB.shape[2]
-    m = nz - n
     ne = EF.shape[1]
     neN = EN.shape[0]
     nc = C.shape[1]
@@ -240,10 +269,6 @@ def _kkt_map(Ht, QNt, AB, ABt, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu,
     ou = N * n
     os_ = ou + N * m
     osN = os_ + N * nc
-    z = np.empty(nz)
-    hz = np.empty(nz)
-    g = np.empty(nz)
-    ax = np.empty(n)
     ae = np.empty(max(ne, 1))
     ac = np.empty(max(nc, 1))
     pmax = 0.0
@@ -257,19 +282,21 @@ def _kkt_map(Ht, QNt, AB, ABt, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu,
         for i in range(m):
             z[n + i] = U[k, i]
         for i in range(nz):
-            hz[i] = 0.0
+            t = 0.0
+            for j in range(nz):
+                t += H[k, i, j] * z[j]
+            hz[i] = t
         for i in range(n):
-            ax[i] = 0.0
+            t = 0.0
+            for j in range(nz):
+                t += AB[k, i, j] * z[j]
+            ax[i] = t
         for i in range(ne):
             ae[i] = 0.0
         for i in range(nc):
             ac[i] = 0.0
         for j in range(nz):
             t = z[j]
-            for i in range(nz):
-                hz[i] += Ht[k, j, i] * t
-            for i in range(n):
-                ax[i] += ABt[k, j, i] * t
             for i in range(ne):
                 ae[i] += EFt[k, j, i] * t
             for i in range(nc):
@@ -337,11 +364,10 @@ def _kkt_map(Ht, QNt, AB, ABt, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu,
             w[os_ + k * nc + l] = ac[l]
     # final stage
     for i in range(n):
-        hz[i] = 0.0
-    for j in range(n):
-        t = X[N, j]
-        for i in range(n):
-            hz[i] += QNt[j, i] * t
+        t = 0.0
+        for j in range(n):
+            t += QN[i, j] * X[N, j]
+        hz[i] = t
     for i in range(n):
         g[i] = hz[i] - lam[N, i]
     for l in range(neN):
@@ -403,6 +429,11 @@ def _kkt_map(Ht, QNt, AB, ABt, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu,
     stats[3] = hmax
     stats[4] = obj
     stats[5] = comp
+
+
+def _kkt_map_call(P, *args):
+    """_kkt_map of the prepared problem P (the fixed-size kernel when its blocks are small)."""
+    _kkt_map(P.sizes, P.H, P.QN, P.AB, P.EF, P.EFt, P.eqm, P.EN, P.C, P.Ct, P.CN, *args)
 
 
 @nb.njit(cache=True)
@@ -517,47 +548,42 @@ def _recover_step(dX, dU, Ct, CN, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu,
     return True
 
 
-@nb.njit(cache=True)
-def _ratio(v, dv, a):
-    return min(a, v / -dv) if dv < 0 else a
-
-
-@nb.njit(cache=True)
+@nb.njit(cache=True, fastmath=_REASSOC)
 def _max_step(tl, tu, zl, zu, fl, fu, dtl, dtu, dzl, dzu, ctl, ctu, czl, czu, omega):
     """Largest alpha (capped at 1e30) keeping tl, tu, zl, zu positive along d + omega c
-    (omega = 0: along d)."""
+    (omega = 0: along d).  Infinite sides hold t = z = 0 and zero steps (by construction of the
+    iterates and directions), so they never limit the step and need no test (fl, fu are unused:
+    the loop is branch-free and vectorizes)."""
     a = 1e30
+    inf = np.inf
     for i in range(tl.shape[0]):
-        if omega != 0.0:
-            if fl[i]:
-                a = _ratio(tl[i], dtl[i] + omega * ctl[i], a)
-                a = _ratio(zl[i], dzl[i] + omega * czl[i], a)
-            if fu[i]:
-                a = _ratio(tu[i], dtu[i] + omega * ctu[i], a)
-                a = _ratio(zu[i], dzu[i] + omega * czu[i], a)
-        else:
-            if fl[i]:
-                a = _ratio(tl[i], dtl[i], a)
-                a = _ratio(zl[i], dzl[i], a)
-            if fu[i]:
-                a = _ratio(tu[i], dtu[i], a)
-                a = _ratio(zu[i], dzu[i], a)
+        v = dtl[i] + omega * ctl[i]
+        a = min(a, -tl[i] / v if v < 0.0 else inf)
+        v = dzl[i] + omega * czl[i]
+        a = min(a, -zl[i] / v if v < 0.0 else inf)
+        v = dtu[i] + omega * ctu[i]
+        a = min(a, -tu[i] / v if v < 0.0 else inf)
+        v = dzu[i] + omega * czu[i]
+        a = min(a, -zu[i] / v if v < 0.0 else inf)
     return a
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, fastmath=_REASSOC)
 def _max_step_split(tl, tu, zl, zu, fl, fu, dtl, dtu, dzl, dzu):
     """Largest primal (slacks) and dual (multipliers) step lengths (capped at 1e30) keeping
-    tl, tu resp. zl, zu positive along d."""
+    tl, tu resp. zl, zu positive along d (infinite sides: see _max_step)."""
     ap = 1e30
     ad = 1e30
+    inf = np.inf
     for i in range(tl.shape[0]):
-        if fl[i]:
-            ap = _ratio(tl[i], dtl[i], ap)
-            ad = _ratio(zl[i], dzl[i], ad)
-        if fu[i]:
-            ap = _ratio(tu[i], dtu[i], ap)
-            ad = _ratio(zu[i], dzu[i], ad)
+        v = dtl[i]
+        ap = min(ap, -tl[i] / v if v < 0.0 else inf)
+        v = dtu[i]
+        ap = min(ap, -tu[i] / v if v < 0.0 else inf)
+        v = dzl[i]
+        ad = min(ad, -zl[i] / v if v < 0.0 else inf)
+        v = dzu[i]
+        ad = min(ad, -zu[i] / v if v < 0.0 else inf)
     return ap, ad
 
 
@@ -778,8 +804,11 @@ class _Prepared:
         H = np.empty((N, nz, nz))
         H[:, :n, :n] = self.Q[:N]; H[:, :n, n:] = self.S; H[:, n:, :n] = self.S.transpose(0, 2, 1); H[:, n:, n:] = self.R
         tr = lambda a: np.ascontiguousarray(np.swapaxes(a, -1, -2))  # noqa: E731
-        self.Ht, self.QNt = tr(H), tr(self.Q[N])
-        self.AB = np.ascontiguousarray(np.concatenate([self.A, self.B], axis=2)); self.ABt = tr(self.AB)
+        # the symmetric parts (what the objective 1/2 z.H z sees, and what the Riccati kernels use)
+        self.H = np.ascontiguousarray(0.5 * (H + tr(H)))
+        self.QN = np.ascontiguousarray(0.5 * (self.Q[N] + self.Q[N].T))
+        self.AB = np.ascontiguousarray(np.concatenate([self.A, self.B], axis=2))
+        self.sizes = _size_tags(n, m, n + m) if 0 < n and 0 < m and n + m <= _FIXED_SIZE_MAX else (n, m, n + m)
         self.EF = np.ascontiguousarray(np.concatenate([self.E, self.F], axis=2)); self.EFt = tr(self.EF)
         self.eqm = self.eq_mask.astype(float)
         self.be = self.e * self.eqm
@@ -814,8 +843,8 @@ class _Prepared:
         iu = np.arange(self.m)
         self.R[:, iu, iu] += delta
         iz = np.arange(self.n + self.m)
-        self.Ht[:, iz, iz] += delta
-        self.QNt[idx, idx] += delta
+        self.H[:, iz, iz] += delta
+        self.QN[idx, idx] += delta
         if self.ncN:
             self.Q_final = self.Q.copy()
         self.shift += delta
@@ -1037,7 +1066,7 @@ class _StepContext:
         the work arrays of the prepared problem; returns (residual, el, eu, max-norm of all)."""
         P, it = self.P, self.it
         e, st = P.newton_res, P.stats
-        _kkt_map(P.Ht, P.QNt, P.AB, P.ABt, P.EF, P.EFt, P.eqm, P.EN, P.C, P.Ct, P.CN, res.rl, res.rup, P.fl, P.fu,
+        _kkt_map_call(P, res.rl, res.rup, P.fl, P.fu,
                  d.X, d.U, d.lam, d.nu, d.tl, d.tu, d.zl, d.zu, res.rx, res.ru, res.dyn, res.x0r, res.rE, res.rEN,
                  e.rx, e.ru, e.dyn, e.x0r, e.rE, e.rEN, e.rl, e.rup, P.work_w, st)
         e._size = max(st[0], st[1])
@@ -1377,7 +1406,7 @@ class InteriorPointQP:
         scales as in the module docstring (one pass of a compiled kernel)."""
         res = _Rhs(P, np.empty(P.rhs_layout[1]))
         st = P.stats
-        _kkt_map(P.Ht, P.QNt, P.AB, P.ABt, P.EF, P.EFt, P.eqm, P.EN, P.C, P.Ct, P.CN, P.neg_lo, P.hi, P.fl, P.fu,
+        _kkt_map_call(P, P.neg_lo, P.hi, P.fl, P.fu,
                  it.X, it.U, it.lam, it.nu, it.tl, it.tu, it.zl, it.zu, P.q, P.r, P.c, P.x0, P.be, P.eN,
                  res.rx, res.ru, res.dyn, res.x0r, res.rE, res.rEN, res.rl, res.rup, P.work_w, st)
         pr, du, znorm, hnorm, obj, comp = (float(v) for v in st)
