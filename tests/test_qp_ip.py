@@ -481,3 +481,19 @@ def test_kkt_map_fixed_size_kernel_agrees_with_any_size_kernel():
     assert np.all(np.isfinite(out[0][0]))
     np.testing.assert_allclose(out[0][0], out[1][0], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(out[0][1], out[1][1], rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("mu0", [1.0, 0.1])
+def test_cold_start_is_centred_at_initial_mu(mu0):
+    """The cold start has t_i z_i = initial_mu on every finite side, slacks >= 1, and zero slack
+    and multiplier on infinite sides; both settings solve the QP to the same objective."""
+    from olado.solvers import qp_ip
+
+    qp = random_qp(1, nc=2, ncN=1)
+    P = qp_ip._Prepared(qp)
+    solver = MehrotraQP(initial_mu=mu0)
+    it = solver._initial_point(P)
+    for t, z, f in ((it.tl, it.zl, P.fl), (it.tu, it.zu, P.fu)):
+        np.testing.assert_allclose((t * z)[f], mu0, rtol=1e-14)
+        assert np.all(t[f] >= 1.0) and np.all(t[~f] == 0.0) and np.all(z[~f] == 0.0)
+    assert solver.solve(qp).objective == pytest.approx(MehrotraQP().solve(qp).objective, rel=1e-8)

@@ -152,6 +152,8 @@ class InteriorPointQPOptions:
     max_iter: int = option(100, "maximum number of interior-point iterations", min=0)
     kkt: str = option("riccati", "KKT back-end for the Newton systems", choices=KKT_BACKENDS)
     step_to_boundary: float = option(0.995, "fraction of the step to the boundary that is taken", min=0.99, max=0.9995)
+    initial_mu: float = option(0.1, "cold start: slacks t >= 1 and multipliers z = initial_mu / t (the starting "
+                               "complementarity products)", min=0.0, min_exclusive=True)
     step_rule: str = option("primal-dual", "'common': one step length for primal and dual variables; 'primal-dual': "
                             "separate step lengths for (x, u, slacks) and (multipliers) (Mehrotra 1992 sec. 7)",
                             choices=("common", "primal-dual"))
@@ -1333,11 +1335,14 @@ class InteriorPointQP:
     # ------------------------------------------------------------------ starting points
     def _initial_point(self, P):
         """Cold start: (X, U) minimizes f + 1/2 |w - w_ref|^2 (+ 1/2 |z|^2 on unbounded
-        components) subject to the equality constraints -- one factorization -- with w_ref = 0
-        clipped into the boxes; its lam, nu are kept; slacks t = max(w - lo, 1) (resp.
-        max(hi - w, 1)) and multipliers z = 1/t on every finite side (a perfectly centred start, mu = 1)."""
+        components) subject to the equality constraints -- one factorization -- with w_ref the
+        middle of two-sided boxes and 0 clipped into one-sided ones; its lam, nu are kept; slacks
+        t = max(w - lo, 1) (resp. max(hi - w, 1)) and multipliers z = mu0 / t on every finite side
+        (a perfectly centred start, mu = mu0 = ``initial_mu``)."""
         N, n, m, nc = P.N, P.n, P.m, P.nc
-        ref = np.clip(np.zeros(P.nw), np.where(P.fl, P.lo, -np.inf), np.where(P.fu, P.hi, np.inf))
+        two = P.fl & P.fu
+        ref = np.where(two, 0.5 * (P.lo + P.hi),
+                       np.clip(np.zeros(P.nw), np.where(P.fl, P.lo, -np.inf), np.where(P.fu, P.hi, np.inf)))
         Dx = np.ones((N + 1, n)); Du = np.ones((N, m))
         q = P.q.copy(); r = P.r.copy()
         q[1:] -= ref[P.sl_x].reshape(N, n)
@@ -1363,8 +1368,9 @@ class InteriorPointQP:
         if P.n_nu:
             k = min(P.n_nu, sol.nu.shape[1])
             nu[:, :k] = sol.nu[:, :k]
-        zl = np.where(P.fl, 1.0 / np.where(P.fl, tl, 1.0), 0.0)
-        zu = np.where(P.fu, 1.0 / np.where(P.fu, tu, 1.0), 0.0)
+        mu0 = self.options.initial_mu
+        zl = np.where(P.fl, mu0 / np.where(P.fl, tl, 1.0), 0.0)
+        zu = np.where(P.fu, mu0 / np.where(P.fu, tu, 1.0), 0.0)
         return P.point_from(X, U, np.array(sol.lam, dtype=float), nu, tl, tu, zl, zu)
 
     def _warm_point(self, P, ws: QPResult):
