@@ -71,8 +71,8 @@ terms that make up the residual, as in Clarabel/OSQP):
   <= tol * (1 + |objective|).
 
 Infeasibility (documented criterion).  Two certificates are evaluated at every iterate that
-looks suspicious -- a scaled primal (dual) residual above tol that the last step did not at least
-halve, or an iterate with |z|_inf > 1e10 (1 + data) -- (on a converging QP the residuals fall by
+looks suspicious -- a scaled primal (dual) residual above tol that the last two steps did not at
+least halve, or an iterate with |z|_inf > 1e10 (1 + data) -- (on a converging QP the residuals fall by
 the factor 1 - alpha per step, on an infeasible or unbounded one the steps shrink):
 
 * primal infeasibility (Farkas): the constraint part y = (lam, nu, zl, zu) of the multipliers
@@ -1198,6 +1198,7 @@ class InteriorPointQP:
         rel_last, rel_age = None, 0
         best_merit, best_it, best_k = math.inf, it, 0
         pr_prev = du_prev = math.inf
+        n_slow = 0
         huge = 1e10 * (1.0 + P.p_data + P.d_data)
         status, message = Status.MAX_ITERATIONS, Status.MAX_ITERATIONS.sentence
         while True:
@@ -1208,9 +1209,10 @@ class InteriorPointQP:
                 status, message = Status.SUCCESS, Status.SUCCESS.sentence
                 break
             # the certificates are evaluated only when the iterates look suspicious: a primal or
-            # dual residual above tolerance that the last step did not halve, or a huge iterate
-            if ((pr > opts.tol * scales[0] and pr > 0.5 * pr_prev) or (du > opts.tol * scales[1] and du > 0.5 * du_prev)
-                    or znorm > huge):
+            # dual residual above tolerance that the last two steps did not halve, or a huge iterate
+            slow = (pr > opts.tol * scales[0] and pr > 0.5 * pr_prev) or (du > opts.tol * scales[1] and du > 0.5 * du_prev)
+            n_slow = n_slow + 1 if slow else 0
+            if n_slow >= 2 or znorm > huge:
                 cert = self._certificates(P, it, last_d)
                 if cert is not None:
                     status, message = cert
