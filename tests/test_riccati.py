@@ -255,3 +255,41 @@ def test_indefinite_stage_hessian_on_both_plain_kernels(monkeypatch, fixed):
     with pytest.raises(NotPositiveDefiniteError) as e:
         RiccatiFactorization(d["Q"], d["S"], d["R"], d["A"], d["B"])
     assert e.value.stage == 1
+
+
+@pytest.mark.parametrize("with_eq", [False, True])
+def test_refactor_with_new_diagonal_terms_equals_a_fresh_factorization(with_eq):
+    """refactor(Dx, Du, sigma, regularization) overwrites the factors in place and gives the
+    solution of a fresh factorization with those terms (plain path and equality-row path), and
+    solve(out=...) writes into the given arrays."""
+    rng = np.random.default_rng(7)
+    N, n, m, ni = 9, 3, 2, 2
+    M = rng.standard_normal((N + 1, n + m, n + m))
+    H = np.einsum("kij,klj->kil", M, M) + 0.1 * np.eye(n + m)
+    Q, S, R = H[:, :n, :n], H[:N, :n, n:], H[:N, n:, n:]
+    A = rng.standard_normal((N, n, n)) * 0.5; B = rng.standard_normal((N, n, m))
+    Ci = rng.standard_normal((N, ni, n + m))
+    kw = dict(Ci=Ci)
+    if with_eq:
+        kw.update(E=rng.standard_normal((N, 1, n)), F=rng.standard_normal((N, 1, m)), n_eq=np.arange(N) % 2)
+    q, r, c, x0 = rng.standard_normal((N + 1, n)), rng.standard_normal((N, m)), rng.standard_normal((N, n)), rng.standard_normal(n)
+    ci = rng.standard_normal((N, ni))
+    rhs = dict(ci=ci)
+    if with_eq:
+        rhs["e"] = rng.standard_normal((N, 1))
+    f = RiccatiFactorization(Q, S, R[:N], A, B, Dx=np.ones((N + 1, n)), Du=np.ones((N, m)), sigma=np.ones((N, ni)), **kw)
+    f.solve(q, r, c, x0, **rhs)
+    for trial in range(3):
+        Dx, Du = rng.uniform(1e-3, 1e3, (N + 1, n)), rng.uniform(1e-3, 1e3, (N, m))
+        sig = rng.uniform(0.0, 10.0, (N, ni))
+        P0 = f.P
+        f.refactor(Dx=Dx, Du=Du, sigma=sig, regularization=1e-8 * trial)
+        assert f.P is P0
+        ref = RiccatiFactorization(Q, S, R[:N], A, B, Dx=Dx, Du=Du, sigma=sig, regularization=1e-8 * trial, **kw)
+        out = (np.empty((N + 1, n)), np.empty((N, m)), np.empty((N + 1, n)))
+        a, b = f.solve(q, r, c, x0, out=out, **rhs), ref.solve(q, r, c, x0, **rhs)
+        assert a.X is out[0] and a.U is out[1] and a.lam is out[2]
+        for u, v in ((a.X, b.X), (a.U, b.U), (a.lam, b.lam), (a.nu, b.nu)):
+            np.testing.assert_allclose(u, v, rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValueError, match="out: U"):
+        f.solve(q, r, c, x0, out=(out[0], np.empty((N, m + 1)), out[2]), **rhs)

@@ -1128,16 +1128,52 @@ class RiccatiFactorization(StageData):
         StageData.__init__(self, Q, S, R, A, B, E=E, F=F, n_eq=n_eq, EN=EN, Dx=Dx, Du=Du, Ci=Ci, sigma=sigma,
                            n_ineq=n_ineq, regularization=regularization)
         N, n, m = self.N, self.n, self.m
+        self.rank_tol = float(rank_tol)
         # fast path: no equality rows anywhere -> plain Riccati recursion, none of the constraint
         # workspaces (QR factors, propagated rows) are allocated
         self.unconstrained = self.neN == 0 and (self.ne_max == 0 or not self.ne.any())
         if self.unconstrained:
             self.ncmax = 0
             self.P = np.empty((N + 1, n, n)); self.K = np.empty((N, m, n)); self.Lww = np.empty((N, m, m))
-            args = (self.Q, self.S, self.R, self.A, self.B, self.Dx, self.Du, self.Ci, self.sig, self.ni,
-                    self.regularization, self.P, self.K, self.Lww)
             # small blocks: the kernel compiled for these sizes (see _FIXED_SIZE_MAX)
             self._size_tags = _size_tags(n, m, n + m) if 0 < n and 0 < m and n + m <= _FIXED_SIZE_MAX else None
+        else:
+            ncmax = max(self.ne_max + n + self.neN, 1)
+            self.ncmax = ncmax
+            self.P = np.empty((N + 1, n, n)); self.K = np.empty((N, m, n))
+            self.Quu = np.empty((N, m, m)); self.Qux = np.empty((N, m, n)); self.Lww = np.zeros((N, m, m))
+            self.Qm = np.empty((N, m, m)); self.Rm = np.zeros((N, m, ncmax))
+            self.perm = np.zeros((N, ncmax), dtype=np.int64)
+            self.rank = np.zeros(N, dtype=np.int64); self.nc = np.zeros(N, dtype=np.int64)
+            self.Cx = np.zeros((N, ncmax, n)); self.G = np.zeros((N + 1, ncmax, n))
+            self.ng = np.zeros(N + 1, dtype=np.int64)
+            self.Wx = np.zeros((N, ncmax, n)); self.Dmat = np.zeros((N, ncmax, ncmax))
+        self._factorize()
+
+    def refactor(self, Dx=None, Du=None, sigma=None, regularization=None):
+        """Factorize again after a change of the diagonal terms only -- the interior-point
+        Newton matrix of the next iteration: new Dx (N+1, n), Du (N, m), stage-row weights sigma
+        and/or regularization; Q, S, R, A, B and the equality rows stay.  The factors are
+        overwritten in place (no new allocation: on large N the first touch of fresh factor
+        arrays costs as much as the kernel).  Raises NotPositiveDefiniteError like the
+        constructor (the object must then be refactored before the next solve)."""
+        N, n, m = self.N, self.n, self.m
+        if Dx is not None:
+            self.Dx = _f64(Dx, (N + 1, n), "Dx")
+        if Du is not None:
+            self.Du = _f64(Du, (N, m), "Du")
+        if sigma is not None:
+            self.sig = _f64(sigma, self.Ci.shape[:2], "sigma")
+            self.ineq_w = np.where(np.arange(self.ni_max)[None, :] < self.ni[:, None], self.sig, 0.0)
+        if regularization is not None:
+            self.regularization = float(regularization)
+        self._factorize()
+        return self
+
+    def _factorize(self):
+        if self.unconstrained:
+            args = (self.Q, self.S, self.R, self.A, self.B, self.Dx, self.Du, self.Ci, self.sig, self.ni,
+                    self.regularization, self.P, self.K, self.Lww)
             if self._size_tags is None:
                 code = _factor_unconstrained(*args)
             else:
@@ -1145,16 +1181,11 @@ class RiccatiFactorization(StageData):
             if code >= 0:
                 raise NotPositiveDefiniteError(code)
             return
-        ncmax = max(self.ne_max + n + self.neN, 1)
-        self.ncmax = ncmax
-        self.P = np.empty((N + 1, n, n)); self.K = np.empty((N, m, n))
-        self.Quu = np.empty((N, m, m)); self.Qux = np.empty((N, m, n)); self.Lww = np.zeros((N, m, m))
-        self.Qm = np.empty((N, m, m)); self.Rm = np.zeros((N, m, ncmax)); self.perm = np.zeros((N, ncmax), dtype=np.int64)
-        self.rank = np.zeros(N, dtype=np.int64); self.nc = np.zeros(N, dtype=np.int64)
-        self.Cx = np.zeros((N, ncmax, n)); self.G = np.zeros((N + 1, ncmax, n)); self.ng = np.zeros(N + 1, dtype=np.int64)
-        self.Wx = np.zeros((N, ncmax, n)); self.Dmat = np.zeros((N, ncmax, ncmax))
+        ncmax = self.ncmax
+        for w in (self.Lww, self.Rm, self.perm, self.rank, self.nc, self.Cx, self.G, self.ng, self.Wx, self.Dmat):
+            w.fill(0)   # the general kernel expects zeroed padding (a refactor reuses the arrays)
         code = _factor(self.Q, self.S, self.R, self.A, self.B, self.E, self.F, self.ne, self.EN, self.neN,
-                       self.Dx, self.Du, self.Ci, self.sig, self.ni, self.regularization, float(rank_tol),
+                       self.Dx, self.Du, self.Ci, self.sig, self.ni, self.regularization, self.rank_tol,
                        self.P, self.K, self.Quu, self.Qux, self.Lww, self.Qm, self.Rm, self.perm, self.rank,
                        self.nc, self.Cx, self.G, self.ng, self.Wx, self.Dmat)
         if code >= 0:
@@ -1163,14 +1194,22 @@ class RiccatiFactorization(StageData):
             raise RiccatiStatusError(f"more than {ncmax} equality rows reach stage k={-code - 1000}; "
                                      "the equality constraints are too many or dependent")
 
-    def solve(self, q, r, c, x0, e=None, eN=None, ci=None) -> LQSolution:
+    def solve(self, q, r, c, x0, e=None, eN=None, ci=None, out=None) -> LQSolution:
         """Solve for one right-hand side: linear cost terms q (N+1, n), r (N, m); dynamics
         offsets c (N, n); initial state x0 (n,); equality offsets e (N, ne), eN (neN,); for the
         stage inequality terms, ci (N, nineq) is the constant in C_k z_k + ci_k (the Hessian term
-        sigma * C^T C adds sigma * C^T ci to the gradient)."""
+        sigma * C^T C adds sigma * C^T ci to the gradient).  ``out`` = (X, U, lam): C-contiguous
+        float arrays of shapes (N+1, n), (N, m), (N+1, n) to write the solution into (the
+        returned LQSolution holds them)."""
         N, n, m = self.N, self.n, self.m
         q, r, c, x0, e, eN, ci = self.rhs_arrays(q, r, c, x0, e, eN, ci)
-        X = np.empty((N + 1, n)); U = np.empty((N, m)); lam = np.empty((N + 1, n))
+        if out is None:
+            X = np.empty((N + 1, n)); U = np.empty((N, m)); lam = np.empty((N + 1, n))
+        else:
+            X, U, lam = out
+            for a, shape, name in ((X, (N + 1, n), "X"), (U, (N, m), "U"), (lam, (N + 1, n), "lam")):
+                if a.shape != shape or a.dtype != np.float64 or not a.flags.c_contiguous:
+                    raise ValueError(f"out: {name} must be a C-contiguous float64 array of shape {shape}")
         nu = np.zeros((N + 1, max(self.ne_max, self.neN)))
         if self.unconstrained:
             if self._size_tags is None:

@@ -132,7 +132,8 @@ from numba import types
 from numba.extending import overload
 
 from ..linalg.kkt import KKT_SOLVERS, make_kkt_solver
-from ..linalg.riccati import _FIXED_SIZE_MAX, NotPositiveDefiniteError, _size_tags, _stack_vector
+from ..linalg.riccati import (_FIXED_SIZE_MAX, NotPositiveDefiniteError, RiccatiFactorization, _size_tags,
+                               _stack_vector)
 from ..linalg.stageqp import QPResult, StageQP, qp_kkt_residuals
 from ..result import Status
 from .base import make_options, option
@@ -698,7 +699,7 @@ class _Prepared:
         N, n, m = qp.N, qp.n, qp.m
         self.N, self.n, self.m = N, n, m
         self.qp = qp
-        self.Q = qp.Q; self.S = qp.S.copy(); self.R = qp.R.copy()
+        self.Q = qp.Q.copy(); self.S = qp.S.copy(); self.R = qp.R.copy()
         self.q = qp.q.copy(); self.r = qp.r.copy(); self.A = qp.A; self.B = qp.B.copy()
         self.c = qp.c.copy(); self.x0 = qp.x0.copy()
         ne0, neN0 = qp.E.shape[1], qp.EN.shape[0]
@@ -832,14 +833,14 @@ class _Prepared:
         self.work_el, self.work_eu, self.work_w = np.empty(self.nw), np.empty(self.nw), np.empty(self.nw)
         self.Q_final = self.Q.copy() if ncN else self.Q   # Q with C_N^T diag(D) C_N added to Q_N
         self.shift = 0.0   # delta added to the Hessian by the nonconvex = "shift" mode
+        self.fact = None   # the Riccati factorization, refactored in every iteration
+        self.work_Dx, self.work_Du = np.empty((N + 1, n)), np.empty((N, m))
 
     def point(self, v):
         return _Point(self, v)
 
     def shift_hessian(self, delta):
         """H <- H + delta I on every stage block and on Q_N (the ``nonconvex = "shift"`` mode)."""
-        if self.Q is self.qp.Q:
-            self.Q = self.Q.copy()
         idx = np.arange(self.n)
         self.Q[:, idx, idx] += delta
         iu = np.arange(self.m)
@@ -848,7 +849,7 @@ class _Prepared:
         self.H[:, iz, iz] += delta
         self.QN[idx, idx] += delta
         if self.ncN:
-            self.Q_final = self.Q.copy()
+            self.Q_final[...] = self.Q
         self.shift += delta
 
     def point_from(self, X, U, lam, nu, tl, tu, zl, zu):
@@ -1008,13 +1009,22 @@ class _StepContext:
         # while the slacks are still large) retry with delta raised 10-fold, up to
         # max_regularization * max|H| (the inertia correction of Waechter & Biegler 2006, applied
         # per Newton step). Refinement works against the unregularized system.
+        # The Riccati back-end is factorized once per QP solve and then refactored in place with
+        # the new diagonal terms (same arrays: Q, S, R, A, B, the stage rows and the work arrays
+        # Dx, Du, D of the prepared problem, updated in place before each refactorization).
         reg = solver.options.regularization
         Dxb, Dub = D[P.sl_x].reshape(N, n), D[P.sl_u].reshape(N, m)
+        Dx, Du = P.work_Dx, P.work_Du
         for attempt in range(12):
-            Dx = np.empty((N + 1, n)); Dx[0] = reg; np.add(Dxb, reg, out=Dx[1:])
-            Du = Dub + reg
+            Dx[0] = reg; np.add(Dxb, reg, out=Dx[1:])
+            np.add(Dub, reg, out=Du)
             try:
-                self.fact = make_kkt_solver(solver.options.kkt, Q, P.S, P.R, P.A, P.B, Dx=Dx, Du=Du, **kw)
+                if P.fact is not None:
+                    self.fact = P.fact.refactor(Dx=Dx, Du=Du, sigma=self.Ds if nc else None)
+                else:
+                    self.fact = make_kkt_solver(solver.options.kkt, Q, P.S, P.R, P.A, P.B, Dx=Dx, Du=Du, **kw)
+                    if isinstance(self.fact, RiccatiFactorization):
+                        P.fact = self.fact
                 break
             except NotPositiveDefiniteError as exc:
                 nxt = max(10.0 * reg, 1e-10 * (1.0 + P.h_scale))
@@ -1050,9 +1060,12 @@ class _StepContext:
             kw["ci"] = ci
         if P.has_eq:
             kw["e"] = res.rE; kw["eN"] = res.rEN
-        sol = self.fact.solve(q, r, res.dyn, res.x0r, **kw)
         d = P.point(np.empty(P.point_layout[1]))
-        d.X[...] = sol.X; d.U[...] = sol.U; d.lam[...] = sol.lam
+        if self.fact is P.fact:   # Riccati: the solution goes straight into the direction's arrays
+            sol = self.fact.solve(q, r, res.dyn, res.x0r, out=(d.X, d.U, d.lam), **kw)
+        else:
+            sol = self.fact.solve(q, r, res.dyn, res.x0r, **kw)
+            d.X[...] = sol.X; d.U[...] = sol.U; d.lam[...] = sol.lam
         if P.n_nu:
             k = min(P.n_nu, sol.nu.shape[1])
             d.nu[:, :k] = sol.nu[:, :k]
