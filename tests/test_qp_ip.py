@@ -497,3 +497,32 @@ def test_cold_start_is_centred_at_initial_mu(mu0):
         np.testing.assert_allclose((t * z)[f], mu0, rtol=1e-14)
         assert np.all(t[f] >= 1.0) and np.all(t[~f] == 0.0) and np.all(z[~f] == 0.0)
     assert solver.solve(qp).objective == pytest.approx(MehrotraQP().solve(qp).objective, rel=1e-8)
+
+
+@pytest.mark.parametrize("split", [False, True])
+def test_implied_newton_residual_matches_the_measured_one(split):
+    """The Newton residual of the linear rows implied by the residuals before and after a step
+    (what lets iterations skip the explicit kkt_map measurement) equals the one measured directly
+    (_StepContext._newton_residual), for a common and for separate primal/dual step lengths."""
+    from olado.solvers import qp_ip
+
+    qp = random_qp(5, nc=2, ncN=1)
+    solver = MehrotraQP()
+    P = qp_ip._Prepared(qp)
+    it = solver._initial_point(P)
+    res, *_ = solver._residuals(P, it)
+    ctx = qp_ip._StepContext(solver, P, it, res, 1.0)
+    rho_l, rho_u = -it.zl * it.tl, -it.zu * it.tu
+    d = ctx._reduced_solve(res, rho_l, rho_u)
+    d.X[...] += 1e-3 * np.sin(np.arange(d.X.size)).reshape(d.X.shape)   # a deliberately inexact direction
+    d.lam[...] += 1e-3
+    e, *_ = ctx._newton_residual(d, res, rho_l, rho_u)
+    e_buf = e.buf.copy()
+    ap, ad = (0.7, 0.4) if split else (0.6, 0.6)
+    new = it.plus_split(ap, ad, d)
+    res_new, *_ = solver._residuals(P, new)
+    n_dual = (P.N + 1) * P.n + P.N * P.m
+    implied = qp_ip._implied_newton_residual(res_new.buf, res.buf, ap, ad, n_dual)
+    direct = np.max(np.abs(e_buf[n_dual:])) if split else np.max(np.abs(e_buf))
+    assert direct > 1e-4
+    assert implied == pytest.approx(direct, rel=1e-8)

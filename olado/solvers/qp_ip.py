@@ -648,6 +648,31 @@ def _corrector_rhs(fl, fu, dtl, dtu, dzl, dzu, target, scale, rho_l, rho_u):
         rho_u[i] = target - scale * (dtu[i] * dzu[i]) if fu[i] else 0.0
 
 
+@nb.njit(cache=True, fastmath=_REASSOC)
+def _implied_newton_residual(new, old, ap, ad, n_dual):
+    """Max-norm of the Newton residual of the linear KKT rows of the last direction, implied by
+    the residuals before (old) and after (new) the step: each linear row r moves to
+    (1 - a) r + a e (e its Newton residual) with a = ap on the primal rows (entries from n_dual
+    on, functions of x, u and the slacks only) and, when ap == ad, on the stationarity rows
+    (the first n_dual entries); with ap != ad those are skipped."""
+    e = 0.0
+    if ap == ad:
+        for i in range(n_dual):
+            e = max(e, abs(new[i] - (1.0 - ad) * old[i]))
+    for i in range(n_dual, new.shape[0]):
+        e = max(e, abs(new[i] - (1.0 - ap) * old[i]))
+    return e / ap
+
+
+@nb.njit(cache=True)
+def _combined_rhs(tl, tu, zl, zu, fl, fu, dtl, dtu, dzl, dzu, target, scale, rho_l, rho_u):
+    """Predictor plus Mehrotra corrector in one right-hand side: rho = -t z + target
+    - scale * dt_aff dz_aff on the finite sides (the direction d_aff + d_c in one solve)."""
+    for i in range(fl.shape[0]):
+        rho_l[i] = target - tl[i] * zl[i] - scale * (dtl[i] * dzl[i]) if fl[i] else 0.0
+        rho_u[i] = target - tu[i] * zu[i] - scale * (dtu[i] * dzu[i]) if fu[i] else 0.0
+
+
 @nb.njit(cache=True)
 def _centrality_rhs(tl, tu, zl, zu, fl, fu, dtl, dtu, dzl, dzu, alpha, lo_t, hi_t, rho_l, rho_u):
     """Gondzio's corrector: products v at it + alpha d projected on [lo_t, hi_t], decrease capped
@@ -989,6 +1014,7 @@ class _StepContext:
         self.refinement_tol = solver.options.refinement_tol
         self.rel_error = None   # Newton residual / |rhs| of this factorization's first solve, unrefined
         self.rel_prior = None   # bound on it from an earlier iteration's measurement (set by the caller)
+        self.unmeasured = None  # (|rhs|, target) of a first solve that skipped its measurement on rel_prior
         self.inv_tl, self.inv_tu, D = P.inv_tl, P.inv_tu, P.D
         _scaling(it.tl, it.tu, it.zl, it.zu, P.fl, P.fu, self.inv_tl, self.inv_tu, D)
         N, n, m, nc = P.N, P.n, P.m, P.nc
@@ -1107,6 +1133,8 @@ class _StepContext:
         target = max(1e-3 * self.tol * (1.0 + rhs), self.refinement_tol * rhs)
         est = self.rel_error if self.rel_error is not None else self.rel_prior
         if est is not None and est * rhs <= 0.1 * target:
+            if self.rel_error is None and self.unmeasured is None:
+                self.unmeasured = (rhs, target)
             return d
         for step in range(self.refinement_steps):
             e, el, eu, size = self._newton_residual(d, res, rho_l, rho_u)
@@ -1207,8 +1235,12 @@ class InteriorPointQP:
         # the relative error of the Newton solves grows with the conditioning of the Newton matrix,
         # i.e. slowly from one iteration to the next (a few-fold per iteration as mu falls): a
         # measurement bounds the next two iterations' errors by 100 x its value, and their first
-        # solves skip the measurement (a kkt_map pass) when that bound is well within the target
-        rel_last, rel_age = None, 0
+        # solves skip the measurement (a kkt_map pass) when that bound is well within the target.
+        # A direction taken unmeasured is checked afterwards for free: the residuals of the next
+        # iterate imply its Newton residual on the linear rows (_implied_newton_residual); within
+        # the target that counts as a measurement, else the next iteration measures again.
+        rel_last, rel_age, pending = None, 0, None
+        n_dual = (P.N + 1) * P.n + P.N * P.m
         best_merit, best_it, best_k = math.inf, it, 0
         pr_prev = du_prev = math.inf
         n_slow = 0
@@ -1216,6 +1248,11 @@ class InteriorPointQP:
         status, message = Status.MAX_ITERATIONS, Status.MAX_ITERATIONS.sentence
         while True:
             res, pr, du, scales, obj, znorm, comp = self._residuals(P, it)
+            if pending is not None:
+                old, a_p, a_d, rhs_old, target_old = pending
+                e = _implied_newton_residual(res.buf, old.buf, a_p, a_d, n_dual)
+                rel_last, rel_age = (e / rhs_old, 0) if e <= target_old and rhs_old > 0 else (None, 0)
+                pending = None
             mu = comp / P.n_comp if P.n_comp else 0.0
             gap = mu * P.n_comp
             if pr <= opts.tol * scales[0] and du <= opts.tol * scales[1] and gap <= opts.tol * (1.0 + abs(obj)):
@@ -1272,6 +1309,8 @@ class InteriorPointQP:
                 message = f"{status.sentence} (iteration {k + 1}: {type(exc).__name__}: {exc})"
                 break
             alpha, alpha_dual = ctx.step_length(d)
+            if ctx.unmeasured is not None and min(alpha, alpha_dual) >= 0.1:
+                pending = (ctx.res, alpha, alpha_dual) + ctx.unmeasured
             it = it.plus(alpha, d) if alpha_dual == alpha else it.plus_split(alpha, alpha_dual, d)
             last_d = d
             k += 1
@@ -1318,13 +1357,21 @@ class InteriorPointQP:
         fl, fu = P.fl, P.fu
         safeguard = a_aff < opts.safeguard_step
         omega = 1.0
+        # unweighted correctors (Mehrotra, Gondzio): d_aff + d_c in one solve with the combined
+        # right-hand side (the same direction up to rounding, one vector pass less)
+        combined = type(self)._corrector_weight is InteriorPointQP._corrector_weight
         if not safeguard:
             sigma = (1.0 - a_aff) ** 3
             rho_l, rho_u = np.empty(P.nw), np.empty(P.nw)
-            _corrector_rhs(fl, fu, d_aff.tl, d_aff.tu, d_aff.zl, d_aff.zu, sigma * mu, 1.0, rho_l, rho_u)
-            d_c = ctx.solve(ctx.zero_res, rho_l, rho_u)
-            omega = self._corrector_weight(ctx, d_aff, d_c, a_aff)
-            d = d_aff.plus(omega, d_c)
+            if combined:
+                _combined_rhs(it.tl, it.tu, it.zl, it.zu, fl, fu, d_aff.tl, d_aff.tu, d_aff.zl, d_aff.zu, sigma * mu,
+                              1.0, rho_l, rho_u)
+                d = ctx.solve(ctx.res, rho_l, rho_u)
+            else:
+                _corrector_rhs(fl, fu, d_aff.tl, d_aff.tu, d_aff.zl, d_aff.zu, sigma * mu, 1.0, rho_l, rho_u)
+                d_c = ctx.solve(ctx.zero_res, rho_l, rho_u)
+                omega = self._corrector_weight(ctx, d_aff, d_c, a_aff)
+                d = d_aff.plus(omega, d_c)
             safeguard = min(1.0, ctx.max_step(d)) < opts.safeguard_step
         if safeguard:
             gam = opts.safeguard_gamma
