@@ -1,5 +1,7 @@
 """Powell's SQP with structure-exploiting QP subproblems (paper 001 sec. 4.2.1)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -119,3 +121,153 @@ def test_inconsistent_linearization_is_reported_as_infeasible():
     r = SQPSolver().solve(Infeasible())
     assert r.status == Status.INFEASIBLE and not r.success
     assert "infeasible" in r.message
+
+
+class Maratos(DOCP):
+    """Nocedal & Wright (2006) Example 15.4 as a one-stage DOCP: x_1 = u, min 2 (|x_1|^2 - 1) - x_1[0]
+    s.t. |x_1|^2 = 1; solution x_1 = (1, 0), objective -1, multiplier -3/2 (L = F + lam c). From a
+    feasible point on the circle the full SQP step increases the merit function (the Maratos effect)."""
+
+    def __init__(self):
+        super().__init__(2, 2, 1, [0.0, 0.0], n_final_constraints=1, final_equalities=[0])
+
+    def dynamics(self, k, x, u):
+        return np.array(u, dtype=float)
+
+    def stage_cost(self, k, x, u):
+        return 0.0
+
+    def final_cost(self, x):
+        return 2.0 * (x @ x - 1.0) - x[0]
+
+    def final_constraints(self, x):
+        return np.array([x @ x - 1.0])
+
+    def dynamics_jacobian(self, k, x, u):
+        return np.zeros((2, 2)), np.eye(2)
+
+    def stage_cost_gradient(self, k, x, u):
+        return np.zeros(2), np.zeros(2)
+
+    def final_cost_gradient(self, x):
+        return 4.0 * x - np.array([1.0, 0.0])
+
+    def final_constraints_jacobian(self, x):
+        return 2.0 * x[None, :]
+
+    def stage_hessian(self, k, x, u, sigma, p, lam):
+        return np.zeros((2, 2)), np.zeros((2, 2)), np.zeros((2, 2))
+
+    def final_hessian(self, x, sigma, lam):
+        return (4.0 * sigma + 2.0 * lam[0]) * np.eye(2)
+
+
+def test_second_order_correction_accepts_the_full_step_on_the_maratos_example():
+    p = Maratos()
+    guess = np.array([[np.cos(0.5), np.sin(0.5)]])
+    opts = dict(hessian="exact", watchdog=False, proximal=0.0, tol=1e-10)
+    plain = SQPSolver(**opts).solve(p, guess=guess)
+    soc = SQPSolver(second_order_correction=True, **opts).solve(p, guess=guess)
+    # without the correction the full step is rejected and the line search backtracks
+    assert any(h["mode"] == "backtrack" for h in plain.history)
+    # with it: the corrected full step is accepted, no backtracking, and the solution is the known one
+    modes = [h["mode"] for h in soc.history]
+    assert "soc" in modes and "backtrack" not in modes
+    assert all(h["step"] == 1.0 for h in soc.history)
+    assert soc.success, soc.message
+    assert soc.iterations < plain.iterations
+    assert np.allclose(soc.x[-1], [1.0, 0.0], atol=1e-8)
+    assert soc.objective == pytest.approx(-1.0, abs=1e-8)     # |x|^2 - 1 is met to constr_viol_tol
+    assert soc.multipliers["final_constraints"][0] == pytest.approx(-1.5, abs=1e-6)
+
+
+class DoubleWell(DOCP):
+    """x_1 = u, min -x_1^2 + x_1^4 / 4, -4 <= u <= 3: minima at +-sqrt(2) (value -1), a negative
+    exact Hessian near the start u = 0.1."""
+
+    def __init__(self):
+        super().__init__(1, 1, 1, [0.0], u_bounds=(-4.0, 3.0))
+
+    def dynamics(self, k, x, u):
+        return np.array(u, dtype=float)
+
+    def stage_cost(self, k, x, u):
+        return 0.0
+
+    def final_cost(self, x):
+        return float(-x[0] ** 2 + 0.25 * x[0] ** 4)
+
+    def dynamics_jacobian(self, k, x, u):
+        return np.zeros((1, 1)), np.eye(1)
+
+    def stage_cost_gradient(self, k, x, u):
+        return np.zeros(1), np.zeros(1)
+
+    def final_cost_gradient(self, x):
+        return np.array([-2.0 * x[0] + x[0] ** 3])
+
+    def stage_hessian(self, k, x, u, sigma, p, lam):
+        return np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 1))
+
+    def final_hessian(self, x, sigma, lam):
+        return np.array([[sigma * (-2.0 + 3.0 * x[0] ** 2)]])
+
+
+def test_inertia_correction_shifts_an_indefinite_hessian_and_every_step_descends():
+    r = SQPSolver(hessian="exact", watchdog=False).solve(DoubleWell(), guess=np.array([[0.1]]))
+    assert r.success, r.message
+    assert abs(r.u[0, 0]) == pytest.approx(np.sqrt(2.0), abs=1e-7) and r.objective == pytest.approx(-1.0, abs=1e-12)
+    assert r.history[0]["shift"] > 0.0                      # the first QP needed a shifted Hessian
+    assert all(h["D"] < 0.0 for h in r.history)           # every accepted step is a descent direction of phi
+    shifts = [h["shift"] for h in r.history]
+    assert all(b <= a for a, b in zip(shifts, shifts[1:])) and shifts[-1] < 1e-4   # decays towards Newton steps
+
+
+def test_a_qp_step_that_is_no_descent_direction_is_solved_again_with_a_larger_shift(monkeypatch, pendulum_reference):
+    """The first QP step is replaced by its negative (an ascent direction of the merit function):
+    the SQP must not line-search along it but shift the Hessian and solve the QP again."""
+    p, ref = pendulum_reference
+    calls = []
+    original = SQPSolver._solve_qp
+
+    def flipped(self, *args, **kw):
+        qres, delta = original(self, *args, **kw)
+        calls.append(delta)
+        if len(calls) == 1:
+            qres = dataclasses.replace(qres, X=-qres.X, U=-qres.U)
+        return qres, delta
+
+    monkeypatch.setattr(SQPSolver, "_solve_qp", flipped)
+    r = SQPSolver(hessian="exact", watchdog=False, max_ascent_steps=0).solve(p)
+    assert r.success, r.message
+    assert calls[0] == 0.0 and calls[1] > 0.0               # the same point again, with a shift
+    assert r.history[0]["D"] < 0.0 and r.history[0]["shift"] == calls[1]
+    assert r.objective == pytest.approx(ref.objective, rel=1e-8)
+
+
+def test_converged_iterate_is_recognised_before_another_qp(pendulum_reference):
+    """The KKT test at (y_k, multipliers of the QP that produced y_k) ends the solve without a
+    further QP (Nocedal & Wright Alg. 18.3): every QP iteration belongs to an accepted step."""
+    p, _ = pendulum_reference
+    r = SQPSolver(hessian="exact", proximal=0.0).solve(p)
+    assert r.success and "converged" in r.message
+    assert r.qp_iterations == sum(h["qp_iterations"] for h in r.history)
+
+
+def test_local_phase_warm_starts_the_qp_without_a_shift():
+    p = zambezi_problem("zambezi12", N=48)
+    ref = olado.solve(p, config="configs/ipopt.ini")
+    r = olado.solve(p, config="configs/sqp-ip.ini")
+    assert r.success, r.message
+    assert r.iterations <= 10                # paper 001 Table 1: 8 iterations at N = 48
+    assert abs(r.objective - ref.objective) <= 1e-6 * abs(ref.objective)
+    local = [h for h in r.history if h.get("warm")]
+    assert local and local[0]["shift"] == 0.0
+
+
+def test_adaptive_qp_tolerance_reaches_the_same_solution(pendulum_reference):
+    p, ref = pendulum_reference
+    r = SQPSolver(hessian="exact", qp_adaptive_tol=True, qp_tol=1e-11).solve(p)
+    assert r.success, r.message
+    assert r.objective == pytest.approx(ref.objective, rel=1e-8)
+    assert np.allclose(r.u, ref.u, atol=1e-5)

@@ -42,13 +42,14 @@ from .hessian import make_hessian
 from .registry import register
 
 QP_METHODS = ("mehrotra", "gondzio", "weighted", "osqp", "clarabel", "piqp", "proxqp", "highs", "quadprog", "cvxopt")
+INTERIOR_POINT_QP = ("mehrotra", "gondzio", "weighted")
 KKT_SOLVERS = ("riccati", "superlu-full", "superlu-reduced", "minres", "gmres")
 
 
 def make_qp_solver(name, kkt="riccati", tol=1e-10, max_iter=200):
     """QP method by name: olado's interior-point methods (the KKT systems solved by ``kkt``) or
     an external qpsolvers backend (OSQP, Clarabel, ...)."""
-    if name in ("mehrotra", "gondzio", "weighted"):
+    if name in INTERIOR_POINT_QP:
         from .qp_ip import make_qp_solver as make_ip
 
         return make_ip(name, kkt=kkt, tol=tol, max_iter=max_iter)
@@ -110,15 +111,50 @@ class SQPOptions(SolverOptions):
     min_step: float = option(1e-10, "smallest step length before the line search gives up", min=0.0, min_exclusive=True)
     step_tol: float = option(1e-12, "stop when |s| <= step_tol * (1 + |y|) and the point is feasible", min=0.0)
     penalty_min: float = option(1e-8, "lower bound of the exact-penalty weights", min=0.0)
-    qp_adaptive_tol: bool = option(False, "inexact SQP: solve early QPs to tolerance min(1e-4, 0.1 * previous KKT "
-                                   "residual), never below qp_tol (olado's interior-point QP methods only)")
+    qp_adaptive_tol: bool = option(False, "inexact SQP (Dembo, Eisenstat & Steihaug 1982): the QP tolerance is "
+                                   "qp_forcing * (last KKT residual) / (1 + |grad J|), clipped to [qp_tol, qp_tol_max] "
+                                   "(olado's interior-point QP methods only)")
+    qp_forcing: float = option(0.1, "inexact SQP: forcing factor of the adaptive QP tolerance", min=0.0, max=1.0,
+                               min_exclusive=True)
+    qp_tol_max: float = option(1e-5, "inexact SQP: loosest QP tolerance (early iterations)", min=0.0, min_exclusive=True)
     feasibility_steps: bool = option(False, "when the KKT test holds but the constraint violation does not, take a "
                                      "least-change correction step (the QP without its gradient) instead of a full SQP step")
     adaptive_proximal: bool = option(False, "proximal term delta = min(proximal, relative KKT residual) * max|H| "
                                      "(Levenberg-Marquardt rule) instead of the fixed proximal * max|H|")
     curvature_tol: float = option(0.0, "inertia correction (0 = off): the QP step must satisfy s.H s >= curvature_tol * "
                                   "max|H| * |s|^2, else the Hessian is shifted and the QP solved again", min=0.0)
-    qp_warm_start: bool = option(False, "start each QP from the previous QP's multipliers (and a zero step)")
+    qp_warm_start: str = option("local", "start the QP from the multipliers of the last accepted QP and a zero step: "
+                                "'off', 'local' (only in the local phase, see local_tol) or 'always'",
+                                choices=("off", "local", "always"))
+    qp_warm_start_push: float = option(1e-4, "warm-started interior-point QP: slacks and multipliers are raised to at "
+                                       "least this times (1 + their max) (the QP's warm_start_push)", min=0.0, max=1.0,
+                                       min_exclusive=True)
+    local_tol: float = option(1e-3, "local phase: after a full step (alpha = 1, Armijo test met) from a point whose "
+                              "relative KKT residual is <= local_tol the next QP starts with no Hessian shift (and is "
+                              "warm-started, see qp_warm_start)", min=0.0)
+    local_qp_tol: float = option(1e-11, "QP tolerance in the local phase (0: as elsewhere); the proximal term turns "
+                                 "a QP dual error e into a step of about e / (proximal * max|H|) along flat "
+                                 "directions, so the last QPs must be solved more accurately than qp_tol", min=0.0)
+    shift_init: float = option(1e-4, "inertia correction: first Hessian shift delta*I after a failed QP or a rejected "
+                               "step when none was used, relative to max|H| (Waechter & Biegler 2006, delta_0)",
+                               min=0.0, min_exclusive=True)
+    shift_increase: float = option(10.0, "inertia correction: factor by which delta grows after a failed QP or a "
+                                   "rejected step (kappa_+)", min=1.0, min_exclusive=True)
+    shift_decrease: float = option(0.1, "inertia correction: the next iteration starts from this times the last "
+                                   "delta (kappa_-)", min=0.0, max=1.0)
+    shift_min: float = option(1e-8, "inertia correction: a starting delta below shift_min * max|H| is replaced by 0",
+                              min=0.0)
+    max_ascent_steps: int = option(1, "relaxed watchdog steps allowed per solve along a QP step that is no descent "
+                                   "direction of the merit function (exact Hessian, convexify='inertia'; never in the "
+                                   "local phase); after that such a step makes the Hessian shift grow and the QP be "
+                                   "solved again", min=0)
+    max_shift_retries: int = option(10, "QP re-solves with a larger Hessian shift at one point when the QP step is "
+                                    "no descent direction of the merit function", min=0)
+    second_order_correction: bool = option(False, "when a full step along a descent direction fails the Armijo test, "
+                                           "try the second-order correction step once (Fletcher 1982; Nocedal & Wright "
+                                           "sec. 18.3): the QP again with the constraint values c(y + s) - J s")
+    qp_options: dict = option({}, "extra options of the QP solver (e.g. {'warm_start_push': 1e-3} for olado's "
+                              "interior-point methods)", ini=False)
     proximal: float = option(1e-4, "proximal term delta*I added to the QP Hessian, delta = proximal * max|H|: picks the "
                              "shortest step when the reduced Hessian is singular (flat directions, degenerate "
                              "optima); it vanishes at the solution (s = 0)", min=0.0)
@@ -196,14 +232,20 @@ class SQPSolver(Solver):
         eq, ineq = p.stage_equality_mask, ~p.stage_equality_mask
         eqN, ineqN = p.final_equality_mask, ~p.final_equality_mask
         qp_solver = make_qp_solver(o.qp, kkt=o.kkt, tol=o.qp_tol, max_iter=o.qp_max_iter)
+        interior = o.qp in INTERIOR_POINT_QP
+        if interior:
+            qp_solver.options.warm_start_push = o.qp_warm_start_push
+        for key, value in o.qp_options.items():
+            setattr(qp_solver.options, key, value)
         convexify = o.convexify
-        if o.hessian == "exact" and convexify == "inertia" and o.qp not in ("mehrotra", "gondzio", "weighted"):
+        if o.hessian == "exact" and convexify == "inertia" and not interior:
             # external QP solvers need a convex QP and do not report a failed factorization:
             # shift every block to positive definiteness instead
             convexify = "levenberg"
         self._convexify = convexify
         hess = make_hessian(o.hessian, convexify=convexify, initial_scale=o.initial_hessian_scale, min_eig=o.min_eigenvalue)
         hess.initial(N, n, m)
+        inertia = hess.needs_exact and convexify == "inertia"
         # start: controls clipped into their bounds, x0 exact
         U = np.clip(U0, p.u_lower, p.u_upper)
         X = np.array(X0, dtype=float)
@@ -213,15 +255,20 @@ class SQPSolver(Solver):
         Lg = np.zeros((N, r))          # multiplier of g in "f0 + lam.f + Lg.g" (Lg = nu for =, -y for >=)
         LgN = np.zeros(rN)
         zl_x = np.zeros((N + 1, n)); zu_x = np.zeros((N + 1, n)); zl_u = np.zeros((N, m)); zu_u = np.zeros((N, m))
-        rho_h = np.zeros((N, n)); rho_g = np.zeros((N, r)); rho_gN = np.zeros(rN)
-        rho_bx = np.zeros((N + 1, n)); rho_bu = np.zeros((N, m))
+        # exact-penalty weights (rho_h, rho_g, rho_gN, rho_bx, rho_bu)
+        rho = (np.zeros((N, n)), np.zeros((N, r)), np.zeros(rN), np.zeros((N + 1, n)), np.zeros((N, m)))
         history, qp_iters = [], 0
         status, message = Status.MAX_ITERATIONS, f"maximum number of SQP iterations ({o.max_iter}) reached"
         watch = None
         grad_scale = 1e-300
         self._kkt_rel = 1.0
-        self._warm = None
-        shift = 0.0
+        shift = 0.0                # Hessian shift of the last accepted step
+        force_delta = None         # shift for the next QP after a rejected step (non-descent direction)
+        ascent_relaxed = o.max_ascent_steps  # non-descent steps that may still be tried as relaxed watchdog steps
+        retries = 0                # QPs re-solved with a larger shift at the current point
+        last_qp = None             # QP result of the last accepted step (warm start of the local phase)
+        local = was_local = False  # local phase: full steps and a small KKT residual
+        Bk = BN = None             # Hessian blocks at (pt, multipliers); None = to be evaluated
         it = 0
         kkt_res = float("nan")
 
@@ -237,10 +284,17 @@ class SQPSolver(Solver):
         def max_violation(q):
             return max(float(np.max(v, initial=0.0)) for v in violations(q))
 
-        def merit(q):
-            vh, vg, vgN, vbx, vbu = violations(q)
-            return (q.J + np.sum(rho_h * vh) + np.sum(rho_g * vg) + np.sum(rho_gN * vgN)
-                    + np.sum(rho_bx * vbx) + np.sum(rho_bu * vbu))
+        def penalty_term(q, weights):
+            return sum(float(np.sum(w * v)) for w, v in zip(weights, violations(q)))
+
+        def merit(q, weights=None):
+            """The L1 exact penalty function phi(y) with the current (or the given) weights."""
+            return q.J + penalty_term(q, rho if weights is None else weights)
+
+        def restore(w):
+            """Back to the watched point (watchdog return); its multipliers and derivatives."""
+            w["pt"].add_derivatives(p)
+            return w["pt"], w["lam"], w["Lg"], w["LgN"]
 
         while True:
             if deadline.expired():
@@ -248,22 +302,50 @@ class SQPSolver(Solver):
                 break
             if it >= o.max_iter:
                 break
+            if it > 0 and retries == 0 and force_delta is None:
+                # convergence test at the new iterate with the multipliers of the QP that produced it
+                # (the pair (y_k, lambda_k) of Nocedal & Wright Alg. 18.3): no QP when it holds
+                kkt0, gscale = self._kkt_residual(p, pt, lam, Lg, LgN, zl_x, zu_x, zl_u, zu_u)
+                grad_scale = max(grad_scale, gscale)
+                viol0 = max_violation(pt)
+                if viol0 <= o.constr_viol_tol and kkt0 <= o.tol * grad_scale:
+                    kkt_res = kkt0
+                    status, message = Status.SUCCESS, (f"converged in {it} SQP iterations: KKT residual {kkt0:.2e}, "
+                                                       f"constraint violation {viol0:.2e}")
+                    break
             # ---------------------------------------------------------------- QP subproblem (8)-(10)
-            if hess.needs_exact:
-                t0 = time.perf_counter()
-                Hxx, Hxu, Huu = p.eval_stage_hessians(pt.X, pt.U, 1.0, lam[1:], Lg)
-                HN = p.eval_final_hessian(pt.X[-1], 1.0, LgN)
-                timed.add(("hessian",), t0)
-                blocks = np.empty((N, n + m, n + m))
-                blocks[:, :n, :n] = Hxx; blocks[:, :n, n:] = Hxu
-                blocks[:, n:, :n] = np.transpose(Hxu, (0, 2, 1)); blocks[:, n:, n:] = Huu
-                hess.set_exact(blocks, HN)
-            Bk, BN = hess.current()
-            if o.qp_adaptive_tol and hasattr(qp_solver, "options") and hasattr(qp_solver.options, "acceptable_tol"):
-                prev = kkt_res if math.isfinite(kkt_res) else 1.0
-                qp_solver.options.tol = max(o.qp_tol, min(1e-4, 0.1 * prev))
-            qres, shift = self._solve_qp(qp_solver, p, pt, Bk, BN, eq, ineq, eqN, ineqN,
-                                         inertia=hess.needs_exact and convexify == "inertia", shift=shift)
+            if Bk is None:
+                if hess.needs_exact:
+                    t0 = time.perf_counter()
+                    Hxx, Hxu, Huu = p.eval_stage_hessians(pt.X, pt.U, 1.0, lam[1:], Lg)
+                    HN = p.eval_final_hessian(pt.X[-1], 1.0, LgN)
+                    timed.add(("hessian",), t0)
+                    blocks = np.empty((N, n + m, n + m))
+                    blocks[:, :n, :n] = Hxx; blocks[:, :n, n:] = Hxu
+                    blocks[:, n:, :n] = np.transpose(Hxu, (0, 2, 1)); blocks[:, n:, n:] = Huu
+                    hess.set_exact(blocks, HN)
+                Bk, BN = hess.current()
+            hscale = max(1e-300, float(np.max(np.abs(Bk), initial=0.0)), float(np.max(np.abs(BN), initial=0.0)))
+            if interior:
+                qp_solver.options.tol = self._qp_tolerance(kkt_res, grad_scale)
+                if local and o.local_qp_tol > 0:
+                    qp_solver.options.tol = min(qp_solver.options.tol, o.local_qp_tol)
+            # the Hessian shift to start from (inertia correction, Waechter & Biegler 2006 Alg. IC):
+            # the one a rejected step asked for, none in the local phase, else a fraction of the last
+            if not inertia:
+                delta0 = 0.0
+            elif force_delta is not None:
+                delta0 = force_delta
+            elif local and not was_local:
+                delta0 = 0.0           # entering the local phase: the unshifted Hessian first
+            else:
+                delta0 = shift * o.shift_decrease
+                if delta0 < o.shift_min * hscale:
+                    delta0 = 0.0
+            force_delta = None
+            warm = last_qp if (o.qp_warm_start == "always" or (o.qp_warm_start == "local" and local)) else None
+            qres, delta = self._solve_qp(qp_solver, p, pt, Bk, BN, eq, ineq, eqN, ineqN, inertia=inertia,
+                                         delta=delta0, warm=warm)
             qp_iters += self._qp_iterations
             if not qres.success:
                 st = qres.status
@@ -308,9 +390,8 @@ class SQPSolver(Solver):
                 # optimal to tolerance but not feasible enough: a QP with the gradient removed gives
                 # the least-change (H-norm) correction onto the linearized constraints; it keeps the
                 # iterate from wandering along flat directions of degenerate optima
-                fres, _ = self._solve_qp(qp_solver, p, pt, Bk, BN, eq, ineq, eqN, ineqN,
-                                         inertia=hess.needs_exact and convexify == "inertia", shift=shift,
-                                         zero_gradient=True)
+                fres, _ = self._solve_qp(qp_solver, p, pt, Bk, BN, eq, ineq, eqN, ineqN, inertia=inertia,
+                                         delta=delta, warm=None, zero_gradient=True)
                 qp_iters += self._qp_iterations
                 if fres.success:
                     cand = _Point(p, pt.X + fres.X, pt.U + fres.U, derivatives=False, clock=timed)
@@ -318,6 +399,7 @@ class SQPSolver(Solver):
                         cand.add_derivatives(p)
                         pt = cand
                         lam, Lg, LgN = lam_new, Lg_new, LgN_new
+                        Bk = None
                         it += 1
                         history.append({"iter": it, "objective": pt.J, "violation": max_violation(pt), "kkt": kkt_res,
                                         "step": 1.0, "step_norm": max(float(np.max(np.abs(fres.X))), float(np.max(np.abs(fres.U)))),
@@ -328,38 +410,85 @@ class SQPSolver(Solver):
                                   f"{history[-1]['step_norm']:10.2e} {'':9s} {int(fres.iterations):4d}  feasibility")
                         continue
             # ---------------------------------------------------------------- penalty update (Powell 1978)
-            rho_h = np.maximum(np.maximum(np.abs(lam_new[1:]), 0.5 * (rho_h + np.abs(lam_new[1:]))), o.penalty_min)
-            rho_g = np.maximum(np.maximum(np.abs(Lg_new), 0.5 * (rho_g + np.abs(Lg_new))), o.penalty_min)
-            rho_gN = np.maximum(np.maximum(np.abs(LgN_new), 0.5 * (rho_gN + np.abs(LgN_new))), o.penalty_min)
             zbx = zl_x + zu_x; zbu = zl_u + zu_u
-            rho_bx = np.maximum(np.maximum(zbx, 0.5 * (rho_bx + zbx)), o.penalty_min)
-            rho_bu = np.maximum(np.maximum(zbu, 0.5 * (rho_bu + zbu)), o.penalty_min)
+            rho_new = tuple(np.maximum(np.maximum(mu, 0.5 * (w + mu)), o.penalty_min)
+                            for w, mu in zip(rho, (np.abs(lam_new[1:]), np.abs(Lg_new), np.abs(LgN_new), zbx, zbu)))
+            # directional derivative of phi along the QP step (Powell 1978; Nocedal & Wright (18.29))
+            phi0 = merit(pt, rho_new)
+            D = (float(np.sum(pt.lx * dX[:-1]) + np.sum(pt.lu * dU) + pt.lN @ dX[-1]) - penalty_term(pt, rho_new))
+            # a directional derivative below what the optimality tolerance resolves -- a gradient
+            # error of tol * |grad J| along the step, or the rounding level of phi -- counts as descent
+            d_tol = (10.0 * np.finfo(float).eps * max(1.0, abs(phi0))
+                     + o.tol * grad_scale * (float(np.sum(np.abs(dX[1:]))) + float(np.sum(np.abs(dU)))))
+            descent = D <= d_tol
+            relaxed_ok = descent or (ascent_relaxed > 0 and not local)
+            if (inertia and not descent and retries < o.max_shift_retries
+                    and not (relaxed_ok and o.watchdog and watch is None)):
+                # not a descent direction of phi: with a positive definite reduced Hessian and
+                # rho >= |multipliers| it would be (Nocedal & Wright Thm. 18.2), so the Hessian is
+                # shifted further and the QP solved again at the same point
+                force_delta = max(o.shift_increase * delta, o.shift_init * hscale)
+                retries += 1
+                continue
+            rho = rho_new
             # ---------------------------------------------------------------- line search on phi
-            phi0 = merit(pt)
-            vh, vg, vgN, vbx, vbu = violations(pt)
-            D = (float(np.sum(pt.lx * dX[:-1]) + np.sum(pt.lu * dU) + pt.lN @ dX[-1])
-                 - np.sum(rho_h * vh) - np.sum(rho_g * vg) - np.sum(rho_gN * vgN) - np.sum(rho_bx * vbx) - np.sum(rho_bu * vbu))
-            alpha, new_pt, ls_trials, mode = self._line_search(p, pt, dX, dU, phi0, D, merit, watch)
+            soc = None
+            if o.second_order_correction:
+                def soc(cand, pt=pt, dX=dX, dU=dU, delta=delta, qres=qres):
+                    """Second-order correction (Fletcher 1982; Nocedal & Wright sec. 18.3): the QP at
+                    pt again with the constraint values c(pt + s) - J s of the rejected trial point."""
+                    nonlocal qp_iters
+                    offsets = self._soc_offsets(p, pt, cand, dX, dU)
+                    cres, _ = self._solve_qp(qp_solver, p, pt, Bk, BN, eq, ineq, eqN, ineqN, inertia=False,
+                                             delta=delta, warm=qres, offsets=offsets)
+                    qp_iters += self._qp_iterations
+                    self._soc_qp_iterations += self._qp_iterations
+                    if not cres.success:
+                        return None
+                    return cres.X, cres.U
+            self._soc_qp_iterations = 0
+            alpha, new_pt, ls_trials, mode = self._line_search(
+                p, pt, dX, dU, phi0, D, merit, watch, relaxed_ok=relaxed_ok, soc=soc, d_tol=d_tol,
+                backtrack_uphill=not inertia)
             if new_pt is None and watch is not None:
-                # back to the last good point and a monotone search along its direction
-                pt, dX, dU, phi0, D = watch["pt"], watch["dX"], watch["dU"], merit(watch["pt"]), watch["D"]
-                lam_new, Lg_new, LgN_new = watch["lam"], watch["Lg"], watch["LgN"]
-                watch = None
-                alpha, new_pt, ls_trials, mode = self._line_search(p, pt, dX, dU, phi0, D, merit, None)
-                mode = "watchdog-return"
+                # back to the last good point; along its direction only if that is a descent direction
+                pt, lam, Lg, LgN = restore(watch)
+                Bk = None
+                w, watch = watch, None
+                new_pt = None
+                if w["D"] < 0.0:
+                    dX, dU, D, delta = w["dX"], w["dU"], w["D"], w["delta"]
+                    lam_new, Lg_new, LgN_new = w["lam_new"], w["Lg_new"], w["LgN_new"]
+                    alpha, new_pt, ls_trials, mode = self._line_search(p, pt, dX, dU, merit(pt), D, merit, None)
+                    mode = "watchdog-return"
+                if new_pt is None:
+                    if inertia:
+                        force_delta = max(o.shift_increase * w["delta"], o.shift_init * hscale)
+                        ascent_relaxed = 0
+                        retries = 0
+                        continue
             if new_pt is None:
+                if inertia and not descent and retries < o.max_shift_retries:
+                    force_delta = max(o.shift_increase * delta, o.shift_init * hscale)
+                    retries += 1
+                    continue
                 status, message = Status.NUMERICAL_ERROR, (f"line search failed at SQP iteration {it}: no step down to "
                                                            f"{o.min_step:g} decreases the L1 merit function (D={D:.2e})")
                 lam, Lg, LgN = lam_new, Lg_new, LgN_new
                 break
+            retries = 0
             # watchdog bookkeeping
             if o.watchdog:
+                if mode == "relaxed" and not descent:
+                    ascent_relaxed -= 1
                 if mode == "relaxed":
-                    watch = {"pt": pt, "dX": dX, "dU": dU, "D": D, "phi": phi0, "count": 0,
-                             "lam": lam_new, "Lg": Lg_new, "LgN": LgN_new}
+                    watch = {"pt": pt, "dX": dX, "dU": dU, "D": D, "d_tol": d_tol, "count": 0, "delta": delta,
+                             "lam": lam, "Lg": Lg, "LgN": LgN, "lam_new": lam_new, "Lg_new": Lg_new, "LgN_new": LgN_new}
                 elif watch is not None:
                     watch["count"] += 1
-                    if merit(new_pt) <= merit(watch["pt"]) + o.armijo * watch["D"]:
+                    # sufficient decrease below the watched point (Chamberlain et al. 1982); after a
+                    # relaxed step that was no descent direction, by at least armijo * |D|
+                    if merit(new_pt) <= merit(watch["pt"]) - o.armijo * max(abs(watch["D"]), watch["d_tol"]):
                         watch = None
                     elif watch["count"] >= o.watchdog_steps:
                         watch["expired"] = True
@@ -372,11 +501,18 @@ class SQPSolver(Solver):
                 hess.update(s_blocks, new_pt.X[-1] - pt.X[-1], g_new - g_old, gN_new - gN_old)
             pt = new_pt
             lam, Lg, LgN = lam_new, Lg_new, LgN_new
+            Bk = None
+            shift = delta
+            last_qp = dataclasses.replace(qres, X=np.zeros_like(qres.X), U=np.zeros_like(qres.U))
+            # local phase: a full step from a point whose relative KKT residual is small
+            was_local = local
+            local = mode == "full" and self._kkt_rel <= o.local_tol
             it += 1
             rec = {"iter": it, "objective": pt.J, "violation": max_violation(pt), "kkt": kkt_res, "step": alpha,
-                   "step_norm": step_norm, "merit": merit(pt), "penalty": float(max(rho_h.max(initial=0), rho_g.max(initial=0),
-                                                                                     rho_bx.max(initial=0), rho_bu.max(initial=0))),
-                   "qp_iterations": int(qres.iterations), "ls_trials": ls_trials, "mode": mode, "shift": shift}
+                   "step_norm": step_norm, "merit": merit(pt),
+                   "penalty": float(max(w.max(initial=0) for w in (rho[0], rho[1], rho[3], rho[4]))),
+                   "qp_iterations": int(qres.iterations), "ls_trials": ls_trials, "mode": mode, "shift": delta,
+                   "D": D, "warm": warm is not None}
             history.append(rec)
             if o.verbose >= 2:
                 if it == 1:
@@ -388,14 +524,22 @@ class SQPSolver(Solver):
                 break
             if watch is not None and watch.get("expired"):
                 # merit not below the watched point after watchdog_steps relaxed iterations: return
-                if merit(pt) > watch["phi"]:
-                    pt = watch["pt"]
-                    pt.add_derivatives(p)
-                    lam, Lg, LgN = watch["lam"], watch["Lg"], watch["LgN"]
-                    alpha, back_pt, _, _ = self._line_search(p, pt, watch["dX"], watch["dU"], merit(pt), watch["D"], merit, None)
+                if merit(pt) > merit(watch["pt"]) - o.armijo * max(abs(watch["D"]), watch["d_tol"]):
+                    w, watch = watch, None
+                    pt, lam, Lg, LgN = restore(w)
+                    back_pt = None
+                    if w["D"] < 0.0:
+                        alpha, back_pt, _, _ = self._line_search(p, pt, w["dX"], w["dU"], merit(pt), w["D"], merit, None)
                     if back_pt is not None:
                         back_pt.add_derivatives(p)
                         pt = back_pt
+                        lam, Lg, LgN = w["lam_new"], w["Lg_new"], w["LgN_new"]
+                    elif inertia:
+                        # the relaxed step was no descent direction: solve the QP at the watched point
+                        # again with a larger shift, and try no more non-descent steps
+                        force_delta = max(o.shift_increase * w["delta"], o.shift_init * hscale)
+                        ascent_relaxed = 0
+                    local = False
                 watch = None
         # ---------------------------------------------------------------- result
         solve_time = time.perf_counter() - t_start
@@ -411,20 +555,28 @@ class SQPSolver(Solver):
         return res
 
     # ------------------------------------------------------------------------------------------
-    def _solve_qp(self, qp_solver, p, pt, Bk, BN, eq, ineq, eqN, ineqN, inertia, shift, zero_gradient=False):
-        """Solve the QP subproblem. With ``inertia`` (exact Hessian, convexify="inertia") a QP
-        whose KKT factorization fails -- a reduced Hessian that is not positive definite --
-        is solved again with delta*I added to every block, delta growing tenfold from a third
-        of the last successful shift (the inertia correction of Waechter & Biegler 2006 sec.
-        3.1, applied to the QP). Returns (QPResult, shift used)."""
+    def _qp_tolerance(self, kkt_res, grad_scale):
+        """Tolerance of the next interior-point QP: ``qp_tol``, or with ``qp_adaptive_tol`` the
+        inexact-SQP rule clip(qp_forcing * KKT residual / (1 + |grad J|), qp_tol, qp_tol_max)."""
+        o = self.options
+        if not o.qp_adaptive_tol or not math.isfinite(kkt_res):
+            return o.qp_tol if not o.qp_adaptive_tol else max(o.qp_tol, o.qp_tol_max)
+        return min(max(o.qp_tol, o.qp_forcing * kkt_res / (1.0 + grad_scale)), max(o.qp_tol, o.qp_tol_max))
+
+    def _solve_qp(self, qp_solver, p, pt, Bk, BN, eq, ineq, eqN, ineqN, inertia, delta, warm=None, zero_gradient=False,
+                  offsets=None):
+        """Solve the QP subproblem with delta*I (+ the proximal term) added to the Hessian. With
+        ``inertia`` (exact Hessian, convexify="inertia") a QP whose KKT factorization fails -- a
+        reduced Hessian that is not positive definite -- is solved again with delta raised to
+        max(shift_increase * delta, shift_init * max|H|) (the inertia correction of Waechter &
+        Biegler 2006 sec. 3.1, applied to the QP). ``warm`` is a QPResult to start the QP from.
+        Returns (QPResult, shift used)."""
+        o = self.options
         self._qp_iterations = 0
         scale = max(1e-300, float(np.max(np.abs(Bk), initial=0.0)), float(np.max(np.abs(BN), initial=0.0)))
-        # start from a third of the last successful shift (trying delta = 0 first, as IPOPT does,
-        # was measured to cost more: a failing QP runs many iterations before it fails)
-        delta = 0.0 if not inertia else (shift / 3.0 if shift > 1e-20 * scale else 0.0)
         # Levenberg-Marquardt-like: delta shrinks with the relative KKT residual of the last
         # iterate (kept superlinear), but never exceeds proximal * max|H|
-        prox = min(self.options.proximal, self._kkt_rel) * scale if self.options.adaptive_proximal else self.options.proximal * scale
+        prox = min(o.proximal, self._kkt_rel) * scale if o.adaptive_proximal else o.proximal * scale
         n, m = p.n, p.m
         for attempt in range(30):
             if delta + prox > 0:
@@ -432,25 +584,42 @@ class SQPSolver(Solver):
                 BNd = BN + (delta + prox) * np.eye(n)
             else:
                 Bd, BNd = Bk, BN
-            qp = self._build_qp(p, pt, Bd, BNd, eq, ineq, eqN, ineqN)
+            qp = self._build_qp(p, pt, Bd, BNd, eq, ineq, eqN, ineqN, offsets)
             if zero_gradient:
                 qp.q[:] = 0.0
                 qp.r[:] = 0.0
-            qres = qp_solver.solve(qp, warm_start=self._warm)
+            qres = qp_solver.solve(qp, warm_start=warm)
             self._qp_iterations += int(qres.iterations)
-            if inertia and self.options.curvature_tol > 0 and qres.success and not self._curvature_ok(Bd, BNd, qres, scale):
+            if inertia and o.curvature_tol > 0 and qres.success and not self._curvature_ok(Bd, BNd, qres, scale):
                 # inertia-free curvature test (Chiang & Zavala 2016): a step along which the QP
                 # Hessian has (almost) no positive curvature is no descent direction of the merit
                 # function -- shift and solve again
-                delta = max(10.0 * delta, 1e-8 * scale)
+                delta = max(o.shift_increase * delta, o.shift_init * scale)
                 continue
+            qshift = self._qp_shift(qp_solver, qres)
             if not inertia or qres.success or qres.status not in (Status.NUMERICAL_ERROR, Status.UNBOUNDED,
                                                                   Status.MAX_ITERATIONS, Status.FAILED):
-                if self.options.qp_warm_start and qres.success:
-                    self._warm = dataclasses.replace(qres, X=np.zeros_like(qres.X), U=np.zeros_like(qres.U))
-                return qres, delta
-            delta = max(10.0 * delta, 1e-8 * scale)
+                return qres, delta + qshift
+            delta = max(o.shift_increase * delta, o.shift_init * scale)
         return qres, delta
+
+    @staticmethod
+    def _soc_offsets(p, pt, cand, dX, dU):
+        """Constraint values for the second-order correction QP: c(pt + s) - J(pt) s for the
+        dynamics (h = f - x_+), the stage and the final constraints (the bounds are linear)."""
+        h = cand.h - (np.einsum("kij,kj->ki", pt.A, dX[:-1]) + np.einsum("kij,kj->ki", pt.B, dU) - dX[1:])
+        g = cand.g - (np.einsum("kij,kj->ki", pt.Cx, dX[:-1]) + np.einsum("kij,kj->ki", pt.Cu, dU)) if p.r else cand.g
+        gN = cand.gN - pt.CN @ dX[-1] if p.rN else cand.gN
+        return h, g, gN
+
+    @staticmethod
+    def _qp_shift(qp_solver, qres):
+        """The shift an interior-point QP in nonconvex = "shift" mode added to its Hessian (0 otherwise)."""
+        opts = getattr(qp_solver, "options", None)
+        if getattr(opts, "nonconvex", "regularize") != "shift":
+            return 0.0
+        reg = float(getattr(qres, "regularization", 0.0) or 0.0)
+        return reg if reg > 10.0 * opts.regularization else 0.0
 
     def _curvature_ok(self, Bd, BNd, qres, scale):
         """s^T H s >= curvature_tol * max|H| * |s|^2 for the QP step s."""
@@ -461,26 +630,28 @@ class SQPSolver(Solver):
         return sHs >= self.options.curvature_tol * scale * ss
 
     @staticmethod
-    def _build_qp(p, pt, Bk, BN, eq, ineq, eqN, ineqN):
-        """The QP (8)-(10) in the step (dx, du) at the point pt, in stage form."""
+    def _build_qp(p, pt, Bk, BN, eq, ineq, eqN, ineqN, offsets=None):
+        """The QP (8)-(10) in the step (dx, du) at the point pt, in stage form. ``offsets`` =
+        (h, g, gN) replaces the constraint values of the linearization (second-order correction)."""
         N, n = p.N, p.n
         X, U = pt.X, pt.U
+        h, g, gN = (pt.h, pt.g, pt.gN) if offsets is None else offsets
         Q = np.empty((N + 1, n, n))
         Q[:-1] = Bk[:, :n, :n]; Q[-1] = BN
         kw = {}
         if p.r and eq.any():
-            kw.update(E=pt.Cx[:, eq, :], F=pt.Cu[:, eq, :], e=pt.g[:, eq])
+            kw.update(E=pt.Cx[:, eq, :], F=pt.Cu[:, eq, :], e=g[:, eq])
         if p.r and ineq.any():
             C = np.concatenate([pt.Cx[:, ineq, :], pt.Cu[:, ineq, :]], axis=2)
-            kw.update(C=C, c_lower=-pt.g[:, ineq], c_upper=np.full((N, int(ineq.sum())), np.inf))
+            kw.update(C=C, c_lower=-g[:, ineq], c_upper=np.full((N, int(ineq.sum())), np.inf))
         if p.rN and eqN.any():
-            kw.update(EN=pt.CN[eqN], eN=pt.gN[eqN])
+            kw.update(EN=pt.CN[eqN], eN=gN[eqN])
         if p.rN and ineqN.any():
-            kw.update(CN=pt.CN[ineqN], cN_lower=-pt.gN[ineqN], cN_upper=np.full(int(ineqN.sum()), np.inf))
+            kw.update(CN=pt.CN[ineqN], cN_lower=-gN[ineqN], cN_upper=np.full(int(ineqN.sum()), np.inf))
         xl = p.x_lower - X; xu = p.x_upper - X
         xl[0] = -np.inf; xu[0] = np.inf      # x0 is fixed by the x0 row; its bounds are not the QP's business
         return StageQP(Q=Q, R=Bk[:, n:, n:], S=Bk[:, :n, n:], q=np.vstack([pt.lx, pt.lN[None, :]]), r=pt.lu,
-                       A=pt.A, B=pt.B, c=pt.h, x0=p.x0 - X[0], x_lower=xl, x_upper=xu,
+                       A=pt.A, B=pt.B, c=h, x0=p.x0 - X[0], x_lower=xl, x_upper=xu,
                        u_lower=p.u_lower - U, u_upper=p.u_upper - U, **kw)
 
     @staticmethod
@@ -500,12 +671,22 @@ class SQPSolver(Solver):
                     float(np.max(np.abs(pt.lN), initial=0.0)))
         return res, scale
 
-    def _line_search(self, p, pt, dX, dU, phi0, D, merit, watch):
-        """Armijo backtracking on the L1 merit. With the watchdog enabled and no watch active, a
-        full step that fails the Armijo test is still taken ("relaxed"). Returns (alpha, point,
-        trials, mode) or (alpha, None, trials, mode) when no acceptable step was found."""
+    def _line_search(self, p, pt, dX, dU, phi0, D, merit, watch, relaxed_ok=True, soc=None, d_tol=0.0,
+                     backtrack_uphill=True):
+        """Armijo backtracking on the L1 merit. With the watchdog enabled, no watch active and
+        ``relaxed_ok``, a full step that fails the Armijo test is still taken ("relaxed"). Along a
+        direction that is no descent direction (D >= 0) only the full step is tried unless
+        ``backtrack_uphill`` (quasi-Newton Hessians, where D >= 0 only comes from an inexact QP
+        solution and no Hessian shift is available). Returns
+        (alpha, point, trials, mode) or (alpha, None, trials, mode) when no acceptable step was
+        found. ``soc(trial point)`` -> corrected step (dX, dU) or None: when the full step along a
+        descent direction fails the Armijo test, the second-order correction is tried once, and
+        accepted if it meets the Armijo test of the full step (mode "soc")."""
         o = self.options
         alpha, trials = 1.0, 0
+        # merit changes below the rounding level of phi (or d_tol, what the optimality tolerance
+        # resolves along the step) are not distinguished
+        noise = max(10.0 * np.finfo(float).eps * max(1.0, abs(phi0)), d_tol)
         while alpha >= o.min_step:
             trials += 1
             X = pt.X + alpha * dX
@@ -520,11 +701,26 @@ class SQPSolver(Solver):
                     raise
                 phi = math.inf
                 cand = None
-            if cand is not None and phi <= phi0 + o.armijo * alpha * D:
+            if cand is not None and phi <= phi0 + o.armijo * alpha * D + noise:
                 return alpha, cand, trials, ("full" if alpha == 1.0 else "backtrack")
-            if alpha == 1.0 and cand is not None and o.watchdog and watch is None and math.isfinite(phi):
+            if alpha == 1.0 and cand is not None and soc is not None and D < -noise:
+                corr = soc(cand)
+                if corr is not None:
+                    trials += 1
+                    try:
+                        ccand = _Point(p, pt.X + corr[0], pt.U + corr[1], derivatives=False, clock=pt.clock)
+                        if merit(ccand) <= phi0 + o.armijo * D + noise:
+                            return 1.0, ccand, trials, "soc"
+                    except Exception as exc:  # non-finite values at the corrected point
+                        from ._nlp_common import is_nonfinite_error
+
+                        if not is_nonfinite_error(exc):
+                            raise
+            if alpha == 1.0 and cand is not None and o.watchdog and watch is None and relaxed_ok and math.isfinite(phi):
                 return alpha, cand, trials, "relaxed"
             if watch is not None and alpha == 1.0 and cand is not None and math.isfinite(phi) and not watch.get("expired"):
                 return alpha, cand, trials, "watchdog"
+            if D >= -noise and not backtrack_uphill:
+                break
             alpha *= o.backtrack
         return alpha, None, trials, "failed"
