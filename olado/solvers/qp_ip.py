@@ -1014,7 +1014,7 @@ class _StepContext:
         self.refinement_tol = solver.options.refinement_tol
         self.rel_error = None   # Newton residual / |rhs| of this factorization's first solve, unrefined
         self.rel_prior = None   # bound on it from an earlier iteration's measurement (set by the caller)
-        self.unmeasured = None  # (|rhs|, target) of a first solve that skipped its measurement on rel_prior
+        self.first = None       # (|rhs|, target) of the first solve
         self.inv_tl, self.inv_tu, D = P.inv_tl, P.inv_tu, P.D
         _scaling(it.tl, it.tu, it.zl, it.zu, P.fl, P.fu, self.inv_tl, self.inv_tu, D)
         N, n, m, nc = P.N, P.n, P.m, P.nc
@@ -1131,10 +1131,10 @@ class _StepContext:
             return d
         rhs = max(res.size(), _max_abs(rho_l), _max_abs(rho_u))
         target = max(1e-3 * self.tol * (1.0 + rhs), self.refinement_tol * rhs)
+        if self.first is None:
+            self.first = (rhs, target)
         est = self.rel_error if self.rel_error is not None else self.rel_prior
         if est is not None and est * rhs <= 0.1 * target:
-            if self.rel_error is None and self.unmeasured is None:
-                self.unmeasured = (rhs, target)
             return d
         for step in range(self.refinement_steps):
             e, el, eu, size = self._newton_residual(d, res, rho_l, rho_u)
@@ -1232,14 +1232,17 @@ class InteriorPointQP:
             return res
         best, stall, k, last_d = math.inf, 0, 0, None
         failed_reg = 0.0
-        # the relative error of the Newton solves grows with the conditioning of the Newton matrix,
+        # The relative error of the Newton solves grows with the conditioning of the Newton matrix,
         # i.e. slowly from one iteration to the next (a few-fold per iteration as mu falls): a
         # measurement bounds the next two iterations' errors by 100 x its value, and their first
         # solves skip the measurement (a kkt_map pass) when that bound is well within the target.
         # A direction taken unmeasured is checked afterwards for free: the residuals of the next
         # iterate imply its Newton residual on the linear rows (_implied_newton_residual); within
-        # the target that counts as a measurement, else the next iteration measures again.
-        rel_last, rel_age, pending = None, 0, None
+        # the target that counts as a measurement, else the next iteration measures again; after a
+        # common step (all rows verified) the next direction is trusted and verified the same way
+        # (a posteriori: an inaccurate direction is caught one iteration later and the following
+        # solves are measured and refined again).
+        rel_last, rel_age, pending, verified = None, 0, None, False
         n_dual = (P.N + 1) * P.n + P.N * P.m
         best_merit, best_it, best_k = math.inf, it, 0
         pr_prev = du_prev = math.inf
@@ -1252,6 +1255,9 @@ class InteriorPointQP:
                 old, a_p, a_d, rhs_old, target_old = pending
                 e = _implied_newton_residual(res.buf, old.buf, a_p, a_d, n_dual)
                 rel_last, rel_age = (e / rhs_old, 0) if e <= target_old and rhs_old > 0 else (None, 0)
+                # all rows verified (common step) and within the target: the next direction is
+                # trusted as well and checked in the same way afterwards
+                verified = rel_last is not None and a_p == a_d
                 pending = None
             mu = comp / P.n_comp if P.n_comp else 0.0
             gap = mu * P.n_comp
@@ -1291,8 +1297,11 @@ class InteriorPointQP:
                     res, pr, du, scales, obj, znorm, comp = self._residuals(P, it)
                     ctx.res = res
                     best, stall, best_merit = math.inf, 0, math.inf   # a new QP: progress measures restart
-                if rel_last is not None and rel_age < 2 and ctx.reg <= opts.regularization:
+                if verified and ctx.reg == history[-1]["regularization"]:
+                    ctx.rel_prior = 0.0
+                elif rel_last is not None and rel_age < 2 and ctx.reg <= opts.regularization:
                     ctx.rel_prior = 100.0 * rel_last
+                verified = False
                 d, info = self._direction(ctx)
                 if ctx.rel_error is not None:
                     rel_last, rel_age = ctx.rel_error, 0
@@ -1309,8 +1318,8 @@ class InteriorPointQP:
                 message = f"{status.sentence} (iteration {k + 1}: {type(exc).__name__}: {exc})"
                 break
             alpha, alpha_dual = ctx.step_length(d)
-            if ctx.unmeasured is not None and min(alpha, alpha_dual) >= 0.1:
-                pending = (ctx.res, alpha, alpha_dual) + ctx.unmeasured
+            if ctx.first is not None and ctx.n_refine == 0 and min(alpha, alpha_dual) >= 0.1:
+                pending = (ctx.res, alpha, alpha_dual) + ctx.first
             it = it.plus(alpha, d) if alpha_dual == alpha else it.plus_split(alpha, alpha_dual, d)
             last_d = d
             k += 1
