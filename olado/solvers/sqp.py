@@ -11,21 +11,43 @@ with alpha from Armijo backtracking on the L1 exact penalty function
     phi(y) = J(y) + sum_i rho_i |h_i(y)| + sum_j rho_j max(0, -g_j(y))  (+ bound violations)
 
 whose weights follow Powell's (1978) rule rho_i := max(|mu_i|, (rho_i + |mu_i|)/2) with mu the QP
-multipliers. The watchdog technique of Chamberlain, Powell, Lemarechal and Pedersen (1982) lets a
-full step through without merit decrease and returns to the last good point only when the
-merit function has not decreased within ``watchdog_steps`` iterations. The QP multipliers are the
-new multiplier estimates. The Hessian is one of :mod:`olado.solvers.hessian` (block BFGS, block
-SR1, exact with Gerschgorin or Levenberg convexification, Powell's BFGS with the gangster
-operator), always block diagonal (12).
+multipliers; D = grad J . s - sum rho |c| is the directional derivative of phi along s (Nocedal &
+Wright 2006, (18.29)). The watchdog technique of Chamberlain, Powell, Lemarechal and Pedersen
+(1982) lets a full step through without merit decrease ("relaxed") and returns to the watched
+point when phi has not decreased sufficiently below it within ``watchdog_steps`` iterations. With
+``second_order_correction`` a rejected full step is first corrected by the QP with the constraint
+values c(y + s) - J s (Fletcher 1982; Nocedal & Wright sec. 18.3). The QP multipliers are the new
+multiplier estimates. The Hessian is one of :mod:`olado.solvers.hessian` (block BFGS, block SR1,
+exact with Gerschgorin or Levenberg convexification, Powell's BFGS with the gangster operator),
+always block diagonal (12).
 
-Stopping: KKT residual (max-norm of the NLP stationarity at the current point with the QP
-multipliers, relative to the largest |grad J| seen) <= tol, constraint violation <=
-constr_viol_tol; or a step shorter than step_tol (relative) with the constraints satisfied. When
-the KKT test holds but the violation does not, a least-change feasibility step (the QP without its
-gradient term) is taken instead of a full SQP step. A proximal term proximal*max|H|*I in the QP
-Hessian picks the shortest step along flat directions of degenerate optima.
+Exact Hessian, ``convexify = "inertia"`` (the default): the QP gets the exact Lagrangian Hessian
+plus delta*I, delta chosen as in the inertia correction of Waechter & Biegler (2006, Alg. IC):
+each iteration starts from ``shift_decrease`` times the last delta (0 below ``shift_min``), a QP
+that fails (its Riccati factorizations find a reduced Hessian that is not positive definite and
+the interior point stalls) is solved again with delta = max(``shift_increase`` delta,
+``shift_init`` max|H|). A QP step that is no descent direction of phi (D > 0 beyond what the KKT
+tolerance resolves) is a sign of the same nonconvexity -- with a positive definite reduced
+Hessian and rho >= |mu| it cannot happen (Nocedal & Wright Thm. 18.2) -- and is treated the same
+way: delta grows and the QP is solved again at the same point. Only ``max_ascent_steps`` such
+steps per solve are tried first as relaxed watchdog steps (never in the local phase), and a
+watchdog return to a point whose step was no descent direction re-solves its QP with a larger
+delta instead of backtracking uphill.
+
+Local phase: after a full step (Armijo test met) from a point with relative KKT residual <=
+``local_tol`` the next QP starts from delta = 0 (once, on entering the phase), is warm-started
+from the multipliers of the last QP and a zero step (``qp_warm_start``), and is solved to
+``local_qp_tol``.
+
+Stopping: KKT residual (max-norm of the NLP stationarity, relative to the largest |grad J|
+seen) <= tol and constraint violation <= constr_viol_tol, tested at each new iterate with the
+multipliers of the QP that produced it (the pair (y_k, lambda_k) of Nocedal & Wright Alg. 18.3,
+so no QP is solved after convergence) and again with the multipliers of the next QP; or a step
+shorter than step_tol (relative) with the constraints satisfied. A proximal term
+proximal*max|H|*I in the QP Hessian picks the shortest step along flat directions of degenerate
+optima; it makes the local rate fast-linear, and turns a QP dual error e into a step of about
+e / (proximal max|H|) along those directions, hence the tighter tolerance of the last QPs.
 """
-
 from __future__ import annotations
 
 import dataclasses
@@ -140,8 +162,8 @@ class SQPOptions(SolverOptions):
                                min=0.0, min_exclusive=True)
     shift_increase: float = option(10.0, "inertia correction: factor by which delta grows after a failed QP or a "
                                    "rejected step (kappa_+)", min=1.0, min_exclusive=True)
-    shift_decrease: float = option(0.1, "inertia correction: the next iteration starts from this times the last "
-                                   "delta (kappa_-)", min=0.0, max=1.0)
+    shift_decrease: float = option(1.0 / 3.0, "inertia correction: the next iteration starts from this times the "
+                                   "last delta (kappa_-, 1/3 as in IPOPT)", min=0.0, max=1.0)
     shift_min: float = option(1e-8, "inertia correction: a starting delta below shift_min * max|H| is replaced by 0",
                               min=0.0)
     max_ascent_steps: int = option(1, "relaxed watchdog steps allowed per solve along a QP step that is no descent "
