@@ -117,9 +117,10 @@ class SQPOptions(SolverOptions):
     kkt: str = option("riccati", "KKT (matrix) solver inside the interior-point QP methods", choices=KKT_SOLVERS)
     hessian: str = option("exact", "Hessian: block BFGS, block SR1, exact, or Powell's BFGS with the gangster operator",
                           choices=("bfgs", "sr1", "exact", "powell-bfgs"))
-    convexify: str = option("inertia", "exact Hessian: 'inertia' passes it unmodified and adds delta*I only when the "
-                            "QP's KKT factorization finds a non-positive-definite reduced Hessian; 'levenberg' "
-                            "shifts every block to be positive definite; 'gerschgorin' is modification (13)",
+    convexify: str = option("inertia", "exact Hessian: 'inertia' passes it to the QP and adds delta*I only when the "
+                            "QP fails (its KKT factorizations find a reduced Hessian that is not positive definite) "
+                            "or its step is no descent direction of the merit function (shift_* options); "
+                            "'levenberg' shifts every block to be positive definite; 'gerschgorin' is modification (13)",
                             choices=("inertia", "levenberg", "gerschgorin"))
     initial_hessian_scale: float = option(0.0, "initial quasi-Newton blocks: this times the identity; 0 = automatic "
                                           "(y.y/s.y per block at the first update)", min=0.0)
