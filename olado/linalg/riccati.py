@@ -1229,6 +1229,21 @@ class RiccatiFactorization(StageData):
         return LQSolution(X, U, lam, nu, float(res))
 
 
+    def solve_trusted(self, q, r, c, x0, ci, X, U, lam):
+        """:meth:`solve` without argument checks or result object, for callers whose arrays are
+        already C-contiguous float64 of the right shapes (the interior-point QP's work arrays,
+        validated once when the QP is prepared): writes the solution into X, U, lam.  Only for
+        factorizations without equality rows (``unconstrained``); ``ci`` (N, nineq) is required
+        (zero columns when there are no stage rows)."""
+        if self._size_tags is None:
+            _solve_unconstrained(self.Q, self.S, self.A, self.B, self.Dx, self.Ci, self.sig, self.ni,
+                                 self.P, self.K, self.Lww, q, r, c, x0, ci, X, U, lam,
+                                 np.empty((self.N, self.m)), np.empty((self.N + 1, self.n)))
+        else:
+            _solve_unconstrained_fixed(self._size_tags, self.A, self.B, self.Ci, self.sig, self.ni,
+                                       self.P, self.K, self.Lww, q, r, c, x0, ci, X, U, lam)
+
+
 def solve_lq_docp(Q, S, R, q, r, A, B, c, x0, **kw) -> LQSolution:
     """Factorize and solve in one call (see :class:`RiccatiFactorization`)."""
     rhs = {k: kw.pop(k) for k in ("e", "eN", "ci") if k in kw}

@@ -1081,21 +1081,28 @@ class _StepContext:
         q, r, ci = P.work_q, P.work_r, P.work_ci
         _newton_rhs(res.rx, res.ru, res.rl, res.rup, rho_l, rho_u, it.zl, it.zu, self.inv_tl, self.inv_tu,
                     self.Ds, P.CN, q, r, ci)
-        kw = {}
-        if P.nc:
-            kw["ci"] = ci
-        if P.has_eq:
-            kw["e"] = res.rE; kw["eN"] = res.rEN
         d = P.point(np.empty(P.point_layout[1]))
-        if self.fact is P.fact:   # Riccati: the solution goes straight into the direction's arrays
-            sol = self.fact.solve(q, r, res.dyn, res.x0r, out=(d.X, d.U, d.lam), **kw)
+        if self.fact is P.fact and self.fact.unconstrained:
+            # Riccati without equality rows: the work arrays were validated when the QP was
+            # prepared; the solution goes straight into the direction's arrays
+            self.fact.solve_trusted(q, r, res.dyn, res.x0r, ci, d.X, d.U, d.lam)
+            if P.n_nu:
+                d.nu[...] = 0.0
         else:
-            sol = self.fact.solve(q, r, res.dyn, res.x0r, **kw)
-            d.X[...] = sol.X; d.U[...] = sol.U; d.lam[...] = sol.lam
-        if P.n_nu:
-            k = min(P.n_nu, sol.nu.shape[1])
-            d.nu[:, :k] = sol.nu[:, :k]
-            d.nu[:, k:] = 0.0
+            kw = {}
+            if P.nc:
+                kw["ci"] = ci
+            if P.has_eq:
+                kw["e"] = res.rE; kw["eN"] = res.rEN
+            if self.fact is P.fact:
+                sol = self.fact.solve(q, r, res.dyn, res.x0r, out=(d.X, d.U, d.lam), **kw)
+            else:
+                sol = self.fact.solve(q, r, res.dyn, res.x0r, **kw)
+                d.X[...] = sol.X; d.U[...] = sol.U; d.lam[...] = sol.lam
+            if P.n_nu:
+                k = min(P.n_nu, sol.nu.shape[1])
+                d.nu[:, :k] = sol.nu[:, :k]
+                d.nu[:, k:] = 0.0
         if not _recover_step(d.X, d.U, P.Ct, P.CN, res.rl, res.rup, rho_l, rho_u, it.zl, it.zu, self.inv_tl,
                              self.inv_tu, P.fl, P.fu, d.tl, d.tu, d.zl, d.zu, P.work_w):
             raise FloatingPointError("non-finite Newton step")
@@ -1500,8 +1507,6 @@ class InteriorPointQP:
         inf = lambda a: float(np.max(np.abs(a), initial=0.0))  # noqa: E731
         # primal infeasibility: y.constraints(z) = G.z + kappa <= 0 on the feasible set
         if max(inf(it.lam), inf(it.nu), inf(it.zl), inf(it.zu)) > 0:
-            gx, gu = P.constraint_grad(it.lam, it.nu, it.zu - it.zl)
-            G = max(inf(gx), inf(gu))
             # (elementwise sums, not BLAS dots: threaded BLAS on long vectors stalls on a busy machine)
             kappa = float(np.sum(it.lam[1:] * P.c) + np.sum(it.lam[0] * P.x0) + np.sum(it.zl * P.lo)
                           - np.sum(it.zu * P.hi))
@@ -1509,6 +1514,10 @@ class InteriorPointQP:
                 kappa += float(np.sum(it.nu[:P.N, :P.ne] * P.eq_mask * P.e))
             if P.neN:
                 kappa += float(it.nu[P.N, :P.neN] @ P.eN)
+            G = math.inf
+            if kappa > 0:   # the constraint gradient only when the certificate can hold
+                gx, gu = P.constraint_grad(it.lam, it.nu, it.zu - it.zl)
+                G = max(inf(gx), inf(gu))
             scale = 1.0 + max(inf(it.X), inf(it.U)) + P.p_data
             if kappa > 0 and kappa >= min_quality * scale * P.n_z * G:
                 bound = kappa / (P.n_z * G) if G > 0 else math.inf
@@ -1530,11 +1539,18 @@ class InteriorPointQP:
             gd = float(np.sum(P.q * dX) + np.sum(P.r * dU))
             if gd >= 0:
                 continue
+            # the parts of the test one at a time, each only if the previous ones hold
             hx, hu = P.hess_z(dX, dU)
+            worst = max(inf(hx), inf(hu))
+            if worst > eps * -gd:
+                continue
             dyn, x0r, rE, rEN = P.eq_residuals(dX, dU, hom=True)
+            worst = max(worst, inf(dyn), inf(x0r), inf(rE), inf(rEN))
+            if worst > eps * -gd:
+                continue
             dw = P.w_of(dX, dU)
             cone = max(float(np.max(np.where(P.fl, -dw, 0.0), initial=0.0)), float(np.max(np.where(P.fu, dw, 0.0), initial=0.0)))
-            worst = max(inf(hx), inf(hu), inf(dyn), inf(x0r), inf(rE), inf(rEN), cone)
+            worst = max(worst, cone)
             if worst <= eps * -gd:
                 return Status.UNBOUNDED, (
                     f"{Status.UNBOUNDED.sentence} Certificate: along the normalized {what} direction d the objective "
