@@ -1150,7 +1150,8 @@ class _StepContext:
             if size <= target:
                 break
             self.n_refine += 1
-            d = d.plus(1.0, self._reduced_solve(e, el, eu))
+            corr = self._reduced_solve(e, el, eu)
+            np.add(d.v, corr.v, out=d.v)   # d is this solve's own direction: corrected in place
         return d
 
     # ------------------------------------------------------------------ steps
@@ -1504,7 +1505,7 @@ class InteriorPointQP:
         after a stall, loose thresholds; see the module docstring), else None."""
         eps = 1e-3 if loose else self.options.infeasibility_tol
         min_quality = 10.0 if loose else 1.0 / self.options.infeasibility_tol
-        inf = lambda a: float(np.max(np.abs(a), initial=0.0))  # noqa: E731
+        inf = lambda a: _max_abs(np.ravel(a)) if a.size else 0.0  # noqa: E731  (compiled max-norm)
         # primal infeasibility: y.constraints(z) = G.z + kappa <= 0 on the feasible set
         if max(inf(it.lam), inf(it.nu), inf(it.zl), inf(it.zu)) > 0:
             # (elementwise sums, not BLAS dots: threaded BLAS on long vectors stalls on a busy machine)
