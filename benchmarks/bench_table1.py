@@ -79,14 +79,23 @@ def main(argv=None):
                      f"| {ps[0]} / {ps[1]} / {ps[2]} | {pi[0]} / {pi[1]} |")
     ta = sum(r[2].time_s for r in rows); tb = sum(r[3].time_s for r in rows)
     lines += ["", f"Totals: SQP-IP {ta:.2f} s, IPOPT {tb:.2f} s (ratio {ta / tb:.2f}).", ""]
-    bad = [r[0] for r in rows if not r[2].success or r[2].iterations > 50]
+    # the targets: the same objective to 1e-6 relative; SQP-IP at most half of IPOPT's time for N >= 120
+    same = [r for r in rows if abs(r[4]) <= 1e-6]
+    other = [r for r in rows if abs(r[4]) > 1e-6]
+    big = [r[2].time_s / r[3].time_s for r in rows if r[0] >= 120]
+    lines.append(f"Same objective (|rel. obj| <= 1e-6): {len(same)} of {len(rows)} horizons.")
+    if other:
+        lines.append("Different local minimum: " + ", ".join(f"N = {r[0]} ({r[4]:+.1e})" for r in other)
+                     + " -- zambezi12 has several local minima within 1e-3 of each other and which one a local "
+                     "method reaches depends on its path (docs/structure-exploiting-sqp.md, Known limitations).")
+    if big:
+        big.sort()
+        lines.append(f"Time ratio for N >= 120: median {big[len(big) // 2]:.2f}, max {big[-1]:.2f}; "
+                     f"{sum(x <= 0.5 for x in big)} of {len(big)} horizons at most 0.5 (the issue's target).")
+    bad = [r[0] for r in rows if not r[2].success]
     if bad:
-        lines += [f"Known weakness (N = {', '.join(map(str, bad))}): the QP subproblems with the exact, indefinite "
-                  "Hessian fail to factorize at their first interior-point iterates unless the Hessian is shifted, "
-                  "and the inertia correction then keeps a shift of the size of the Hessian itself every iteration, "
-                  "which turns the SQP into a linearly convergent method (see the `shift` column of the SQP history). "
-                  "`configs/sqp-gerschgorin.ini` converges on these horizons (about 40-50 iterations). Regularizing "
-                  "inside the QP's Newton systems only, as IPOPT does, is the intended fix.", ""]
+        lines.append(f"SQP-IP did not report success at N = {', '.join(map(str, bad))} (see the status in the row).")
+    lines.append("")
     write_section(SECTION, "\n".join(lines))
 
 
