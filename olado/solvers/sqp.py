@@ -32,7 +32,12 @@ Hessian and rho >= |mu| it cannot happen (Nocedal & Wright Thm. 18.2) -- and is 
 way: delta grows and the QP is solved again at the same point. Only ``max_ascent_steps`` such
 steps per solve are tried first as relaxed watchdog steps (never in the local phase), and a
 watchdog return to a point whose step was no descent direction re-solves its QP with a larger
-delta instead of backtracking uphill.
+delta instead of backtracking uphill. delta is kept per stage block (N + 1 values); with
+``shift_mode = "global"`` (default) all are equal. With ``shift_mode = "stage"`` a rejected step
+s, or the last iterate of a failed QP, raises delta only on the blocks without positive
+curvature along it, s_k.(H_k + delta_k I) s_k <= 0 (H is block diagonal, so s.H s is the sum of
+these terms and its negative part sits in those blocks); on a long horizon one window that needs
+a large shift then no longer damps the steps of every other stage.
 
 Local phase: after a full step (Armijo test met) from a point with relative KKT residual <=
 ``local_tol`` the next QP starts from delta = 0 (once, on entering the phase), is warm-started
@@ -165,6 +170,11 @@ class SQPOptions(SolverOptions):
                                    "rejected step (kappa_+)", min=1.0, min_exclusive=True)
     shift_decrease: float = option(1.0 / 3.0, "inertia correction: the next iteration starts from this times the "
                                    "last delta (kappa_-, 1/3 as in IPOPT)", min=0.0, max=1.0)
+    shift_mode: str = option("global", "inertia correction: 'global' shifts every stage block by the same delta; "
+                             "'stage' raises delta, after a QP step that is no descent direction, only on the stages "
+                             "whose block has no positive curvature along that step (s_k.(H_k + delta_k I) s_k <= 0; "
+                             "all stages if none) -- the other stages keep their Newton steps on long horizons",
+                             choices=("global", "stage"))
     shift_min: float = option(1e-8, "inertia correction: a starting delta below shift_min * max|H| is replaced by 0",
                               min=0.0)
     max_ascent_steps: int = option(1, "relaxed watchdog steps allowed per solve along a QP step that is no descent "
@@ -285,7 +295,7 @@ class SQPSolver(Solver):
         watch = None
         grad_scale = 1e-300
         self._kkt_rel = 1.0
-        shift = 0.0                # Hessian shift of the last accepted step
+        shift = np.zeros(N + 1)    # Hessian shift per stage block (N: the final block) of the last accepted step
         force_delta = None         # shift for the next QP after a rejected step (non-descent direction)
         ascent_relaxed = o.max_ascent_steps  # non-descent steps that may still be tried as relaxed watchdog steps
         retries = 0                # QPs re-solved with a larger shift at the current point
@@ -356,15 +366,14 @@ class SQPSolver(Solver):
             # the Hessian shift to start from (inertia correction, Waechter & Biegler 2006 Alg. IC):
             # the one a rejected step asked for, none in the local phase, else a fraction of the last
             if not inertia:
-                delta0 = 0.0
+                delta0 = np.zeros(N + 1)
             elif force_delta is not None:
                 delta0 = force_delta
             elif local and not was_local:
-                delta0 = 0.0           # entering the local phase: the unshifted Hessian first
+                delta0 = np.zeros(N + 1)   # entering the local phase: the unshifted Hessian first
             else:
                 delta0 = shift * o.shift_decrease
-                if delta0 < o.shift_min * hscale:
-                    delta0 = 0.0
+                delta0[delta0 < o.shift_min * hscale] = 0.0
             force_delta = None
             warm = last_qp if (o.qp_warm_start == "always" or (o.qp_warm_start == "local" and local)) else None
             qres, delta = self._solve_qp(qp_solver, p, pt, Bk, BN, eq, ineq, eqN, ineqN, inertia=inertia,
@@ -450,7 +459,7 @@ class SQPSolver(Solver):
                 # not a descent direction of phi: with a positive definite reduced Hessian and
                 # rho >= |multipliers| it would be (Nocedal & Wright Thm. 18.2), so the Hessian is
                 # shifted further and the QP solved again at the same point
-                force_delta = max(o.shift_increase * delta, o.shift_init * hscale)
+                force_delta = self._raise_shift(delta, hscale, self._flat_stages(Bk, BN, delta, hscale, dX, dU))
                 retries += 1
                 continue
             rho = rho_new
@@ -486,13 +495,13 @@ class SQPSolver(Solver):
                     mode = "watchdog-return"
                 if new_pt is None:
                     if inertia:
-                        force_delta = max(o.shift_increase * w["delta"], o.shift_init * hscale)
+                        force_delta = self._raise_shift(w["delta"], hscale)
                         ascent_relaxed = 0
                         retries = 0
                         continue
             if new_pt is None:
                 if inertia and not descent and retries < o.max_shift_retries:
-                    force_delta = max(o.shift_increase * delta, o.shift_init * hscale)
+                    force_delta = self._raise_shift(delta, hscale, self._flat_stages(Bk, BN, delta, hscale, dX, dU))
                     retries += 1
                     continue
                 status, message = Status.NUMERICAL_ERROR, (f"line search failed at SQP iteration {it}: no step down to "
@@ -534,7 +543,7 @@ class SQPSolver(Solver):
             rec = {"iter": it, "objective": pt.J, "violation": max_violation(pt), "kkt": kkt_res, "step": alpha,
                    "step_norm": step_norm, "merit": merit(pt),
                    "penalty": float(max(w.max(initial=0) for w in (rho[0], rho[1], rho[3], rho[4]))),
-                   "qp_iterations": int(qres.iterations), "ls_trials": ls_trials, "mode": mode, "shift": delta,
+                   "qp_iterations": int(qres.iterations), "ls_trials": ls_trials, "mode": mode, "shift": float(np.max(delta)),
                    "D": D, "warm": warm is not None}
             history.append(rec)
             if o.verbose >= 2:
@@ -560,7 +569,7 @@ class SQPSolver(Solver):
                     elif inertia:
                         # the relaxed step was no descent direction: solve the QP at the watched point
                         # again with a larger shift, and try no more non-descent steps
-                        force_delta = max(o.shift_increase * w["delta"], o.shift_init * hscale)
+                        force_delta = self._raise_shift(w["delta"], hscale)
                         ascent_relaxed = 0
                     local = False
                 watch = None
@@ -602,9 +611,9 @@ class SQPSolver(Solver):
         prox = min(o.proximal, self._kkt_rel) * scale if o.adaptive_proximal else o.proximal * scale
         n, m = p.n, p.m
         for attempt in range(30):
-            if delta + prox > 0:
-                Bd = Bk + (delta + prox) * np.eye(n + m)
-                BNd = BN + (delta + prox) * np.eye(n)
+            if np.any(delta + prox > 0):
+                Bd = Bk + (delta[:-1] + prox)[:, None, None] * np.eye(n + m)
+                BNd = BN + (delta[-1] + prox) * np.eye(n)
             else:
                 Bd, BNd = Bk, BN
             qp = self._build_qp(p, pt, Bd, BNd, eq, ineq, eqN, ineqN, offsets)
@@ -617,14 +626,40 @@ class SQPSolver(Solver):
                 # inertia-free curvature test (Chiang & Zavala 2016): a step along which the QP
                 # Hessian has (almost) no positive curvature is no descent direction of the merit
                 # function -- shift and solve again
-                delta = max(o.shift_increase * delta, o.shift_init * scale)
+                delta = self._raise_shift(delta, scale)
                 continue
             qshift = self._qp_shift(qp_solver, qres)
             if not inertia or qres.success or qres.status not in (Status.NUMERICAL_ERROR, Status.UNBOUNDED,
                                                                   Status.MAX_ITERATIONS, Status.FAILED):
                 return qres, delta + qshift
-            delta = max(o.shift_increase * delta, o.shift_init * scale)
+            # a failed QP: raise the shift (with shift_mode = 'stage' on the blocks without positive
+            # curvature along its last iterate, when it has one)
+            stages = None
+            if qres.X is not None and np.all(np.isfinite(qres.X)) and np.all(np.isfinite(qres.U)):
+                stages = self._flat_stages(Bk, BN, delta, scale, qres.X, qres.U)
+            delta = self._raise_shift(delta, scale, stages)
         return qres, delta
+
+    def _raise_shift(self, delta, hscale, stages=None):
+        """The inertia correction's next shift: max(shift_increase * delta_k, shift_init * max|H|)
+        on the stage blocks in ``stages`` (a boolean mask over the N + 1 blocks; all if None)."""
+        o = self.options
+        new = np.maximum(o.shift_increase * delta, o.shift_init * hscale)
+        return new if stages is None else np.where(stages, new, delta)
+
+    def _flat_stages(self, Bk, BN, delta, hscale, dX, dU):
+        """With shift_mode = 'stage': the blocks without positive curvature along the rejected step
+        s (s_k.(H_k + (delta_k + proximal max|H|) I) s_k <= 0, H block diagonal so s.H s is their
+        sum), or None (all blocks) when there is none or shift_mode = 'global'."""
+        if self.options.shift_mode != "stage":
+            return None
+        prox = self.options.proximal * hscale
+        z = np.concatenate([dX[:-1], dU], axis=1)
+        curv = np.empty(len(delta))
+        curv[:-1] = np.einsum("ki,kij,kj->k", z, Bk, z) + (delta[:-1] + prox) * np.einsum("ki,ki->k", z, z)
+        curv[-1] = dX[-1] @ BN @ dX[-1] + (delta[-1] + prox) * (dX[-1] @ dX[-1])
+        flat = curv <= 0.0
+        return flat if flat.any() else None
 
     @staticmethod
     def _soc_offsets(p, pt, cand, dX, dU):
