@@ -859,7 +859,24 @@ class _Prepared:
         self.Q_final = self.Q.copy() if ncN else self.Q   # Q with C_N^T diag(D) C_N added to Q_N
         self.shift = 0.0   # delta added to the Hessian by the nonconvex = "shift" mode
         self.fact = None   # the Riccati factorization, refactored in every iteration
+        self.reg_rung = 0  # index (in reg_rungs) of the last iteration's Newton-system regularization
+        self._rungs = None
         self.work_Dx, self.work_Du = np.empty((N + 1, n)), np.empty((N, m))
+
+    def reg_rungs(self, options):
+        """The regularizations a Newton-system factorization may use, in increasing order:
+        options.regularization, then max(10 delta, 1e-10 (1 + max|H|)) while at most
+        options.max_regularization * max|H| (12 at most)."""
+        if self._rungs is None:
+            rungs = [options.regularization]
+            cap = options.max_regularization * max(self.h_scale, 1e-300)
+            while len(rungs) < 12:
+                nxt = max(10.0 * rungs[-1], 1e-10 * (1.0 + self.h_scale))
+                if nxt > cap:
+                    break
+                rungs.append(nxt)
+            self._rungs = rungs
+        return self._rungs
 
     def point(self, v):
         return _Point(self, v)
@@ -1038,10 +1055,20 @@ class _StepContext:
         # The Riccati back-end is factorized once per QP solve and then refactored in place with
         # the new diagonal terms (same arrays: Q, S, R, A, B, the stage rows and the work arrays
         # Dx, Du, D of the prepared problem, updated in place before each refactorization).
-        reg = solver.options.regularization
+        # The regularizations tried form a fixed ladder (rungs): base, then tenfold steps from
+        # 1e-10 (1 + max|H|), at most 12, up to max_regularization * max|H|. The result is the
+        # lowest rung whose factorization succeeds -- as if the ladder were climbed from the base
+        # every time -- but after a failed base the search starts one rung below the last
+        # iteration's, climbs from there to a success and bisects below it (positive
+        # definiteness is monotone in delta): an iteration that needs the same delta as the last
+        # costs three factorizations instead of one per rung.
+        rungs = P.reg_rungs(solver.options)
         Dxb, Dub = D[P.sl_x].reshape(N, n), D[P.sl_u].reshape(N, m)
         Dx, Du = P.work_Dx, P.work_Du
-        for attempt in range(12):
+        failure = [None]
+
+        def factorize(j):
+            reg = rungs[j]
             Dx[0] = reg; np.add(Dxb, reg, out=Dx[1:])
             np.add(Dub, reg, out=Du)
             try:
@@ -1051,13 +1078,33 @@ class _StepContext:
                     self.fact = make_kkt_solver(solver.options.kkt, Q, P.S, P.R, P.A, P.B, Dx=Dx, Du=Du, **kw)
                     if isinstance(self.fact, RiccatiFactorization):
                         P.fact = self.fact
-                break
+                return True
             except NotPositiveDefiniteError as exc:
-                nxt = max(10.0 * reg, 1e-10 * (1.0 + P.h_scale))
-                if attempt == 11 or nxt > solver.options.max_regularization * max(P.h_scale, 1e-300):
-                    exc.regularization = reg
-                    raise
-                reg = nxt
+                exc.regularization = reg
+                failure[0] = exc
+                return False
+
+        if factorize(0):
+            j = 0
+        else:
+            lo = 0                     # highest rung known to fail
+            j = max(1, P.reg_rung - 1)
+            while j < len(rungs) and not factorize(j):
+                lo = j
+                j += 1
+            if j == len(rungs):
+                raise failure[0]
+            last_ok = True             # j succeeds; bisect (lo, j) for the lowest rung that does
+            while j - lo > 1:
+                mid = (lo + j) // 2
+                if factorize(mid):
+                    j, last_ok = mid, True
+                else:
+                    lo, last_ok = mid, False
+            if not last_ok:
+                factorize(j)           # the lowest successful rung again (a failure overwrote it)
+        P.reg_rung = j
+        reg = rungs[j]
         self.reg = reg
         # nonconvex = "shift": a factorization that needed more than the base regularization makes
         # the delta part of the QP's Hessian (the caller recomputes the residuals); the factored
