@@ -1212,13 +1212,7 @@ class RiccatiFactorization(StageData):
                     raise ValueError(f"out: {name} must be a C-contiguous float64 array of shape {shape}")
         nu = np.zeros((N + 1, max(self.ne_max, self.neN)))
         if self.unconstrained:
-            if self._size_tags is None:
-                _solve_unconstrained(self.Q, self.S, self.A, self.B, self.Dx, self.Ci, self.sig, self.ni,
-                                     self.P, self.K, self.Lww, q, r, c, x0, ci, X, U, lam,
-                                     np.empty((N, m)), np.empty((N + 1, n)))
-            else:
-                _solve_unconstrained_fixed(self._size_tags, self.A, self.B, self.Ci, self.sig, self.ni,
-                                           self.P, self.K, self.Lww, q, r, c, x0, ci, X, U, lam)
+            self.solve_trusted(q, r, c, x0, ci, X, U, lam)
             return LQSolution(X, U, lam, nu, 0.0)
         kff = np.empty((N, m)); pvec = np.empty((N + 1, n))
         gvec = np.zeros((N + 1, self.ncmax)); dvec = np.zeros((N, self.ncmax))
