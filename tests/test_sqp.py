@@ -221,7 +221,9 @@ def test_inertia_correction_shifts_an_indefinite_hessian_and_every_step_descends
     assert r.history[0]["shift"] > 0.0                      # the first QP needed a shifted Hessian
     assert all(h["D"] < 0.0 for h in r.history)           # every accepted step is a descent direction of phi
     shifts = [h["shift"] for h in r.history]
-    assert all(b <= a for a, b in zip(shifts, shifts[1:])) and shifts[-1] <= 0.05 * shifts[0]   # decays
+    peak = int(np.argmax(shifts))          # raised while the QPs fail, then it decays (kappa_-)
+    assert peak <= 2 and all(b <= a for a, b in zip(shifts[peak:], shifts[peak + 1:]))
+    assert shifts[-1] <= 0.05 * shifts[peak]
 
 
 def test_a_qp_step_that_is_no_descent_direction_is_solved_again_with_a_larger_shift(monkeypatch, pendulum_reference):

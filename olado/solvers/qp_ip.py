@@ -41,7 +41,11 @@ Newton system (stationarity, dynamics, equalities, slack and complementarity row
 in one compiled pass; only when it exceeds max(1e-3 tol (1 + |rhs|), ``refinement_tol`` |rhs|)
 (|rhs| the max-norm of the right-hand side) follow up to ``refinement_steps`` steps of iterative
 refinement (corrections from the same factorization), which keeps the directions accurate when
-D spans many orders of magnitude near the solution.  The first solve of a factorization
+D spans many orders of magnitude near the solution.  Refinement stops as soon as a correction
+does not halve the residual (and undoes it when the residual grew): then the factored matrix is
+too far from the Newton matrix -- a regularization that made an indefinite (nonconvex) system
+definite, not one that only cures rounding -- and further corrections only pull the direction
+towards the indefinite system's.  The first solve of a factorization
 measures its relative error |residual| / |rhs|; later solves with it (corrector, centrality
 correctors) skip the measurement when that relative error times their |rhs| is below 10 % of
 their target.  Primal and dual variables
@@ -1173,7 +1177,8 @@ class _StepContext:
         """Direction for the residuals ``res`` and complementarity right-hand sides rho_l,
         rho_u (flat, 0 on infinite sides).  The Newton residual of the unreduced system is
         measured after the solve; only if it exceeds max(1e-3 tol (1 + |rhs|), refinement_tol
-        |rhs|) is the direction refined (at most ``refinement_steps`` corrections).  The first
+        |rhs|) is the direction refined (at most ``refinement_steps`` corrections, stopping at
+        the first that does not halve the residual and undoing it if the residual grew).  The first
         solve of a factorization gives its relative error |residual| / |rhs|; later solves with
         the same factorization skip the measurement when that relative error times their |rhs|
         is below 10 % of their target (their relative errors stay within a small factor of the
@@ -1190,12 +1195,23 @@ class _StepContext:
         est = self.rel_error if self.rel_error is not None else self.rel_prior
         if est is not None and est * rhs <= 0.1 * target:
             return d
-        for step in range(self.refinement_steps):
+        prev, corr = math.inf, None
+        for step in range(self.refinement_steps + 1):
             e, el, eu, size = self._newton_residual(d, res, rho_l, rho_u)
             if step == 0 and self.rel_error is None:
                 self.rel_error = size / rhs if rhs > 0 else math.inf
             if size <= target:
                 break
+            if size > 0.5 * prev:
+                # refinement does not converge: the factored matrix is too far from the Newton
+                # matrix (a regularization that makes an indefinite system definite, not one that
+                # only cures rounding) -- keep the better of the last two directions and stop
+                if size > prev:
+                    np.subtract(d.v, corr.v, out=d.v)
+                break
+            if step == self.refinement_steps:
+                break
+            prev = size
             self.n_refine += 1
             corr = self._reduced_solve(e, el, eu)
             np.add(d.v, corr.v, out=d.v)   # d is this solve's own direction: corrected in place
