@@ -269,6 +269,24 @@ def test_stage_shift_raises_only_the_blocks_without_positive_curvature_along_the
     assert s._flat_stages(np.array([np.eye(2)] * N), BN, delta, scale, dX, dU) is None
 
 
+def test_shift_after_a_rejected_step_is_at_least_a_fraction_of_its_negative_curvature():
+    """shift_curvature: a QP step s that is no descent direction raises delta to at least
+    shift_curvature * (-s.H s / |s|^2) (hand-computed: blocks I, -4 I, I and H_N = 1 along s = 1:
+    s.H s = 2 - 8 + 2 + 1 = -3, |s|^2 = 7); no floor along positive curvature."""
+    N, scale = 3, 2.0
+    Bk = np.array([np.eye(2), -4.0 * np.eye(2), np.eye(2)])
+    BN = np.eye(1)
+    dX, dU = np.ones((N + 1, 1)), np.ones((N, 1))
+    s = SQPSolver(shift_curvature=0.5, shift_init=1e-4, shift_increase=10.0)
+    floor = s._curvature_floor(Bk, BN, dX, dU)
+    assert floor == pytest.approx(0.5 * 3.0 / 7.0, rel=1e-14)
+    delta = np.array([0.0, 1e-3, 0.0, 0.0])
+    assert np.allclose(s._raise_shift(delta, scale, floor=floor), 0.5 * 3.0 / 7.0)   # above 10 delta and 2e-4
+    assert np.allclose(s._raise_shift(np.full(4, 0.1), scale, floor=floor), 1.0)     # 10 delta wins
+    assert s._curvature_floor(np.array([np.eye(2)] * N), BN, dX, dU) == 0.0
+    assert SQPSolver(shift_curvature=0.0)._curvature_floor(Bk, BN, dX, dU) == 0.0
+
+
 def test_stage_shift_solves_a_long_zambezi_horizon():
     """shift_mode = 'stage' on the long-horizon family reaches the objective of the global shift
     (N = 1200: the same local minimum to 1e-9) in no more SQP iterations."""

@@ -175,6 +175,10 @@ class SQPOptions(SolverOptions):
                              "whose block has no positive curvature along that step (s_k.(H_k + delta_k I) s_k <= 0; "
                              "all stages if none) -- the other stages keep their Newton steps on long horizons",
                              choices=("global", "stage"))
+    shift_curvature: float = option(0.5, "inertia correction: after a QP step s that is no descent direction of the "
+                                    "merit function, delta is raised to at least this times the negative curvature "
+                                    "-s.H s / |s|^2 of the unshifted Hessian along s (0 = only the tenfold raise)",
+                                    min=0.0)
     shift_min: float = option(1e-8, "inertia correction: a starting delta below shift_min * max|H| is replaced by 0",
                               min=0.0)
     max_ascent_steps: int = option(1, "relaxed watchdog steps allowed per solve along a QP step that is no descent "
@@ -298,6 +302,7 @@ class SQPSolver(Solver):
         shift = np.zeros(N + 1)    # Hessian shift per stage block (N: the final block) of the last accepted step
         force_delta = None         # shift for the next QP after a rejected step (non-descent direction)
         ascent_relaxed = o.max_ascent_steps  # non-descent steps that may still be tried as relaxed watchdog steps
+        returned = False           # the last step was a watchdog return: the next one is not relaxed
         retries = 0                # QPs re-solved with a larger shift at the current point
         last_qp = None             # QP result of the last accepted step (warm start of the local phase)
         local = was_local = False  # local phase: full steps and a small KKT residual
@@ -453,13 +458,16 @@ class SQPSolver(Solver):
             d_tol = (10.0 * np.finfo(float).eps * max(1.0, abs(phi0))
                      + o.tol * grad_scale * (float(np.sum(np.abs(dX[1:]))) + float(np.sum(np.abs(dU)))))
             descent = D <= d_tol
-            relaxed_ok = descent or (ascent_relaxed > 0 and not local)
+            # no relaxed step right after a watchdog return: from the point the return reached (often
+            # the watched step's own full step again) the same QP would give the same relaxed steps
+            relaxed_ok = (descent or (ascent_relaxed > 0 and not local)) and not returned
             if (inertia and not descent and retries < o.max_shift_retries
                     and not (relaxed_ok and o.watchdog and watch is None)):
                 # not a descent direction of phi: with a positive definite reduced Hessian and
                 # rho >= |multipliers| it would be (Nocedal & Wright Thm. 18.2), so the Hessian is
                 # shifted further and the QP solved again at the same point
-                force_delta = self._raise_shift(delta, hscale, self._flat_stages(Bk, BN, delta, hscale, dX, dU))
+                force_delta = self._raise_shift(delta, hscale, self._flat_stages(Bk, BN, delta, hscale, dX, dU),
+                                                floor=self._curvature_floor(Bk, BN, dX, dU))
                 retries += 1
                 continue
             rho = rho_new
@@ -493,6 +501,7 @@ class SQPSolver(Solver):
                     lam_new, Lg_new, LgN_new = w["lam_new"], w["Lg_new"], w["LgN_new"]
                     alpha, new_pt, ls_trials, mode = self._line_search(p, pt, dX, dU, merit(pt), D, merit, None)
                     mode = "watchdog-return"
+                    returned = new_pt is not None
                 if new_pt is None:
                     if inertia:
                         force_delta = self._raise_shift(w["delta"], hscale)
@@ -501,7 +510,8 @@ class SQPSolver(Solver):
                         continue
             if new_pt is None:
                 if inertia and not descent and retries < o.max_shift_retries:
-                    force_delta = self._raise_shift(delta, hscale, self._flat_stages(Bk, BN, delta, hscale, dX, dU))
+                    force_delta = self._raise_shift(delta, hscale, self._flat_stages(Bk, BN, delta, hscale, dX, dU),
+                                                    floor=self._curvature_floor(Bk, BN, dX, dU))
                     retries += 1
                     continue
                 status, message = Status.NUMERICAL_ERROR, (f"line search failed at SQP iteration {it}: no step down to "
@@ -509,12 +519,15 @@ class SQPSolver(Solver):
                 lam, Lg, LgN = lam_new, Lg_new, LgN_new
                 break
             retries = 0
+            if mode != "watchdog-return":
+                returned = False
             # watchdog bookkeeping
             if o.watchdog:
                 if mode == "relaxed" and not descent:
                     ascent_relaxed -= 1
                 if mode == "relaxed":
                     watch = {"pt": pt, "dX": dX, "dU": dU, "D": D, "d_tol": d_tol, "count": 0, "delta": delta,
+                             "floor": 0.0 if descent else self._curvature_floor(Bk, BN, dX, dU),
                              "lam": lam, "Lg": Lg, "LgN": LgN, "lam_new": lam_new, "Lg_new": Lg_new, "LgN_new": LgN_new}
                 elif watch is not None:
                     watch["count"] += 1
@@ -565,11 +578,12 @@ class SQPSolver(Solver):
                     if back_pt is not None:
                         back_pt.add_derivatives(p)
                         pt = back_pt
+                        returned = True
                         lam, Lg, LgN = w["lam_new"], w["Lg_new"], w["LgN_new"]
                     elif inertia:
                         # the relaxed step was no descent direction: solve the QP at the watched point
                         # again with a larger shift, and try no more non-descent steps
-                        force_delta = self._raise_shift(w["delta"], hscale)
+                        force_delta = self._raise_shift(w["delta"], hscale, floor=w["floor"])
                         ascent_relaxed = 0
                     local = False
                 watch = None
@@ -640,12 +654,25 @@ class SQPSolver(Solver):
             delta = self._raise_shift(delta, scale, stages)
         return qres, delta
 
-    def _raise_shift(self, delta, hscale, stages=None):
-        """The inertia correction's next shift: max(shift_increase * delta_k, shift_init * max|H|)
-        on the stage blocks in ``stages`` (a boolean mask over the N + 1 blocks; all if None)."""
+    def _raise_shift(self, delta, hscale, stages=None, floor=0.0):
+        """The inertia correction's next shift: max(shift_increase * delta_k, shift_init * max|H|,
+        floor) on the stage blocks in ``stages`` (a boolean mask over the N + 1 blocks; all if None)."""
         o = self.options
-        new = np.maximum(o.shift_increase * delta, o.shift_init * hscale)
+        new = np.maximum(o.shift_increase * delta, max(o.shift_init * hscale, floor))
         return new if stages is None else np.where(stages, new, delta)
+
+    def _curvature_floor(self, Bk, BN, dX, dU):
+        """After a QP step s that is no descent direction of the merit function: shift_curvature
+        times the negative curvature of the unshifted Hessian along s, -s.H s / |s|^2 (0 if none).
+        The rejected step is the Newton step of a QP whose reduced Hessian had about that much
+        negative curvature, so a shift below it cannot restore descent; a tenfold raise per
+        rejected QP would need several QPs to get there."""
+        z = np.concatenate([dX[:-1], dU], axis=1)
+        ss = float(np.sum(z * z) + dX[-1] @ dX[-1])
+        if not ss > 0.0:
+            return 0.0
+        sHs = float(np.einsum("ki,kij,kj->", z, Bk, z) + dX[-1] @ BN @ dX[-1])
+        return self.options.shift_curvature * max(0.0, -sHs / ss)
 
     def _flat_stages(self, Bk, BN, delta, hscale, dX, dU):
         """With shift_mode = 'stage': the blocks without positive curvature along the rejected step
