@@ -26,13 +26,17 @@ plus delta*I, delta chosen as in the inertia correction of Waechter & Biegler (2
 each iteration starts from ``shift_decrease`` times the last delta (0 below ``shift_min``), a QP
 that fails (its Riccati factorizations find a reduced Hessian that is not positive definite and
 the interior point stalls) is solved again with delta = max(``shift_increase`` delta,
-``shift_init`` max|H|). A QP step that is no descent direction of phi (D > 0 beyond what the KKT
-tolerance resolves) is a sign of the same nonconvexity -- with a positive definite reduced
-Hessian and rho >= |mu| it cannot happen (Nocedal & Wright Thm. 18.2) -- and is treated the same
-way: delta grows and the QP is solved again at the same point. Only ``max_ascent_steps`` such
-steps per solve are tried first as relaxed watchdog steps (never in the local phase), and a
-watchdog return to a point whose step was no descent direction re-solves its QP with a larger
-delta instead of backtracking uphill. delta is kept per stage block (N + 1 values); with
+``shift_init`` max|H|, ``shift_curvature`` (-s.H s / |s|^2)), s its last iterate: the negative
+curvature of the unshifted Hessian along s, which a shift well below it cannot remove, so one
+re-solve replaces several tenfold raises. A QP step that is no descent direction of phi (D > 0
+beyond what the KKT tolerance resolves) is a sign of the same nonconvexity -- with a positive
+definite reduced Hessian and rho >= |mu| it cannot happen (Nocedal & Wright Thm. 18.2) -- and is
+treated the same way (s the step): delta grows and the QP is solved again at the same point.
+Only ``max_ascent_steps`` such steps per solve are tried first as relaxed watchdog steps (never
+in the local phase), and a watchdog return to a point whose step was no descent direction
+re-solves its QP with a larger delta instead of backtracking uphill; the step after a watchdog
+return is never relaxed (from the point the return reached, often the watched step's own full
+step, the same QP would repeat the same relaxed steps). delta is kept per stage block (N + 1 values); with
 ``shift_mode = "global"`` (default) all are equal. With ``shift_mode = "stage"`` a rejected step
 s, or the last iterate of a failed QP, raises delta only on the blocks without positive
 curvature along it, s_k.(H_k + delta_k I) s_k <= 0 (H is block diagonal, so s.H s is the sum of
@@ -614,8 +618,9 @@ class SQPSolver(Solver):
         """Solve the QP subproblem with delta*I (+ the proximal term) added to the Hessian. With
         ``inertia`` (exact Hessian, convexify="inertia") a QP whose KKT factorization fails -- a
         reduced Hessian that is not positive definite -- is solved again with delta raised to
-        max(shift_increase * delta, shift_init * max|H|) (the inertia correction of Waechter &
-        Biegler 2006 sec. 3.1, applied to the QP). ``warm`` is a QPResult to start the QP from.
+        max(shift_increase * delta, shift_init * max|H|, shift_curvature * the negative curvature
+        of H along the failed QP's last iterate) (the inertia correction of Waechter & Biegler
+        2006 sec. 3.1, applied to the QP). ``warm`` is a QPResult to start the QP from.
         Returns (QPResult, shift used)."""
         o = self.options
         self._qp_iterations = 0
@@ -648,10 +653,11 @@ class SQPSolver(Solver):
                 return qres, delta + qshift
             # a failed QP: raise the shift (with shift_mode = 'stage' on the blocks without positive
             # curvature along its last iterate, when it has one)
-            stages = None
+            stages, floor = None, 0.0
             if qres.X is not None and np.all(np.isfinite(qres.X)) and np.all(np.isfinite(qres.U)):
                 stages = self._flat_stages(Bk, BN, delta, scale, qres.X, qres.U)
-            delta = self._raise_shift(delta, scale, stages)
+                floor = self._curvature_floor(Bk, BN, qres.X, qres.U)
+            delta = self._raise_shift(delta, scale, stages, floor=floor)
         return qres, delta
 
     def _raise_shift(self, delta, hscale, stages=None, floor=0.0):
@@ -662,11 +668,11 @@ class SQPSolver(Solver):
         return new if stages is None else np.where(stages, new, delta)
 
     def _curvature_floor(self, Bk, BN, dX, dU):
-        """After a QP step s that is no descent direction of the merit function: shift_curvature
-        times the negative curvature of the unshifted Hessian along s, -s.H s / |s|^2 (0 if none).
-        The rejected step is the Newton step of a QP whose reduced Hessian had about that much
-        negative curvature, so a shift below it cannot restore descent; a tenfold raise per
-        rejected QP would need several QPs to get there."""
+        """After a QP step s that is no descent direction of the merit function (or the last
+        iterate s of a QP that failed): shift_curvature times the negative curvature of the
+        unshifted Hessian along s, -s.H s / |s|^2 (0 if none). s comes from a QP whose reduced
+        Hessian had about that much negative curvature, so a shift well below it cannot restore
+        descent; a tenfold raise per rejected QP would need several QPs to get there."""
         z = np.concatenate([dX[:-1], dU], axis=1)
         ss = float(np.sum(z * z) + dX[-1] @ dX[-1])
         if not ss > 0.0:
