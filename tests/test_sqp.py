@@ -324,3 +324,16 @@ def test_adaptive_qp_tolerance_reaches_the_same_solution(pendulum_reference):
     assert r.success, r.message
     assert r.objective == pytest.approx(ref.objective, rel=1e-8)
     assert np.allclose(r.u, ref.u, atol=1e-5)
+
+
+def test_no_relaxed_step_right_after_a_watchdog_return():
+    """zambezi12, N = 108: a relaxed step and two watchdog steps fail to decrease the merit below
+    the watched point; the return's line search lands on the relaxed step's own full step. Were
+    the next step relaxed again, the same QP would repeat the same two iterates (it did: iterates
+    5-6 reappeared as 7-8): no iterate may be visited twice."""
+    r = olado.solve(zambezi_problem("zambezi12", N=108), config="configs/sqp-ip.ini")
+    assert r.success, r.message
+    modes = [h["mode"] for h in r.history]
+    assert "watchdog" in modes                       # the case is exercised
+    points = [(round(h["objective"], 12), round(h["violation"], 14)) for h in r.history]
+    assert len(set(points)) == len(points)
