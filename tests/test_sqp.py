@@ -335,5 +335,7 @@ def test_no_relaxed_step_right_after_a_watchdog_return():
     assert r.success, r.message
     modes = [h["mode"] for h in r.history]
     assert "watchdog" in modes                       # the case is exercised
-    points = [(round(h["objective"], 12), round(h["violation"], 14)) for h in r.history]
-    assert len(set(points)) == len(points)
+    pts = [(h["objective"], h["violation"]) for h in r.history if h["violation"] > 1e-6]   # before convergence
+    for i, (Ji, vi) in enumerate(pts):
+        for Jj, vj in pts[i + 1:]:
+            assert not (abs(Ji - Jj) <= 1e-9 * abs(Ji) and abs(vi - vj) <= 1e-6 * vi)
