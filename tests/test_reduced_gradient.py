@@ -106,10 +106,14 @@ def test_conjugate_directions_beat_steepest_descent(cls):
     for f, res in its.items():
         assert res.success
         assert res.iterations * 5 <= sd.iterations, (f, res.iterations, sd.iterations)
-    # the three formulas are different methods: their iterates differ
+    # the three formulas are different methods: their iterates differ (on the quadratic LQ
+    # problem the line search's interpolation finds the exact minimizer along d, so d.g+ = 0 and
+    # d.(g+ - g) = g.g: Sinnot-Luenberger's beta equals Polak-Ribiere's there and the iterates
+    # differ by rounding only, which depends on the machine)
     objs = {f: [h["objective"] for h in r.history[:6]] for f, r in its.items()}
     assert objs["fletcher-reeves"] != objs["polak-ribiere"]
-    assert objs["polak-ribiere"] != objs["sinnot-luenberger"]
+    if cls is not LQ:
+        assert objs["polak-ribiere"] != objs["sinnot-luenberger"]
     assert any(h.get("restart") for h in its["fletcher-reeves"].history[1:])
 
 
