@@ -171,7 +171,7 @@ class InteriorPointQPOptions:
                             "solves the shifted (convexified) QP and reports the total shift in "
                             "QPResult.regularization", choices=("regularize", "shift"))
     refinement_steps: int = option(3, "maximum iterative refinement steps per Newton solve (0 = none)", min=0, max=20)
-    refinement_tol: float = option(1e-6, "a Newton solve is refined only when its residual exceeds this times the "
+    refinement_tol: float = option(1e-4, "a Newton solve is refined only when its residual exceeds this times the "
                                    "size of the right-hand side (and 1e-3 tol (1 + that size)); 0 = refine down to "
                                    "the latter", min=0.0, max=1e-2)
     acceptable_tol: float = option(1e-6, "if the solve ends without meeting tol, the best iterate is returned as "
