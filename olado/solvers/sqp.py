@@ -36,8 +36,8 @@ Only ``max_ascent_steps`` such steps per solve are tried first as relaxed watchd
 in the local phase), and a watchdog return to a point whose step was no descent direction
 re-solves its QP with a larger delta instead of backtracking uphill; the step after a watchdog
 return is never relaxed (from the point the return reached, often the watched step's own full
-step, the same QP would repeat the same relaxed steps). delta is kept per stage block (N + 1 values); with
-``shift_mode = "global"`` (default) all are equal. With ``shift_mode = "stage"`` a rejected step
+step, the same QP would repeat the same relaxed steps). delta is kept per stage block (N + 1
+values); with ``shift_mode = "global"`` (default) all are equal. With ``shift_mode = "stage"`` a rejected step
 s, or the last iterate of a failed QP, raises delta only on the blocks without positive
 curvature along it, s_k.(H_k + delta_k I) s_k <= 0 (H is block diagonal, so s.H s is the sum of
 these terms and its negative part sits in those blocks); on a long horizon one window that needs
@@ -180,9 +180,9 @@ class SQPOptions(SolverOptions):
                              "all stages if none) -- the other stages keep their Newton steps on long horizons",
                              choices=("global", "stage"))
     shift_curvature: float = option(0.5, "inertia correction: after a QP step s that is no descent direction of the "
-                                    "merit function, delta is raised to at least this times the negative curvature "
-                                    "-s.H s / |s|^2 of the unshifted Hessian along s (0 = only the tenfold raise)",
-                                    min=0.0)
+                                    "merit function, or a failed QP with last iterate s, delta is raised to at least "
+                                    "this times the negative curvature -s.H s / |s|^2 of the unshifted Hessian along s "
+                                    "(0 = only the tenfold raise)", min=0.0)
     shift_min: float = option(1e-8, "inertia correction: a starting delta below shift_min * max|H| is replaced by 0",
                               min=0.0)
     max_ascent_steps: int = option(1, "relaxed watchdog steps allowed per solve along a QP step that is no descent "
