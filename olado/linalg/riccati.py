@@ -1108,7 +1108,8 @@ class StageData:
         self.regularization = float(regularization)
         # active masks of the padded row slots
         self.eq_mask = np.arange(self.ne_max)[None, :] < self.ne[:, None]                      # (N, ne_max)
-        self.ineq_w = np.where(np.arange(self.ni_max)[None, :] < self.ni[:, None], self.sig, 0.0)  # (N, ni_max)
+        self.ineq_active = np.arange(self.ni_max)[None, :] < self.ni[:, None]                  # (N, ni_max)
+        self.ineq_w = np.where(self.ineq_active, self.sig, 0.0)                                 # (N, ni_max)
 
     def rhs_arrays(self, q, r, c, x0, e, eN, ci):
         N, n, m = self.N, self.n, self.m
@@ -1156,15 +1157,19 @@ class RiccatiFactorization(StageData):
         and/or regularization; Q, S, R, A, B and the equality rows stay.  The factors are
         overwritten in place (no new allocation: on large N the first touch of fresh factor
         arrays costs as much as the kernel).  Raises NotPositiveDefiniteError like the
-        constructor (the object must then be refactored before the next solve)."""
+        constructor (the object must then be refactored before the next solve).  Arrays that are
+        the ones already held (updated in place by the caller) are not validated again."""
         N, n, m = self.N, self.n, self.m
-        if Dx is not None:
+        if Dx is not None and Dx is not self.Dx:
             self.Dx = _f64(Dx, (N + 1, n), "Dx")
-        if Du is not None:
+        if Du is not None and Du is not self.Du:
             self.Du = _f64(Du, (N, m), "Du")
         if sigma is not None:
-            self.sig = _f64(sigma, self.Ci.shape[:2], "sigma")
-            self.ineq_w = np.where(np.arange(self.ni_max)[None, :] < self.ni[:, None], self.sig, 0.0)
+            if sigma is not self.sig:
+                self.sig = _f64(sigma, self.Ci.shape[:2], "sigma")
+                self.ineq_w = np.where(self.ineq_active, self.sig, 0.0)
+            else:
+                np.copyto(self.ineq_w, self.sig, where=self.ineq_active)
         if regularization is not None:
             self.regularization = float(regularization)
         self._factorize()

@@ -850,6 +850,10 @@ class _Prepared:
                                      ("tl", (self.nw,)), ("tu", (self.nw,)), ("zl", (self.nw,)), ("zu", (self.nw,))))
         self.rhs_layout = _layout((("rx", (N + 1, n)), ("ru", (N, m)), ("dyn", (N, n)), ("x0r", (n,)), ("rE", (N, ne)),
                                    ("rEN", (self.neN,)), ("rl", (self.nw,)), ("rup", (self.nw,))))
+        # the fields as (slice, shape) of the 2-d ones and slices of the 1-d ones (_Point, _Rhs)
+        sls = lambda layout: tuple(slice(a, b) if len(shape) == 1 else (slice(a, b), shape)  # noqa: E731
+                                   for _, a, b, shape in layout[0])
+        self.point_slices, self.rhs_slices = sls(self.point_layout), sls(self.rhs_layout)
         self.dual_mask = np.zeros(self.point_layout[1], dtype=np.bool_)
         for name, a, b, _ in self.point_layout[0]:
             self.dual_mask[a:b] = name in ("lam", "nu", "zl", "zu")
@@ -857,8 +861,19 @@ class _Prepared:
         self.zero_res._size = 0.0
         self.stats = np.empty(6)
         self.inv_tl, self.inv_tu, self.D = np.empty(self.nw), np.empty(self.nw), np.empty(self.nw)
+        # views of D: the stage-row weights and the diagonal terms of the bounds on x_1..x_N, u
+        self.Ds = self.D[self.sl_s].reshape(N, nc)
+        self.Dxb, self.Dub = self.D[self.sl_x].reshape(N, n), self.D[self.sl_u].reshape(N, m)
         self.work_q, self.work_r, self.work_ci = np.empty((N + 1, n)), np.empty((N, m)), np.empty((N, nc))
         self.newton_res = _Rhs(self, np.empty(self.rhs_layout[1]))
+        # objects reused from iteration to iteration (their lifetimes: InteriorPointQP.solve and
+        # _direction): two residual vectors used in turn (the last one may be pending for the
+        # implied Newton residual), the complementarity right-hand sides of one solve, and the
+        # directions of the predictor, of the (combined) corrector, of further correctors (the
+        # Salahi-Peng-Terlaky and centrality correctors, consumed by ``plus``) and of refinement
+        self.res_pool, self.res_turn = None, 0
+        self.rho_l, self.rho_u = np.empty(self.nw), np.empty(self.nw)
+        self.dir_aff = self.dir_main = self.dir_corr = self.dir_refine = None
         self.work_el, self.work_eu, self.work_w = np.empty(self.nw), np.empty(self.nw), np.empty(self.nw)
         self.Q_final = self.Q.copy() if ncN else self.Q   # Q with C_N^T diag(D) C_N added to Q_N
         self.shift = 0.0   # delta added to the Hessian by the nonconvex = "shift" mode
@@ -884,6 +899,21 @@ class _Prepared:
 
     def point(self, v):
         return _Point(self, v)
+
+    def directions(self):
+        """The reused direction objects (predictor, main, corrector, refinement), made on first use."""
+        if self.dir_aff is None:
+            size = self.point_layout[1]
+            self.dir_aff, self.dir_main, self.dir_corr, self.dir_refine = (_Point(self, np.empty(size)) for _ in range(4))
+
+    def residual_buffer(self):
+        """A residual object not holding the last one returned (the two are used in turn)."""
+        if self.res_pool is None:
+            self.res_pool = (_Rhs(self, np.empty(self.rhs_layout[1])), _Rhs(self, np.empty(self.rhs_layout[1])))
+        self.res_turn ^= 1
+        res = self.res_pool[self.res_turn]
+        res._size = None
+        return res
 
     def shift_hessian(self, delta):
         """H <- H + delta I on every stage block and on Q_N (the ``nonconvex = "shift"`` mode)."""
@@ -984,8 +1014,10 @@ class _Point:
     def __init__(self, P, v):
         self._P, self.v = P, v
         self.max_step = None    # cache of _StepContext.max_step for a direction
-        for name, a, b, shape in P.point_layout[0]:
-            object.__setattr__(self, name, v[a:b].reshape(shape))
+        (sx, shx), (su, shu), (sl, shl), (sn, shn), stl, stu, szl, szu = P.point_slices
+        self.X = v[sx].reshape(shx); self.U = v[su].reshape(shu)
+        self.lam = v[sl].reshape(shl); self.nu = v[sn].reshape(shn)
+        self.tl = v[stl]; self.tu = v[stu]; self.zl = v[szl]; self.zu = v[szu]
 
     def plus(self, alpha, d):
         return _Point(self._P, _axpy(self.v, float(alpha), d.v))
@@ -1011,8 +1043,9 @@ class _Rhs:
 
     def __init__(self, P, buf):
         self.buf, self._size = buf, None
-        for name, a, b, shape in P.rhs_layout[0]:
-            object.__setattr__(self, name, buf[a:b].reshape(shape))
+        (sx, shx), (su, shu), (sd, shd), sx0, (se, she), seN, srl, sru = P.rhs_slices
+        self.rx = buf[sx].reshape(shx); self.ru = buf[su].reshape(shu); self.dyn = buf[sd].reshape(shd)
+        self.x0r = buf[sx0]; self.rE = buf[se].reshape(she); self.rEN = buf[seN]; self.rl = buf[srl]; self.rup = buf[sru]
 
     def size(self):
         """max-norm of all residuals."""
@@ -1038,18 +1071,9 @@ class _StepContext:
         self.first = None       # (|rhs|, target) of the first solve
         self.inv_tl, self.inv_tu, D = P.inv_tl, P.inv_tu, P.D
         _scaling(it.tl, it.tu, it.zl, it.zu, P.fl, P.fu, self.inv_tl, self.inv_tu, D)
-        N, n, m, nc = P.N, P.n, P.m, P.nc
-        self.Ds = D[P.sl_s].reshape(N, nc)
-        Q = P.Q
+        self.Ds = P.Ds
         if P.ncN:
-            Q = P.Q_final
-            Q[-1] = P.Q[-1] + P.CN.T @ (D[P.sl_sN][:, None] * P.CN)
-        kw = {}
-        if nc:
-            kw.update(Ci=P.C, sigma=self.Ds)
-        if P.has_eq:
-            kw.update(E=P.E, F=P.F, n_eq=P.n_eq, EN=P.EN)
-        kw.update(solver.options.kkt_options)
+            P.Q_final[-1] = P.Q[-1] + P.CN.T @ (D[P.sl_sN][:, None] * P.CN)
         # factorize with the regularization delta; when the factorization fails (loss of
         # definiteness by cancellation when D spans many orders of magnitude, or a Hessian that is
         # indefinite on the null space of the equalities -- the exact Hessian of an SQP step --
@@ -1067,46 +1091,27 @@ class _StepContext:
         # definiteness is monotone in delta): an iteration that needs the same delta as the last
         # costs three factorizations instead of one per rung.
         rungs = P.reg_rungs(solver.options)
-        Dxb, Dub = D[P.sl_x].reshape(N, n), D[P.sl_u].reshape(N, m)
-        Dx, Du = P.work_Dx, P.work_Du
-        failure = [None]
-
-        def factorize(j):
-            reg = rungs[j]
-            Dx[0] = reg; np.add(Dxb, reg, out=Dx[1:])
-            np.add(Dub, reg, out=Du)
-            try:
-                if P.fact is not None:
-                    self.fact = P.fact.refactor(Dx=Dx, Du=Du, sigma=self.Ds if nc else None)
-                else:
-                    self.fact = make_kkt_solver(solver.options.kkt, Q, P.S, P.R, P.A, P.B, Dx=Dx, Du=Du, **kw)
-                    if isinstance(self.fact, RiccatiFactorization):
-                        P.fact = self.fact
-                return True
-            except NotPositiveDefiniteError as exc:
-                exc.regularization = reg
-                failure[0] = exc
-                return False
-
-        if factorize(0):
+        self._failure = None
+        factorize = self._factorize
+        if factorize(rungs[0]):
             j = 0
         else:
             lo = 0                     # highest rung known to fail
             j = max(1, P.reg_rung - 1)
-            while j < len(rungs) and not factorize(j):
+            while j < len(rungs) and not factorize(rungs[j]):
                 lo = j
                 j += 1
             if j == len(rungs):
-                raise failure[0]
+                raise self._failure
             last_ok = True             # j succeeds; bisect (lo, j) for the lowest rung that does
             while j - lo > 1:
                 mid = (lo + j) // 2
-                if factorize(mid):
+                if factorize(rungs[mid]):
                     j, last_ok = mid, True
                 else:
                     lo, last_ok = mid, False
             if not last_ok:
-                factorize(j)           # the lowest successful rung again (a failure overwrote it)
+                factorize(rungs[j])    # the lowest successful rung again (a failure overwrote it)
         P.reg_rung = j
         reg = rungs[j]
         self.reg = reg
@@ -1118,21 +1123,55 @@ class _StepContext:
             self.shifted = reg - solver.options.regularization
             P.shift_hessian(self.shifted)
 
+    def _factorize(self, reg):
+        """Factorize the Newton matrix with the regularization ``reg`` (Dx, Du: the work arrays
+        of the prepared problem, D + reg); False (the error kept in ``_failure``) if not positive definite."""
+        P = self.P
+        Dx, Du = P.work_Dx, P.work_Du
+        Dx[0] = reg; np.add(P.Dxb, reg, out=Dx[1:])
+        np.add(P.Dub, reg, out=Du)
+        try:
+            if P.fact is not None:
+                self.fact = P.fact.refactor(Dx=Dx, Du=Du, sigma=self.Ds if P.nc else None)
+            else:
+                kw = {}
+                if P.nc:
+                    kw.update(Ci=P.C, sigma=self.Ds)
+                if P.has_eq:
+                    kw.update(E=P.E, F=P.F, n_eq=P.n_eq, EN=P.EN)
+                options = self.solver.options
+                kw.update(options.kkt_options)
+                self.fact = make_kkt_solver(options.kkt, P.Q_final if P.ncN else P.Q, P.S, P.R, P.A, P.B,
+                                            Dx=Dx, Du=Du, **kw)
+                if isinstance(self.fact, RiccatiFactorization):
+                    P.fact = self.fact
+            return True
+        except NotPositiveDefiniteError as exc:
+            exc.regularization = reg
+            self._failure = exc
+            return False
+
     # ------------------------------------------------------------------ solves
-    def _reduced_solve(self, res, rho_l, rho_u):
+    def _reduced_solve(self, res, rho_l, rho_u, out=None):
         """Solve the Newton system
 
             H dz + delta dz + (constraint gradient of dlam, dnu, dzu - dzl) = -rx, -ru
             A dx + B du - dx_+ = -dyn,  dx_0 = x0r,  E dz = -rE,  E_N dx_N = -rEN
             dtl = dw + rl,  dtu = -dw + rup,  zl dtl + tl dzl = rho_l,  zu dtu + tu dzu = rho_u
 
-        by elimination of (dtl, dtu, dzl, dzu) and one solve with the factorization."""
+        by elimination of (dtl, dtu, dzl, dzu) and one solve with the factorization.  The direction
+        is written into ``out`` (a reused direction of the prepared problem, every field
+        overwritten) or a new one."""
         P, it = self.P, self.it
         self.n_solves += 1
         q, r, ci = P.work_q, P.work_r, P.work_ci
         _newton_rhs(res.rx, res.ru, res.rl, res.rup, rho_l, rho_u, it.zl, it.zu, self.inv_tl, self.inv_tu,
                     self.Ds, P.CN, q, r, ci)
-        d = P.point(np.empty(P.point_layout[1]))
+        if out is None:
+            d = P.point(np.empty(P.point_layout[1]))
+        else:
+            d = out
+            d.max_step = None
         if self.fact is P.fact and self.fact.unconstrained:
             # Riccati without equality rows: the work arrays were validated when the QP was
             # prepared; the solution goes straight into the direction's arrays
@@ -1173,7 +1212,7 @@ class _StepContext:
                                         P.work_el, P.work_eu)
         return e, P.work_el, P.work_eu, max(e._size, big)
 
-    def solve(self, res, rho_l, rho_u):
+    def solve(self, res, rho_l, rho_u, out=None):
         """Direction for the residuals ``res`` and complementarity right-hand sides rho_l,
         rho_u (flat, 0 on infinite sides).  The Newton residual of the unreduced system is
         measured after the solve; only if it exceeds max(1e-3 tol (1 + |rhs|), refinement_tol
@@ -1184,8 +1223,8 @@ class _StepContext:
         is below 10 % of their target (their relative errors stay within a small factor of the
         first one's: same matrix, same conditioning).  The first solve itself may skip it on
         ``rel_prior``, a bound carried over from the last measured iteration (see
-        :meth:`InteriorPointQP.solve`)."""
-        d = self._reduced_solve(res, rho_l, rho_u)
+        :meth:`InteriorPointQP.solve`).  ``out``: as in :meth:`_reduced_solve`."""
+        d = self._reduced_solve(res, rho_l, rho_u, out)
         if self.refinement_steps == 0:
             return d
         rhs = max(res.size(), _max_abs(rho_l), _max_abs(rho_u))
@@ -1213,7 +1252,7 @@ class _StepContext:
                 break
             prev = size
             self.n_refine += 1
-            corr = self._reduced_solve(e, el, eu)
+            corr = self._reduced_solve(e, el, eu, self.P.dir_refine)
             np.add(d.v, corr.v, out=d.v)   # d is this solve's own direction: corrected in place
         return d
 
@@ -1428,8 +1467,13 @@ class InteriorPointQP:
         :class:`MehrotraQP`), then :meth:`_centrality_correctors`. Returns (direction, info)."""
         P, it, mu = ctx.P, ctx.it, ctx.mu
         opts = self.options
-        # predictor (affine scaling, sigma = 0)
-        d_aff = ctx.solve(ctx.res, -it.zl * it.tl, -it.zu * it.tu)
+        P.directions()
+        # predictor (affine scaling, sigma = 0); the right-hand sides of every solve are written
+        # into P.rho_l, P.rho_u (each solve is done with them before the next one is formed)
+        rho_l, rho_u = P.rho_l, P.rho_u
+        np.multiply(np.negative(it.zl, out=rho_l), it.tl, out=rho_l)
+        np.multiply(np.negative(it.zu, out=rho_u), it.tu, out=rho_u)
+        d_aff = ctx.solve(ctx.res, rho_l, rho_u, P.dir_aff)
         a_aff = min(1.0, ctx.max_step(d_aff))
         if P.n_comp == 0:
             return d_aff, {"alpha_aff": a_aff, "sigma": 0.0, "safeguard": False, "correctors": 0, "omega": 1.0}
@@ -1442,23 +1486,21 @@ class InteriorPointQP:
         combined = type(self)._corrector_weight is InteriorPointQP._corrector_weight
         if not safeguard:
             sigma = (1.0 - a_aff) ** 3
-            rho_l, rho_u = np.empty(P.nw), np.empty(P.nw)
             if combined:
                 _combined_rhs(it.tl, it.tu, it.zl, it.zu, fl, fu, d_aff.tl, d_aff.tu, d_aff.zl, d_aff.zu, sigma * mu,
                               1.0, rho_l, rho_u)
-                d = ctx.solve(ctx.res, rho_l, rho_u)
+                d = ctx.solve(ctx.res, rho_l, rho_u, P.dir_main)
             else:
                 _corrector_rhs(fl, fu, d_aff.tl, d_aff.tu, d_aff.zl, d_aff.zu, sigma * mu, 1.0, rho_l, rho_u)
-                d_c = ctx.solve(ctx.zero_res, rho_l, rho_u)
+                d_c = ctx.solve(ctx.zero_res, rho_l, rho_u, P.dir_corr)
                 omega = self._corrector_weight(ctx, d_aff, d_c, a_aff)
                 d = d_aff.plus(omega, d_c)
             safeguard = min(1.0, ctx.max_step(d)) < opts.safeguard_step
         if safeguard:
             gam = opts.safeguard_gamma
             sigma = gam / (1.0 - gam)
-            rho_l, rho_u = np.empty(P.nw), np.empty(P.nw)
             _corrector_rhs(fl, fu, d_aff.tl, d_aff.tu, d_aff.zl, d_aff.zu, sigma * mu, a_aff, rho_l, rho_u)
-            d_c = ctx.solve(ctx.zero_res, rho_l, rho_u)
+            d_c = ctx.solve(ctx.zero_res, rho_l, rho_u, P.dir_corr)
             omega = self._corrector_weight(ctx, d_aff, d_c, a_aff)
             d = d_aff.plus(omega, d_c)
         d, ncorr = self._centrality_correctors(ctx, d, sigma * mu)
@@ -1552,7 +1594,7 @@ class InteriorPointQP:
         """Residuals of the KKT conditions at ``it`` and the measures of the stopping test:
         (res, primal, dual, (primal scale, dual scale), objective, max |X, U|, sum(zl tl + zu tu)) with max-norms and
         scales as in the module docstring (one pass of a compiled kernel)."""
-        res = _Rhs(P, np.empty(P.rhs_layout[1]))
+        res = P.residual_buffer()
         st = P.stats
         _kkt_map_call(P, P.neg_lo, P.hi, P.fl, P.fu,
                  it.X, it.U, it.lam, it.nu, it.tl, it.tu, it.zl, it.zu, P.q, P.r, P.c, P.x0, P.be, P.eN,
@@ -1739,9 +1781,9 @@ class GondzioQP(InteriorPointQP):
                 break
             a_asp = min(1.0, alpha + opts.aspiration_step)
             it = ctx.it
-            rl, ru = np.empty(P.nw), np.empty(P.nw)
+            rl, ru = P.rho_l, P.rho_u
             _centrality_rhs(it.tl, it.tu, it.zl, it.zu, P.fl, P.fu, d.tl, d.tu, d.zl, d.zu, a_asp, lo_t, hi_t, rl, ru)
-            dc = ctx.solve(ctx.zero_res, rl, ru)
+            dc = ctx.solve(ctx.zero_res, rl, ru, P.dir_corr)
             omega = self._corrector_weight(ctx, d, dc, alpha)
             d_new = d.plus(omega, dc)
             a_new = min(1.0, ctx.max_step(d_new))
