@@ -108,7 +108,11 @@ zl, zu; the residuals with the measures of the stopping test, the elimination of
 multiplier parts before and after a KKT solve, the Newton residual, the ratio tests, the
 neighbourhood test and the corrector right-hand sides are numba kernels over the stacked stage
 arrays of the prepared problem (which also holds the work arrays), so an iteration costs one
-factorization, its solves and a few O(N (n+m)^2) passes.
+factorization, its solves and a few O(N (n+m)^2) passes.  The prepared problem also holds the
+objects reused from iteration to iteration (no per-iteration allocation of views): two residual
+vectors used in turn, the complementarity right-hand sides and the directions of the predictor,
+the corrector, further correctors and refinement -- each overwritten only after its last use
+(see ``_Prepared.directions``); iterates and combined directions (``plus``) are new vectors.
 
 Failures: a factorization that fails (``NotPositiveDefiniteError``: loss of definiteness when D
 spans many orders of magnitude, or a Hessian that is indefinite on the null space of the
