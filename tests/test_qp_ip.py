@@ -548,3 +548,26 @@ def test_implied_newton_residual_matches_the_measured_one(split):
     direct = np.max(np.abs(e_buf[n_dual:])) if split else np.max(np.abs(e_buf))
     assert direct > 1e-4
     assert implied == pytest.approx(direct, rel=1e-8)
+
+
+@pytest.mark.parametrize("cls", METHODS, ids=lambda c: c.name)
+@pytest.mark.parametrize("seed,fixed", [(0, False), (3, True), (5, False)])
+def test_acceptable_result_is_polished_on_its_active_set(cls, seed, fixed):
+    """A solve stopped three iterations early (max_iter) ends ACCEPTABLE at its best iterate;
+    polishing (the equality-constrained QP on the bounds active there) turns it into the exact
+    solution: the same point as a solve to tol 1e-12, complementarity at rounding level, every
+    multiplier of the right sign. With polish = False the result stays ACCEPTABLE."""
+    qp = random_qp(seed, fixed=fixed)
+    ref = cls(tol=1e-12).solve(qp)
+    assert ref.status is Status.SUCCESS
+    k = ref.iterations - 3
+    plain = cls(tol=1e-10, max_iter=k, acceptable_tol=1e-2, polish=False).solve(qp)
+    assert plain.status is Status.ACCEPTABLE
+    res = cls(tol=1e-10, max_iter=k, acceptable_tol=1e-2).solve(qp)
+    assert res.status is Status.SUCCESS and "Polished" in res.message, res.message
+    assert np.abs(res.X - ref.X).max() <= 1e-9 and np.abs(res.U - ref.U).max() <= 1e-9
+    assert res.objective == pytest.approx(ref.objective, rel=1e-10)
+    assert res.kkt["stationarity"] <= 1e-9 and res.kkt["primal"] <= 1e-12
+    assert res.kkt["complementarity"] <= 1e-14 and res.kkt["dual_sign"] == 0.0
+    assert res.iterations > plain.iterations          # the polishing Newton steps are counted
+    assert max(np.abs(plain.X - ref.X).max(), np.abs(plain.U - ref.U).max()) > 1e-9   # it did improve

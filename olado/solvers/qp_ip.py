@@ -126,6 +126,17 @@ with H + delta I and delta in ``QPResult.regularization`` -- what the SQP's iner
 needs, in one solve instead of a sequence of failing ones.  When a solve ends with NUMERICAL_ERROR or MAX_ITERATIONS but
 an earlier iterate met ``acceptable_tol``, that iterate is returned with status ACCEPTABLE and a
 message saying what happened.
+
+Polishing (``polish``, on by default).  An ACCEPTABLE result is usually a good estimate of the
+active set whose last iterations were cut short -- near the solution D spans so many orders of
+magnitude (z/t ~ 1e16 on active bounds, 1e-16 on inactive ones) that the Newton matrices stop
+factorizing, typically in the tightly-toleranced local phase of the SQP.  Every side whose
+multiplier exceeds its slack is then held at its bound (fixed controls eliminated, fixed states
+and rows as equality rows, the other sides dropped) and the resulting equality-constrained QP is
+solved in one Newton step; bounds its solution violates are added and it is solved again (at
+most ``polish_rounds`` times).  The polished point replaces the result, as SUCCESS, only if it
+meets ``tol`` in stationarity, primal feasibility and complementarity with every multiplier of
+the right sign (OSQP's solution polishing, Stellato et al. 2020, in interior-point form).
 """
 
 from __future__ import annotations
@@ -178,6 +189,12 @@ class InteriorPointQPOptions:
     refinement_tol: float = option(1e-4, "a Newton solve is refined only when its residual exceeds this times the "
                                    "size of the right-hand side (and 1e-3 tol (1 + that size)); 0 = refine down to "
                                    "the latter", min=0.0, max=1e-2)
+    polish: bool = option(True, "a solve that ends ACCEPTABLE (the iterates could not reach tol, e.g. because the "
+                          "Newton matrices break down as the slacks of active bounds approach 0) is polished: the "
+                          "equality-constrained QP with the bounds active at the best iterate held at their values is "
+                          "solved exactly (bounds it violates are added, up to polish_rounds times); the polished point "
+                          "replaces the result, with status SUCCESS, when it meets tol with multipliers of the right sign")
+    polish_rounds: int = option(3, "polishing: equality-constrained solves (active-set updates) at most", min=1, max=20)
     acceptable_tol: float = option(1e-6, "if the solve ends without meeting tol, the best iterate is returned as "
                                    "ACCEPTABLE when it meets this looser tolerance", min=0.0, min_exclusive=True)
     infeasibility_tol: float = option(1e-8, "tolerance of the infeasibility / unboundedness certificates",
@@ -1463,7 +1480,103 @@ class InteriorPointQP:
         # largest Newton-system regularization
         res.regularization = (P.shift + failed_reg if P.shift > 0.0
                               else max([failed_reg] + [h["regularization"] for h in history]))
+        if opts.polish and status == Status.ACCEPTABLE and P.shift == 0.0:
+            polished = self._polish(qp, res)
+            if polished is not None:
+                polished.time_s = time.perf_counter() - t0
+                return polished
         return res
+
+    # ------------------------------------------------------------------ polishing
+    def _polish(self, qp, res):
+        """Polish an ACCEPTABLE result (see the ``polish`` option): every side of a box on which
+        the multiplier exceeds the slack at ``res`` is taken as active; the QP with the active
+        sides as equal bounds (fixed controls are eliminated, fixed states and rows become
+        equality rows) and the inactive sides dropped is an equality-constrained QP, solved in
+        one Newton step. Sides that its solution violates are added and it is solved again (at
+        most ``polish_rounds`` solves). The result, with the multipliers of the equal bounds put
+        back on the active sides, replaces ``res`` if it meets ``tol`` (stationarity, primal,
+        complementarity) with multipliers of the right sign; else None (``res`` stays)."""
+        opts = self.options
+        tol = opts.tol
+        inf = np.inf
+        Z = np.concatenate([res.X[:-1], res.U], axis=1)
+        # (lower, upper, value, multiplier lower, multiplier upper) of each kind of box
+        boxes = {"x": (qp.x_lower, qp.x_upper, res.X, res.zx_lower, res.zx_upper),
+                 "u": (qp.u_lower, qp.u_upper, res.U, res.zu_lower, res.zu_upper),
+                 "c": (qp.c_lower, qp.c_upper, np.einsum("kij,kj->ki", qp.C, Z), res.yc_lower, res.yc_upper),
+                 "cN": (qp.cN_lower, qp.cN_upper, qp.CN @ res.X[-1], res.yN_lower, res.yN_upper)}
+        fixed, act = {}, {}
+        for key, (lo, hi, val, zl, zu) in boxes.items():
+            fl, fu = np.isfinite(lo), np.isfinite(hi)
+            fixed[key] = fl & fu & (np.where(fl & fu, hi - lo, inf) <= _FIX_RTOL * (1 + np.abs(np.where(fl, lo, 0.0))))
+            aL = fl & ~fixed[key] & (zl > val - lo)
+            aU = fu & ~fixed[key] & (zu > hi - val) & ~aL
+            if key == "x":
+                aL[0] = aU[0] = False          # x_0 is fixed by its own row
+            act[key] = [aL, aU]
+        solver = type(self)(self.options, polish=False, max_iter=5)
+        r2, extra = None, 0
+        for _ in range(opts.polish_rounds):
+            kw = {}
+            for key, (lo, hi, _, _, _) in boxes.items():
+                aL, aU = act[key]
+                new_lo = np.where(fixed[key] | aL, lo, np.where(aU, hi, -inf))
+                new_hi = np.where(fixed[key] | aU, hi, np.where(aL, lo, inf))
+                if key == "x":
+                    new_lo[0], new_hi[0] = lo[0], hi[0]
+                names = {"x": ("x_lower", "x_upper"), "u": ("u_lower", "u_upper"), "c": ("c_lower", "c_upper"),
+                         "cN": ("cN_lower", "cN_upper")}[key]
+                kw[names[0]], kw[names[1]] = new_lo, new_hi
+            try:
+                r2 = solver.solve(dataclasses.replace(qp, **kw))
+            except (np.linalg.LinAlgError, FloatingPointError, ValueError, ArithmeticError):
+                return None
+            if not r2.success:
+                return None
+            extra += r2.iterations
+            Z2 = np.concatenate([r2.X[:-1], r2.U], axis=1)
+            vals = {"x": r2.X, "u": r2.U, "c": np.einsum("kij,kj->ki", qp.C, Z2), "cN": qp.CN @ r2.X[-1]}
+            violated = False
+            for key, (lo, hi, _, _, _) in boxes.items():
+                v = vals[key]
+                scale = tol * (1.0 + np.abs(v))
+                vL, vU = v < lo - scale, v > hi + scale
+                if key == "x":
+                    vL[0] = vU[0] = False
+                if vL.any() or vU.any():
+                    violated = True
+                    act[key][0] |= vL
+                    act[key][1] |= vU & ~act[key][0]
+            if not violated:
+                break
+        else:
+            return None
+        # the multipliers of the equal bounds (net lower minus upper) back on the active sides
+        out = {}
+        for key, (lo, hi, _, _, _) in boxes.items():
+            zl2, zu2 = {"x": (r2.zx_lower, r2.zx_upper), "u": (r2.zu_lower, r2.zu_upper),
+                        "c": (r2.yc_lower, r2.yc_upper), "cN": (r2.yN_lower, r2.yN_upper)}[key]
+            aL, aU = act[key]
+            net = zl2 - zu2
+            out[key] = (np.where(fixed[key], zl2, np.where(aL, net, 0.0)), np.where(fixed[key], zu2, np.where(aU, -net, 0.0)))
+        pol = dataclasses.replace(r2, zx_lower=out["x"][0], zx_upper=out["x"][1], zu_lower=out["u"][0],
+                                  zu_upper=out["u"][1], yc_lower=out["c"][0], yc_upper=out["c"][1],
+                                  yN_lower=out["cN"][0], yN_upper=out["cN"][1], history=res.history,
+                                  iterations=res.iterations + extra, solver=res.solver,
+                                  regularization=res.regularization)
+        kkt = qp_kkt_residuals(qp, pol)
+        d_scale = 1.0 + max(float(np.max(np.abs(qp.q), initial=0.0)), float(np.max(np.abs(qp.r), initial=0.0)))
+        p_scale = 1.0 + max(float(np.max(np.abs(qp.c), initial=0.0)), float(np.max(np.abs(qp.x0), initial=0.0)),
+                            float(np.max(np.abs(pol.X), initial=0.0)), float(np.max(np.abs(pol.U), initial=0.0)))
+        if not (kkt["stationarity"] <= tol * d_scale and kkt["dual_sign"] <= tol * d_scale
+                and kkt["primal"] <= tol * p_scale and kkt["complementarity"] <= tol * (1.0 + abs(pol.objective))):
+            return None
+        pol.kkt = kkt
+        pol.status = Status.SUCCESS
+        pol.message = (f"{Status.SUCCESS.sentence} Polished ({extra} Newton steps on the active set of the best "
+                       f"iterate, counted in the iterations) after: {res.message}")
+        return pol
 
     # ------------------------------------------------------------------ direction (subclasses)
     def _direction(self, ctx):
