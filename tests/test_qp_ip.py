@@ -571,3 +571,16 @@ def test_acceptable_result_is_polished_on_its_active_set(cls, seed, fixed):
     assert res.kkt["complementarity"] <= 1e-14 and res.kkt["dual_sign"] == 0.0
     assert res.iterations > plain.iterations          # the polishing Newton steps are counted
     assert max(np.abs(plain.X - ref.X).max(), np.abs(plain.U - ref.U).max()) > 1e-9   # it did improve
+
+
+def test_too_many_equality_rows_for_the_riccati_recursion_is_a_status_not_a_crash():
+    """Every state fixed at a feasible trajectory: the fixed states become equality rows, and with
+    the dynamics more rows reach a stage than the recursion's row buffer holds (they are
+    dependent). The solve must end with NUMERICAL_ERROR naming the cause, not raise."""
+    qp = random_qp(0, nc=0, ncN=0)
+    X = MehrotraQP(tol=1e-10).solve(qp).X
+    xl, xu = qp.x_lower.copy(), qp.x_upper.copy()
+    xl[1:], xu[1:] = X[1:], X[1:]
+    res = MehrotraQP().solve(replace(qp, x_lower=xl, x_upper=xu))
+    assert res.status is Status.NUMERICAL_ERROR
+    assert "equality rows" in res.message and "too many or dependent" in res.message

@@ -151,8 +151,8 @@ from numba import types
 from numba.extending import overload
 
 from ..linalg.kkt import KKT_SOLVERS, make_kkt_solver
-from ..linalg.riccati import (_FIXED_SIZE_MAX, NotPositiveDefiniteError, RiccatiFactorization, _size_tags,
-                               _stack_vector)
+from ..linalg.riccati import (_FIXED_SIZE_MAX, NotPositiveDefiniteError, RiccatiFactorization, RiccatiStatusError,
+                               _size_tags, _stack_vector)
 from ..linalg.stageqp import QPResult, StageQP, qp_kkt_residuals
 from ..result import Status
 from .base import make_options, option
@@ -1361,6 +1361,9 @@ class InteriorPointQP:
                                f"diagonal terms failed at stage k={exc.stage}: {exc})", 0, history, t0)
             res.regularization = 1.0   # the unit diagonal of the starting-point system
             return res
+        except RiccatiStatusError as exc:
+            return self._finish(P, None, Status.NUMERICAL_ERROR,
+                                f"{Status.NUMERICAL_ERROR.sentence} (starting point: {exc})", 0, history, t0)
         best, stall, k, last_d = math.inf, 0, 0, None
         failed_reg = 0.0
         # The relative error of the Newton solves grows with the conditioning of the Newton matrix,
@@ -1444,7 +1447,7 @@ class InteriorPointQP:
                 message = (f"{status.sentence} (iteration {k + 1}: the KKT factorization failed at stage "
                            f"k={exc.stage} with regularization {failed_reg:.3g}: {exc})")
                 break
-            except (np.linalg.LinAlgError, FloatingPointError, ValueError, ZeroDivisionError) as exc:
+            except (np.linalg.LinAlgError, FloatingPointError, ValueError, ZeroDivisionError, RiccatiStatusError) as exc:
                 status = Status.NUMERICAL_ERROR
                 message = f"{status.sentence} (iteration {k + 1}: {type(exc).__name__}: {exc})"
                 break
@@ -1530,7 +1533,7 @@ class InteriorPointQP:
                 kw[names[0]], kw[names[1]] = new_lo, new_hi
             try:
                 r2 = solver.solve(dataclasses.replace(qp, **kw))
-            except (np.linalg.LinAlgError, FloatingPointError, ValueError, ArithmeticError):
+            except (np.linalg.LinAlgError, FloatingPointError, ValueError, ArithmeticError, RiccatiStatusError):
                 return None
             if not r2.success:
                 return None
