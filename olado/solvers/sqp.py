@@ -158,7 +158,7 @@ class SQPOptions(SolverOptions):
     qp_warm_start: str = option("local", "start the QP from the multipliers of the last accepted QP and a zero step: "
                                 "'off', 'local' (only in the local phase, see local_tol) or 'always'",
                                 choices=("off", "local", "always"))
-    qp_warm_start_push: float = option(1e-4, "warm-started interior-point QP: slacks and multipliers are raised to at "
+    qp_warm_start_push: float = option(1e-6, "warm-started interior-point QP: slacks and multipliers are raised to at "
                                        "least this times (1 + their max) (the QP's warm_start_push)", min=0.0, max=1.0,
                                        min_exclusive=True)
     local_tol: float = option(1e-3, "local phase: after a full step (alpha = 1, Armijo test met) from a point whose "
