@@ -161,7 +161,7 @@ class SQPOptions(SolverOptions):
     qp_warm_start_push: float = option(1e-6, "warm-started interior-point QP: slacks and multipliers are raised to at "
                                        "least this times (1 + their max) (the QP's warm_start_push)", min=0.0, max=1.0,
                                        min_exclusive=True)
-    local_tol: float = option(1e-3, "local phase: after a full step (alpha = 1, Armijo test met) from a point whose "
+    local_tol: float = option(1e-2, "local phase: after a full step (alpha = 1, Armijo test met) from a point whose "
                               "relative KKT residual is <= local_tol the next QP starts with no Hessian shift (and is "
                               "warm-started, see qp_warm_start)", min=0.0)
     local_qp_tol: float = option(1e-11, "QP tolerance in the local phase (0: as elsewhere); the proximal term turns "
