@@ -164,7 +164,7 @@ class SQPOptions(SolverOptions):
     local_tol: float = option(1e-2, "local phase: after a full step (alpha = 1, Armijo test met) from a point whose "
                               "relative KKT residual is <= local_tol the next QP starts with no Hessian shift (and is "
                               "warm-started, see qp_warm_start)", min=0.0)
-    local_qp_tol: float = option(1e-11, "QP tolerance in the local phase (0: as elsewhere); the proximal term turns "
+    local_qp_tol: float = option(1e-10, "QP tolerance in the local phase (0: as elsewhere); the proximal term turns "
                                  "a QP dual error e into a step of about e / (proximal * max|H|) along flat "
                                  "directions, so the last QPs must be solved more accurately than qp_tol", min=0.0)
     shift_init: float = option(1e-4, "inertia correction: first Hessian shift delta*I after a failed QP or a rejected "
