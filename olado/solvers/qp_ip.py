@@ -161,6 +161,23 @@ KKT_BACKENDS = KKT_SOLVERS   # riccati, superlu-full, superlu-reduced, minres, g
 
 _FIX_RTOL = 1e-12
 
+#: the boxes of a StageQP and their multipliers in a QPResult: (kind, lower, upper, multiplier of
+#: the lower side, multiplier of the upper side)
+_BOX_FIELDS = (("x", "x_lower", "x_upper", "zx_lower", "zx_upper"), ("u", "u_lower", "u_upper", "zu_lower", "zu_upper"),
+               ("c", "c_lower", "c_upper", "yc_lower", "yc_upper"), ("cN", "cN_lower", "cN_upper", "yN_lower", "yN_upper"))
+
+
+def _equal_bounds(lo, hi):
+    """Entries with finite lo = hi (to _FIX_RTOL relative): fixed variables and equality rows."""
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(lo) & np.isfinite(hi) & (hi - lo <= _FIX_RTOL * (1 + np.abs(lo)))
+
+
+def _box_values(qp, X, U):
+    """The boxed quantities of ``qp`` at (X, U), by kind: x, u, the stage rows C_k z_k, C_N x_N."""
+    Z = np.concatenate([X[:-1], U], axis=1)
+    return {"x": X, "u": U, "c": np.einsum("kij,kj->ki", qp.C, Z), "cN": qp.CN @ X[-1]}
+
 
 # ============================================================================= options
 @dataclasses.dataclass
@@ -768,7 +785,7 @@ class _Prepared:
             if viol.size and np.any(viol > _FIX_RTOL * (1 + np.abs(lo))):
                 idx = np.unravel_index(np.argmax(viol), viol.shape)
                 self.bad_box = f"lower bound above upper bound for {name} at index {tuple(int(i) for i in idx)}"
-        fix = lambda lo, hi: np.isfinite(lo) & np.isfinite(hi) & (hi - lo <= _FIX_RTOL * (1 + np.abs(lo)))  # noqa: E731
+        fix = _equal_bounds
 
         # ---- fixed controls: eliminated (their value moves into c, q, r, e and the row bounds)
         self.ufix = fix(qp.u_lower, qp.u_upper)
@@ -1503,18 +1520,13 @@ class InteriorPointQP:
         opts = self.options
         tol = opts.tol
         inf = np.inf
-        Z = np.concatenate([res.X[:-1], res.U], axis=1)
-        # (lower, upper, value, multiplier lower, multiplier upper) of each kind of box
-        boxes = {"x": (qp.x_lower, qp.x_upper, res.X, res.zx_lower, res.zx_upper),
-                 "u": (qp.u_lower, qp.u_upper, res.U, res.zu_lower, res.zu_upper),
-                 "c": (qp.c_lower, qp.c_upper, np.einsum("kij,kj->ki", qp.C, Z), res.yc_lower, res.yc_upper),
-                 "cN": (qp.cN_lower, qp.cN_upper, qp.CN @ res.X[-1], res.yN_lower, res.yN_upper)}
+        vals = _box_values(qp, res.X, res.U)
         fixed, act = {}, {}
-        for key, (lo, hi, val, zl, zu) in boxes.items():
-            fl, fu = np.isfinite(lo), np.isfinite(hi)
-            fixed[key] = fl & fu & (np.where(fl & fu, hi - lo, inf) <= _FIX_RTOL * (1 + np.abs(np.where(fl, lo, 0.0))))
-            aL = fl & ~fixed[key] & (zl > val - lo)
-            aU = fu & ~fixed[key] & (zu > hi - val) & ~aL
+        for key, lo_name, hi_name, zl_name, zu_name in _BOX_FIELDS:
+            lo, hi, val = getattr(qp, lo_name), getattr(qp, hi_name), vals[key]
+            fixed[key] = _equal_bounds(lo, hi)
+            aL = np.isfinite(lo) & ~fixed[key] & (getattr(res, zl_name) > val - lo)
+            aU = np.isfinite(hi) & ~fixed[key] & (getattr(res, zu_name) > hi - val) & ~aL
             if key == "x":
                 aL[0] = aU[0] = False          # x_0 is fixed by its own row
             act[key] = [aL, aU]
@@ -1522,15 +1534,13 @@ class InteriorPointQP:
         r2, extra = None, 0
         for _ in range(opts.polish_rounds):
             kw = {}
-            for key, (lo, hi, _, _, _) in boxes.items():
+            for key, lo_name, hi_name, _, _ in _BOX_FIELDS:
+                lo, hi = getattr(qp, lo_name), getattr(qp, hi_name)
                 aL, aU = act[key]
-                new_lo = np.where(fixed[key] | aL, lo, np.where(aU, hi, -inf))
-                new_hi = np.where(fixed[key] | aU, hi, np.where(aL, lo, inf))
+                kw[lo_name] = np.where(fixed[key] | aL, lo, np.where(aU, hi, -inf))
+                kw[hi_name] = np.where(fixed[key] | aU, hi, np.where(aL, lo, inf))
                 if key == "x":
-                    new_lo[0], new_hi[0] = lo[0], hi[0]
-                names = {"x": ("x_lower", "x_upper"), "u": ("u_lower", "u_upper"), "c": ("c_lower", "c_upper"),
-                         "cN": ("cN_lower", "cN_upper")}[key]
-                kw[names[0]], kw[names[1]] = new_lo, new_hi
+                    kw[lo_name][0], kw[hi_name][0] = lo[0], hi[0]
             try:
                 r2 = solver.solve(dataclasses.replace(qp, **kw))
             except (np.linalg.LinAlgError, FloatingPointError, ValueError, ArithmeticError, RiccatiStatusError):
@@ -1538,13 +1548,12 @@ class InteriorPointQP:
             if not r2.success:
                 return None
             extra += r2.iterations
-            Z2 = np.concatenate([r2.X[:-1], r2.U], axis=1)
-            vals = {"x": r2.X, "u": r2.U, "c": np.einsum("kij,kj->ki", qp.C, Z2), "cN": qp.CN @ r2.X[-1]}
+            vals = _box_values(qp, r2.X, r2.U)
             violated = False
-            for key, (lo, hi, _, _, _) in boxes.items():
+            for key, lo_name, hi_name, _, _ in _BOX_FIELDS:
                 v = vals[key]
-                scale = tol * (1.0 + np.abs(v))
-                vL, vU = v < lo - scale, v > hi + scale
+                slack = tol * (1.0 + np.abs(v))
+                vL, vU = v < getattr(qp, lo_name) - slack, v > getattr(qp, hi_name) + slack
                 if key == "x":
                     vL[0] = vU[0] = False
                 if vL.any() or vU.any():
@@ -1556,18 +1565,15 @@ class InteriorPointQP:
         else:
             return None
         # the multipliers of the equal bounds (net lower minus upper) back on the active sides
-        out = {}
-        for key, (lo, hi, _, _, _) in boxes.items():
-            zl2, zu2 = {"x": (r2.zx_lower, r2.zx_upper), "u": (r2.zu_lower, r2.zu_upper),
-                        "c": (r2.yc_lower, r2.yc_upper), "cN": (r2.yN_lower, r2.yN_upper)}[key]
+        mult = {}
+        for key, _, _, zl_name, zu_name in _BOX_FIELDS:
+            zl2, zu2 = getattr(r2, zl_name), getattr(r2, zu_name)
             aL, aU = act[key]
             net = zl2 - zu2
-            out[key] = (np.where(fixed[key], zl2, np.where(aL, net, 0.0)), np.where(fixed[key], zu2, np.where(aU, -net, 0.0)))
-        pol = dataclasses.replace(r2, zx_lower=out["x"][0], zx_upper=out["x"][1], zu_lower=out["u"][0],
-                                  zu_upper=out["u"][1], yc_lower=out["c"][0], yc_upper=out["c"][1],
-                                  yN_lower=out["cN"][0], yN_upper=out["cN"][1], history=res.history,
-                                  iterations=res.iterations + extra, solver=res.solver,
-                                  regularization=res.regularization)
+            mult[zl_name] = np.where(fixed[key], zl2, np.where(aL, net, 0.0))
+            mult[zu_name] = np.where(fixed[key], zu2, np.where(aU, -net, 0.0))
+        pol = dataclasses.replace(r2, **mult, history=res.history, iterations=res.iterations + extra,
+                                  solver=res.solver, regularization=res.regularization)
         kkt = qp_kkt_residuals(qp, pol)
         d_scale = 1.0 + max(float(np.max(np.abs(qp.q), initial=0.0)), float(np.max(np.abs(qp.r), initial=0.0)))
         p_scale = 1.0 + max(float(np.max(np.abs(qp.c), initial=0.0)), float(np.max(np.abs(qp.x0), initial=0.0)),
