@@ -673,11 +673,9 @@ class SQPSolver(Solver):
         unshifted Hessian along s, -s.H s / |s|^2 (0 if none). s comes from a QP whose reduced
         Hessian had about that much negative curvature, so a shift well below it cannot restore
         descent; a tenfold raise per rejected QP would need several QPs to get there."""
-        z = np.concatenate([dX[:-1], dU], axis=1)
-        ss = float(np.sum(z * z) + dX[-1] @ dX[-1])
+        sHs, ss = self._curvature(Bk, BN, dX, dU)
         if not ss > 0.0:
             return 0.0
-        sHs = float(np.einsum("ki,kij,kj->", z, Bk, z) + dX[-1] @ BN @ dX[-1])
         return self.options.shift_curvature * max(0.0, -sHs / ss)
 
     def _flat_stages(self, Bk, BN, delta, hscale, dX, dU):
@@ -714,11 +712,15 @@ class SQPSolver(Solver):
 
     def _curvature_ok(self, Bd, BNd, qres, scale):
         """s^T H s >= curvature_tol * max|H| * |s|^2 for the QP step s."""
-        n = qres.X.shape[1]
-        z = np.concatenate([qres.X[:-1], qres.U], axis=1)
-        sHs = float(np.einsum("ki,kij,kj->", z, Bd, z) + qres.X[-1] @ BNd @ qres.X[-1])
-        ss = float(np.sum(z * z) + qres.X[-1] @ qres.X[-1])
+        sHs, ss = self._curvature(Bd, BNd, qres.X, qres.U)
         return sHs >= self.options.curvature_tol * scale * ss
+
+    @staticmethod
+    def _curvature(Bk, BN, dX, dU):
+        """(s.H s, s.s) for s = (dX, dU) and the block-diagonal H of the stage blocks Bk and BN."""
+        z = np.concatenate([dX[:-1], dU], axis=1)
+        sHs = float(np.einsum("ki,kij,kj->", z, Bk, z) + dX[-1] @ BN @ dX[-1])
+        return sHs, float(np.sum(z * z) + dX[-1] @ dX[-1])
 
     @staticmethod
     def _build_qp(p, pt, Bk, BN, eq, ineq, eqN, ineqN, offsets=None):
