@@ -248,6 +248,19 @@ class QPResult:
         return getattr(self.status, "success", False)
 
 
+#: the boxes of a StageQP and the multipliers of their sides in a QPResult:
+#: (kind, lower bound, upper bound, lower-side multiplier, upper-side multiplier) field names
+BOX_FIELDS = (("x", "x_lower", "x_upper", "zx_lower", "zx_upper"), ("u", "u_lower", "u_upper", "zu_lower", "zu_upper"),
+              ("c", "c_lower", "c_upper", "yc_lower", "yc_upper"), ("cN", "cN_lower", "cN_upper", "yN_lower", "yN_upper"))
+
+
+def box_values(qp: StageQP, X, U) -> dict:
+    """The boxed quantities of ``qp`` at (X, U), by the kinds of :data:`BOX_FIELDS`: x, u, the
+    stage rows C_k z_k (z_k = (x_k, u_k)) and the final rows C_N x_N."""
+    Z = np.concatenate([X[:-1], U], axis=1)
+    return {"x": X, "u": U, "c": np.einsum("kij,kj->ki", qp.C, Z), "cN": qp.CN @ X[-1]}
+
+
 def qp_kkt_residuals(qp: StageQP, res: QPResult) -> dict:
     """Max-norm KKT residuals of ``res`` for ``qp`` under the :class:`QPResult` convention:
     ``stationarity`` (gradient of L w.r.t. x and u), ``primal`` (equality residuals and bound /
@@ -255,7 +268,6 @@ def qp_kkt_residuals(qp: StageQP, res: QPResult) -> dict:
     ``dual_sign`` (most negative inequality multiplier, as a positive number)."""
     N, n, m = qp.N, qp.n, qp.m
     X, U = res.X, res.U
-    Z = np.concatenate([X[:-1], U], axis=1)
     ne, ncs, neN, ncN = qp.E.shape[1], qp.C.shape[1], qp.EN.shape[0], qp.CN.shape[0]
     nu = res.nu
     # gradient of the objective
@@ -286,14 +298,13 @@ def qp_kkt_residuals(qp: StageQP, res: QPResult) -> dict:
         prim = max(prim, np.abs(np.einsum("kij,kj->ki", qp.E, X[:-1]) + np.einsum("kij,kj->ki", qp.F, U) + qp.e).max())
     if neN:
         prim = max(prim, np.abs(qp.EN @ X[-1] + qp.eN).max())
-    CZ = np.einsum("kij,kj->ki", qp.C, Z) if ncs else np.zeros((N, 0))
-    CNx = qp.CN @ X[-1] if ncN else np.zeros(0)
-    sides = [(X, qp.x_lower, qp.x_upper, res.zx_lower, res.zx_upper), (U, qp.u_lower, qp.u_upper, res.zu_lower, res.zu_upper),
-             (CZ, qp.c_lower, qp.c_upper, res.yc_lower, res.yc_upper), (CNx, qp.cN_lower, qp.cN_upper, res.yN_lower, res.yN_upper)]
+    vals = box_values(qp, X, U)
     comp, sign = 0.0, 0.0
-    for val, lo, hi, zl, zu in sides:
+    for kind, lo_name, hi_name, zl_name, zu_name in BOX_FIELDS:
+        val = vals[kind]
         if val.size == 0:
             continue
+        lo, hi, zl, zu = getattr(qp, lo_name), getattr(qp, hi_name), getattr(res, zl_name), getattr(res, zu_name)
         fl, fu = np.isfinite(lo), np.isfinite(hi)
         sl = np.where(fl, val - lo, 0.0)
         su = np.where(fu, hi - val, 0.0)

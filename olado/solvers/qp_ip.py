@@ -153,7 +153,7 @@ from numba.extending import overload
 from ..linalg.kkt import KKT_SOLVERS, make_kkt_solver
 from ..linalg.riccati import (_FIXED_SIZE_MAX, NotPositiveDefiniteError, RiccatiFactorization, RiccatiStatusError,
                                _size_tags, _stack_vector)
-from ..linalg.stageqp import QPResult, StageQP, qp_kkt_residuals
+from ..linalg.stageqp import BOX_FIELDS, QPResult, StageQP, box_values, qp_kkt_residuals
 from ..result import Status
 from .base import make_options, option
 
@@ -161,22 +161,12 @@ KKT_BACKENDS = KKT_SOLVERS   # riccati, superlu-full, superlu-reduced, minres, g
 
 _FIX_RTOL = 1e-12
 
-#: the boxes of a StageQP and their multipliers in a QPResult: (kind, lower, upper, multiplier of
-#: the lower side, multiplier of the upper side)
-_BOX_FIELDS = (("x", "x_lower", "x_upper", "zx_lower", "zx_upper"), ("u", "u_lower", "u_upper", "zu_lower", "zu_upper"),
-               ("c", "c_lower", "c_upper", "yc_lower", "yc_upper"), ("cN", "cN_lower", "cN_upper", "yN_lower", "yN_upper"))
-
-
 def _equal_bounds(lo, hi):
     """Entries with finite lo = hi (to _FIX_RTOL relative): fixed variables and equality rows."""
     with np.errstate(invalid="ignore"):
         return np.isfinite(lo) & np.isfinite(hi) & (hi - lo <= _FIX_RTOL * (1 + np.abs(lo)))
 
 
-def _box_values(qp, X, U):
-    """The boxed quantities of ``qp`` at (X, U), by kind: x, u, the stage rows C_k z_k, C_N x_N."""
-    Z = np.concatenate([X[:-1], U], axis=1)
-    return {"x": X, "u": U, "c": np.einsum("kij,kj->ki", qp.C, Z), "cN": qp.CN @ X[-1]}
 
 
 # ============================================================================= options
@@ -1520,9 +1510,9 @@ class InteriorPointQP:
         opts = self.options
         tol = opts.tol
         inf = np.inf
-        vals = _box_values(qp, res.X, res.U)
+        vals = box_values(qp, res.X, res.U)
         fixed, act = {}, {}
-        for key, lo_name, hi_name, zl_name, zu_name in _BOX_FIELDS:
+        for key, lo_name, hi_name, zl_name, zu_name in BOX_FIELDS:
             lo, hi, val = getattr(qp, lo_name), getattr(qp, hi_name), vals[key]
             fixed[key] = _equal_bounds(lo, hi)
             aL = np.isfinite(lo) & ~fixed[key] & (getattr(res, zl_name) > val - lo)
@@ -1534,7 +1524,7 @@ class InteriorPointQP:
         r2, extra = None, 0
         for _ in range(opts.polish_rounds):
             kw = {}
-            for key, lo_name, hi_name, _, _ in _BOX_FIELDS:
+            for key, lo_name, hi_name, _, _ in BOX_FIELDS:
                 lo, hi = getattr(qp, lo_name), getattr(qp, hi_name)
                 aL, aU = act[key]
                 kw[lo_name] = np.where(fixed[key] | aL, lo, np.where(aU, hi, -inf))
@@ -1548,9 +1538,9 @@ class InteriorPointQP:
             if not r2.success:
                 return None
             extra += r2.iterations
-            vals = _box_values(qp, r2.X, r2.U)
+            vals = box_values(qp, r2.X, r2.U)
             violated = False
-            for key, lo_name, hi_name, _, _ in _BOX_FIELDS:
+            for key, lo_name, hi_name, _, _ in BOX_FIELDS:
                 v = vals[key]
                 slack = tol * (1.0 + np.abs(v))
                 vL, vU = v < getattr(qp, lo_name) - slack, v > getattr(qp, hi_name) + slack
@@ -1566,7 +1556,7 @@ class InteriorPointQP:
             return None
         # the multipliers of the equal bounds (net lower minus upper) back on the active sides
         mult = {}
-        for key, _, _, zl_name, zu_name in _BOX_FIELDS:
+        for key, _, _, zl_name, zu_name in BOX_FIELDS:
             zl2, zu2 = getattr(r2, zl_name), getattr(r2, zu_name)
             aL, aU = act[key]
             net = zl2 - zu2

@@ -37,8 +37,8 @@ in the local phase), and a watchdog return to a point whose step was no descent 
 re-solves its QP with a larger delta instead of backtracking uphill; the step after a watchdog
 return is never relaxed (from the point the return reached, often the watched step's own full
 step, the same QP would repeat the same relaxed steps). delta is kept per stage block (N + 1
-values); with ``shift_mode = "global"`` (default) all are equal. With ``shift_mode = "stage"`` a rejected step
-s, or the last iterate of a failed QP, raises delta only on the blocks without positive
+values); with ``shift_mode = "global"`` (default) all are equal. With ``shift_mode = "stage"`` a
+rejected step s, or the last iterate of a failed QP, raises delta only on the blocks without positive
 curvature along it, s_k.(H_k + delta_k I) s_k <= 0 (H is block diagonal, so s.H s is the sum of
 these terms and its negative part sits in those blocks); on a long horizon one window that needs
 a large shift then no longer damps the steps of every other stage.
@@ -470,8 +470,7 @@ class SQPSolver(Solver):
                 # not a descent direction of phi: with a positive definite reduced Hessian and
                 # rho >= |multipliers| it would be (Nocedal & Wright Thm. 18.2), so the Hessian is
                 # shifted further and the QP solved again at the same point
-                force_delta = self._raise_shift(delta, hscale, self._flat_stages(Bk, BN, delta, hscale, dX, dU),
-                                                floor=self._curvature_floor(Bk, BN, dX, dU))
+                force_delta = self._raise_shift_along(delta, hscale, Bk, BN, dX, dU)
                 retries += 1
                 continue
             rho = rho_new
@@ -514,8 +513,7 @@ class SQPSolver(Solver):
                         continue
             if new_pt is None:
                 if inertia and not descent and retries < o.max_shift_retries:
-                    force_delta = self._raise_shift(delta, hscale, self._flat_stages(Bk, BN, delta, hscale, dX, dU),
-                                                    floor=self._curvature_floor(Bk, BN, dX, dU))
+                    force_delta = self._raise_shift_along(delta, hscale, Bk, BN, dX, dU)
                     retries += 1
                     continue
                 status, message = Status.NUMERICAL_ERROR, (f"line search failed at SQP iteration {it}: no step down to "
@@ -653,11 +651,10 @@ class SQPSolver(Solver):
                 return qres, delta + qshift
             # a failed QP: raise the shift (with shift_mode = 'stage' on the blocks without positive
             # curvature along its last iterate, when it has one)
-            stages, floor = None, 0.0
             if qres.X is not None and np.all(np.isfinite(qres.X)) and np.all(np.isfinite(qres.U)):
-                stages = self._flat_stages(Bk, BN, delta, scale, qres.X, qres.U)
-                floor = self._curvature_floor(Bk, BN, qres.X, qres.U)
-            delta = self._raise_shift(delta, scale, stages, floor=floor)
+                delta = self._raise_shift_along(delta, scale, Bk, BN, qres.X, qres.U)
+            else:
+                delta = self._raise_shift(delta, scale)
         return qres, delta
 
     def _raise_shift(self, delta, hscale, stages=None, floor=0.0):
@@ -666,6 +663,13 @@ class SQPSolver(Solver):
         o = self.options
         new = np.maximum(o.shift_increase * delta, max(o.shift_init * hscale, floor))
         return new if stages is None else np.where(stages, new, delta)
+
+    def _raise_shift_along(self, delta, hscale, Bk, BN, dX, dU):
+        """The next shift after a rejected QP step, or a failed QP's last iterate, s = (dX, dU):
+        raised on the blocks without positive curvature along s (shift_mode = 'stage'; all
+        otherwise) to at least the curvature floor of s."""
+        return self._raise_shift(delta, hscale, self._flat_stages(Bk, BN, delta, hscale, dX, dU),
+                                 floor=self._curvature_floor(Bk, BN, dX, dU))
 
     def _curvature_floor(self, Bk, BN, dX, dU):
         """After a QP step s that is no descent direction of the merit function (or the last
