@@ -381,6 +381,18 @@ def test_compiled_residuals_match_the_numpy_formulas():
     assert obj == pytest.approx(obj_ref, rel=1e-12)   # of the prepared (fixed-control-free) problem
     assert comp == pytest.approx(it.zl @ it.tl + it.zu @ it.tu, rel=1e-12)
     assert scales[1] == pytest.approx(1.0 + max(P.d_data, np.abs(hx).max(), np.abs(hu).max()))
+    # the compiled maps of the infeasibility certificates: the constraint gradient alone (z = 0)
+    # and, with zero multipliers, H z, the homogeneous equality residuals and the box values
+    zero = P.zero_point()
+    G, eqs, _ = P.linear_parts(zero.X, zero.U, it.lam, it.nu, it.zl, it.zu)
+    assert G == pytest.approx(max(np.abs(gx).max(), np.abs(gu).max()), rel=1e-12)
+    assert eqs == 0.0
+    hd, eqs, dw = P.linear_parts(it.X, it.U, zero.lam, zero.nu, zero.zl, zero.zu)
+    assert hd == pytest.approx(max(np.abs(hx).max(), np.abs(hu).max()), rel=1e-12)
+    hom = P.eq_residuals(it.X, it.U, hom=True)
+    assert eqs == pytest.approx(max(np.abs(a).max(initial=0.0) for a in hom), rel=1e-12)
+    assert np.allclose(dw, w, rtol=1e-12, atol=1e-12)
+    assert not zero.v.any()
 
 
 @pytest.mark.parametrize("cls", METHODS, ids=lambda c: c.name)

@@ -740,6 +740,47 @@ def _max_abs(a):
 
 
 @nb.njit(cache=True)
+def _dot(a, b):
+    """a.b by an elementwise loop (no threaded BLAS: it stalls on long vectors on a busy machine)."""
+    s = 0.0
+    for i in range(a.shape[0]):
+        s += a[i] * b[i]
+    return s
+
+
+@nb.njit(cache=True)
+def _farkas_kappa(lam, c, x0, zl, lo, zu, hi, nu, be, eN):
+    """kappa = lam_+.c + lam_0.x0 + zl.lo - zu.hi + nu.e + nu_N.eN of the primal certificate
+    (be = e on the valid stage rows, 0 elsewhere)."""
+    N = c.shape[0]
+    s = 0.0
+    for k in range(N):
+        for i in range(c.shape[1]):
+            s += lam[k + 1, i] * c[k, i]
+        for l in range(be.shape[1]):
+            s += nu[k, l] * be[k, l]
+    for i in range(x0.shape[0]):
+        s += lam[0, i] * x0[i]
+    for i in range(zl.shape[0]):
+        s += zl[i] * lo[i] - zu[i] * hi[i]
+    for l in range(eN.shape[0]):
+        s += nu[N, l] * eN[l]
+    return s
+
+
+@nb.njit(cache=True)
+def _cone_violation(w, fl, fu):
+    """max(0, max over finite lower sides of -w, max over finite upper sides of w)."""
+    v = 0.0
+    for i in range(w.shape[0]):
+        if fl[i]:
+            v = max(v, -w[i])
+        if fu[i]:
+            v = max(v, w[i])
+    return v
+
+
+@nb.njit(cache=True)
 def _all_finite(a):
     for i in range(a.shape[0]):
         if not np.isfinite(a[i]):
@@ -882,6 +923,10 @@ class _Prepared:
         sls = lambda layout: tuple(slice(a, b) if len(shape) == 1 else (slice(a, b), shape)  # noqa: E731
                                    for _, a, b, shape in layout[0])
         self.point_slices, self.rhs_slices = sls(self.point_layout), sls(self.rhs_layout)
+        (_, x_a, _, _), (_, _, u_b, _), (_, l_a, _, _), (_, _, n_b, _), _, _, (_, zl_a, _, _), (_, _, zu_b, _) = \
+            self.point_layout[0]
+        self.part_slices = (slice(x_a, u_b), slice(l_a, n_b), slice(zl_a, zu_b))
+        self.qr = np.concatenate([self.q.ravel(), self.r.ravel()])   # the gradient, laid out as (X, U)
         self.dual_mask = np.zeros(self.point_layout[1], dtype=np.bool_)
         for name, a, b, _ in self.point_layout[0]:
             self.dual_mask[a:b] = name in ("lam", "nu", "zl", "zu")
@@ -909,6 +954,7 @@ class _Prepared:
         self.reg_rung = 0  # index (in reg_rungs) of the last iteration's Newton-system regularization
         self._rungs = None
         self.work_Dx, self.work_Du = np.empty((N + 1, n)), np.empty((N, m))
+        self._zero_point = None
 
     def reg_rungs(self, options):
         """The regularizations a Newton-system factorization may use, in increasing order:
@@ -968,6 +1014,25 @@ class _Prepared:
         if self.ncN:
             parts.append(self.CN @ X[-1])
         return np.concatenate(parts)
+
+    def zero_point(self):
+        """A point of zeros (made on first use; never written)."""
+        if self._zero_point is None:
+            self._zero_point = _Point(self, np.zeros(self.point_layout[1]))
+        return self._zero_point
+
+    def linear_parts(self, X, U, lam, nu, zl, zu):
+        """The linear maps of the infeasibility certificates in one pass of the compiled _kkt_map
+        (offsets 0, written into the scratch arrays newton_res and work_w): (max |H z + constraint
+        gradient of lam, nu, zu - zl|, max |homogeneous equality residuals A x + B u - x_+, -x_0,
+        E z, E_N x_N|, the box values w of z). With z = 0 the first is |constraint gradient| (the
+        primal certificate); with zero multipliers it is |H z| (the dual one)."""
+        e, z, st = self.newton_res, self.zero_res, self.stats
+        _kkt_map_call(self, z.rl, z.rup, self.fl, self.fu, X, U, lam, nu, z.rl, z.rup, zl, zu,
+                      z.rx, z.ru, z.dyn, z.x0r, z.rE, z.rEN,
+                      e.rx, e.ru, e.dyn, e.x0r, e.rE, e.rEN, e.rl, e.rup, self.work_w, st)
+        eqs = max(_max_abs(e.dyn.ravel()), _max_abs(e.x0r), _max_abs(e.rE.ravel()), _max_abs(e.rEN))
+        return float(st[1]), eqs, self.work_w
 
     def cz(self, X, U):
         n = self.n
@@ -1726,21 +1791,16 @@ class InteriorPointQP:
         after a stall, loose thresholds; see the module docstring), else None."""
         eps = 1e-3 if loose else self.options.infeasibility_tol
         min_quality = 10.0 if loose else 1.0 / self.options.infeasibility_tol
-        inf = lambda a: _max_abs(np.ravel(a)) if a.size else 0.0  # noqa: E731  (compiled max-norm)
+        xu, lamnu, zlzu = P.part_slices       # (X, U), (lam, nu), (zl, zu): contiguous parts of a point
+        z = P.zero_point()
+        size_xu = _max_abs(it.v[xu])
         # primal infeasibility: y.constraints(z) = G.z + kappa <= 0 on the feasible set
-        if max(inf(it.lam), inf(it.nu), inf(it.zl), inf(it.zu)) > 0:
-            # (elementwise sums, not BLAS dots: threaded BLAS on long vectors stalls on a busy machine)
-            kappa = float(np.sum(it.lam[1:] * P.c) + np.sum(it.lam[0] * P.x0) + np.sum(it.zl * P.lo)
-                          - np.sum(it.zu * P.hi))
-            if P.ne:
-                kappa += float(np.sum(it.nu[:P.N, :P.ne] * P.eq_mask * P.e))
-            if P.neN:
-                kappa += float(it.nu[P.N, :P.neN] @ P.eN)
+        if _max_abs(it.v[lamnu]) > 0 or _max_abs(it.v[zlzu]) > 0:
+            kappa = _farkas_kappa(it.lam, P.c, P.x0, it.zl, P.lo, it.zu, P.hi, it.nu, P.be, P.eN)
             G = math.inf
             if kappa > 0:   # the constraint gradient only when the certificate can hold
-                gx, gu = P.constraint_grad(it.lam, it.nu, it.zu - it.zl)
-                G = max(inf(gx), inf(gu))
-            scale = 1.0 + max(inf(it.X), inf(it.U)) + P.p_data
+                G = P.linear_parts(z.X, z.U, it.lam, it.nu, it.zl, it.zu)[0]
+            scale = 1.0 + size_xu + P.p_data
             if kappa > 0 and kappa >= min_quality * scale * P.n_z * G:
                 bound = kappa / (P.n_z * G) if G > 0 else math.inf
                 return Status.INFEASIBLE, (
@@ -1750,29 +1810,19 @@ class InteriorPointQP:
         # dual infeasibility: a recession direction along which the objective decreases
         cands = []
         if d is not None:
-            cands.append(("step", d.X, d.U))
-        if max(inf(it.X), inf(it.U)) > 1e10 * (1.0 + P.p_data + P.d_data):
-            cands.append(("iterate", it.X, it.U))
-        for what, dX, dU in cands:
-            nrm = max(inf(dX), inf(dU))
+            cands.append(("step", d))
+        if size_xu > 1e10 * (1.0 + P.p_data + P.d_data):
+            cands.append(("iterate", it))
+        for what, p in cands:
+            nrm = _max_abs(p.v[xu])
             if not nrm > 0:
                 continue
-            dX, dU = dX / nrm, dU / nrm
-            gd = float(np.sum(P.q * dX) + np.sum(P.r * dU))
+            # the measures of the normalized direction (X, U) / nrm
+            gd = _dot(P.qr, p.v[xu]) / nrm
             if gd >= 0:
                 continue
-            # the parts of the test one at a time, each only if the previous ones hold
-            hx, hu = P.hess_z(dX, dU)
-            worst = max(inf(hx), inf(hu))
-            if worst > eps * -gd:
-                continue
-            dyn, x0r, rE, rEN = P.eq_residuals(dX, dU, hom=True)
-            worst = max(worst, inf(dyn), inf(x0r), inf(rE), inf(rEN))
-            if worst > eps * -gd:
-                continue
-            dw = P.w_of(dX, dU)
-            cone = max(float(np.max(np.where(P.fl, -dw, 0.0), initial=0.0)), float(np.max(np.where(P.fu, dw, 0.0), initial=0.0)))
-            worst = max(worst, cone)
+            hd, eqs, dw = P.linear_parts(p.X, p.U, z.lam, z.nu, z.zl, z.zu)
+            worst = max(hd, eqs, _cone_violation(dw, P.fl, P.fu)) / nrm
             if worst <= eps * -gd:
                 return Status.UNBOUNDED, (
                     f"{Status.UNBOUNDED.sentence} Certificate: along the normalized {what} direction d the objective "
