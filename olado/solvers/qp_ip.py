@@ -532,9 +532,11 @@ def _newton_rhs(rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, CN, q
 
 
 @nb.njit(cache=True)
-def _recover_step(dX, dU, Ct, CN, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, fl, fu, dtl, dtu, dzl, dzu, w):
+def _recover_step(dX, dU, Ct, CN, rl, rup, rho_l, rho_u, tl, tu, zl, zu, inv_tl, inv_tu, fl, fu, dtl, dtu, dzl, dzu, w):
     """After the KKT solve: dtl = dw + rl, dtu = -dw + rup, dzl = (rho_l - zl dtl)/tl,
-    dzu = (rho_u - zu dtu)/tu.  Returns False if dX or dU is not finite."""
+    dzu = (rho_u - zu dtu)/tu.  Returns (ok, ap, ad): ok False if dX or dU is not finite; ap, ad
+    the largest primal (slacks) and dual (multipliers) step lengths along the direction (as
+    _max_step_split, in the same pass; min(ap, ad) is _max_step's common one)."""
     N = dU.shape[0]
     n = dX.shape[1]
     m = dU.shape[1]
@@ -543,14 +545,17 @@ def _recover_step(dX, dU, Ct, CN, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu,
     ou = N * n
     os_ = ou + N * m
     osN = os_ + N * nc
+    ap = 1e30
+    ad = 1e30
+    inf = np.inf
     for k in range(N + 1):
         for i in range(n):
             if not np.isfinite(dX[k, i]):
-                return False
+                return False, ap, ad
     for k in range(N):
         for i in range(m):
             if not np.isfinite(dU[k, i]):
-                return False
+                return False, ap, ad
     for k in range(1, N + 1):
         for i in range(n):
             w[(k - 1) * n + i] = dX[k, i]
@@ -576,11 +581,17 @@ def _recover_step(dX, dU, Ct, CN, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu,
     for i in range(w.shape[0]):
         a = w[i] + rl[i] if fl[i] else 0.0
         b = -w[i] + rup[i] if fu[i] else 0.0
+        c = (rho_l[i] - zl[i] * a) * inv_tl[i]
+        e = (rho_u[i] - zu[i] * b) * inv_tu[i]
         dtl[i] = a
         dtu[i] = b
-        dzl[i] = (rho_l[i] - zl[i] * a) * inv_tl[i]
-        dzu[i] = (rho_u[i] - zu[i] * b) * inv_tu[i]
-    return True
+        dzl[i] = c
+        dzu[i] = e
+        ap = min(ap, -tl[i] / a if a < 0.0 else inf)
+        ap = min(ap, -tu[i] / b if b < 0.0 else inf)
+        ad = min(ad, -zl[i] / c if c < 0.0 else inf)
+        ad = min(ad, -zu[i] / e if e < 0.0 else inf)
+    return True, ap, ad
 
 
 @nb.njit(cache=True, fastmath=_REASSOC)
@@ -1102,11 +1113,12 @@ class _Point:
     multipliers lam, nu, and the slacks tl, tu and multipliers zl, zu of the finite box sides
     (flat, 0 on infinite sides) -- views into one flat vector ``v``."""
 
-    __slots__ = ("v", "X", "U", "lam", "nu", "tl", "tu", "zl", "zu", "_P", "max_step")
+    __slots__ = ("v", "X", "U", "lam", "nu", "tl", "tu", "zl", "zu", "_P", "max_step", "max_split")
 
     def __init__(self, P, v):
         self._P, self.v = P, v
         self.max_step = None    # cache of _StepContext.max_step for a direction
+        self.max_split = None   # and of its (primal, dual) step lengths (set by _reduced_solve)
         (sx, shx), (su, shu), (sl, shl), (sn, shn), stl, stu, szl, szu = P.point_slices
         self.X = v[sx].reshape(shx); self.U = v[su].reshape(shu)
         self.lam = v[sl].reshape(shl); self.nu = v[sn].reshape(shn)
@@ -1264,7 +1276,6 @@ class _StepContext:
             d = P.point(np.empty(P.point_layout[1]))
         else:
             d = out
-            d.max_step = None
         if self.fact is P.fact and self.fact.unconstrained:
             # Riccati without equality rows: the work arrays were validated when the QP was
             # prepared; the solution goes straight into the direction's arrays
@@ -1286,9 +1297,12 @@ class _StepContext:
                 k = min(P.n_nu, sol.nu.shape[1])
                 d.nu[:, :k] = sol.nu[:, :k]
                 d.nu[:, k:] = 0.0
-        if not _recover_step(d.X, d.U, P.Ct, P.CN, res.rl, res.rup, rho_l, rho_u, it.zl, it.zu, self.inv_tl,
-                             self.inv_tu, P.fl, P.fu, d.tl, d.tu, d.zl, d.zu, P.work_w):
+        ok, ap, ad = _recover_step(d.X, d.U, P.Ct, P.CN, res.rl, res.rup, rho_l, rho_u, it.tl, it.tu, it.zl, it.zu,
+                                   self.inv_tl, self.inv_tu, P.fl, P.fu, d.tl, d.tu, d.zl, d.zu, P.work_w)
+        if not ok:
             raise FloatingPointError("non-finite Newton step")
+        d.max_split = (ap, ad)
+        d.max_step = min(ap, ad)
         return d
 
     def _newton_residual(self, d, res, rho_l, rho_u):
@@ -1340,6 +1354,7 @@ class _StepContext:
                 # only cures rounding) -- keep the better of the last two directions and stop
                 if size > prev:
                     np.subtract(d.v, corr.v, out=d.v)
+                    d.max_step = d.max_split = None
                 break
             if step == self.refinement_steps:
                 break
@@ -1347,6 +1362,7 @@ class _StepContext:
             self.n_refine += 1
             corr = self._reduced_solve(e, el, eu, self.P.dir_refine)
             np.add(d.v, corr.v, out=d.v)   # d is this solve's own direction: corrected in place
+            d.max_step = d.max_split = None
         return d
 
     # ------------------------------------------------------------------ steps
@@ -1384,7 +1400,9 @@ class _StepContext:
             alpha = min(1.0, opts.step_to_boundary * self.max_step(d))
             alpha_dual = alpha
         else:
-            ap, ad = _max_step_split(it.tl, it.tu, it.zl, it.zu, P.fl, P.fu, d.tl, d.tu, d.zl, d.zu)
+            if d.max_split is None:
+                d.max_split = _max_step_split(it.tl, it.tu, it.zl, it.zu, P.fl, P.fu, d.tl, d.tu, d.zl, d.zu)
+            ap, ad = d.max_split
             alpha, alpha_dual = min(1.0, opts.step_to_boundary * ap), min(1.0, opts.step_to_boundary * ad)
         if P.n_comp == 0:
             return alpha, alpha_dual
