@@ -58,7 +58,8 @@ sparse back-ends do not check the inertia (a reduced Hessian that is not positiv
 the null space of the constraints goes unnoticed unless the matrix is singular).
 
 ``LQSolution.x0_residual`` of a sparse back-end is the largest residual of the equality rows
-C y + d of the computed solution (for Riccati it is the residual of the rows reaching x_0).
+C y + d of the computed solution (for Riccati it is the residual of the rows reaching x_0 and
+the consistency defect of the dependent rows the recursion dropped).
 """
 
 from __future__ import annotations

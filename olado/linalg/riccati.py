@@ -19,6 +19,14 @@ are split by a pivoted Householder QR of their u-part: the rank part fixes u in 
 Q_1, the rest is a pure state constraint G_k x + g_k = 0 passed to stage k-1, and u moves freely
 in the null space Q_2 where the reduced Hessian Q_2^T Quu Q_2 must be positive definite (its
 Cholesky factor is where a non-positive-definite problem is detected, with the stage index).
+The passed-back state rows are compressed before they go on: a state-only row set on x_k has at
+most n independent rows, and dependent ones (e.g. every x_k fixed by a row while the dynamics
+carry the fixed x_{k+1} back onto x_k as well -- the interior-point QP's fixed states) are
+dropped by a rank-revealing (column-pivoted) QR of G_k^T with the same relative rank_tol; the
+dropped rows are combinations of the kept ones, so they only impose a consistency condition on
+the constants, whose violation (an inconsistent, i.e. infeasible, constraint set) is reported with
+the residual of the rows reaching x_0, and they get zero multipliers (their multipliers are not
+unique). So at most ne_max + max(n, neN) rows ever reach a stage.
 The factorization depends only on the matrices; :meth:`RiccatiFactorization.solve` takes any
 number of right-hand sides (q, r, c, e, xbar_0), each in O(N (n+m)^2).
 
@@ -60,7 +68,9 @@ class NotPositiveDefiniteError(OladoError, np.linalg.LinAlgError):
 
 
 class RiccatiStatusError(OladoError):
-    """Equality constraints the recursion cannot handle (more than n independent state rows)."""
+    """Equality rows exceeding the recursion's row buffers. Since the passed-back state rows are
+    compressed to an independent set (at most n rows) this is not expected to happen; dependent
+    rows are handled, inconsistent ones reported through ``LQSolution.x0_residual``."""
 
 
 # ============================================================================= numba kernels
@@ -117,13 +127,18 @@ def _chol_solve_mat(L, d, B, ncol):
 
 
 @nb.njit(cache=True)
-def _qr_pivot(M, rows, cols, Qacc, perm, vtmp, norms, rank_tol):
+def _qr_pivot(M, rows, cols, Qacc, perm, vtmp, norms, rank_tol, scale=0.0, accumulate=True):
     """Householder QR with column pivoting of M[:rows, :cols] in place (M <- R), accumulating
-    the orthogonal factor in Qacc[:rows, :rows] and the column permutation in perm. Returns the
-    numerical rank."""
-    for i in range(rows):
-        for j in range(rows):
-            Qacc[i, j] = 1.0 if i == j else 0.0
+    the orthogonal factor in Qacc[:rows, :rows] (unless ``accumulate`` is False: Qacc is then not
+    touched) and the column permutation in perm. Returns the numerical rank: the elimination stops
+    at the first pivot column whose remaining norm is <= rank_tol * max(r00, scale), r00 the norm
+    of the first pivot (the largest column) and ``scale`` an optional reference magnitude of the
+    data the columns were computed from (so that columns that are only rounding noise count as
+    zero even when all columns are)."""
+    if accumulate:
+        for i in range(rows):
+            for j in range(rows):
+                Qacc[i, j] = 1.0 if i == j else 0.0
     for j in range(cols):
         perm[j] = j
     kmax = min(rows, cols)
@@ -146,7 +161,7 @@ def _qr_pivot(M, rows, cols, Qacc, perm, vtmp, norms, rank_tol):
         nrm = np.sqrt(best)
         if j == 0:
             r00 = nrm
-        if nrm <= rank_tol * max(r00, 1e-300) or nrm == 0.0:
+        if nrm <= rank_tol * max(r00, scale, 1e-300) or nrm == 0.0:
             break
         rank += 1
         # Householder vector v for M[j:rows, j]
@@ -166,13 +181,14 @@ def _qr_pivot(M, rows, cols, Qacc, perm, vtmp, norms, rank_tol):
                 s = 2.0 * s / vn
                 for i in range(j, rows):
                     M[i, c] -= s * vtmp[i]
-            for i in range(rows):
-                s = 0.0
-                for l in range(j, rows):
-                    s += Qacc[i, l] * vtmp[l]
-                s = 2.0 * s / vn
-                for l in range(j, rows):
-                    Qacc[i, l] -= s * vtmp[l]
+            if accumulate:
+                for i in range(rows):
+                    s = 0.0
+                    for l in range(j, rows):
+                        s += Qacc[i, l] * vtmp[l]
+                    s = 2.0 * s / vn
+                    for l in range(j, rows):
+                        Qacc[i, l] -= s * vtmp[l]
         for i in range(j + 1, rows):
             M[i, j] = 0.0
     return rank
@@ -199,10 +215,26 @@ def _closed_loop(A, B, c, K, kff, X, U):
 
 @nb.njit(cache=True)
 def _factor(Q, S, R, A, B, E, F, ne, EN, neN, Dx, Du, Ci, sig, ni, reg, rank_tol,
-            P, K, Quu_s, Qux_s, Lww, Qm, Rm, perm, rank, nc, Cx_s, G, ng, Wx, Dmat):
-    """Backward factorization sweep. Returns -1 on success, the stage index of a failure
-    (non-positive-definite reduced Hessian), or -(1000 + k) when more than n independent
-    state-only rows reach stage k."""
+            P, K, Quu_s, Qux_s, Lww, Qm, Rm, perm, rank, nc, Cx_s, G, ng, Wx, Dmat, pg, Zg):
+    """Backward factorization sweep (paper 001 sec. 4.2.3, Arnold's elimination in the
+    constraint-propagating form). Returns -1 on success, the stage index of a failure
+    (non-positive-definite reduced Hessian), or -(1000 + k) when more rows than the buffers hold
+    (ncmax) reach stage k -- which the compression of the passed-back rows rules out: at most
+    ne_max + max(n, neN) rows reach any stage.
+
+    Stage k: the combined rows [E_k; G_{k+1} A_k] x + [F_k; G_{k+1} B_k] u + d = 0 (nc[k] rows,
+    stored in Cx_s) are split by the pivoted QR of their u-part, F^T Pi = Q [R11 R12] (Qm, Rm, perm,
+    rank rk); the nc[k] - rk rows the controls cannot satisfy leave as state rows
+    Graw x + graw = 0 with Graw = R12^T Wx - Pi_2^T Cx, Wx = R11^{-T} Pi_1^T Cx. Dependent rows
+    among them are dropped: a pivoted QR (Graw^T diag(s)^{-1}) Pi_g = Q_g [S11 S12], each row
+    scaled by the norm s of the combined row [Cx Cu] it came from (rank rg <= n, same relative
+    rank_tol, measured against max(1, largest scaled row) so that rows that cancelled to rounding
+    noise count as zero) keeps the rg independent rows G_k = (Pi_g^T Graw)[:rg] (ng[k] = rg, the
+    permutation in pg[k]); the dropped rows are (Pi_g^T Graw)[rg:] = Zg^T G_k with
+    Zg = D1^{-1} S11^{-1} S12 D2 (D1, D2 the scalings of the kept / dropped rows; stored in Zg[k],
+    rg x (nc[k] - rk - rg)), so for the constants they only impose the consistency
+    (Pi_g^T graw)[rg:] = Zg^T g_k, checked by :func:`_solve`. The row sets G_N = E_N and G_k are
+    stored in G (rows on x_k only)."""
     N = A.shape[0]
     n = A.shape[1]
     m = B.shape[2]
@@ -212,6 +244,8 @@ def _factor(Q, S, R, A, B, E, F, ne, EN, neN, Dx, Du, Ci, sig, ni, reg, rank_tol
     M = np.empty((m, ncmax)); vt = np.empty(max(m, 1)); nr = np.empty(max(ncmax, 1))
     T = np.empty((m, n)); Y = np.empty((m, n)); Qww = np.empty((m, m)); Qwx = np.empty((m, n)); tmp = np.empty((m, m))
     Cu = np.empty((ncmax, m)); Cx = np.empty((ncmax, n))
+    Graw = np.empty((ncmax, n)); Mg = np.empty((n, ncmax)); vg = np.empty(max(n, 1)); Qg = np.empty((1, 1))
+    sg = np.empty(max(ncmax, 1))
     # terminal stage
     for i in range(n):
         for j in range(n):
@@ -322,17 +356,45 @@ def _factor(Q, S, R, A, B, E, F, ne, EN, neN, Dx, Du, Ci, sig, ni, reg, rank_tol
                 for l in range(i + 1, rk):
                     s -= Rm[k, i, l] * Dmat[k, l, c]
                 Dmat[k, i, c] = s / Rm[k, i, i]
-        # passed-back state rows: G_k = R12^T Wx - Pi_2^T Cx
-        ngk = nck - rk
-        if ngk > ncmax:
-            return -(1000 + k)
-        ng[k] = ngk
-        for c in range(ngk):
+        # passed-back state rows before compression: Graw = R12^T Wx - Pi_2^T Cx
+        ngr = nck - rk
+        for c in range(ngr):
             for j in range(n):
                 s = -Cx[perm[k, rk + c], j]
                 for l in range(rk):
                     s += Rm[k, l, rk + c] * Wx[k, l, j]
-                G[k, c, j] = s
+                Graw[c, j] = s
+        # compression: pivoted QR of Graw^T (n x ngr), each row divided by the norm s_c of the
+        # combined row [Cx Cu] it came from (a row that cancelled to rounding noise is then of
+        # the order of eps whatever the scale of the other rows) -> rank rg <= n; G_k = the rg
+        # pivoted independent rows; Zg = diag(s) S11^{-1} S12 diag(s)^{-1} (of the scaled QR)
+        # expresses the dropped rows through the kept ones
+        rg = 0
+        if ngr > 0:
+            for c in range(ngr):
+                p = perm[k, rk + c]
+                s = 0.0
+                for j in range(n):
+                    s += Cx[p, j] * Cx[p, j]
+                for j in range(m):
+                    s += Cu[p, j] * Cu[p, j]
+                sg[c] = np.sqrt(s) if s > 0.0 else 1.0
+            for j in range(n):
+                for c in range(ngr):
+                    Mg[j, c] = Graw[c, j] / sg[c]
+            rg = _qr_pivot(Mg, n, ngr, Qg, pg[k], vg, nr, rank_tol, 1.0, False)
+            for c in range(ngr - rg):
+                for i in range(rg - 1, -1, -1):
+                    s = Mg[i, rg + c]
+                    for l in range(i + 1, rg):
+                        s -= Mg[i, l] * Zg[k, l, c]
+                    Zg[k, i, c] = s / Mg[i, i]
+                for i in range(rg):
+                    Zg[k, i, c] *= sg[pg[k, rg + c]] / sg[pg[k, i]]
+        ng[k] = rg
+        for i in range(rg):
+            for j in range(n):
+                G[k, i, j] = Graw[pg[k, i], j]
         # u = T x + Q2 w with T = -Q1 Wx
         for i in range(m):
             for j in range(n):
@@ -401,10 +463,22 @@ def _factor(Q, S, R, A, B, E, F, ne, EN, neN, Dx, Du, Ci, sig, ni, reg, rank_tol
 
 @nb.njit(cache=True)
 def _solve(A, B, c, q, r, e, eN, x0, Dx, Du, S, Q, R, E, F, ne, EN, neN, Ci, sig, ni, ci_rhs,
-           P, K, Quu_s, Qux_s, Lww, Qm, Rm, perm, rank, nc, Cx_s, G, ng, Wx, Dmat,
+           P, K, Quu_s, Qux_s, Lww, Qm, Rm, perm, rank, nc, Cx_s, G, ng, Wx, Dmat, pg, Zg,
            X, U, lam, nu, kff, pvec, gvec, dvec):
-    """One right-hand side: backward vector sweep, forward simulation, multiplier sweeps.
-    Returns the residual of the state constraints reaching x_0 (max norm)."""
+    """One right-hand side (paper 001 sec. 4.2.3): backward vector sweep, forward simulation,
+    multiplier sweeps, with the factors of :func:`_factor`.
+
+    The backward sweep forms the constants of the passed-back rows as the factorization formed
+    the rows: graw = R12^T v1 - Pi_2^T d, then g_k = (Pi_g^T graw)[:rg] for the kept rows and the
+    consistency defect (Pi_g^T graw)[rg:] - Zg^T g_k of the dropped (dependent) ones. In the
+    forward multiplier sweep the multipliers eta_k of the kept rows G_k are those of the rows
+    (Pi_g^T Graw)[:rg], the dropped rows get zero (their multipliers are not unique;
+    Graw^T eta_raw = G_k^T eta_k, so the stationarity rows hold), and eta_raw is mapped through
+    perm / Dmat into the multipliers of the stage's combined rows as before.
+
+    Returns the infeasibility of the equality rows (max norm): the largest of the residual
+    G_0 x0 + g_0 of the rows reaching x_0 and the consistency defects of the dependent rows
+    dropped at every stage (zero up to rounding for a consistent constraint set)."""
     N = A.shape[0]
     n = A.shape[1]
     m = B.shape[2]
@@ -412,6 +486,8 @@ def _solve(A, B, c, q, r, e, eN, x0, Dx, Du, S, Q, R, E, F, ne, EN, neN, Ci, sig
     t1 = np.empty(n); qx = np.empty(n); qu = np.empty(m); m0 = np.empty(m); w = np.empty(max(m, 1))
     v1 = np.empty(max(ncmax, 1)); bu = np.empty(m); mu = np.empty(max(ncmax, 1)); mup = np.empty(max(ncmax, 1))
     eta = np.empty(max(ncmax, 1)); a_next = np.empty(n); a_cur = np.empty(n)
+    graw = np.empty(max(ncmax, 1)); etar = np.empty(max(ncmax, 1))
+    res = 0.0
     # terminal
     for i in range(n):
         pvec[N, i] = q[N, i]
@@ -463,12 +539,21 @@ def _solve(A, B, c, q, r, e, eN, x0, Dx, Du, S, Q, R, E, F, ne, EN, neN, Ci, sig
             for l in range(rk):
                 s -= Qm[k, i, l] * v1[l]
             m0[i] = s
-        # g_k = R12^T v1 - Pi_2^T d
-        for cc in range(ng[k]):
+        # graw = R12^T v1 - Pi_2^T d; g_k = the kept rows; defect of the dropped ones
+        ngr = nck - rk
+        for cc in range(ngr):
             s = -dvec[k, perm[k, rk + cc]]
             for l in range(rk):
                 s += Rm[k, l, rk + cc] * v1[l]
-            gvec[k, cc] = s
+            graw[cc] = s
+        rg = ng[k]
+        for i in range(rg):
+            gvec[k, i] = graw[pg[k, i]]
+        for cc in range(ngr - rg):
+            s = graw[pg[k, rg + cc]]
+            for l in range(rg):
+                s -= Zg[k, l, cc] * gvec[k, l]
+            res = max(res, abs(s))
         # w0 = -Qww^{-1} Q2^T (Quu m0 + qu)
         dw = m - rk
         for i in range(m):
@@ -501,7 +586,6 @@ def _solve(A, B, c, q, r, e, eN, x0, Dx, Du, S, Q, R, E, F, ne, EN, neN, Ci, sig
     # forward simulation
     for i in range(n):
         X[0, i] = x0[i]
-    res = 0.0
     for cc in range(ng[0]):
         s = gvec[0, cc]
         for l in range(n):
@@ -580,13 +664,19 @@ def _solve(A, B, c, q, r, e, eN, x0, Dx, Du, S, Q, R, E, F, ne, EN, neN, Ci, sig
             for cc in range(ngk):
                 s -= G[k, cc, j] * eta[cc]
             lam[k, j] = s
+        # multipliers of the uncompressed passed rows: eta on the kept ones, 0 on the dropped
+        ngr = nck - rk
+        for cc in range(ngr):
+            etar[cc] = 0.0
+        for i in range(ngk):
+            etar[pg[k, i]] = eta[i]
         for i in range(rk):
             s = dvec[k, i]
-            for cc in range(ngk):
-                s += Dmat[k, i, cc] * eta[cc]
+            for cc in range(ngr):
+                s += Dmat[k, i, cc] * etar[cc]
             mup[i] = s
-        for cc in range(ngk):
-            mup[rk + cc] = eta[cc]
+        for cc in range(ngr):
+            mup[rk + cc] = etar[cc]
         for i in range(nck):
             mu[perm[k, i]] = mup[i]
         for i in range(ne[k]):
@@ -1241,7 +1331,10 @@ def _solve_unconstrained_fixed(tags, A, B, Ci, sig, ni, P, K, L, q, r, c, x0, ci
 class LQSolution:
     """Solution of one right-hand side: states X (N+1, n), controls U (N, m), dynamics
     multipliers lam (N+1, n) (lam[0] belongs to x_0 = xbar_0), equality multipliers nu
-    (N+1, ne) (nu[N] for E_N), and the residual of the equality constraints on x_0."""
+    (N+1, ne) (nu[N] for E_N), and ``x0_residual``, the infeasibility of the equality rows
+    (max norm): for the Riccati recursion the residual of the rows reaching the fixed x_0 and the
+    consistency defects of the dependent rows it dropped (0 up to rounding when the constraint
+    set is consistent; with an inconsistent set the other rows are still satisfied)."""
 
     X: np.ndarray
     U: np.ndarray
@@ -1349,6 +1442,8 @@ class RiccatiFactorization(StageData):
             self.Cx = np.zeros((N, ncmax, n)); self.G = np.zeros((N + 1, ncmax, n))
             self.ng = np.zeros(N + 1, dtype=np.int64)
             self.Wx = np.zeros((N, ncmax, n)); self.Dmat = np.zeros((N, ncmax, ncmax))
+            # compression of the passed-back rows: row permutation, dropped rows in terms of the kept
+            self.pg = np.zeros((N, ncmax), dtype=np.int64); self.Zg = np.zeros((N, max(n, 1), ncmax))
         self._factorize()
 
     def refactor(self, Dx=None, Du=None, sigma=None, regularization=None):
@@ -1389,17 +1484,18 @@ class RiccatiFactorization(StageData):
                 raise NotPositiveDefiniteError(code)
             return
         ncmax = self.ncmax
-        for w in (self.Lww, self.Rm, self.perm, self.rank, self.nc, self.Cx, self.G, self.ng, self.Wx, self.Dmat):
+        for w in (self.Lww, self.Rm, self.perm, self.rank, self.nc, self.Cx, self.G, self.ng, self.Wx, self.Dmat,
+                  self.pg, self.Zg):
             w.fill(0)   # the general kernel expects zeroed padding (a refactor reuses the arrays)
         code = _factor(self.Q, self.S, self.R, self.A, self.B, self.E, self.F, self.ne, self.EN, self.neN,
                        self.Dx, self.Du, self.Ci, self.sig, self.ni, self.regularization, self.rank_tol,
                        self.P, self.K, self.Quu, self.Qux, self.Lww, self.Qm, self.Rm, self.perm, self.rank,
-                       self.nc, self.Cx, self.G, self.ng, self.Wx, self.Dmat)
+                       self.nc, self.Cx, self.G, self.ng, self.Wx, self.Dmat, self.pg, self.Zg)
         if code >= 0:
             raise NotPositiveDefiniteError(code)
         if code <= -1000:
-            raise RiccatiStatusError(f"more than {ncmax} equality rows reach stage k={-code - 1000}; "
-                                     "the equality constraints are too many or dependent")
+            raise RiccatiStatusError(f"more than {ncmax} equality rows reach stage k={-code - 1000} "
+                                     "(more than the row buffers hold)")
 
     def solve(self, q, r, c, x0, e=None, eN=None, ci=None, out=None) -> LQSolution:
         """Solve for one right-hand side: linear cost terms q (N+1, n), r (N, m); dynamics
@@ -1426,7 +1522,8 @@ class RiccatiFactorization(StageData):
         res = _solve(self.A, self.B, c, q, r, e, eN, x0, self.Dx, self.Du, self.S, self.Q, self.R, self.E, self.F,
                      self.ne, self.EN, self.neN, self.Ci, self.sig, self.ni, ci,
                      self.P, self.K, self.Quu, self.Qux, self.Lww, self.Qm, self.Rm, self.perm, self.rank, self.nc,
-                     self.Cx, self.G, self.ng, self.Wx, self.Dmat, X, U, lam, nu, kff, pvec, gvec, dvec)
+                     self.Cx, self.G, self.ng, self.Wx, self.Dmat, self.pg, self.Zg, X, U, lam, nu, kff, pvec, gvec,
+                     dvec)
         return LQSolution(X, U, lam, nu, float(res))
 
 
