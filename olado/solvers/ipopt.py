@@ -180,7 +180,13 @@ class IpoptSolver(Solver):
             self._add_option(nlp_solver, key, value)
 
         t0 = time.perf_counter()
-        y, info = nlp_solver.solve(y0)
+        try:
+            y, info = nlp_solver.solve(y0)
+        finally:
+            # the adapter and the cyipopt problem refer to each other (its callbacks are the
+            # adapter's bound methods): break the cycle, else the NLP's arrays outlive the solve
+            # until Python's cyclic garbage collector runs
+            adapter.ipopt = None
         solve_time = time.perf_counter() - t0
 
         code = int(info["status"])

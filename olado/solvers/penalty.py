@@ -337,6 +337,11 @@ class PenalizedProblem(DOCP):
 
 
 # ============================================================================ inner method: L-BFGS-B
+class _Stop(Exception):
+    """Raised inside the L-BFGS-B objective to stop it at the deadline (module level: a class
+    made per call is a reference cycle)."""
+
+
 def solve_lbfgsb(problem, U0, *, tol, max_iter, memory=20, ftol=1e-15, max_restarts=50, deadline=None):
     """Built-in inner method: SciPy's L-BFGS-B on the reduced problem J(u) of ``problem``
     (values and adjoint gradients of :class:`~olado.solvers.control_space.ReducedProblem`),
@@ -352,9 +357,6 @@ def solve_lbfgsb(problem, U0, *, tol, max_iter, memory=20, ftol=1e-15, max_resta
     lo, hi = problem.u_lower.ravel(), problem.u_upper.ravel()
     bounded = bool(np.isfinite(lo).any() or np.isfinite(hi).any())
     u0 = np.clip(np.asarray(U0, dtype=float).ravel(), lo, hi)
-
-    class _Stop(Exception):
-        pass
 
     def fg(u):
         if deadline is not None and deadline():

@@ -1476,6 +1476,7 @@ class _Prepared:
         self.dual_mask = np.zeros(self.point_layout[1], dtype=np.bool_)
         for name, a, b, _ in self.point_layout[0]:
             self.dual_mask[a:b] = name in ("lam", "nu", "zl", "zu")
+        self.point_form = _PointForm(self.point_slices, self.dual_mask)
         self.zero_res = _Rhs(self, np.zeros(self.rhs_layout[1]))
         self.zero_res._size = 0.0
         self.stats = np.empty(6)
@@ -1518,13 +1519,13 @@ class _Prepared:
         return self._rungs
 
     def point(self, v):
-        return _Point(self, v)
+        return _Point(self.point_form, v)
 
     def directions(self):
         """The reused direction objects (predictor, main, corrector, refinement), made on first use."""
         if self.dir_aff is None:
             size = self.point_layout[1]
-            self.dir_aff, self.dir_main, self.dir_corr, self.dir_refine = (_Point(self, np.empty(size)) for _ in range(4))
+            self.dir_aff, self.dir_main, self.dir_corr, self.dir_refine = (_Point(self.point_form, np.empty(size)) for _ in range(4))
 
     def residual_buffer(self):
         """A residual object not holding the last one returned (the two are used in turn)."""
@@ -1549,7 +1550,7 @@ class _Prepared:
         self.shift += delta
 
     def point_from(self, X, U, lam, nu, tl, tu, zl, zu):
-        return _Point(self, np.concatenate([np.asarray(a, dtype=float).ravel() for a in (X, U, lam, nu, tl, tu, zl, zu)]))
+        return _Point(self.point_form, np.concatenate([np.asarray(a, dtype=float).ravel() for a in (X, U, lam, nu, tl, tu, zl, zu)]))
 
     # ------------------------------------------------------------------ linear maps
     def w_of(self, X, U):
@@ -1564,7 +1565,7 @@ class _Prepared:
     def zero_point(self):
         """A point of zeros (made on first use; never written)."""
         if self._zero_point is None:
-            self._zero_point = _Point(self, np.zeros(self.point_layout[1]))
+            self._zero_point = _Point(self.point_form, np.zeros(self.point_layout[1]))
         return self._zero_point
 
     def linear_parts(self, X, U, lam, nu, zl, zu):
@@ -1643,28 +1644,42 @@ def _layout(fields):
     return tuple(out), o
 
 
+class _PointForm:
+    """The layout of the points of a prepared problem: the (slice, shape) of each field and the
+    mask of the dual fields (lam, nu, zl, zu)."""
+
+    __slots__ = ("slices", "dual_mask")
+
+    def __init__(self, slices, dual_mask):
+        self.slices, self.dual_mask = slices, dual_mask
+
+
 class _Point:
     """An iterate, or a direction (same fields): states X, controls U, dynamics and equality
     multipliers lam, nu, and the slacks tl, tu and multipliers zl, zu of the finite box sides
     (flat, 0 on infinite sides) -- views into one flat vector ``v``."""
 
-    __slots__ = ("v", "X", "U", "lam", "nu", "tl", "tu", "zl", "zu", "_P", "max_step", "max_split")
+    __slots__ = ("v", "X", "U", "lam", "nu", "tl", "tu", "zl", "zu", "_form", "max_step", "max_split")
 
-    def __init__(self, P, v):
-        self._P, self.v = P, v
+    def __init__(self, form, v):
+        """``form``: the _PointForm of the prepared problem (not the problem itself: a point held
+        by the problem -- its reused directions -- would make a reference cycle, and the
+        problem's large arrays would then outlive the solve until Python's cyclic garbage
+        collector runs, ~100 MB per solve at N = 12 000)."""
+        self._form, self.v = form, v
         self.max_step = None    # cache of _StepContext.max_step for a direction
         self.max_split = None   # and of its (primal, dual) step lengths (set by _reduced_solve)
-        (sx, shx), (su, shu), (sl, shl), (sn, shn), stl, stu, szl, szu = P.point_slices
+        (sx, shx), (su, shu), (sl, shl), (sn, shn), stl, stu, szl, szu = form.slices
         self.X = v[sx].reshape(shx); self.U = v[su].reshape(shu)
         self.lam = v[sl].reshape(shl); self.nu = v[sn].reshape(shn)
         self.tl = v[stl]; self.tu = v[stu]; self.zl = v[szl]; self.zu = v[szu]
 
     def plus(self, alpha, d):
-        return _Point(self._P, _axpy(self.v, float(alpha), d.v))
+        return _Point(self._form, _axpy(self.v, float(alpha), d.v))
 
     def plus_split(self, alpha, alpha_dual, d):
         """The point + alpha d on (X, U, tl, tu) and + alpha_dual d on (lam, nu, zl, zu)."""
-        return _Point(self._P, _axpy_split(self.v, float(alpha), float(alpha_dual), d.v, self._P.dual_mask))
+        return _Point(self._form, _axpy_split(self.v, float(alpha), float(alpha_dual), d.v, self._form.dual_mask))
 
     def finite(self):
         return _all_finite(self.v)
@@ -1788,7 +1803,10 @@ class _StepContext:
             return True
         except NotPositiveDefiniteError as exc:
             exc.regularization = reg
-            self._failure = exc
+            # kept without its traceback: the traceback's frames hold this context, which holds
+            # the exception -- a reference cycle that kept each iteration's arrays alive until
+            # the cyclic garbage collector ran (raised again, it gets a fresh traceback)
+            self._failure = exc.with_traceback(None)
             return False
 
     # ------------------------------------------------------------------ solves
