@@ -285,9 +285,9 @@ def test_inconsistent_fixed_states_through_the_interior_point_qp(fix_controls):
     if fix_controls:
         kw.update(u_lower=U.copy(), u_upper=U.copy())
     res = MehrotraQP().solve(replace(qp, **kw))          # never an exception
-    assert res.status in (Status.INFEASIBLE, Status.NUMERICAL_ERROR), res.message
-    if res.status is Status.NUMERICAL_ERROR:
-        assert "primal" in res.message
+    # the starting point's solve sees the consistency defect of the dropped rows
+    assert res.status is Status.INFEASIBLE, res.message
+    assert "inconsistent" in res.message and res.iterations == 0
 
 
 # ============================================================================= (5) random dependent rows
@@ -349,3 +349,14 @@ def test_random_dependent_rows_match_dense_and_the_problem_without_them(N, n, m,
     _, b = factor_and_solve(base)
     scale = max(1.0, np.abs(b.X).max(), np.abs(b.U).max())
     assert np.abs(a.X - b.X).max() <= 1e-6 * scale and np.abs(a.U - b.U).max() <= 1e-6 * scale
+
+
+def test_inconsistent_fixed_states_warm_started_are_reported_by_the_first_newton_step():
+    """A warm start skips the starting-point solve: the first Newton solve's consistency defect
+    (the same defect, the rows being linear) reports the inconsistency."""
+    qp, X, U = _fixed_trajectory_qp()
+    first = MehrotraQP().solve(qp)
+    Xb = X.copy(); Xb[3] += 0.1 * np.array([1.0, -1.0, 0.5])
+    res = MehrotraQP().solve(replace(qp, x_lower=Xb.copy(), x_upper=Xb.copy()), warm_start=first)
+    assert res.status is Status.INFEASIBLE, res.message
+    assert "inconsistent" in res.message and "Newton step" in res.message

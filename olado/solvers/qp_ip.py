@@ -1644,6 +1644,21 @@ def _layout(fields):
     return tuple(out), o
 
 
+class _InconsistentRows(ArithmeticError):
+    """The equality rows (dynamics, stage and final rows, fixed states) contradict each other:
+    the Riccati recursion's consistency defect of the rows it dropped as dependent, or of the
+    rows reaching the fixed x_0 (``LQSolution.x0_residual``), is above the data's rounding level."""
+
+
+def _check_rows(P, sol, rhs_size, where):
+    """Raise _InconsistentRows if the solve ``sol`` found inconsistent equality rows."""
+    defect = float(getattr(sol, "x0_residual", 0.0))
+    if defect > 1e-6 * (1.0 + P.p_data + rhs_size):
+        raise _InconsistentRows(f"the equality constraints (dynamics, equality rows, fixed states and x_0) are "
+                                f"inconsistent: a combination of them is violated by {defect:.3g} at every point "
+                                f"({where})")
+
+
 class _PointForm:
     """The layout of the points of a prepared problem: the (slice, shape) of each field and the
     mask of the dual fields (lam, nu, zl, zu)."""
@@ -1846,6 +1861,7 @@ class _StepContext:
             else:
                 sol = self.fact.solve(q, r, res.dyn, res.x0r, **kw)
                 d.X[...] = sol.X; d.U[...] = sol.U; d.lam[...] = sol.lam
+            _check_rows(P, sol, res.size(), "Newton step")
             if P.n_nu:
                 k = min(P.n_nu, sol.nu.shape[1])
                 d.nu[:, :k] = sol.nu[:, :k]
@@ -2007,6 +2023,8 @@ class InteriorPointQP:
         except RiccatiStatusError as exc:
             return self._finish(P, None, Status.NUMERICAL_ERROR,
                                 f"{Status.NUMERICAL_ERROR.sentence} (starting point: {exc})", 0, history, t0)
+        except _InconsistentRows as exc:
+            return self._finish(P, None, Status.INFEASIBLE, f"{Status.INFEASIBLE.sentence} ({exc})", 0, history, t0)
         best, stall, k, last_d = math.inf, 0, 0, None
         failed_reg = 0.0
         # The relative error of the Newton solves grows with the conditioning of the Newton matrix,
@@ -2089,6 +2107,10 @@ class InteriorPointQP:
                 failed_reg = getattr(exc, "regularization", 0.0)
                 message = (f"{status.sentence} (iteration {k + 1}: the KKT factorization failed at stage "
                            f"k={exc.stage} with regularization {failed_reg:.3g}: {exc})")
+                break
+            except _InconsistentRows as exc:
+                status = Status.INFEASIBLE
+                message = f"{status.sentence} (iteration {k + 1}: {exc})"
                 break
             except (np.linalg.LinAlgError, FloatingPointError, ValueError, ZeroDivisionError, RiccatiStatusError) as exc:
                 status = Status.NUMERICAL_ERROR
@@ -2296,6 +2318,7 @@ class InteriorPointQP:
             rhs.update(e=P.e, eN=P.eN)
         kw.update(self.options.kkt_options)
         sol = make_kkt_solver(self.options.kkt, Q, P.S, P.R, P.A, P.B, **kw).solve(q, r, P.c, P.x0, **rhs)
+        _check_rows(P, sol, 0.0, "starting point")
         X, U = np.array(sol.X, dtype=float), np.array(sol.U, dtype=float)
         w = P.w_of(X, U)
         tl = np.where(P.fl, np.maximum(w - P.lo, 1.0), 0.0)
