@@ -68,11 +68,14 @@ def load_revision(rev):
     return mod
 
 
-def timed(solver, qp, repeats):
-    """(best wall time of ``repeats`` solves after a warm-up, last result)."""
+def timed(solver, qp, repeats, budget=30.0):
+    """(best wall time of ``repeats`` solves after a warm-up, last result); fewer repeats (at
+    least one) when they would take more than ``budget`` seconds (OSQP at N = 12 000)."""
+    t0 = time.perf_counter()
     res = solver.solve(qp)
+    first = time.perf_counter() - t0
     best = np.inf
-    for _ in range(repeats):
+    for _ in range(max(1, min(repeats, int(budget // max(first, 1e-9))))):
         t0 = time.perf_counter()
         res = solver.solve(qp)
         best = min(best, time.perf_counter() - t0)
@@ -85,7 +88,8 @@ def main(argv=None):
     ap.add_argument("--iteration-N", type=int, nargs="+", default=[252, 1200, 12000],
                     help="horizons of the per-iteration table")
     ap.add_argument("--before", metavar="REV", help="also time qp_ip.py of this git revision (per-iteration table)")
-    ap.add_argument("--repeats", type=int, default=5, help="timed repeats per solver at N <= 2000 (2 above)")
+    ap.add_argument("--repeats", type=int, default=5, help="timed repeats per solver at N <= 2000 (3 above; fewer "
+                    "for a solver whose solves would take more than 30 s)")
     ap.add_argument("--write", action="store_true", help=f"replace the section in {RESULTS.name}")
     args = ap.parse_args(argv)
 
@@ -97,7 +101,7 @@ def main(argv=None):
     old = load_revision(args.before) if args.before else None
 
     qps = {N: zambezi_qp(N) for N in sorted(set(args.N) | set(args.iteration_N))}
-    reps = lambda N: args.repeats if N <= 2000 else 2  # noqa: E731
+    reps = lambda N: args.repeats if N <= 2000 else 3  # noqa: E731
 
     # ---- solver comparison
     rows = []
@@ -105,7 +109,7 @@ def main(argv=None):
         qp = qps[N]
         times = {}
         for name, solver in list(ip.items()) + list(ext.items()):
-            t, res = timed(solver, qp, reps(N) if name in ip else max(1, reps(N) // 2))
+            t, res = timed(solver, qp, reps(N))
             times[name] = t
             rows.append((N, name, res, t))
             print(f"N={N:6d} {name:20s} {res.status.value:10s} it={res.iterations:5d} {t:9.4f} s  "
@@ -168,8 +172,9 @@ stage), N = 252 from zambezi12, larger N from the 'zambezi' family (cyclic inflo
 Gondzio are olado's interior-point QP methods with the Riccati KKT back-end at the default
 tol = 1e-8; OSQP (eps 1e-7, polishing) and Clarabel (tolerances 1e-8) solve the sparse form through
 `ExternalQP`. KKT residuals are `qp_kkt_residuals` of each result (unscaled max-norms), so the
-accuracy is compared on one measure. Times are wall times of `solve` (best of several repeats after
-a warm-up solve), including each method's set-up and result assembly; the external solvers' times
+accuracy is compared on one measure. Times are wall times of `solve` (best of 5 repeats at
+N <= 2 000, 3 above -- 1 for OSQP at N = 12 000, whose solves take ~20 s -- after a warm-up
+solve, every solver alike), including each method's set-up and result assembly; the external solvers' times
 include qpsolvers' conversion of the sparse form to their own (for Clarabel at N = 12 000 about
 0.5 s of its ~3 s). "n/a": qpsolvers does not pass Clarabel's iteration count on.
 
