@@ -956,9 +956,13 @@ def _pieces(first, count):
 
 
 class _RowCode:
-    """Code generation helpers of _eliminate_stage. A row is a list of pieces (first column,
-    width, LLVM value: a double or a vector of 2 or 4 doubles), data pointers point to C-ordered
-    float64 matrices of ncols columns."""
+    """Code generation helpers of _eliminate_stage (and of qp_ip's _kkt_stage / _kkt_boxes). A
+    row is a list of pieces (first column, width, LLVM value: a double or a vector of 2 or 4
+    doubles), data pointers point to C-ordered float64 matrices of ncols columns.
+
+    Numba's on-disk cache of a kernel is invalidated only by changes to the kernel's own source
+    file: after editing these helpers, delete the cached kernels of qp_ip.py as well
+    (olado/solvers/__pycache__/qp_ip.*.nbi, *.nbc), or they keep the old generated code."""
 
     def __init__(self, builder):
         self.b = builder
