@@ -1448,11 +1448,10 @@ class _Prepared:
 
         # ---- stacked arrays of the compiled kernels and the per-iteration work arrays
         nz = n + m
-        H = np.empty((N, nz, nz))
-        H[:, :n, :n] = self.Q[:N]; H[:, :n, n:] = self.S; H[:, n:, :n] = self.S.transpose(0, 2, 1); H[:, n:, n:] = self.R
         tr = lambda a: np.ascontiguousarray(np.swapaxes(a, -1, -2))  # noqa: E731
         # the symmetric parts (what the objective 1/2 z.H z sees, and what the Riccati kernels use)
-        self.H = np.ascontiguousarray(0.5 * (H + tr(H)))
+        self.H = _symmetric_stage_hessians(np.ascontiguousarray(self.Q), np.ascontiguousarray(self.S),
+                                           np.ascontiguousarray(self.R), np.empty((N, nz, nz)))
         self.QN = np.ascontiguousarray(0.5 * (self.Q[N] + self.Q[N].T))
         self.AB = np.ascontiguousarray(np.concatenate([self.A, self.B], axis=2))
         self.sizes = _size_tags(n, m, n + m) if 0 < n and 0 < m and n + m <= _FIXED_SIZE_MAX else (n, m, n + m)
@@ -1642,6 +1641,24 @@ def _layout(fields):
         out.append((name, o, o + size, shape))
         o += size
     return tuple(out), o
+
+
+@nb.njit(cache=True)
+def _symmetric_stage_hessians(Q, S, R, H):
+    """H_k = the symmetric part of [Q_k S_k; S_k^T R_k] (k < N), in one pass."""
+    N, n, m = S.shape
+    for k in range(N):
+        for i in range(n):
+            for j in range(n):
+                H[k, i, j] = 0.5 * (Q[k, i, j] + Q[k, j, i])
+            for j in range(m):
+                v = 0.5 * (S[k, i, j] + S[k, i, j])
+                H[k, i, n + j] = v
+                H[k, n + j, i] = v
+        for i in range(m):
+            for j in range(m):
+                H[k, n + i, n + j] = 0.5 * (R[k, i, j] + R[k, j, i])
+    return H
 
 
 class _InconsistentRows(ArithmeticError):
