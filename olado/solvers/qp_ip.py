@@ -277,6 +277,79 @@ def _work_overload(x):
     return lambda x: _stack_vector(x)
 
 
+@nb.njit(inline="always")
+def _kkt_final_stage(N, n, QN, X, lam, nu, EN, CN, zl, zu, bx, bx0, beN, rx, x0r, rEN, w, osN, hz, g,
+                     dmax, xmax, hmax, obj, pmax):
+    """The final stage of _kkt_map (both kernels): rx[N], x0r, rEN, the final rows' values
+    C_N x_N into w, and the measures updated (hz, g: work vectors of length >= n)."""
+    ncN = CN.shape[0]
+    neN = EN.shape[0]
+    for i in range(n):
+        t = 0.0
+        for j in range(n):
+            t += QN[i, j] * X[N, j]
+        hz[i] = t
+    for i in range(n):
+        g[i] = hz[i] - lam[N, i]
+    for l in range(neN):
+        t = nu[N, l]
+        for i in range(n):
+            g[i] += EN[l, i] * t
+    if N >= 1:
+        for i in range(n):
+            idx = (N - 1) * n + i
+            g[i] += zu[idx] - zl[idx]
+    for l in range(ncN):
+        t = zu[osN + l] - zl[osN + l]
+        for i in range(n):
+            g[i] += CN[l, i] * t
+    for i in range(n):
+        v = g[i] + bx[N, i]
+        rx[N, i] = v
+        dmax = max(dmax, abs(v))
+        xmax = max(xmax, abs(X[N, i]))
+        hmax = max(hmax, abs(hz[i]))
+        obj += 0.5 * X[N, i] * hz[i] + bx[N, i] * X[N, i]
+    for i in range(n):
+        v = bx0[i] - X[0, i]
+        x0r[i] = v
+        pmax = max(pmax, abs(v))
+    for l in range(neN):
+        s = 0.0
+        for j in range(n):
+            s += EN[l, j] * X[N, j]
+        v = s + beN[l]
+        rEN[l] = v
+        pmax = max(pmax, abs(v))
+    for l in range(ncN):
+        s = 0.0
+        for j in range(n):
+            s += CN[l, j] * X[N, j]
+        w[osN + l] = s
+    return dmax, xmax, hmax, obj, pmax
+
+
+@nb.njit(inline="always")
+def _kkt_row_boxes(i0, al, au, fl, fu, tl, tu, zl, zu, rl, rup, w, pmax, comp):
+    """The box residuals rl, rup of the flat boxes i0.. of _kkt_map (values w), the primal
+    max-norm and the complementarity sum updated."""
+    for idx in range(i0, w.shape[0]):
+        comp += zl[idx] * tl[idx] + zu[idx] * tu[idx]
+        if fl[idx]:
+            v = w[idx] + al[idx] - tl[idx]
+            rl[idx] = v
+            pmax = max(pmax, abs(v))
+        else:
+            rl[idx] = 0.0
+        if fu[idx]:
+            v = au[idx] - w[idx] - tu[idx]
+            rup[idx] = v
+            pmax = max(pmax, abs(v))
+        else:
+            rup[idx] = 0.0
+    return pmax, comp
+
+
 @nb.njit(cache=True, fastmath=_REASSOC)
 def _kkt_map_loops(sizes, H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu,
                    X, U, lam, nu, tl, tu, zl, zu, bx, bu, bdyn, bx0, be, beN,
@@ -387,66 +460,12 @@ def _kkt_map_loops(sizes, H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu
         for l in range(nc):
             w[os_ + k * nc + l] = ac[l]
     # final stage
-    for i in range(n):
-        t = 0.0
-        for j in range(n):
-            t += QN[i, j] * X[N, j]
-        hz[i] = t
-    for i in range(n):
-        g[i] = hz[i] - lam[N, i]
-    for l in range(neN):
-        t = nu[N, l]
-        for i in range(n):
-            g[i] += EN[l, i] * t
-    if N >= 1:
-        for i in range(n):
-            idx = (N - 1) * n + i
-            g[i] += zu[idx] - zl[idx]
-    for l in range(ncN):
-        t = zu[osN + l] - zl[osN + l]
-        for i in range(n):
-            g[i] += CN[l, i] * t
-    for i in range(n):
-        v = g[i] + bx[N, i]
-        rx[N, i] = v
-        dmax = max(dmax, abs(v))
-        xmax = max(xmax, abs(X[N, i]))
-        hmax = max(hmax, abs(hz[i]))
-        obj += 0.5 * X[N, i] * hz[i] + bx[N, i] * X[N, i]
-    for i in range(n):
-        v = bx0[i] - X[0, i]
-        x0r[i] = v
-        pmax = max(pmax, abs(v))
-    for l in range(neN):
-        s = 0.0
-        for j in range(n):
-            s += EN[l, j] * X[N, j]
-        v = s + beN[l]
-        rEN[l] = v
-        pmax = max(pmax, abs(v))
+    dmax, xmax, hmax, obj, pmax = _kkt_final_stage(N, n, QN, X, lam, nu, EN, CN, zl, zu, bx, bx0, beN, rx, x0r, rEN,
+                                                   w, osN, hz, g, dmax, xmax, hmax, obj, pmax)
     if N >= 1:
         for i in range(n):
             w[(N - 1) * n + i] = X[N, i]
-    for l in range(ncN):
-        s = 0.0
-        for j in range(n):
-            s += CN[l, j] * X[N, j]
-        w[osN + l] = s
-    comp = 0.0
-    for idx in range(w.shape[0]):
-        comp += zl[idx] * tl[idx] + zu[idx] * tu[idx]
-        if fl[idx]:
-            v = w[idx] + al[idx] - tl[idx]
-            rl[idx] = v
-            pmax = max(pmax, abs(v))
-        else:
-            rl[idx] = 0.0
-        if fu[idx]:
-            v = au[idx] - w[idx] - tu[idx]
-            rup[idx] = v
-            pmax = max(pmax, abs(v))
-        else:
-            rup[idx] = 0.0
+    pmax, comp = _kkt_row_boxes(0, al, au, fl, fu, tl, tu, zl, zu, rl, rup, w, pmax, 0.0)
     stats[0] = pmax
     stats[1] = dmax
     stats[2] = xmax
@@ -875,63 +894,10 @@ def _kkt_map_fixed(tags, H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu,
     # final stage
     hz = _stack_vector(nt)
     g = _stack_vector(nt)
-    for i in range(n):
-        t = 0.0
-        for j in range(n):
-            t += QN[i, j] * X[N, j]
-        hz[i] = t
-    for i in range(n):
-        g[i] = hz[i] - lam[N, i]
-    for l in range(neN):
-        t = nu[N, l]
-        for i in range(n):
-            g[i] += EN[l, i] * t
-    if N >= 1:
-        for i in range(n):
-            idx = (N - 1) * n + i
-            g[i] += zu[idx] - zl[idx]
-    for l in range(ncN):
-        t = zu[osN + l] - zl[osN + l]
-        for i in range(n):
-            g[i] += CN[l, i] * t
-    for i in range(n):
-        v = g[i] + bx[N, i]
-        rx[N, i] = v
-        dmax = max(dmax, abs(v))
-        xmax = max(xmax, abs(X[N, i]))
-        hmax = max(hmax, abs(hz[i]))
-        obj += 0.5 * X[N, i] * hz[i] + bx[N, i] * X[N, i]
-    for i in range(n):
-        v = bx0[i] - X[0, i]
-        x0r[i] = v
-        pmax = max(pmax, abs(v))
-    for l in range(neN):
-        s = 0.0
-        for j in range(n):
-            s += EN[l, j] * X[N, j]
-        v = s + beN[l]
-        rEN[l] = v
-        pmax = max(pmax, abs(v))
-    for l in range(ncN):
-        s = 0.0
-        for j in range(n):
-            s += CN[l, j] * X[N, j]
-        w[osN + l] = s
+    dmax, xmax, hmax, obj, pmax = _kkt_final_stage(N, n, QN, X, lam, nu, EN, CN, zl, zu, bx, bx0, beN, rx, x0r, rEN,
+                                                   w, osN, hz, g, dmax, xmax, hmax, obj, pmax)
     # boxes of the stage and final rows
-    for idx in range(os_, w.shape[0]):
-        comp += zl[idx] * tl[idx] + zu[idx] * tu[idx]
-        if fl[idx]:
-            v = w[idx] + al[idx] - tl[idx]
-            rl[idx] = v
-            pmax = max(pmax, abs(v))
-        else:
-            rl[idx] = 0.0
-        if fu[idx]:
-            v = au[idx] - w[idx] - tu[idx]
-            rup[idx] = v
-            pmax = max(pmax, abs(v))
-        else:
-            rup[idx] = 0.0
+    pmax, comp = _kkt_row_boxes(os_, al, au, fl, fu, tl, tu, zl, zu, rl, rup, w, pmax, comp)
     stats[0] = pmax
     stats[1] = dmax
     stats[2] = xmax
