@@ -584,17 +584,3 @@ def test_acceptable_result_is_polished_on_its_active_set(cls, seed, fixed):
     assert res.iterations > plain.iterations          # the polishing Newton steps are counted
     assert max(np.abs(plain.X - ref.X).max(), np.abs(plain.U - ref.U).max()) > 1e-9   # it did improve
 
-
-def test_every_state_fixed_dependent_equality_rows_are_dropped():
-    """Every state fixed at the optimal trajectory: the fixed states become equality rows, which
-    with the dynamics are dependent (more rows reach a stage than x_k has components). The
-    Riccati recursion drops the dependent passed-back rows (riccati._factor), so the QP solves
-    to the same trajectory (until 2026-11-23 this ended with NUMERICAL_ERROR)."""
-    qp = random_qp(0, nc=0, ncN=0)
-    ref = MehrotraQP(tol=1e-10).solve(qp)
-    xl, xu = qp.x_lower.copy(), qp.x_upper.copy()
-    xl[1:], xu[1:] = ref.X[1:], ref.X[1:]
-    res = MehrotraQP().solve(replace(qp, x_lower=xl, x_upper=xu))
-    assert res.status is Status.SUCCESS, res.message
-    assert np.allclose(res.X, ref.X, atol=1e-8) and np.allclose(res.U, ref.U, atol=1e-6)
-    assert res.objective == pytest.approx(ref.objective, rel=1e-8, abs=1e-10)

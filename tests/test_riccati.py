@@ -7,15 +7,17 @@ from hypothesis import assume, given, settings, strategies as st
 from olado.linalg import NotPositiveDefiniteError, RiccatiFactorization
 
 
-def dense_kkt(Q, S, R, q, r, A, B, c, x0, E=None, F=None, e=None, EN=None, eN=None, Dx=None, Du=None):
-    """Assemble and solve the full KKT system with numpy; multipliers in the order
-    [x0 rows, dynamics rows k=0..N-1, stage equality rows, final equality rows]."""
+def dense_kkt_system(Q, S, R, q, r, A, B, c, x0, E=None, F=None, e=None, EN=None, eN=None, Dx=None, Du=None,
+                     n_eq=None):
+    """The full KKT matrix and right-hand side of the LQ-DOCP, with the multipliers in the order
+    [x0 rows, dynamics rows k=0..N-1, stage equality rows (the first n_eq[k] of stage k), final
+    equality rows]; returns (K, rhs, unpack) with unpack(z) = (X, U) of a solution z."""
     N, n, m = B.shape
     nz = n + m
     nv = N * nz + n
 
     def xi(k):
-        return (k * nz if k < N else N * nz) + np.arange(n)
+        return k * nz + np.arange(n)
 
     def ui(k):
         return k * nz + n + np.arange(m)
@@ -34,15 +36,27 @@ def dense_kkt(Q, S, R, q, r, A, B, c, x0, E=None, F=None, e=None, EN=None, eN=No
         rows.append(C); rhs.append(-c[k])
     if E is not None:
         for k in range(N):
-            C = np.zeros((E.shape[1], nv)); C[:, xi(k)] = E[k]; C[:, ui(k)] = F[k]; rows.append(C); rhs.append(-e[k])
+            nk = E.shape[1] if n_eq is None else n_eq[k]
+            C = np.zeros((nk, nv)); C[:, xi(k)] = E[k, :nk]; C[:, ui(k)] = F[k, :nk]
+            rows.append(C); rhs.append(-e[k, :nk])
     if EN is not None:
         C = np.zeros((EN.shape[0], nv)); C[:, xi(N)] = EN; rows.append(C); rhs.append(-eN)
     C = np.vstack(rows); d = np.concatenate(rhs)
     K = np.block([[H, C.T], [C, np.zeros((C.shape[0], C.shape[0]))]])
+
+    def unpack(z):
+        return np.array([z[xi(k)] for k in range(N + 1)]), np.array([z[ui(k)] for k in range(N)])
+    return K, np.concatenate([-g, d]), unpack
+
+
+def dense_kkt(Q, S, R, q, r, A, B, c, x0, E=None, F=None, e=None, EN=None, eN=None, Dx=None, Du=None):
+    """Assemble and solve the full KKT system with numpy (:func:`dense_kkt_system`): X, U and
+    the multipliers."""
+    K, b, unpack = dense_kkt_system(Q, S, R, q, r, A, B, c, x0, E, F, e, EN, eN, Dx, Du)
     dense_kkt.last_condition = np.linalg.cond(K)
-    sol = np.linalg.solve(K, np.concatenate([-g, d]))
-    z = sol[:nv]
-    X = np.array([z[xi(k)] for k in range(N + 1)]); U = np.array([z[ui(k)] for k in range(N)])
+    sol = np.linalg.solve(K, b)
+    nv = B.shape[0] * (B.shape[1] + B.shape[2]) + B.shape[1]
+    X, U = unpack(sol)
     return X, U, sol[nv:]
 
 

@@ -18,49 +18,16 @@ from olado.solvers.qp_ip import MehrotraQP
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_qp_ip import random_qp, replace  # noqa: E402
+from test_riccati import dense_kkt_system  # noqa: E402
 
 
 # ============================================================================= references
 def dense_lstsq(d):
     """Primal part (X, U) of the dense KKT system of the LQ-DOCP d, by a minimum-norm least-squares
     solve (the matrix is singular when equality rows are dependent)."""
-    Q, S, R, q, r, A, B, c, x0 = (d[k] for k in ("Q", "S", "R", "q", "r", "A", "B", "c", "x0"))
-    E, F, e, EN, eN = (d.get(k) for k in ("E", "F", "e", "EN", "eN"))
-    Dx, Du = d.get("Dx"), d.get("Du")
-    N, n, m = B.shape
-    nz = n + m
-    nv = N * nz + n
-
-    def xi(k):
-        return k * nz + np.arange(n)
-
-    def ui(k):
-        return k * nz + n + np.arange(m)
-
-    H = np.zeros((nv, nv)); g = np.zeros(nv)
-    for k in range(N):
-        H[np.ix_(xi(k), xi(k))] += Q[k] + (np.diag(Dx[k]) if Dx is not None else 0)
-        H[np.ix_(xi(k), ui(k))] += S[k]; H[np.ix_(ui(k), xi(k))] += S[k].T
-        H[np.ix_(ui(k), ui(k))] += R[k] + (np.diag(Du[k]) if Du is not None else 0)
-        g[xi(k)] += q[k]; g[ui(k)] += r[k]
-    H[np.ix_(xi(N), xi(N))] += Q[N] + (np.diag(Dx[N]) if Dx is not None else 0); g[xi(N)] += q[N]
-    rows, rhs = [], []
-    C = np.zeros((n, nv)); C[:, xi(0)] = np.eye(n); rows.append(C); rhs.append(x0)
-    for k in range(N):
-        C = np.zeros((n, nv)); C[:, xi(k)] = A[k]; C[:, ui(k)] = B[k]; C[:, xi(k + 1)] = -np.eye(n)
-        rows.append(C); rhs.append(-c[k])
-    ne = d.get("n_eq")
-    if E is not None:
-        for k in range(N):
-            nk = E.shape[1] if ne is None else ne[k]
-            C = np.zeros((nk, nv)); C[:, xi(k)] = E[k, :nk]; C[:, ui(k)] = F[k, :nk]
-            rows.append(C); rhs.append(-e[k, :nk])
-    if EN is not None:
-        C = np.zeros((EN.shape[0], nv)); C[:, xi(N)] = EN; rows.append(C); rhs.append(-eN)
-    C = np.vstack(rows); dd = np.concatenate(rhs)
-    K = np.block([[H, C.T], [C, np.zeros((C.shape[0], C.shape[0]))]])
-    z = np.linalg.lstsq(K, np.concatenate([-g, dd]), rcond=1e-12)[0][:nv]
-    return np.array([z[xi(k)] for k in range(N + 1)]), np.array([z[ui(k)] for k in range(N)])
+    keys = ("Q", "S", "R", "q", "r", "A", "B", "c", "x0", "E", "F", "e", "EN", "eN", "Dx", "Du")
+    K, b, unpack = dense_kkt_system(*(d.get(k) for k in keys), n_eq=d.get("n_eq"))
+    return unpack(np.linalg.lstsq(K, b, rcond=1e-12)[0])
 
 
 def kkt_residuals(d, sol):
@@ -193,6 +160,7 @@ def test_states_fixed_at_the_optimal_trajectory_through_the_interior_point_qp():
     assert res.status is Status.SUCCESS, res.message
     np.testing.assert_allclose(res.X, ref.X, atol=1e-9)
     np.testing.assert_allclose(res.U, ref.U, atol=1e-6)
+    assert res.objective == pytest.approx(ref.objective, rel=1e-8, abs=1e-10)
 
 
 # ============================================================================= (2), (3) dependent rows
