@@ -583,4 +583,3 @@ def test_acceptable_result_is_polished_on_its_active_set(cls, seed, fixed):
     assert res.kkt["complementarity"] <= 1e-14 and res.kkt["dual_sign"] == 0.0
     assert res.iterations > plain.iterations          # the polishing Newton steps are counted
     assert max(np.abs(plain.X - ref.X).max(), np.abs(plain.U - ref.U).max()) > 1e-9   # it did improve
-
