@@ -330,10 +330,10 @@ def _kkt_final_stage(N, n, QN, X, lam, nu, EN, CN, zl, zu, bx, bx0, beN, rx, x0r
 
 
 @nb.njit(inline="always")
-def _kkt_row_boxes(i0, al, au, fl, fu, tl, tu, zl, zu, rl, rup, w, pmax, comp):
-    """The box residuals rl, rup of the flat boxes i0.. of _kkt_map (values w), the primal
+def _kkt_row_boxes(i0, i1, al, au, fl, fu, tl, tu, zl, zu, rl, rup, w, pmax, comp):
+    """The box residuals rl, rup of the flat boxes i0..i1-1 of _kkt_map (values w), the primal
     max-norm and the complementarity sum updated."""
-    for idx in range(i0, w.shape[0]):
+    for idx in range(i0, i1):
         comp += zl[idx] * tl[idx] + zu[idx] * tu[idx]
         if fl[idx]:
             v = w[idx] + al[idx] - tl[idx]
@@ -465,7 +465,7 @@ def _kkt_map_loops(sizes, H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu
     if N >= 1:
         for i in range(n):
             w[(N - 1) * n + i] = X[N, i]
-    pmax, comp = _kkt_row_boxes(0, al, au, fl, fu, tl, tu, zl, zu, rl, rup, w, pmax, 0.0)
+    pmax, comp = _kkt_row_boxes(0, w.shape[0], al, au, fl, fu, tl, tu, zl, zu, rl, rup, w, pmax, 0.0)
     stats[0] = pmax
     stats[1] = dmax
     stats[2] = xmax
@@ -812,22 +812,8 @@ def _kkt_boxes_range(tags, src, so, start, stop, al, au, fl, fu, tl, tu, zl, zu,
         i += _KKT_CHUNK
     vals = src.reshape(src.size)
     for idx in range(i, stop):
-        v = vals[so + idx - start]
-        w[idx] = v
-        comp += zl[idx] * tl[idx] + zu[idx] * tu[idx]
-        if fl[idx]:
-            r = v + al[idx] - tl[idx]
-            rl[idx] = r
-            pmax = max(pmax, abs(r))
-        else:
-            rl[idx] = 0.0
-        if fu[idx]:
-            r = au[idx] - v - tu[idx]
-            rup[idx] = r
-            pmax = max(pmax, abs(r))
-        else:
-            rup[idx] = 0.0
-    return pmax, comp
+        w[idx] = vals[so + idx - start]
+    return _kkt_row_boxes(i, stop, al, au, fl, fu, tl, tu, zl, zu, rl, rup, w, pmax, comp)
 
 
 @nb.njit(cache=True, fastmath=_REASSOC)
@@ -897,7 +883,7 @@ def _kkt_map_fixed(tags, H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu,
     dmax, xmax, hmax, obj, pmax = _kkt_final_stage(N, n, QN, X, lam, nu, EN, CN, zl, zu, bx, bx0, beN, rx, x0r, rEN,
                                                    w, osN, hz, g, dmax, xmax, hmax, obj, pmax)
     # boxes of the stage and final rows
-    pmax, comp = _kkt_row_boxes(os_, al, au, fl, fu, tl, tu, zl, zu, rl, rup, w, pmax, comp)
+    pmax, comp = _kkt_row_boxes(os_, w.shape[0], al, au, fl, fu, tl, tu, zl, zu, rl, rup, w, pmax, comp)
     stats[0] = pmax
     stats[1] = dmax
     stats[2] = xmax
