@@ -939,6 +939,7 @@ def _size_tags(*sizes):
 
 _F64 = llir.DoubleType()
 _I32 = llir.IntType(32)
+_I64 = llir.IntType(64)
 
 
 def _pieces(first, count):
@@ -1235,8 +1236,306 @@ def _factor_unconstrained_fixed_loops(tags, Q, S, R, A, B, Dx, Du, Ci, sig, ni, 
     return -1
 
 
+class _SolveRowCode(_RowCode):
+    """_RowCode with what _solve_stage_back / _solve_stage_forward need besides: contracted
+    multiply-adds, zero extension of pieces, and matrix-vector products by rows (products
+    summed over the pieces of a row, then the rows summed by a transposing reduction)."""
+
+    def vtype(self, w):
+        return _F64 if w == 1 else llir.VectorType(_F64, w)
+
+    def add(self, a, b):
+        return self.b.fadd(a, b, flags=("contract",))
+
+    def sub(self, a, b):
+        return self.b.fsub(a, b, flags=("contract",))
+
+    def mul(self, a, b):
+        return self.b.fmul(a, b, flags=("contract",))
+
+    def axpy(self, row, a, x):
+        xv = {c0: v for c0, w, v in x}
+        return [(c0, w, self.add(v, self.mul(self.splat(a, w), xv[c0]))) for c0, w, v in row]
+
+    def addrows(self, a, b):
+        bv = {c0: v for c0, w, v in b}
+        return [(c0, w, self.add(v, bv[c0])) for c0, w, v in a]
+
+    def row(self, data, pieces, shift=0):
+        """The pieces of a row at data (column c0 at data + c0 - shift)."""
+        return [(c0, w, self.load(data, 0, 0, c0 - shift, w)) for c0, w in pieces]
+
+    def store_row(self, row, data, shift=0):
+        for c0, w, v in row:
+            self.store(v, data, 0, 0, c0 - shift, w)
+
+    def widen(self, v, w, W):
+        """v (width w) in the low lanes of a width-W vector, zeros above."""
+        if w == W:
+            return v
+        if w == 1:
+            return self.b.insert_element(llir.Constant(self.vtype(W), [0.0] * W), v, llir.Constant(_I32, 0))
+        z = llir.Constant(self.vtype(w), [0.0] * w)
+        return self.widen(self.b.shuffle_vector(v, z, llir.Constant(llir.VectorType(_I32, 2 * w),
+                                                                     list(range(2 * w)))), 2 * w, W)
+
+    def lanes(self, v, first, w):
+        if w == 1:
+            return self.b.extract_element(v, llir.Constant(_I32, first))
+        return self.b.shuffle_vector(v, v, llir.Constant(llir.VectorType(_I32, w), list(range(first, first + w))))
+
+    def concat(self, a, b, w):
+        if w == 1:
+            v = llir.Constant(self.vtype(2), llir.Undefined)
+            v = self.b.insert_element(v, a, llir.Constant(_I32, 0))
+            return self.b.insert_element(v, b, llir.Constant(_I32, 1))
+        return self.b.shuffle_vector(a, b, llir.Constant(llir.VectorType(_I32, 2 * w), list(range(2 * w))))
+
+    def row_dot(self, pairs):
+        """The products of the (row piece, vector piece, width) pairs summed over pieces of the
+        same width, the narrower sums added into the low lanes of the widest: one vector (or a
+        double) whose lanes sum to the dot product, and its width."""
+        by_w = {}
+        for a, x, w in pairs:
+            by_w[w] = self.mul(a, x) if w not in by_w else self.add(by_w[w], self.mul(a, x))
+        ws = sorted(by_w)
+        s, sw = by_w[ws[0]], ws[0]
+        for w in ws[1:]:
+            s, sw = self.add(by_w[w], self.widen(s, sw, w)), w
+        return s, sw
+
+    def row_sums(self, rows, W):
+        """Lane i = the sum of the lanes of rows[i] (len(rows) <= W vectors of W lanes; the other
+        lanes undefined): pairwise shuffles and adds, a transposing reduction."""
+        if W == 1:
+            return rows[0]
+        L = list(rows) + [llir.Constant(self.vtype(W), llir.Undefined)] * (W - len(rows))
+        b = 1
+        while len(L) > 1:
+            ev = [x for j in range(W // (2 * b)) for x in
+                  [2 * j * b + t for t in range(b)] + [W + 2 * j * b + t for t in range(b)]]
+            od = [x for j in range(W // (2 * b)) for x in
+                  [(2 * j + 1) * b + t for t in range(b)] + [W + (2 * j + 1) * b + t for t in range(b)]]
+            ev, od = (llir.Constant(llir.VectorType(_I32, W), idx) for idx in (ev, od))
+            L = [self.add(self.b.shuffle_vector(L[i], L[i + 1], ev), self.b.shuffle_vector(L[i], L[i + 1], od))
+                 for i in range(0, len(L), 2)]
+            b *= 2
+        return L[0]
+
+    def matvec(self, dots, W, out_pieces):
+        """The row results of dots (row_dot vectors, all of width W) in out_pieces."""
+        def chunk(r0, w):
+            if w <= W:
+                v = self.row_sums(dots[r0:r0 + w], W)
+                return v if w == W else self.lanes(v, 0, w)
+            h = w // 2
+            return self.concat(chunk(r0, h), chunk(r0 + h, h), h)
+        return [(r0, w, chunk(r0, w)) for r0, w in out_pieces]
+
+    def accumulate(self, init, coefs, rows, nacc=2):
+        """init + sum_l coefs[l] rows[l] with nacc interleaved partial sums."""
+        accs = []
+        for l, (a, row) in enumerate(zip(coefs, rows)):
+            if l < nacc:
+                accs.append(self.scale(row, a) if l else self.axpy(init, a, row))
+            else:
+                accs[l % nacc] = self.axpy(accs[l % nacc], a, row)
+        if not accs:
+            return init
+        out = accs[0]
+        for acc in accs[1:]:
+            out = self.addrows(out, acc)
+        return out
+
+    def scale(self, row, a):
+        return [(c0, w, self.mul(self.splat(a, w), v)) for c0, w, v in row]
+
+
+def _c_arrays(*arrs, ndim):
+    return all(isinstance(a, types.Array) and a.ndim == nd and a.dtype == types.float64 and a.layout == "C"
+               for a, nd in zip(arrs, ndim))
+
+
+def _stage_pointers(context, builder, tys, vals, anames, names, where):
+    """{name: pointer} of the stage pieces named names of the arrays anames (types tys, values
+    vals; the first is the stage index k), as where = (array, stage offset, stage size) per
+    name (offset None: the array itself)."""
+    k = vals[0]
+    k = builder.sext(k, _I64) if k.type.width < 64 else k
+    data = {a: context.make_array(t)(context, builder, v).data
+            for a, t, v in zip(anames, tys[1:], vals[1:]) if t != types.none}
+    out = {}
+    for name, (a, off, size) in zip(names, where):
+        if a not in data:
+            continue
+        if off is None:
+            out[name] = data[a]
+        else:
+            i = builder.mul(builder.add(k, llir.Constant(_I64, off)), llir.Constant(_I64, size))
+            out[name] = builder.gep(data[a], [i])
+    return out
+
+
+@intrinsic
+def _solve_stage_back(typingctx, tags, k, P, p, c, A, B, K, L, q, r, gk, U):
+    """Stage k of the backward sweep of _solve_unconstrained_fixed as straight-line SIMD code,
+    for the sizes of tags = _size_tags(n, m, n + m); C-contiguous float64 arrays of the shapes
+    of the kernel's (whole arrays and the stage index k: slices would cost reference counts),
+    P_{k+1} symmetric (as the factorizations store it), p (the kernel's lam) holding p_{k+1},
+    gk None or the stage-row gradient terms C^T sig ci (n + m, [x; u]).
+    Writes p_k -> p[k] and k_k -> U[k]:
+        t = P_{k+1} c_k + p_{k+1}  (sum of rows of P_{k+1}), q_x = q_k + A^T t, q_u = r_k + B^T t
+        (+ gk), p_k = q_x + K^T q_u (axpys over rows), k_k = -L^{-T} L^{-1} q_u (scalar
+        substitutions, multiplied by the reciprocals of diag(L), computed by pieces)."""
+    if not (_c_arrays(P, p, c, A, B, K, L, q, r, U, ndim=(3, 2, 2, 3, 3, 3, 3, 2, 2, 2))
+            and (gk == types.none or _c_arrays(gk, ndim=(1,))) and isinstance(k, types.Integer)):
+        return None
+    n, m = len(tags[0]), len(tags[1])
+    names = ("Pn", "pn", "ck", "Ak", "Bk", "Kk", "Lk", "qk", "rk", "gk", "pk", "kk")
+    # (array argument, stage offset, size of a stage)
+    where = (("P", 1, n * n), ("p", 1, n), ("c", 0, n), ("A", 0, n * n), ("B", 0, n * m), ("K", 0, m * n),
+             ("L", 0, m * m), ("q", 0, n), ("r", 0, m), ("gk", None, 0), ("p", 0, n), ("U", 0, m))
+    anames = ("P", "p", "c", "A", "B", "K", "L", "q", "r", "gk", "U")
+
+    def codegen(context, builder, signature, args):
+        g = _SolveRowCode(builder)
+        d = _stage_pointers(context, builder, signature.args[1:], args[1:], anames, names, where)
+        xp, up = _pieces(0, n), _pieces(0, m)
+        rows = lambda name, cnt, pieces, ncols: [g.row(g.b.gep(d[name], [llir.Constant(_I64, l * ncols)]), pieces)  # noqa: E731
+                                                 for l in range(cnt)]
+        cs = [g.load(d["ck"], 0, 0, l) for l in range(n)]
+        t = g.accumulate(g.row(d["pn"], xp), cs, rows("Pn", n, xp, n))
+        ts = [g.entry(t, l) for l in range(n)]
+        qx = g.row(d["qk"], xp)
+        qu = g.row(d["rk"], up)
+        if "gk" in d:
+            qx = g.addrows(qx, g.row(d["gk"], xp))
+            qu = g.addrows(qu, g.row(g.b.gep(d["gk"], [llir.Constant(_I64, n)]), up))
+        qx = g.accumulate(qx, ts, rows("Ak", n, xp, n))
+        qu = g.accumulate(qu, ts, rows("Bk", n, up, m))
+        qus = [g.entry(qu, l) for l in range(m)]
+        p = g.accumulate(qx, qus, rows("Kk", m, xp, n))
+        # reciprocals of diag(L) by pieces
+        dinv = []
+        for c0, w in up:
+            if w == 1:
+                dg = g.load(d["Lk"], m, c0, c0)
+            else:
+                dg = llir.Constant(g.vtype(w), llir.Undefined)
+                for j in range(w):
+                    dg = builder.insert_element(dg, g.load(d["Lk"], m, c0 + j, c0 + j), llir.Constant(_I32, j))
+            dv = builder.fdiv(llir.Constant(g.vtype(w), 1.0 if w == 1 else [1.0] * w), dg)
+            dinv += [dv] if w == 1 else [builder.extract_element(dv, llir.Constant(_I32, j)) for j in range(w)]
+        y = [None] * m
+        import os
+        if os.environ.get("EXP_NOTRI"):
+            y = list(qus)
+        for i in (range(0) if os.environ.get("EXP_NOTRI") else range(m)):
+            s = builder.fsub(llir.Constant(_F64, -0.0), qus[i])
+            for l in range(i):
+                s = g.sub(s, g.mul(g.load(d["Lk"], m, i, l), y[l]))
+            y[i] = g.mul(s, dinv[i])
+        for i in (range(0) if os.environ.get("EXP_NOTRI") else range(m - 1, -1, -1)):
+            s = y[i]
+            for l in range(i + 1, m):
+                s = g.sub(s, g.mul(g.load(d["Lk"], m, l, i), y[l]))
+            y[i] = g.mul(s, dinv[i])
+        g.store_row(p, d["pk"])
+        for i in range(m):
+            g.store(y[i], d["kk"], 0, 0, i)
+        return context.get_dummy_value()
+    return types.none(tags, k, P, p, c, A, B, K, L, q, r, gk, U), codegen
+
+
+@intrinsic
+def _solve_stage_forward(typingctx, tags, k, X, K, U, P, lam, A, B, c):
+    """Stage k of the forward sweep of _solve_unconstrained_fixed as straight-line SIMD code
+    (arguments as _solve_stage_back): with x_k from X[k], k_k from U[k] and p_k from lam[k],
+    writes u_k = K_k x_k + k_k -> U[k], lam_k = P_k x_k + p_k -> lam[k] (sum of rows of the
+    symmetric P_k) and x_{k+1} = A_k x_k + B_k u_k + c_k -> X[k + 1] (row products summed by a
+    transposing reduction)."""
+    if not (_c_arrays(X, K, U, P, lam, A, B, c, ndim=(2, 3, 2, 3, 2, 3, 3, 2)) and isinstance(k, types.Integer)):
+        return None
+    n, m = len(tags[0]), len(tags[1])
+    names = ("xk", "xk1", "Kk", "uk", "Pk", "lamk", "Ak", "Bk", "ck")
+    where = (("X", 0, n), ("X", 1, n), ("K", 0, m * n), ("U", 0, m), ("P", 0, n * n), ("lam", 0, n),
+             ("A", 0, n * n), ("B", 0, n * m), ("c", 0, n))
+    anames = ("X", "K", "U", "P", "lam", "A", "B", "c")
+
+    def codegen(context, builder, signature, args):
+        g = _SolveRowCode(builder)
+        d = _stage_pointers(context, builder, signature.args[1:], args[1:], anames, names, where)
+        xp, up = _pieces(0, n), _pieces(0, m)
+        W = max(w for _, w in xp + up)
+        rowp = lambda name, l, ncols: g.b.gep(d[name], [llir.Constant(_I64, l * ncols)])  # noqa: E731
+        x = g.row(d["xk"], xp)
+        xs = [g.load(d["xk"], 0, 0, l) for l in range(n)]
+
+        def dots(pairs_list):
+            out = []
+            for pairs in pairs_list:
+                v, w = g.row_dot(pairs)
+                out.append(g.widen(v, w, W))
+            return out
+        Kd = dots([[(a, xv, w) for (_, w, a), (_, _, xv) in zip(g.row(rowp("Kk", i, n), xp), x)] for i in range(m)])
+        u = g.addrows(g.matvec(Kd, W, up), g.row(d["uk"], up))
+        lam = g.accumulate(g.row(d["lamk"], xp), xs, [g.row(rowp("Pk", l, n), xp) for l in range(n)])
+        ABd = dots([[(a, xv, w) for (_, w, a), (_, _, xv) in zip(g.row(rowp("Ak", i, n), xp), x)]
+                    + [(b, uv, w) for (_, w, b), (_, _, uv) in zip(g.row(rowp("Bk", i, m), up), u)]
+                    for i in range(n)])
+        xn = g.addrows(g.matvec(ABd, W, xp), g.row(d["ck"], xp))
+        g.store_row(u, d["uk"])
+        g.store_row(lam, d["lamk"])
+        g.store_row(xn, d["xk1"])
+        return context.get_dummy_value()
+    return types.none(tags, k, X, K, U, P, lam, A, B, c), codegen
+
+
 @nb.njit(cache=True, fastmath=_REASSOC)
 def _solve_unconstrained_fixed(tags, A, B, Ci, sig, ni, P, K, L, q, r, c, x0, ci, X, U, lam):
+    """One right-hand side without equality rows, compiled for the sizes of tags (as
+    _factor_unconstrained_fixed).
+
+    Backward: t = P_{k+1} c_k + p_{k+1}, q_x = q_k + A^T t, q_u = r_k + B^T t (+ C^T sig ci),
+    p_k = q_x + K_k^T q_u, k_k = -Q_uu^{-1} q_u. Forward: u_k = K_k x_k + k_k,
+    x_{k+1} = A_k x_k + B_k u_k + c_k, and the multipliers lam_k = P_k x_k + p_k (the gradient
+    of the cost-to-go; the same as the x-stationarity rows lam_k = Q_xx x_k + Q_xu u_k + q_x,
+    exactly so in exact arithmetic, with Dx, the C terms and the regularization included).
+    lam holds p and U holds k_k between the sweeps. The stages are straight-line SIMD code
+    (_solve_stage_back, _solve_stage_forward); P_k must be symmetric (as the factorizations
+    store it)."""
+    nt, mt, zt = tags
+    n, m = len(nt), len(mt)
+    N = A.shape[0]
+    gc = _stack_vector(zt)
+    for i in range(n):
+        lam[N, i] = q[N, i]
+    for k in range(N - 1, -1, -1):
+        if ni[k] > 0:
+            # stage-row terms C^T sig ci ([x; u] order, as the rows of C)
+            for i in range(n + m):
+                gc[i] = 0.0
+            for cc in range(ni[k]):
+                wgt = sig[k, cc] * ci[k, cc]
+                if wgt != 0.0:
+                    for i in range(n + m):
+                        gc[i] += Ci[k, cc, i] * wgt
+            _solve_stage_back(tags, k, P, lam, c, A, B, K, L, q, r, gc, U)
+        else:
+            _solve_stage_back(tags, k, P, lam, c, A, B, K, L, q, r, None, U)
+    for i in range(n):
+        X[0, i] = x0[i]
+    for k in range(N):
+        _solve_stage_forward(tags, k, X, K, U, P, lam, A, B, c)
+    for i in range(n):
+        s = lam[N, i]
+        for l in range(n):
+            s += P[N, i, l] * X[N, l]
+        lam[N, i] = s
+
+
+@nb.njit(cache=True, fastmath=_REASSOC)
+def _solve_unconstrained_fixed_loops(tags, A, B, Ci, sig, ni, P, K, L, q, r, c, x0, ci, X, U, lam):
     """One right-hand side without equality rows, compiled for the sizes of tags (as
     _factor_unconstrained_fixed).
 
