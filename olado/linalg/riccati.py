@@ -900,6 +900,11 @@ def _solve_unconstrained(Q, S, A, B, Dx, Ci, sig, ni, P, K, L, q, r, c, x0, ci, 
 # operations on row pieces of 4, 2 and 1 doubles held in registers (about 2x faster than the
 # scalar loops at n = 6, m = 7; 1.1-2x at other sizes up to n = 12; slower beyond, where the
 # scalar-loop kernel _factor_unconstrained_fixed_loops is kept).
+# The solve kernel's sweeps are written the same way (_solve_back_sweep, _solve_forward_sweep:
+# one loop each, the vector carried from stage to stage in registers; the stage intrinsics take
+# the whole arrays and k, since slicing a stage out costs reference counting per stage): 1.4-1.5x
+# faster than scalar loops at n = 6, m = 7, about 2x at n + m >= 16, 1.1x at n + m <= 5, so
+# there is no scalar fallback.
 _CONTRACT = {"contract"}
 _REASSOC = {"reassoc", "contract", "nsz"}
 _FIXED_SIZE_MAX = 24
@@ -1237,9 +1242,10 @@ def _factor_unconstrained_fixed_loops(tags, Q, S, R, A, B, Dx, Du, Ci, sig, ni, 
 
 
 class _SolveRowCode(_RowCode):
-    """_RowCode with what _solve_stage_back / _solve_stage_forward need besides: contracted
-    multiply-adds, zero extension of pieces, and matrix-vector products by rows (products
-    summed over the pieces of a row, then the rows summed by a transposing reduction)."""
+    """_RowCode with what _solve_back_sweep / _solve_forward_sweep need besides: contracted
+    multiply-adds, zero extension of pieces, sums of scaled rows in interleaved partial sums,
+    and matrix-vector products by rows (products summed over the pieces of a row, then the
+    rows summed by a transposing reduction, as qp_ip's _KktRowCode.row_sums)."""
 
     def vtype(self, w):
         return _F64 if w == 1 else llir.VectorType(_F64, w)
@@ -1257,17 +1263,20 @@ class _SolveRowCode(_RowCode):
         xv = {c0: v for c0, w, v in x}
         return [(c0, w, self.add(v, self.mul(self.splat(a, w), xv[c0]))) for c0, w, v in row]
 
+    def scale(self, row, a):
+        return [(c0, w, self.mul(self.splat(a, w), v)) for c0, w, v in row]
+
     def addrows(self, a, b):
         bv = {c0: v for c0, w, v in b}
         return [(c0, w, self.add(v, bv[c0])) for c0, w, v in a]
 
-    def row(self, data, pieces, shift=0):
-        """The pieces of a row at data (column c0 at data + c0 - shift)."""
-        return [(c0, w, self.load(data, 0, 0, c0 - shift, w)) for c0, w in pieces]
+    def row(self, data, pieces):
+        """The pieces of a row at data."""
+        return [(c0, w, self.load(data, 0, 0, c0, w)) for c0, w in pieces]
 
-    def store_row(self, row, data, shift=0):
+    def store_row(self, row, data):
         for c0, w, v in row:
-            self.store(v, data, 0, 0, c0 - shift, w)
+            self.store(v, data, 0, 0, c0, w)
 
     def widen(self, v, w, W):
         """v (width w) in the low lanes of a width-W vector, zeros above."""
@@ -1283,13 +1292,6 @@ class _SolveRowCode(_RowCode):
         if w == 1:
             return self.b.extract_element(v, llir.Constant(_I32, first))
         return self.b.shuffle_vector(v, v, llir.Constant(llir.VectorType(_I32, w), list(range(first, first + w))))
-
-    def concat(self, a, b, w):
-        if w == 1:
-            v = llir.Constant(self.vtype(2), llir.Undefined)
-            v = self.b.insert_element(v, a, llir.Constant(_I32, 0))
-            return self.b.insert_element(v, b, llir.Constant(_I32, 1))
-        return self.b.shuffle_vector(a, b, llir.Constant(llir.VectorType(_I32, 2 * w), list(range(2 * w))))
 
     def row_dot(self, pairs):
         """The products of the (row piece, vector piece, width) pairs summed over pieces of the
@@ -1323,21 +1325,21 @@ class _SolveRowCode(_RowCode):
         return L[0]
 
     def matvec(self, dots, W, out_pieces):
-        """The row results of dots (row_dot vectors, all of width W) in out_pieces."""
-        def chunk(r0, w):
-            if w <= W:
-                v = self.row_sums(dots[r0:r0 + w], W)
-                return v if w == W else self.lanes(v, 0, w)
-            h = w // 2
-            return self.concat(chunk(r0, h), chunk(r0 + h, h), h)
-        return [(r0, w, chunk(r0, w)) for r0, w in out_pieces]
+        """The row results of dots (row_dot vectors, all of width W >= the widths of
+        out_pieces) in out_pieces."""
+        out = []
+        for r0, w in out_pieces:
+            v = self.row_sums(dots[r0:r0 + w], W)
+            out.append((r0, w, v if w == W else self.lanes(v, 0, w)))
+        return out
 
     def accumulate(self, init, coefs, rows, nacc=2):
-        """init + sum_l coefs[l] rows[l] with nacc interleaved partial sums."""
+        """init + sum_l coefs[l] rows[l] (init None: 0) in nacc interleaved partial sums (shorter
+        dependency chains)."""
         accs = []
         for l, (a, row) in enumerate(zip(coefs, rows)):
             if l < nacc:
-                accs.append(self.scale(row, a) if l else self.axpy(init, a, row))
+                accs.append(self.scale(row, a) if l or init is None else self.axpy(init, a, row))
             else:
                 accs[l % nacc] = self.axpy(accs[l % nacc], a, row)
         if not accs:
@@ -1347,148 +1349,187 @@ class _SolveRowCode(_RowCode):
             out = self.addrows(out, acc)
         return out
 
-    def scale(self, row, a):
-        return [(c0, w, self.mul(self.splat(a, w), v)) for c0, w, v in row]
-
 
 def _c_arrays(*arrs, ndim):
     return all(isinstance(a, types.Array) and a.ndim == nd and a.dtype == types.float64 and a.layout == "C"
                for a, nd in zip(arrs, ndim))
 
 
-def _stage_pointers(context, builder, tys, vals, anames, names, where):
-    """{name: pointer} of the stage pieces named names of the arrays anames (types tys, values
-    vals; the first is the stage index k), as where = (array, stage offset, stage size) per
-    name (offset None: the array itself)."""
-    k = vals[0]
-    k = builder.sext(k, _I64) if k.type.width < 64 else k
-    data = {a: context.make_array(t)(context, builder, v).data
-            for a, t, v in zip(anames, tys[1:], vals[1:]) if t != types.none}
+def _stage_pointers(builder, k, data, where):
+    """{name: pointer to stage k (+ offset) of an array} for where = {name: (array data pointer,
+    stage offset, elements per stage)}."""
     out = {}
-    for name, (a, off, size) in zip(names, where):
-        if a not in data:
-            continue
-        if off is None:
-            out[name] = data[a]
-        else:
-            i = builder.mul(builder.add(k, llir.Constant(_I64, off)), llir.Constant(_I64, size))
-            out[name] = builder.gep(data[a], [i])
+    for name, (ptr, off, size) in where.items():
+        i = builder.mul(builder.add(k, llir.Constant(_I64, off)), llir.Constant(_I64, size))
+        out[name] = builder.gep(ptr, [i])
     return out
 
 
+def _back_stage(g, d, n, m, pn, gk):
+    """Code of one stage of the backward sweep (see _solve_back_sweep) on the stage pointers d,
+    p_{k+1} given (pieces); stores p_k and k_k, returns p_k (pieces)."""
+    b = g.b
+    xp, up = _pieces(0, n), _pieces(0, m)
+    rows = lambda name, cnt, pieces, ncols: [g.row(b.gep(d[name], [llir.Constant(_I64, l * ncols)]), pieces)  # noqa: E731
+                                             for l in range(cnt)]
+    cs = [g.load(d["c"], 0, 0, l) for l in range(n)]
+    # t = P_{k+1} c_k + p_{k+1} (p_{k+1} last: it is on the dependency chain of the sweep)
+    Pc = g.accumulate(None, cs, rows("Pn", n, xp, n))
+    t = g.addrows(Pc, pn)
+    ts = [g.entry(t, l) for l in range(n)]
+    qx = g.row(d["q"], xp)
+    qu = g.row(d["r"], up)
+    if gk is not None:
+        qx = g.addrows(qx, g.row(gk, xp))
+        qu = g.addrows(qu, g.row(b.gep(gk, [llir.Constant(_I64, n)]), up))
+    qx = g.accumulate(qx, ts, rows("A", n, xp, n))
+    qu = g.accumulate(qu, ts, rows("B", n, up, m))
+    qus = [g.entry(qu, l) for l in range(m)]
+    p = g.accumulate(qx, qus, rows("K", m, xp, n))
+    # reciprocals of diag(L) by pieces
+    Lk = lambda i, l: g.load(d["L"], m, i, l)  # noqa: E731
+    dinv = []
+    for c0, w in up:
+        if w == 1:
+            dg = Lk(c0, c0)
+        else:
+            dg = llir.Constant(g.vtype(w), llir.Undefined)
+            for j in range(w):
+                dg = b.insert_element(dg, Lk(c0 + j, c0 + j), llir.Constant(_I32, j))
+        dv = b.fdiv(llir.Constant(g.vtype(w), 1.0 if w == 1 else [1.0] * w), dg)
+        dinv += [dv] if w == 1 else [b.extract_element(dv, llir.Constant(_I32, j)) for j in range(w)]
+    # L y = -q_u, L^T z = y (scalar substitutions, the newest unknown last)
+    y = [None] * m
+    for i in range(m):
+        s = b.fsub(llir.Constant(_F64, -0.0), qus[i])
+        for l in range(i):
+            s = g.sub(s, g.mul(Lk(i, l), y[l]))
+        y[i] = g.mul(s, dinv[i])
+    for i in range(m - 1, -1, -1):
+        s = y[i]
+        for l in range(m - 1, i, -1):
+            s = g.sub(s, g.mul(Lk(l, i), y[l]))
+        y[i] = g.mul(s, dinv[i])
+    g.store_row(p, d["p"])
+    for i in range(m):
+        g.store(y[i], d["U"], 0, 0, i)
+    return p
+
+
+def _forward_stage(g, d, n, m, x):
+    """Code of one stage of the forward sweep (see _solve_forward_sweep) on the stage pointers
+    d, x_k given (pieces); stores u_k, lam_k, x_{k+1} and returns x_{k+1} (pieces)."""
+    b = g.b
+    xp, up = _pieces(0, n), _pieces(0, m)
+    W = max(w for _, w in xp + up)
+    rowp = lambda name, l, ncols: b.gep(d[name], [llir.Constant(_I64, l * ncols)])  # noqa: E731
+    xs = [g.entry(x, l) for l in range(n)]
+
+    def dots(pairs_list):
+        out = []
+        for pairs in pairs_list:
+            v, w = g.row_dot(pairs)
+            out.append(g.widen(v, w, W))
+        return out
+    Kd = dots([[(a, xv, w) for (_, w, a), (_, _, xv) in zip(g.row(rowp("K", i, n), xp), x)] for i in range(m)])
+    u = g.addrows(g.matvec(Kd, W, up), g.row(d["U"], up))
+    lam = g.addrows(g.accumulate(None, xs, [g.row(rowp("P", l, n), xp) for l in range(n)]), g.row(d["lam"], xp))
+    ABd = dots([[(a, xv, w) for (_, w, a), (_, _, xv) in zip(g.row(rowp("A", i, n), xp), x)]
+                + [(bb, uv, w) for (_, w, bb), (_, _, uv) in zip(g.row(rowp("B", i, m), up), u)]
+                for i in range(n)])
+    xn = g.addrows(g.matvec(ABd, W, xp), g.row(d["c"], xp))
+    g.store_row(u, d["U"])
+    g.store_row(lam, d["lam"])
+    g.store_row(xn, d["X1"])
+    return xn
+
+
+def _carry(builder, pieces):
+    """Stack slots for values carried from one iteration of a sweep to the next (promoted to
+    registers by LLVM)."""
+    return [(c0, w, cgutils.alloca_once(builder, _F64 if w == 1 else llir.VectorType(_F64, w)))
+            for c0, w in pieces]
+
+
+def _as_i64(builder, v):
+    return builder.sext(v, _I64) if v.type.width < 64 else v
+
+
 @intrinsic
-def _solve_stage_back(typingctx, tags, k, P, p, c, A, B, K, L, q, r, gk, U):
-    """Stage k of the backward sweep of _solve_unconstrained_fixed as straight-line SIMD code,
-    for the sizes of tags = _size_tags(n, m, n + m); C-contiguous float64 arrays of the shapes
-    of the kernel's (whole arrays and the stage index k: slices would cost reference counts),
-    P_{k+1} symmetric (as the factorizations store it), p (the kernel's lam) holding p_{k+1},
-    gk None or the stage-row gradient terms C^T sig ci (n + m, [x; u]).
-    Writes p_k -> p[k] and k_k -> U[k]:
+def _solve_back_sweep(typingctx, tags, k_lo, k_hi, P, p, c, A, B, K, L, q, r, gk, U):
+    """Stages k = k_hi - 1, ..., k_lo of the backward sweep of _solve_unconstrained_fixed as
+    straight-line SIMD code in one loop, p_k carried in registers from stage to stage; for the
+    sizes of tags = _size_tags(n, m, n + m), C-contiguous float64 arrays of the kernel's shapes,
+    P_k symmetric (as the factorizations store it), p (the kernel's lam) holding p_{k_hi} on
+    entry; gk None or the stage-row gradient terms C^T sig ci (n + m values, [x; u]) added to
+    every stage of the range. Stage k writes p_k -> p[k] and k_k -> U[k]:
         t = P_{k+1} c_k + p_{k+1}  (sum of rows of P_{k+1}), q_x = q_k + A^T t, q_u = r_k + B^T t
         (+ gk), p_k = q_x + K^T q_u (axpys over rows), k_k = -L^{-T} L^{-1} q_u (scalar
         substitutions, multiplied by the reciprocals of diag(L), computed by pieces)."""
     if not (_c_arrays(P, p, c, A, B, K, L, q, r, U, ndim=(3, 2, 2, 3, 3, 3, 3, 2, 2, 2))
-            and (gk == types.none or _c_arrays(gk, ndim=(1,))) and isinstance(k, types.Integer)):
+            and (gk == types.none or _c_arrays(gk, ndim=(1,)))
+            and isinstance(k_lo, types.Integer) and isinstance(k_hi, types.Integer)):
         return None
     n, m = len(tags[0]), len(tags[1])
-    names = ("Pn", "pn", "ck", "Ak", "Bk", "Kk", "Lk", "qk", "rk", "gk", "pk", "kk")
-    # (array argument, stage offset, size of a stage)
-    where = (("P", 1, n * n), ("p", 1, n), ("c", 0, n), ("A", 0, n * n), ("B", 0, n * m), ("K", 0, m * n),
-             ("L", 0, m * m), ("q", 0, n), ("r", 0, m), ("gk", None, 0), ("p", 0, n), ("U", 0, m))
-    anames = ("P", "p", "c", "A", "B", "K", "L", "q", "r", "gk", "U")
 
     def codegen(context, builder, signature, args):
         g = _SolveRowCode(builder)
-        d = _stage_pointers(context, builder, signature.args[1:], args[1:], anames, names, where)
-        xp, up = _pieces(0, n), _pieces(0, m)
-        rows = lambda name, cnt, pieces, ncols: [g.row(g.b.gep(d[name], [llir.Constant(_I64, l * ncols)]), pieces)  # noqa: E731
-                                                 for l in range(cnt)]
-        cs = [g.load(d["ck"], 0, 0, l) for l in range(n)]
-        t = g.accumulate(g.row(d["pn"], xp), cs, rows("Pn", n, xp, n))
-        ts = [g.entry(t, l) for l in range(n)]
-        qx = g.row(d["qk"], xp)
-        qu = g.row(d["rk"], up)
-        if "gk" in d:
-            qx = g.addrows(qx, g.row(d["gk"], xp))
-            qu = g.addrows(qu, g.row(g.b.gep(d["gk"], [llir.Constant(_I64, n)]), up))
-        qx = g.accumulate(qx, ts, rows("Ak", n, xp, n))
-        qu = g.accumulate(qu, ts, rows("Bk", n, up, m))
-        qus = [g.entry(qu, l) for l in range(m)]
-        p = g.accumulate(qx, qus, rows("Kk", m, xp, n))
-        # reciprocals of diag(L) by pieces
-        dinv = []
-        for c0, w in up:
-            if w == 1:
-                dg = g.load(d["Lk"], m, c0, c0)
-            else:
-                dg = llir.Constant(g.vtype(w), llir.Undefined)
-                for j in range(w):
-                    dg = builder.insert_element(dg, g.load(d["Lk"], m, c0 + j, c0 + j), llir.Constant(_I32, j))
-            dv = builder.fdiv(llir.Constant(g.vtype(w), 1.0 if w == 1 else [1.0] * w), dg)
-            dinv += [dv] if w == 1 else [builder.extract_element(dv, llir.Constant(_I32, j)) for j in range(w)]
-        y = [None] * m
-        import os
-        if os.environ.get("EXP_NOTRI"):
-            y = list(qus)
-        for i in (range(0) if os.environ.get("EXP_NOTRI") else range(m)):
-            s = builder.fsub(llir.Constant(_F64, -0.0), qus[i])
-            for l in range(i):
-                s = g.sub(s, g.mul(g.load(d["Lk"], m, i, l), y[l]))
-            y[i] = g.mul(s, dinv[i])
-        for i in (range(0) if os.environ.get("EXP_NOTRI") else range(m - 1, -1, -1)):
-            s = y[i]
-            for l in range(i + 1, m):
-                s = g.sub(s, g.mul(g.load(d["Lk"], m, l, i), y[l]))
-            y[i] = g.mul(s, dinv[i])
-        g.store_row(p, d["pk"])
-        for i in range(m):
-            g.store(y[i], d["kk"], 0, 0, i)
+        names = ("P", "p", "c", "A", "B", "K", "L", "q", "r", "gk", "U")
+        data = {name: context.make_array(t)(context, builder, v).data
+                for name, t, v in zip(names, signature.args[3:], args[3:]) if t != types.none}
+        k_lo, k_hi = _as_i64(builder, args[1]), _as_i64(builder, args[2])
+        where = {"Pn": (data["P"], 1, n * n), "c": (data["c"], 0, n), "A": (data["A"], 0, n * n),
+                 "B": (data["B"], 0, n * m), "K": (data["K"], 0, m * n), "L": (data["L"], 0, m * m),
+                 "q": (data["q"], 0, n), "r": (data["r"], 0, m), "p": (data["p"], 0, n), "U": (data["U"], 0, m)}
+        xp = _pieces(0, n)
+        slots = _carry(builder, xp)
+        p0 = g.row(builder.gep(data["p"], [builder.mul(k_hi, llir.Constant(_I64, n))]), xp)
+        for (_, _, v), (_, _, s) in zip(p0, slots):
+            builder.store(v, s)
+        with cgutils.for_range(builder, builder.sub(k_hi, k_lo)) as loop:
+            k = builder.sub(builder.sub(k_hi, llir.Constant(_I64, 1)), loop.index)
+            pn = [(c0, w, builder.load(s)) for c0, w, s in slots]
+            p = _back_stage(g, _stage_pointers(builder, k, data, where), n, m, pn, data.get("gk"))
+            for (_, _, v), (_, _, s) in zip(p, slots):
+                builder.store(v, s)
         return context.get_dummy_value()
-    return types.none(tags, k, P, p, c, A, B, K, L, q, r, gk, U), codegen
+    return types.none(tags, k_lo, k_hi, P, p, c, A, B, K, L, q, r, gk, U), codegen
 
 
 @intrinsic
-def _solve_stage_forward(typingctx, tags, k, X, K, U, P, lam, A, B, c):
-    """Stage k of the forward sweep of _solve_unconstrained_fixed as straight-line SIMD code
-    (arguments as _solve_stage_back): with x_k from X[k], k_k from U[k] and p_k from lam[k],
-    writes u_k = K_k x_k + k_k -> U[k], lam_k = P_k x_k + p_k -> lam[k] (sum of rows of the
-    symmetric P_k) and x_{k+1} = A_k x_k + B_k u_k + c_k -> X[k + 1] (row products summed by a
-    transposing reduction)."""
-    if not (_c_arrays(X, K, U, P, lam, A, B, c, ndim=(2, 3, 2, 3, 2, 3, 3, 2)) and isinstance(k, types.Integer)):
+def _solve_forward_sweep(typingctx, tags, X, K, U, P, lam, A, B, c):
+    """The forward sweep of _solve_unconstrained_fixed as straight-line SIMD code in one loop
+    over the stages, x_k carried in registers (arguments as _solve_back_sweep): from x_0 in
+    X[0], k_k in U[k] and p_k in lam[k], stage k writes u_k = K_k x_k + k_k -> U[k],
+    lam_k = P_k x_k + p_k -> lam[k] (sum of rows of the symmetric P_k) and
+    x_{k+1} = A_k x_k + B_k u_k + c_k -> X[k + 1] (row products summed by a transposing
+    reduction)."""
+    if not _c_arrays(X, K, U, P, lam, A, B, c, ndim=(2, 3, 2, 3, 2, 3, 3, 2)):
         return None
     n, m = len(tags[0]), len(tags[1])
-    names = ("xk", "xk1", "Kk", "uk", "Pk", "lamk", "Ak", "Bk", "ck")
-    where = (("X", 0, n), ("X", 1, n), ("K", 0, m * n), ("U", 0, m), ("P", 0, n * n), ("lam", 0, n),
-             ("A", 0, n * n), ("B", 0, n * m), ("c", 0, n))
-    anames = ("X", "K", "U", "P", "lam", "A", "B", "c")
 
     def codegen(context, builder, signature, args):
         g = _SolveRowCode(builder)
-        d = _stage_pointers(context, builder, signature.args[1:], args[1:], anames, names, where)
-        xp, up = _pieces(0, n), _pieces(0, m)
-        W = max(w for _, w in xp + up)
-        rowp = lambda name, l, ncols: g.b.gep(d[name], [llir.Constant(_I64, l * ncols)])  # noqa: E731
-        x = g.row(d["xk"], xp)
-        xs = [g.load(d["xk"], 0, 0, l) for l in range(n)]
-
-        def dots(pairs_list):
-            out = []
-            for pairs in pairs_list:
-                v, w = g.row_dot(pairs)
-                out.append(g.widen(v, w, W))
-            return out
-        Kd = dots([[(a, xv, w) for (_, w, a), (_, _, xv) in zip(g.row(rowp("Kk", i, n), xp), x)] for i in range(m)])
-        u = g.addrows(g.matvec(Kd, W, up), g.row(d["uk"], up))
-        lam = g.accumulate(g.row(d["lamk"], xp), xs, [g.row(rowp("Pk", l, n), xp) for l in range(n)])
-        ABd = dots([[(a, xv, w) for (_, w, a), (_, _, xv) in zip(g.row(rowp("Ak", i, n), xp), x)]
-                    + [(b, uv, w) for (_, w, b), (_, _, uv) in zip(g.row(rowp("Bk", i, m), up), u)]
-                    for i in range(n)])
-        xn = g.addrows(g.matvec(ABd, W, xp), g.row(d["ck"], xp))
-        g.store_row(u, d["uk"])
-        g.store_row(lam, d["lamk"])
-        g.store_row(xn, d["xk1"])
+        names = ("X", "K", "U", "P", "lam", "A", "B", "c")
+        aryX = context.make_array(signature.args[1])(context, builder, args[1])
+        data = {name: context.make_array(t)(context, builder, v).data
+                for name, t, v in zip(names, signature.args[1:], args[1:])}
+        N = builder.extract_value(aryX.shape, 0)
+        N = builder.sub(N, llir.Constant(N.type, 1))
+        where = {"X1": (data["X"], 1, n), "K": (data["K"], 0, m * n), "U": (data["U"], 0, m),
+                 "P": (data["P"], 0, n * n), "lam": (data["lam"], 0, n), "A": (data["A"], 0, n * n),
+                 "B": (data["B"], 0, n * m), "c": (data["c"], 0, n)}
+        xp = _pieces(0, n)
+        slots = _carry(builder, xp)
+        for (_, _, v), (_, _, s) in zip(g.row(data["X"], xp), slots):
+            builder.store(v, s)
+        with cgutils.for_range(builder, N) as loop:
+            x = [(c0, w, builder.load(s)) for c0, w, s in slots]
+            xn = _forward_stage(g, _stage_pointers(builder, _as_i64(builder, loop.index), data, where), n, m, x)
+            for (_, _, v), (_, _, s) in zip(xn, slots):
+                builder.store(v, s)
         return context.get_dummy_value()
-    return types.none(tags, k, X, K, U, P, lam, A, B, c), codegen
+    return types.none(tags, X, K, U, P, lam, A, B, c), codegen
 
 
 @nb.njit(cache=True, fastmath=_REASSOC)
@@ -1501,16 +1542,17 @@ def _solve_unconstrained_fixed(tags, A, B, Ci, sig, ni, P, K, L, q, r, c, x0, ci
     x_{k+1} = A_k x_k + B_k u_k + c_k, and the multipliers lam_k = P_k x_k + p_k (the gradient
     of the cost-to-go; the same as the x-stationarity rows lam_k = Q_xx x_k + Q_xu u_k + q_x,
     exactly so in exact arithmetic, with Dx, the C terms and the regularization included).
-    lam holds p and U holds k_k between the sweeps. The stages are straight-line SIMD code
-    (_solve_stage_back, _solve_stage_forward); P_k must be symmetric (as the factorizations
-    store it)."""
+    lam holds p and U holds k_k between the sweeps. The sweeps are straight-line SIMD code
+    (_solve_back_sweep over runs of stages without stage rows, one stage at a time with them;
+    _solve_forward_sweep); P_k must be symmetric (as the factorizations store it)."""
     nt, mt, zt = tags
     n, m = len(nt), len(mt)
     N = A.shape[0]
     gc = _stack_vector(zt)
     for i in range(n):
         lam[N, i] = q[N, i]
-    for k in range(N - 1, -1, -1):
+    k = N - 1
+    while k >= 0:
         if ni[k] > 0:
             # stage-row terms C^T sig ci ([x; u] order, as the rows of C)
             for i in range(n + m):
@@ -1520,112 +1562,21 @@ def _solve_unconstrained_fixed(tags, A, B, Ci, sig, ni, P, K, L, q, r, c, x0, ci
                 if wgt != 0.0:
                     for i in range(n + m):
                         gc[i] += Ci[k, cc, i] * wgt
-            _solve_stage_back(tags, k, P, lam, c, A, B, K, L, q, r, gc, U)
+            _solve_back_sweep(tags, k, k + 1, P, lam, c, A, B, K, L, q, r, gc, U)
+            k -= 1
         else:
-            _solve_stage_back(tags, k, P, lam, c, A, B, K, L, q, r, None, U)
+            j = k - 1
+            while j >= 0 and ni[j] == 0:
+                j -= 1
+            _solve_back_sweep(tags, j + 1, k + 1, P, lam, c, A, B, K, L, q, r, None, U)
+            k = j
     for i in range(n):
         X[0, i] = x0[i]
-    for k in range(N):
-        _solve_stage_forward(tags, k, X, K, U, P, lam, A, B, c)
+    _solve_forward_sweep(tags, X, K, U, P, lam, A, B, c)
     for i in range(n):
         s = lam[N, i]
         for l in range(n):
             s += P[N, i, l] * X[N, l]
-        lam[N, i] = s
-
-
-@nb.njit(cache=True, fastmath=_REASSOC)
-def _solve_unconstrained_fixed_loops(tags, A, B, Ci, sig, ni, P, K, L, q, r, c, x0, ci, X, U, lam):
-    """One right-hand side without equality rows, compiled for the sizes of tags (as
-    _factor_unconstrained_fixed).
-
-    Backward: t = P_{k+1} c_k + p_{k+1}, q_x = q_k + A^T t, q_u = r_k + B^T t (+ C^T sig ci),
-    p_k = q_x + K_k^T q_u, k_k = -Q_uu^{-1} q_u. Forward: u_k = K_k x_k + k_k,
-    x_{k+1} = A_k x_k + B_k u_k + c_k, and the multipliers lam_k = P_k x_k + p_k (the gradient
-    of the cost-to-go; the same as the x-stationarity rows lam_k = Q_xx x_k + Q_xu u_k + q_x,
-    exactly so in exact arithmetic, with Dx, the C terms and the regularization included).
-    lam holds p and U holds k_k between the sweeps."""
-    nt, mt, zt = tags
-    n, m = len(nt), len(mt)
-    N = A.shape[0]
-    t1, qx, x = _stack_vector(nt), _stack_vector(nt), _stack_vector(nt)
-    qu, u, dinv = _stack_vector(mt), _stack_vector(mt), _stack_vector(mt)
-    for i in range(n):
-        lam[N, i] = q[N, i]
-    for k in range(N - 1, -1, -1):
-        for i in range(n):
-            s = lam[k + 1, i]
-            for l in range(n):
-                s += P[k + 1, i, l] * c[k, l]
-            t1[i] = s
-        for i in range(n):
-            s = q[k, i]
-            for l in range(n):
-                s += A[k, l, i] * t1[l]
-            qx[i] = s
-        for i in range(m):
-            s = r[k, i]
-            for l in range(n):
-                s += B[k, l, i] * t1[l]
-            qu[i] = s
-        for cc in range(ni[k]):
-            wgt = sig[k, cc] * ci[k, cc]
-            if wgt != 0.0:
-                for i in range(n):
-                    qx[i] += Ci[k, cc, i] * wgt
-                for i in range(m):
-                    qu[i] += Ci[k, cc, n + i] * wgt
-        for i in range(n):
-            s = qx[i]
-            for l in range(m):
-                s += K[k, l, i] * qu[l]
-            lam[k, i] = s
-        # k_k = -L^{-T} L^{-1} q_u
-        for i in range(m):
-            dinv[i] = 1.0 / L[k, i, i]
-        for i in range(m):
-            s = -qu[i]
-            for l in range(i):
-                s -= L[k, i, l] * qu[l]
-            qu[i] = s * dinv[i]
-        for i in range(m - 1, -1, -1):
-            s = qu[i]
-            for l in range(i + 1, m):
-                s -= L[k, l, i] * qu[l]
-            qu[i] = s * dinv[i]
-        for i in range(m):
-            U[k, i] = qu[i]
-    for i in range(n):
-        x[i] = x0[i]
-    for k in range(N):
-        for i in range(n):
-            X[k, i] = x[i]
-        for i in range(m):
-            s = U[k, i]
-            for l in range(n):
-                s += K[k, i, l] * x[l]
-            u[i] = s
-            U[k, i] = s
-        for i in range(n):
-            s = lam[k, i]
-            for l in range(n):
-                s += P[k, i, l] * x[l]
-            lam[k, i] = s
-        for i in range(n):
-            s = c[k, i]
-            for l in range(n):
-                s += A[k, i, l] * x[l]
-            for l in range(m):
-                s += B[k, i, l] * u[l]
-            t1[i] = s
-        for i in range(n):
-            x[i] = t1[i]
-    for i in range(n):
-        X[N, i] = x[i]
-    for i in range(n):
-        s = lam[N, i]
-        for l in range(n):
-            s += P[N, i, l] * x[l]
         lam[N, i] = s
 
 
