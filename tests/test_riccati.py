@@ -147,6 +147,37 @@ def test_fixed_final_state():
     assert np.allclose(sol.X[-1], [1, 2, 3])
 
 
+@pytest.mark.parametrize("theta", [0.3, 0.7, 1.1, 2.5])
+@pytest.mark.parametrize("stage_row", [False, True])
+def test_state_row_the_control_reaches_after_two_steps(theta, stage_row):
+    """Double integrator in rotated coordinates with a position constraint (relative degree 2):
+    G_{k+1} B_k cancels to rounding noise (~1e-18), which must count as a zero u-part (the row
+    passes on to the stage before), not as a pivot -- that made Q_uu look indefinite at k = 0."""
+    h, N = 0.1, 4
+    T = np.array([[np.cos(theta), -np.sin(theta)], [np.sin(theta), np.cos(theta)]])
+    A = np.array([T @ np.array([[1.0, h], [0.0, 1.0]]) @ T.T] * N)
+    B = np.array([T @ np.array([[0.0], [h]])] * N)
+    pos = np.array([[1.0, 0.0]]) @ T.T
+    assert 0 < np.abs(pos @ B[0]).max() < 1e-15          # the cancellation this test is about
+    rng = np.random.default_rng(3)
+    d = dict(Q=np.array([np.eye(2)] * (N + 1)), S=np.zeros((N, 2, 1)), R=np.array([np.eye(1)] * N), A=A, B=B,
+             q=rng.standard_normal((N + 1, 2)), r=rng.standard_normal((N, 1)), c=np.zeros((N, 2)),
+             x0=np.array([0.1, -0.2]))
+    if stage_row:   # x_2 position fixed by a state row at stage 2 only (n_eq = 0, 0, 1, 0)
+        n_eq = np.array([0, 0, 1, 0])
+        E = np.zeros((N, 1, 2)); E[2] = pos; F = np.zeros((N, 1, 1)); e = np.zeros((N, 1)); e[2] = -0.05
+        sol = RiccatiFactorization(d["Q"], d["S"], d["R"], A, B, E=E, F=F, n_eq=n_eq).solve(
+            d["q"], d["r"], d["c"], d["x0"], e=e)
+        K, rhs, unpack = dense_kkt_system(d["Q"], d["S"], d["R"], d["q"], d["r"], A, B, d["c"], d["x0"],
+                                          E=E, F=F, e=e, n_eq=n_eq)
+        X, U = unpack(np.linalg.solve(K, rhs))
+        assert np.abs(sol.X - X).max() < 1e-9 and np.abs(sol.U - U).max() < 1e-9
+    else:           # final position fixed
+        d.update(EN=pos, eN=np.array([-0.3]))
+        sol = check_against_dense(d, tol=1e-9)
+    assert abs((pos @ sol.X[2 if stage_row else N])[0] - (0.05 if stage_row else 0.3)) < 1e-12
+
+
 def test_ill_conditioned_blocks():
     rng = np.random.default_rng(2)
     d = random_problem(rng, 5, 3, 2)

@@ -127,14 +127,19 @@ def _chol_solve_mat(L, d, B, ncol):
 
 
 @nb.njit(cache=True)
-def _qr_pivot(M, rows, cols, Qacc, perm, vtmp, norms, rank_tol, scale=0.0, accumulate=True):
+def _qr_pivot(M, rows, cols, Qacc, perm, vtmp, norms, rank_tol, scale, accumulate, weights):
     """Householder QR with column pivoting of M[:rows, :cols] in place (M <- R), accumulating
     the orthogonal factor in Qacc[:rows, :rows] (unless ``accumulate`` is False: Qacc is then not
     touched) and the column permutation in perm. Returns the numerical rank: the elimination stops
     at the first pivot column whose remaining norm is <= rank_tol * max(r00, scale), r00 the norm
     of the first pivot (the largest column) and ``scale`` an optional reference magnitude of the
     data the columns were computed from (so that columns that are only rounding noise count as
-    zero even when all columns are)."""
+    zero even when all columns are).
+
+    ``weights`` (empty, or one entry per column, indexed by the original column): pivot choice and
+    rank test use the weighted remaining norms weights[c] * |M[j:, c]|, i.e. this is the pivoted
+    QR of M diag(weights) -- the same reflections and permutation, since scaling a column does
+    not change its direction -- with R left unscaled (R = R_w diag(weights)^{-1})."""
     if accumulate:
         for i in range(rows):
             for j in range(rows):
@@ -147,21 +152,26 @@ def _qr_pivot(M, rows, cols, Qacc, perm, vtmp, norms, rank_tol, scale=0.0, accum
     for j in range(kmax):
         # pivot: largest remaining column norm
         best, p = -1.0, j
+        bestw = -1.0
         for c in range(j, cols):
             s = 0.0
             for i in range(j, rows):
                 s += M[i, c] * M[i, c]
             norms[c] = s
-            if s > best:
-                best, p = s, c
+            sw = s
+            if weights.shape[0] > 0:
+                sw = s * weights[perm[c]] * weights[perm[c]]
+            if sw > bestw:
+                best, bestw, p = s, sw, c
         if p != j:
             for i in range(rows):
                 t = M[i, j]; M[i, j] = M[i, p]; M[i, p] = t
             t2 = perm[j]; perm[j] = perm[p]; perm[p] = t2
         nrm = np.sqrt(best)
+        nrmw = np.sqrt(bestw)
         if j == 0:
-            r00 = nrm
-        if nrm <= rank_tol * max(r00, scale, 1e-300) or nrm == 0.0:
+            r00 = nrmw
+        if nrmw <= rank_tol * max(r00, scale, 1e-300) or nrm == 0.0:
             break
         rank += 1
         # Householder vector v for M[j:rows, j]
@@ -224,7 +234,8 @@ def _factor(Q, S, R, A, B, E, F, ne, EN, neN, Dx, Du, Ci, sig, ni, reg, rank_tol
 
     Stage k: the combined rows [E_k; G_{k+1} A_k] x + [F_k; G_{k+1} B_k] u + d = 0 (nc[k] rows,
     stored in Cx_s) are split by the pivoted QR of their u-part, F^T Pi = Q [R11 R12] (Qm, Rm, perm,
-    rank rk); the nc[k] - rk rows the controls cannot satisfy leave as state rows
+    rank rk; pivots and rank test on the u-parts relative to the norm of their whole row, so a
+    u-part that is rounding noise of its row counts as zero); the nc[k] - rk rows the controls cannot satisfy leave as state rows
     Graw x + graw = 0 with Graw = R12^T Wx - Pi_2^T Cx, Wx = R11^{-T} Pi_1^T Cx. Dependent rows
     among them are dropped: a pivoted QR (Graw^T diag(s)^{-1}) Pi_g = Q_g [S11 S12], each row
     scaled by the norm s of the combined row [Cx Cu] it came from (rank rg <= n, same relative
@@ -245,7 +256,7 @@ def _factor(Q, S, R, A, B, E, F, ne, EN, neN, Dx, Du, Ci, sig, ni, reg, rank_tol
     T = np.empty((m, n)); Y = np.empty((m, n)); Qww = np.empty((m, m)); Qwx = np.empty((m, n)); tmp = np.empty((m, m))
     Cu = np.empty((ncmax, m)); Cx = np.empty((ncmax, n))
     Graw = np.empty((ncmax, n)); Mg = np.empty((n, ncmax)); vg = np.empty(max(n, 1)); Qg = np.empty((1, 1))
-    sg = np.empty(max(ncmax, 1))
+    sg = np.empty(max(ncmax, 1)); wu = np.empty(max(ncmax, 1)); nowt = np.empty(0)
     # terminal stage
     for i in range(n):
         for j in range(n):
@@ -333,7 +344,18 @@ def _factor(Q, S, R, A, B, E, F, ne, EN, neN, Dx, Du, Ci, sig, ni, reg, rank_tol
             for i in range(m):
                 for j in range(nck):
                     M[i, j] = Cu[j, i]
-            rk = _qr_pivot(M, m, nck, Qm[k], perm[k], vt, nr, rank_tol)
+            # rank test per row: a row's u-part counts as zero when it is <= rank_tol times the
+            # norm of the whole row [Cx Cu] (weights 1/s; with scale 1 the test is relative to the
+            # row itself), so u-parts that cancelled to rounding noise (G_{k+1} B_k of a state
+            # constraint the control reaches only after several steps) are not used as pivots
+            for c in range(nck):
+                s = 0.0
+                for j in range(n):
+                    s += Cx[c, j] * Cx[c, j]
+                for j in range(m):
+                    s += Cu[c, j] * Cu[c, j]
+                wu[c] = 1.0 / np.sqrt(s) if s > 0.0 else 1.0
+            rk = _qr_pivot(M, m, nck, Qm[k], perm[k], vt, nr, rank_tol, 1.0, True, wu[:nck])
             for i in range(m):
                 for j in range(nck):
                     Rm[k, i, j] = M[i, j]
@@ -382,7 +404,7 @@ def _factor(Q, S, R, A, B, E, F, ne, EN, neN, Dx, Du, Ci, sig, ni, reg, rank_tol
             for j in range(n):
                 for c in range(ngr):
                     Mg[j, c] = Graw[c, j] / sg[c]
-            rg = _qr_pivot(Mg, n, ngr, Qg, pg[k], vg, nr, rank_tol, 1.0, False)
+            rg = _qr_pivot(Mg, n, ngr, Qg, pg[k], vg, nr, rank_tol, 1.0, False, nowt)
             for c in range(ngr - rg):
                 for i in range(rg - 1, -1, -1):
                     s = Mg[i, rg + c]
