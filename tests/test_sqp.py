@@ -62,6 +62,32 @@ def test_zambezi12_sqp_ip_matches_ipopt(qp):
     assert r.qp_iterations > 0 and r.max_constraint_violation < 1e-8
 
 
+@pytest.mark.parametrize("hessian", ["sr1", "bfgs"])
+def test_quasi_newton_sqp_solves_zambezi12(hessian):
+    """Block SR1 / BFGS (the paper's recommended updates) converge on zambezi12 N = 48 to IPOPT's
+    objective. With the exact Hessian's proximal term 1e-4 max|H| -- max|H| of a quasi-Newton
+    block being the initial scale ~1 kept in unexplored directions, ~1e3 times the learned
+    curvature -- both stopped at 200 iterations, 2e-6 / 3e-3 away in objective."""
+    p = zambezi_problem("zambezi12", N=48)
+    ref = olado.solve(p, solver="ipopt", tol=1e-10)
+    r = SQPSolver(hessian=hessian).solve(p)
+    assert r.success, r.message
+    assert r.iterations <= 120        # measured 47 (sr1), 92 (bfgs)
+    # bfgs ends at another local minimum at this horizon (+2e-4, see docs); sr1 at IPOPT's
+    assert abs(r.objective - ref.objective) <= (1e-6 if hessian == "sr1" else 1e-3) * abs(ref.objective)
+
+
+def test_proximal_default_depends_on_the_hessian():
+    assert SQPSolver()._proximal() == 1e-4
+    assert SQPSolver(hessian="sr1")._proximal() == 0.0
+    assert SQPSolver(hessian="bfgs", proximal=1e-5)._proximal() == 1e-5
+    assert load_config("configs/sqp-sr1.ini").options.proximal is None
+    assert load_config("configs/sqp-ip.ini", overrides=["sqp.proximal=none"]).options.proximal is None
+    assert load_config("configs/sqp-ip.ini", overrides=["sqp.proximal=3e-4"]).options.proximal == 3e-4
+    with pytest.raises(olado.ConfigError, match="proximal"):
+        load_config("configs/sqp-ip.ini", overrides=["sqp.proximal=-1"])
+
+
 @pytest.mark.parametrize("kkt", ["superlu-reduced", "superlu-full", "gmres"])
 def test_kkt_back_ends_give_the_same_sqp_iterates(kkt):
     p = zambezi_problem("zambezi12", N=12)

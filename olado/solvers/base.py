@@ -70,6 +70,16 @@ def validate_value(options_cls, name, value, *, file=None, section=None):
     f = fields[name]
     meta = f.metadata
     typ = _field_type(options_cls, f)
+    # optional options (``float | None``): None is their "automatic" value, anything else is
+    # checked against the inner type
+    union_args = typing.get_args(typ) if (typing.get_origin(typ) is typing.Union
+                                          or type(typ).__name__ == "UnionType") else ()
+    if type(None) in union_args:
+        if value is None:
+            return None
+        inner = [a for a in union_args if a is not type(None)]
+        if len(inner) == 1:
+            typ = inner[0]
     origin = typing.get_origin(typ)
     if typ is bool:
         if not isinstance(value, (bool, np.bool_)):
