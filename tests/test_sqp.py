@@ -365,3 +365,18 @@ def test_no_relaxed_step_right_after_a_watchdog_return():
     for i, (Ji, vi) in enumerate(pts):
         for Jj, vj in pts[i + 1:]:
             assert not (abs(Ji - Jj) <= 1e-9 * abs(Ji) and abs(vi - vj) <= 1e-6 * vi)
+
+
+def test_no_relaxed_steps_until_the_merit_is_below_the_last_failed_watch():
+    """zambezi12, N = 48, weighted-corrector QP: the watchdog return's line search ended short of
+    the watched step, the next full step reached the watched point again and its relaxed steps
+    repeated -- the same four iterates for 200 iterations. Relaxed steps now wait until the merit
+    is sufficiently below the watched point of the last return (17 iterations)."""
+    p = zambezi_problem("zambezi12", N=48)
+    ref = olado.solve(p, solver="ipopt", tol=1e-10)
+    r = olado.solve(p, config="configs/sqp-weighted.ini")
+    assert r.success, r.message
+    assert r.iterations <= 40
+    assert abs(r.objective - ref.objective) <= 1e-6 * abs(ref.objective)
+    modes = [h["mode"] for h in r.history]
+    assert "watchdog" in modes or "watchdog-return" in modes   # the case is exercised

@@ -311,6 +311,7 @@ class SQPSolver(Solver):
         force_delta = None         # shift for the next QP after a rejected step (non-descent direction)
         ascent_relaxed = o.max_ascent_steps  # non-descent steps that may still be tried as relaxed watchdog steps
         returned = False           # the last step was a watchdog return: the next one is not relaxed
+        failed_watch = None        # watched point of the last watchdog return (see relaxed_ok)
         retries = 0                # QPs re-solved with a larger shift at the current point
         last_qp = None             # QP result of the last accepted step (warm start of the local phase)
         local = was_local = False  # local phase: full steps and a small KKT residual
@@ -469,6 +470,15 @@ class SQPSolver(Solver):
             # no relaxed step right after a watchdog return: from the point the return reached (often
             # the watched step's own full step again) the same QP would give the same relaxed steps
             relaxed_ok = (descent or (ascent_relaxed > 0 and not local)) and not returned
+            # nor a relaxed step before the merit function is sufficiently below the watched point
+            # of the last return: a return whose line search ends short of the watched step lets the
+            # next full step reach the watched point again, and its relaxed steps would repeat
+            # (zambezi12 N = 48, weighted-corrector QP: the same four iterates for 200 iterations)
+            if failed_watch is not None:
+                if merit(pt) <= merit(failed_watch["pt"]) - o.armijo * max(abs(failed_watch["D"]), failed_watch["d_tol"]):
+                    failed_watch = None
+                else:
+                    relaxed_ok = False
             if (inertia and not descent and retries < o.max_shift_retries
                     and not (relaxed_ok and o.watchdog and watch is None)):
                 # not a descent direction of phi: with a positive definite reduced Hessian and
@@ -509,6 +519,7 @@ class SQPSolver(Solver):
                     alpha, new_pt, ls_trials, mode = self._line_search(p, pt, dX, dU, merit(pt), D, merit, None)
                     mode = "watchdog-return"
                     returned = new_pt is not None
+                failed_watch = w
                 if new_pt is None:
                     if inertia:
                         force_delta = self._raise_shift(w["delta"], hscale)
@@ -581,6 +592,7 @@ class SQPSolver(Solver):
                     back_pt = None
                     if w["D"] < 0.0:
                         alpha, back_pt, _, _ = self._line_search(p, pt, w["dX"], w["dU"], merit(pt), w["D"], merit, None)
+                    failed_watch = w
                     if back_pt is not None:
                         back_pt.add_derivatives(p)
                         pt = back_pt
