@@ -542,6 +542,29 @@ def test_sif_start():
     assert np.all(U[:, [3, 5, 6]] == 0.0)
 
 
+def test_sif_start_states_are_the_sif_start_point():
+    """The SIF START POINT fixes V(k) = V0 for every k; simulating its controls instead made the
+    volumes diverge (inf at k = 44 for zambezi N = 288), so every solver failed to start."""
+    from olado.solvers.base import Solver
+
+    p = zambezi_problem("zambezi", N=300, start="sif", extend=None)
+    X, U = Solver.initial_point(p, None)
+    np.testing.assert_array_equal(X[:, :4], np.tile(p.x0[:4], (301, 1)))
+    assert np.array_equal(X[0], p.x0)
+    h = p.dynamics(np.arange(300), X[:-1], U)[:, 4:] - X[1:, 4:]       # delay states exact
+    assert np.abs(h).max() == 0.0
+    with pytest.raises(ProblemDefinitionError, match="non-finite"):
+        p.simulate(U)                                                   # what the start used to be
+    assert zambezi_problem("zambezi", N=24).initial_state_guess(U[:24]) is None   # balance: simulate
+    import olado
+
+    pytest.importorskip("cyipopt")
+    ref = olado.solve(p, solver="ipopt")
+    r = olado.solve(p, config="configs/sqp-ip.ini")
+    assert ref.success and r.success, (ref.message, r.message)
+    assert abs(r.objective - ref.objective) <= 1e-6 * abs(ref.objective)
+
+
 # ============================================================================ (6) extension
 def test_cyclic_extension_repeats_the_record():
     d = load_data()

@@ -373,6 +373,13 @@ class DOCP:
                 X[k + 1] = self.check_array(self.dynamics(k, X[k], U[k]), (self.n,), "dynamics", "x_next", stage=k)
         return X
 
+    def initial_state_guess(self, U):
+        """States (N+1, n) to start the simultaneous methods (SQP, IPOPT, ...) from together with
+        the initial controls U, or None (default): the states simulated from U. A problem whose
+        reference start point fixes the states too (e.g. the CUTEr SIF start of Zambezi) returns
+        them here; sequential methods simulate U whatever this returns."""
+        return None
+
     def initial_guess(self):
         """Default controls: midpoint of finite bounds, the finite bound if one-sided, else 0."""
         lo, hi = self.u_lower, self.u_upper

@@ -544,6 +544,21 @@ class Zambezi(DOCP):
         """Initial controls (N, 7): the balance start (default) or the SIF start point."""
         return self._start_U.copy()
 
+    def initial_state_guess(self, U):
+        """With ``start="sif"``: the SIF START POINT's states, V_i(k) = V_i^0 at every stage, and
+        the delay states consistent with U (F2 of the two months before; exact, they are linear).
+        Simulating the SIF controls instead (outflow = inflow, evaporation ignored) lets the
+        volumes drift below their bounds, where the quadratic evaporation term makes them
+        diverge: zambezi and zambezi11 overflowed for N >= 288. None (simulate) otherwise."""
+        if self.start != "sif":
+            return None
+        X = np.empty((self.N + 1, 6))
+        X[:, :4] = self.x0[:4]
+        X[0, 4:] = self.x0[4:]
+        X[1:, 4] = U[:, 4]
+        X[1:, 5] = X[:-1, 4]
+        return X
+
     def sif_start(self):
         """The SIF START POINT controls: Q1 = IN1, F2 = IN2, Q3 = IN2, Q4 = IN1, F1 = F3 = F4 = 0
         (taken verbatim, not clipped to the bounds; the SIF also starts V(k) = V0)."""

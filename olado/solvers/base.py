@@ -178,10 +178,12 @@ class Solver:
 
     @staticmethod
     def initial_point(problem, guess):
-        """Normalise a guess to (X (N+1,n), U (N,m)); X simulated from U when not given."""
+        """Normalise a guess to (X (N+1,n), U (N,m)); X simulated from U when not given (for the
+        problem's own guess: its ``initial_state_guess(U)`` when that is not None)."""
         if guess is None:
             U = problem.initial_guess()
-            X = None
+            state_guess = getattr(problem, "initial_state_guess", None)
+            X = state_guess(problem.check_array(U, (problem.N, problem.m), "guess", "u")) if state_guess else None
         elif isinstance(guess, Result):
             X, U = guess.x, guess.u
         elif isinstance(guess, tuple) and len(guess) == 2:
