@@ -380,3 +380,17 @@ def test_no_relaxed_steps_until_the_merit_is_below_the_last_failed_watch():
     assert abs(r.objective - ref.objective) <= 1e-6 * abs(ref.objective)
     modes = [h["mode"] for h in r.history]
     assert "watchdog" in modes or "watchdog-return" in modes   # the case is exercised
+
+
+def test_local_phase_takes_newton_steps_without_the_proximal_term():
+    """zambezi9 N = 24 (SIF start): with the proximal term 1e-4 max|H| kept in the local phase the
+    SQP converged linearly (KKT residual x0.83 per iteration, 34 iterations); without it there
+    (local_proximal = 0, the default) 5-6 iterations, same solution."""
+    p = zambezi_problem("zambezi9", N=24, start="sif")
+    ref = olado.solve(p, solver="ipopt", tol=1e-10)
+    r = SQPSolver().solve(p)
+    old = SQPSolver(local_proximal=None).solve(p)
+    assert r.success and old.success, (r.message, old.message)
+    assert r.iterations <= 10 < 20 <= old.iterations
+    assert abs(r.objective - ref.objective) <= 1e-6 * abs(ref.objective)
+    assert any(h["warm"] for h in r.history)                 # the local phase was reached
