@@ -125,10 +125,20 @@ def main(argv=None):
         lines.append(f"| {c} | " + " | ".join(f"{v:.2f}" for v in pt[j]) + " | " + " | ".join(f"{v:.2f}" for v in pi[j]) + " |")
     lines += ["", f"Plot: `benchmarks/{HERE.joinpath(args.plot).name}` (time and iteration profiles).", ""]
     if failures:
-        lines.append("Failures:")
+        lines.append("Failures (status: count, the first problems):")
         lines.append("")
-        for (fam, N, st), c, s in failures:
-            lines.append(f"- {c}: {fam} N = {N} ({st} start): {s}")
+        for c in args.configs:
+            mine = [(prob, s) for prob, cc, s in failures if cc == c]
+            if not mine:
+                continue
+            by = {}
+            for prob, s in mine:
+                by.setdefault(str(s).split(":")[0], []).append(prob)
+            parts = []
+            for s, probs in sorted(by.items(), key=lambda kv: -len(kv[1])):
+                shown = ", ".join(f"{f} {N} {st}" for f, N, st in probs[:6]) + (", ..." if len(probs) > 6 else "")
+                parts.append(f"{s}: {len(probs)} ({shown})")
+            lines.append(f"- {c}: " + "; ".join(parts))
     else:
         lines.append("No failures.")
     write_section(SECTION, "\n".join(lines) + "\n")

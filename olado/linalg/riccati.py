@@ -1263,11 +1263,9 @@ def _factor_unconstrained_fixed_loops(tags, Q, S, R, A, B, Dx, Du, Ci, sig, ni, 
     return -1
 
 
-class _SolveRowCode(_RowCode):
-    """_RowCode with what _solve_back_sweep / _solve_forward_sweep need besides: contracted
-    multiply-adds, zero extension of pieces, sums of scaled rows in interleaved partial sums,
-    and matrix-vector products by rows (products summed over the pieces of a row, then the
-    rows summed by a transposing reduction, as qp_ip's _KktRowCode.row_sums)."""
+class _ContractRowCode(_RowCode):
+    """_RowCode with contracted arithmetic (LLVM may fuse a multiply and an add), lane extraction
+    and the transposing row reduction: what the solve sweeps here and qp_ip's _kkt_stage share."""
 
     def vtype(self, w):
         return _F64 if w == 1 else llir.VectorType(_F64, w)
@@ -1284,6 +1282,38 @@ class _SolveRowCode(_RowCode):
     def axpy(self, row, a, x):
         xv = {c0: v for c0, w, v in x}
         return [(c0, w, self.add(v, self.mul(self.splat(a, w), xv[c0]))) for c0, w, v in row]
+
+    def lanes(self, v, first, w):
+        """Lanes first..first+w-1 of the vector v."""
+        if w == 1:
+            return self.b.extract_element(v, llir.Constant(_I32, first))
+        return self.b.shuffle_vector(v, v, llir.Constant(llir.VectorType(_I32, w), list(range(first, first + w))))
+
+    def row_sums(self, rows, W):
+        """Lane i = the sum of the lanes of rows[i] (len(rows) <= W vectors of W lanes; the other
+        lanes undefined): pairwise shuffles and adds, a transposing reduction."""
+        if W == 1:
+            return rows[0]
+        L = list(rows) + [llir.Constant(self.vtype(W), llir.Undefined)] * (W - len(rows))
+        b = 1
+        while len(L) > 1:
+            # lane order: P's block 2j, Q's block 2j, ... (ev) and the odd blocks (od)
+            ev = [x for j in range(W // (2 * b)) for x in
+                  [2 * j * b + t for t in range(b)] + [W + 2 * j * b + t for t in range(b)]]
+            od = [x for j in range(W // (2 * b)) for x in
+                  [(2 * j + 1) * b + t for t in range(b)] + [W + (2 * j + 1) * b + t for t in range(b)]]
+            ev, od = (llir.Constant(llir.VectorType(_I32, W), idx) for idx in (ev, od))
+            L = [self.add(self.b.shuffle_vector(L[i], L[i + 1], ev), self.b.shuffle_vector(L[i], L[i + 1], od))
+                 for i in range(0, len(L), 2)]
+            b *= 2
+        return L[0]
+
+
+class _SolveRowCode(_ContractRowCode):
+    """_ContractRowCode with what _solve_back_sweep / _solve_forward_sweep need besides: zero
+    extension of pieces, sums of scaled rows in interleaved partial sums, and matrix-vector
+    products by rows (products summed over the pieces of a row, then the rows summed by
+    row_sums)."""
 
     def scale(self, row, a):
         return [(c0, w, self.mul(self.splat(a, w), v)) for c0, w, v in row]
@@ -1310,11 +1340,6 @@ class _SolveRowCode(_RowCode):
         return self.widen(self.b.shuffle_vector(v, z, llir.Constant(llir.VectorType(_I32, 2 * w),
                                                                      list(range(2 * w)))), 2 * w, W)
 
-    def lanes(self, v, first, w):
-        if w == 1:
-            return self.b.extract_element(v, llir.Constant(_I32, first))
-        return self.b.shuffle_vector(v, v, llir.Constant(llir.VectorType(_I32, w), list(range(first, first + w))))
-
     def row_dot(self, pairs):
         """The products of the (row piece, vector piece, width) pairs summed over pieces of the
         same width, the narrower sums added into the low lanes of the widest: one vector (or a
@@ -1327,24 +1352,6 @@ class _SolveRowCode(_RowCode):
         for w in ws[1:]:
             s, sw = self.add(by_w[w], self.widen(s, sw, w)), w
         return s, sw
-
-    def row_sums(self, rows, W):
-        """Lane i = the sum of the lanes of rows[i] (len(rows) <= W vectors of W lanes; the other
-        lanes undefined): pairwise shuffles and adds, a transposing reduction."""
-        if W == 1:
-            return rows[0]
-        L = list(rows) + [llir.Constant(self.vtype(W), llir.Undefined)] * (W - len(rows))
-        b = 1
-        while len(L) > 1:
-            ev = [x for j in range(W // (2 * b)) for x in
-                  [2 * j * b + t for t in range(b)] + [W + 2 * j * b + t for t in range(b)]]
-            od = [x for j in range(W // (2 * b)) for x in
-                  [(2 * j + 1) * b + t for t in range(b)] + [W + (2 * j + 1) * b + t for t in range(b)]]
-            ev, od = (llir.Constant(llir.VectorType(_I32, W), idx) for idx in (ev, od))
-            L = [self.add(self.b.shuffle_vector(L[i], L[i + 1], ev), self.b.shuffle_vector(L[i], L[i + 1], od))
-                 for i in range(0, len(L), 2)]
-            b *= 2
-        return L[0]
 
     def matvec(self, dots, W, out_pieces):
         """The row results of dots (row_dot vectors, all of width W >= the widths of

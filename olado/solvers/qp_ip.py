@@ -154,7 +154,7 @@ from numba.extending import intrinsic, overload
 
 from ..linalg.kkt import KKT_SOLVERS, make_kkt_solver
 from ..linalg.riccati import (_F64, _FIXED_SIZE_MAX, _I32, NotPositiveDefiniteError, RiccatiFactorization,
-                               RiccatiStatusError, _pieces, _RowCode, _size_tags, _stack_vector)
+                               RiccatiStatusError, _ContractRowCode, _pieces, _size_tags, _stack_vector)
 from ..linalg.stageqp import BOX_FIELDS, QPResult, StageQP, box_values, qp_kkt_residuals
 from ..result import Status
 from .base import make_options, option
@@ -476,7 +476,7 @@ def _kkt_map_loops(sizes, H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu
 
 # The fixed-size _kkt_map (_kkt_map_fixed): the stage loop calls _kkt_stage, an intrinsic that
 # writes one stage as straight-line SIMD code on pieces of 4, 2 and 1 doubles (as _eliminate_stage
-# in olado.linalg.riccati, whose _pieces and _RowCode it reuses): H z = sum_j z_j H[j, :] and
+# in olado.linalg.riccati, whose _pieces and _ContractRowCode it reuses): H z = sum_j z_j H[j, :] and
 # g = H z + sum_l lam_{k+1,l} [A B][l, :] as axpys over the rows of H and [A B] (H is symmetric),
 # [A B] z as row products summed by a transposing reduction.  The box residuals follow in a
 # second pass over the flat box vectors, branch-free (selects on the fl/fu masks) in chunks of
@@ -508,28 +508,12 @@ def _kkt_layouts(n, m):
     return bp, mp, slots, off, off + n
 
 
-class _KktRowCode(_RowCode):
-    """_RowCode with what _kkt_stage needs besides: contracted multiply-adds, absolute values,
-    maxima with max()'s semantics, masks, conversions between piece layouts."""
-
-    def vtype(self, w):
-        return _F64 if w == 1 else llir.VectorType(_F64, w)
+class _KktRowCode(_ContractRowCode):
+    """_ContractRowCode (olado.linalg.riccati) with what _kkt_stage needs besides: absolute
+    values, maxima with max()'s semantics, masks, conversions between piece layouts."""
 
     def const(self, x, w):
         return llir.Constant(self.vtype(w), x if w == 1 else [x] * w)
-
-    def add(self, a, b):
-        return self.b.fadd(a, b, flags=("contract",))
-
-    def sub(self, a, b):
-        return self.b.fsub(a, b, flags=("contract",))
-
-    def mul(self, a, b):
-        return self.b.fmul(a, b, flags=("contract",))
-
-    def axpy(self, row, a, x):
-        xv = {c0: v for c0, w, v in x}
-        return [(c0, w, self.add(v, self.mul(self.splat(a, w), xv[c0]))) for c0, w, v in row]
 
     def abs(self, v, w):
         fn = cgutils.get_or_insert_function(self.b.module, llir.FunctionType(self.vtype(w), [self.vtype(w)]),
@@ -570,31 +554,6 @@ class _KktRowCode(_RowCode):
                     v = self.b.insert_element(v, self.entry(row, c0 + j), llir.Constant(_I32, j))
                 out.append((c0, w, v))
         return out
-
-    def lanes(self, v, first, w):
-        """Lanes first..first+w-1 of the vector v."""
-        if w == 1:
-            return self.b.extract_element(v, llir.Constant(_I32, first))
-        return self.b.shuffle_vector(v, v, llir.Constant(llir.VectorType(_I32, w), list(range(first, first + w))))
-
-    def row_sums(self, rows, W):
-        """Lane i = the sum of the lanes of rows[i] (len(rows) <= W vectors of W lanes; the other
-        lanes undefined): pairwise shuffles and adds, a transposing reduction."""
-        if W == 1:
-            return rows[0]
-        L = list(rows) + [llir.Constant(self.vtype(W), llir.Undefined)] * (W - len(rows))
-        b = 1
-        while len(L) > 1:
-            # lane order: P's block 2j, Q's block 2j, ... (ev) and the odd blocks (od)
-            ev = [x for j in range(W // (2 * b)) for x in
-                  [2 * j * b + t for t in range(b)] + [W + 2 * j * b + t for t in range(b)]]
-            od = [x for j in range(W // (2 * b)) for x in
-                  [(2 * j + 1) * b + t for t in range(b)] + [W + (2 * j + 1) * b + t for t in range(b)]]
-            ev, od = (llir.Constant(llir.VectorType(_I32, W), idx) for idx in (ev, od))
-            L = [self.add(self.b.shuffle_vector(L[i], L[i + 1], ev), self.b.shuffle_vector(L[i], L[i + 1], od))
-                 for i in range(0, len(L), 2)]
-            b *= 2
-        return L[0]
 
 
 def _is_c_array(t, dtype=types.float64, ndim=None):
