@@ -278,6 +278,23 @@ def _work_overload(x):
 
 
 @nb.njit(inline="always")
+def _add_row_terms(k, nz, ne, nc, os_, nu, eqm, EF, C, zl, zu, g):
+    """g += sum_l nu_kl eqm_kl [E F]_k[l, :] + sum_l (zu - zl)_(stage row l) C_k[l, :]: the stage
+    rows' part of the Lagrangian gradient of stage k (both _kkt_map kernels)."""
+    for l in range(ne):
+        t = nu[k, l] * eqm[k, l]
+        if t != 0.0:
+            for i in range(nz):
+                g[i] += EF[k, l, i] * t
+    for l in range(nc):
+        idx = os_ + k * nc + l
+        t = zu[idx] - zl[idx]
+        if t != 0.0:
+            for i in range(nz):
+                g[i] += C[k, l, i] * t
+
+
+@nb.njit(inline="always")
 def _kkt_final_stage(N, n, QN, X, lam, nu, EN, CN, zl, zu, bx, bx0, beN, rx, x0r, rEN, w, osN, hz, g,
                      dmax, xmax, hmax, obj, pmax):
     """The final stage of _kkt_map (both kernels): rx[N], x0r, rEN, the final rows' values
@@ -407,17 +424,7 @@ def _kkt_map_loops(sizes, H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu
                 g[i] += AB[k, l, i] * t
         for i in range(n):
             g[i] -= lam[k, i]
-        for l in range(ne):
-            t = nu[k, l] * eqm[k, l]
-            if t != 0.0:
-                for i in range(nz):
-                    g[i] += EF[k, l, i] * t
-        for l in range(nc):
-            idx = os_ + k * nc + l
-            t = zu[idx] - zl[idx]
-            if t != 0.0:
-                for i in range(nz):
-                    g[i] += C[k, l, i] * t
+        _add_row_terms(k, nz, ne, nc, os_, nu, eqm, EF, C, zl, zu, g)
         if k >= 1:
             for i in range(n):
                 idx = (k - 1) * n + i
@@ -799,17 +806,7 @@ def _kkt_map_fixed(tags, H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu,
         for k in range(N):
             for i in range(nz):
                 ge[i] = 0.0
-            for l in range(ne):
-                t = nu[k, l] * eqm[k, l]
-                if t != 0.0:
-                    for i in range(nz):
-                        ge[i] += EF[k, l, i] * t
-            for l in range(nc):
-                idx = os_ + k * nc + l
-                t = zu[idx] - zl[idx]
-                if t != 0.0:
-                    for i in range(nz):
-                        ge[i] += C[k, l, i] * t
+            _add_row_terms(k, nz, ne, nc, os_, nu, eqm, EF, C, zl, zu, ge)
             _kkt_stage(tags, k, ou, H, AB, X, U, lam, bx, bu, bdyn, rx, ru, dyn, zl, zu, ge, acc)
             for l in range(ne):
                 s = 0.0
