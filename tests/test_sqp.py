@@ -394,3 +394,24 @@ def test_local_phase_takes_newton_steps_without_the_proximal_term():
     assert r.iterations <= 10 < 20 <= old.iterations
     assert abs(r.objective - ref.objective) <= 1e-6 * abs(ref.objective)
     assert any(h["warm"] for h in r.history)                 # the local phase was reached
+
+
+def test_stalled_cold_start_qp_is_restarted_further_inside(monkeypatch):
+    """zambezi N = 276, block SR1: the first QP (Hessian I, the start 53 outside the volume
+    bounds) stalled from initial_mu = 0.1 (82 short steps, NUMERICAL_ERROR ended the SQP at
+    iteration 0); the QP is solved once more from initial_mu = 10."""
+    from olado.solvers.qp_ip import make_qp_solver
+
+    qps = []
+    build = SQPSolver._build_qp
+    monkeypatch.setattr(SQPSolver, "_build_qp", staticmethod(lambda *a, **k: qps.append(build(*a, **k)) or qps[-1]))
+    r = SQPSolver(hessian="sr1", max_iter=1).solve(zambezi_problem("zambezi", N=276))
+    assert r.status == Status.MAX_ITERATIONS, r.message          # not the QP's numerical_error
+    qp = qps[0]
+    once = make_qp_solver("mehrotra", stall_restart_mu=1.0).solve(qp)
+    assert once.status == Status.NUMERICAL_ERROR and "stalled" in once.message
+    again = make_qp_solver("mehrotra").solve(qp)
+    assert again.success and "restarted" in again.message
+    assert again.iterations > once.iterations
+    ref = make_qp_solver("mehrotra", initial_mu=10.0, stall_restart_mu=1.0).solve(qp)
+    assert ref.success and again.objective == pytest.approx(ref.objective, rel=1e-8)

@@ -183,6 +183,8 @@ class InteriorPointQPOptions:
     step_to_boundary: float = option(0.995, "fraction of the step to the boundary that is taken", min=0.99, max=0.9995)
     initial_mu: float = option(0.1, "cold start: slacks t >= 1 and multipliers z = initial_mu / t (the starting "
                                "complementarity products)", min=0.0, min_exclusive=True)
+    stall_restart_mu: float = option(100.0, "a cold start that stalls without regularizing the Newton systems is "
+                                     "solved again once from initial_mu times this (1: no restart)", min=1.0)
     step_rule: str = option("primal-dual", "'common': one step length for primal and dual variables; 'primal-dual': "
                             "separate step lengths for (x, u, slacks) and (multipliers) (Mehrotra 1992 sec. 7)",
                             choices=("common", "primal-dual"))
@@ -1924,7 +1926,33 @@ class InteriorPointQP:
     # ------------------------------------------------------------------ public entry
     def solve(self, qp: StageQP, warm_start: QPResult | None = None) -> QPResult:
         """Solve ``qp``; ``warm_start`` is a previous :class:`QPResult` of a QP of the same shape
-        (its primal and dual values are used, slacks and multipliers pushed into the interior)."""
+        (its primal and dual values are used, slacks and multipliers pushed into the interior).
+
+        A cold start whose iterates stall (NUMERICAL_ERROR without any regularization of the
+        Newton systems, i.e. not a nonconvex QP) is solved once more from a start 100 times as
+        far inside (``stall_restart_mu`` times ``initial_mu``): complementarity products small
+        against the distance the iterates must travel make every step short (zambezi N = 276,
+        the first SQP step of block SR1 (Hessian I): the start is 53 outside the volume bounds, the
+        steps were 0.01-0.1 for 82 iterations; from initial_mu = 10 it takes 19)."""
+        res = self._solve(qp, warm_start)
+        opts = self.options
+        if (warm_start is None and opts.stall_restart_mu > 1.0 and res.status is Status.NUMERICAL_ERROR
+                and "stalled" in res.message and res.regularization <= opts.regularization):
+            mu0 = opts.initial_mu
+            try:
+                opts.initial_mu = mu0 * opts.stall_restart_mu
+                again = self._solve(qp, None)
+            finally:
+                opts.initial_mu = mu0
+            again.iterations += res.iterations
+            again.time_s += res.time_s
+            again.history = list(res.history) + list(again.history)
+            again.message = (f"{again.message} (restarted from initial_mu = {mu0 * opts.stall_restart_mu:g} after "
+                             f"{res.iterations} stalled iterations)")
+            return again
+        return res
+
+    def _solve(self, qp: StageQP, warm_start: QPResult | None) -> QPResult:
         t0 = time.perf_counter()
         opts = self.options
         P = _Prepared(qp)
