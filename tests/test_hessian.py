@@ -33,6 +33,26 @@ def test_powell_damping_keeps_bfgs_positive_definite_for_negative_curvature():
     assert np.allclose(np.einsum("ki,kij,kj->k", s, B, s), 0.2 * np.einsum("ki,ki->k", s, s))
 
 
+def test_block_bfgs_restarts_an_ill_conditioned_block():
+    """A block with curvature ~1e-9 along e_0 (a flat direction) and a step mostly along e_0 whose
+    y points elsewhere: the update r r^T / s.r has a tiny s.r and drives the condition number far
+    beyond max_condition; that block (only) is restarted as g I, g the geometric mean of its
+    eigenvalues after the update."""
+    N, n, m = 2, 1, 1
+    h = BlockBFGS(max_condition=1e8, initial_scale=1.0); h.initial(N, n, m)
+    h.B[0] = np.diag([1e-9, 1.0]); h.BN = np.eye(n)
+    s = np.array([[1.0, 1e-3], [1.0, 0.0]]); y = np.array([[1e-9, 1.0], [1.0, 0.0]])
+    B0 = h.B.copy()
+    raw = BlockBFGS(max_condition=np.inf, initial_scale=1.0); raw.initial(N, n, m); raw.B = B0.copy()
+    raw.update(s, np.zeros(n), y, np.zeros(n))
+    w = np.linalg.eigvalsh(raw.B[0])
+    assert w[-1] / w[0] > 1e8                                           # what the restart is for
+    h.update(s, np.zeros(n), y, np.zeros(n))
+    assert h.resets == 1
+    assert np.allclose(h.B[0], np.exp(np.mean(np.log(w))) * np.eye(2))
+    assert np.allclose(h.B[1], raw.B[1])                                # the other block: plain BFGS
+
+
 def test_sr1_recovers_a_quadratic_and_stays_positive_definite():
     rng, N, n, m = _rand(2, N=2, n=2, m=1)
     M = rng.standard_normal((3, 3)); H = M @ M.T + np.eye(3)   # H - B0 >= 0: every SR1 iterate stays PD

@@ -5,7 +5,8 @@ n block for x^N, so the QP subproblem stays an LQ-DOCP.
 * :class:`ExactHessian` -- analytic (or finite-difference) second derivatives, made positive
   definite by the Gerschgorin modification (13) or by a Levenberg shift of the block.
 * :class:`BlockBFGS` -- BFGS on each diagonal block separately, with Powell's damping
-  (Powell 1978): y is replaced by theta*y + (1-theta)*B s when s.y < 0.2 s.B s.
+  (Powell 1978): y is replaced by theta*y + (1-theta)*B s when s.y < 0.2 s.B s; a block whose
+  condition number exceeds ``max_condition`` is restarted as a multiple of I.
 * :class:`BlockSR1` -- symmetric rank-one update of each block (skipped when the denominator is
   tiny, Nocedal & Wright 1999 sec. 6.2), with a positive-definiteness safeguard: eigenvalues
   below ``min_eig`` are raised (Tenny et al. 2002 use SR1 with such a safeguard).
@@ -18,6 +19,8 @@ Blocks are stacked arrays: ``blocks`` (N, n+m, n+m) and ``final`` (n, n).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -97,13 +100,34 @@ class HessianApproximation:
 
 
 class BlockBFGS(HessianApproximation):
-    """Partitioned BFGS with Powell's damping, one update per diagonal block."""
+    """Partitioned BFGS with Powell's damping, one update per diagonal block.
+
+    Blocks whose condition number exceeds ``max_condition`` after an update are reset to the
+    geometric mean of their eigenvalues times I (a restart of that block's approximation). In
+    the flat directions of a degenerate optimum the damping lets a block's curvature fall
+    geometrically (s.y ~ 0), and a later step with a component there adds r r^T / s.r with a
+    tiny s.r: zambezi12 N = 252 reached max|B| = 6.4e8 next to eigenvalues of 1e-13 in one block,
+    after which the steps were ~1e-6 long and the KKT residual stayed at 2.3e-5 for 50 iterations."""
 
     name = "bfgs"
 
-    def __init__(self, damping=0.2, **kw):
+    def __init__(self, damping=0.2, max_condition=1e8, **kw):
         super().__init__(**kw)
         self.damping = float(damping)
+        self.max_condition = float(max_condition)
+        self.resets = 0
+
+    def _restart_ill_conditioned(self, B):
+        """Reset the blocks of B (..., d, d) with condition number > max_condition."""
+        if not math.isfinite(self.max_condition):
+            return B
+        w = np.linalg.eigvalsh(0.5 * (B + np.swapaxes(B, -1, -2)))
+        bad = w[..., -1] > self.max_condition * np.maximum(w[..., 0], 1e-300)
+        if not np.any(bad):
+            return B
+        g = np.exp(np.mean(np.log(np.maximum(w, 1e-300)), axis=-1))
+        self.resets += int(np.sum(bad))
+        return np.where(bad[..., None, None], g[..., None, None] * np.eye(B.shape[-1]), B)
 
     def _bfgs(self, B, s, y):
         Bs = np.einsum("...ij,...j->...i", B, s)
@@ -118,7 +142,7 @@ class BlockBFGS(HessianApproximation):
         upd = (-np.einsum("...i,...j->...ij", Bs, Bs) / np.where(ok, sBs, 1.0)[..., None, None]
                + np.einsum("...i,...j->...ij", r, r) / np.where(ok, sr, 1.0)[..., None, None])
         self.updates += int(np.sum(ok)); self.skipped += int(np.sum(~ok))
-        return B + safe[..., None, None] * upd
+        return self._restart_ill_conditioned(B + safe[..., None, None] * upd)
 
     def update(self, s, sN, y, yN):
         self._rescale_first(s, sN, y, yN)
@@ -207,10 +231,10 @@ class ExactHessian(HessianApproximation):
         pass
 
 
-def make_hessian(name, convexify="levenberg", initial_scale=1.0, min_eig=1e-8):
+def make_hessian(name, convexify="levenberg", initial_scale=1.0, min_eig=1e-8, max_condition=1e8):
     """Hessian option name -> approximation object."""
     if name == "bfgs":
-        return BlockBFGS(initial_scale=initial_scale, min_eig=min_eig)
+        return BlockBFGS(initial_scale=initial_scale, min_eig=min_eig, max_condition=max_condition)
     if name == "sr1":
         return BlockSR1(initial_scale=initial_scale, min_eig=min_eig)
     if name == "powell-bfgs":

@@ -135,6 +135,8 @@ class SQPOptions(SolverOptions):
     initial_hessian_scale: float = option(0.0, "initial quasi-Newton blocks: this times the identity; 0 = automatic "
                                           "(y.y/s.y per block at the first update)", min=0.0)
     min_eigenvalue: float = option(1e-8, "smallest eigenvalue kept in a Hessian block", min=0.0, min_exclusive=True)
+    max_condition: float = option(1e8, "block BFGS: a block whose condition number exceeds this after an update is "
+                                  "restarted as the geometric mean of its eigenvalues times I (inf: never)", min=1.0)
     qp_tol: float = option(1e-9, "tolerance of the QP subproblem solver", min=0.0, min_exclusive=True)
     qp_max_iter: int = option(200, "iteration limit of the QP subproblem solver", min=1)
     watchdog: bool = option(True, "use the watchdog technique (Chamberlain et al. 1982)")
@@ -294,7 +296,8 @@ class SQPSolver(Solver):
             # shift every block to positive definiteness instead
             convexify = "levenberg"
         self._convexify = convexify
-        hess = make_hessian(o.hessian, convexify=convexify, initial_scale=o.initial_hessian_scale, min_eig=o.min_eigenvalue)
+        hess = make_hessian(o.hessian, convexify=convexify, initial_scale=o.initial_hessian_scale, min_eig=o.min_eigenvalue,
+                            max_condition=o.max_condition)
         hess.initial(N, n, m)
         inertia = hess.needs_exact and convexify == "inertia"
         # start: controls clipped into their bounds, x0 exact
