@@ -428,3 +428,8 @@ def test_stalled_cold_start_qp_is_restarted_further_inside(monkeypatch):
     assert again.iterations > once.iterations
     ref = make_qp_solver("mehrotra", initial_mu=10.0, stall_restart_mu=1.0).solve(qp)
     assert ref.success and again.objective == pytest.approx(ref.objective, rel=1e-8)
+    # N = 1 200 (cyclic inflows): the same first QP reached the 200-iteration limit instead
+    p = zambezi_problem("zambezi", N=1200)
+    assert SQPSolver(hessian="sr1", max_iter=1, qp_options={"stall_restart_mu": 1.0}).solve(p).status \
+        == Status.NUMERICAL_ERROR
+    assert SQPSolver(hessian="sr1", max_iter=1).solve(p).status == Status.MAX_ITERATIONS

@@ -1928,16 +1928,19 @@ class InteriorPointQP:
         """Solve ``qp``; ``warm_start`` is a previous :class:`QPResult` of a QP of the same shape
         (its primal and dual values are used, slacks and multipliers pushed into the interior).
 
-        A cold start whose iterates stall (NUMERICAL_ERROR without any regularization of the
-        Newton systems, i.e. not a nonconvex QP) is solved once more from a start 100 times as
+        A cold start whose iterates stall or reach max_iter without any regularization of the
+        Newton systems (i.e. not a nonconvex QP) is solved once more from a start 100 times as
         far inside (``stall_restart_mu`` times ``initial_mu``): complementarity products small
         against the distance the iterates must travel make every step short (zambezi N = 276,
         the first SQP step of block SR1 (Hessian I): the start is 53 outside the volume bounds, the
-        steps were 0.01-0.1 for 82 iterations; from initial_mu = 10 it takes 19)."""
+        steps were 0.01-0.1 for 82 iterations; from initial_mu = 10 it takes 19; at N = 1 200 the
+        same QP reached the 200-iteration limit)."""
         res = self._solve(qp, warm_start)
         opts = self.options
-        if (warm_start is None and opts.stall_restart_mu > 1.0 and res.status is Status.NUMERICAL_ERROR
-                and "stalled" in res.message and res.regularization <= opts.regularization):
+        stalled = ((res.status is Status.NUMERICAL_ERROR and "stalled" in res.message)
+                   or res.status is Status.MAX_ITERATIONS)
+        if (warm_start is None and opts.stall_restart_mu > 1.0 and stalled
+                and res.regularization <= opts.regularization):
             mu0 = opts.initial_mu
             try:
                 opts.initial_mu = mu0 * opts.stall_restart_mu
