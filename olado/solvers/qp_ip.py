@@ -162,6 +162,10 @@ from .base import make_options, option
 KKT_BACKENDS = KKT_SOLVERS   # riccati, superlu-full, superlu-reduced, minres, gmres
 
 _FIX_RTOL = 1e-12
+# restart of a cold start whose iterates stall or crawl (InteriorPointQP.solve): the words put
+# in the message that mark such an end, and the number of restarts
+_STALLED, _CRAWLED, _MAX_RESTARTS = "stalled", "crawled", 2
+_CRAWL_W, _CRAWL_A = 10, 0.1   # crawling: _CRAWL_W successive steps (primal and dual) shorter than _CRAWL_A
 
 def _equal_bounds(lo, hi):
     """Entries with finite lo = hi (to _FIX_RTOL relative): fixed variables and equality rows."""
@@ -183,8 +187,9 @@ class InteriorPointQPOptions:
     step_to_boundary: float = option(0.995, "fraction of the step to the boundary that is taken", min=0.99, max=0.9995)
     initial_mu: float = option(0.1, "cold start: slacks t >= 1 and multipliers z = initial_mu / t (the starting "
                                "complementarity products)", min=0.0, min_exclusive=True)
-    stall_restart_mu: float = option(100.0, "a cold start that stalls without regularizing the Newton systems is "
-                                     "solved again once from initial_mu times this (1: no restart)", min=1.0)
+    stall_restart_mu: float = option(100.0, "a cold start that stalls or crawls without regularizing the Newton "
+                                     "systems is solved again (at most twice, within max_iter) from initial_mu "
+                                     "times this (1: no restart)", min=1.0)
     step_rule: str = option("primal-dual", "'common': one step length for primal and dual variables; 'primal-dual': "
                             "separate step lengths for (x, u, slacks) and (multipliers) (Mehrotra 1992 sec. 7)",
                             choices=("common", "primal-dual"))
@@ -1928,34 +1933,43 @@ class InteriorPointQP:
         """Solve ``qp``; ``warm_start`` is a previous :class:`QPResult` of a QP of the same shape
         (its primal and dual values are used, slacks and multipliers pushed into the interior).
 
-        A cold start whose iterates stall or reach max_iter without any regularization of the
-        Newton systems (i.e. not a nonconvex QP) is solved once more from a start 100 times as
-        far inside (``stall_restart_mu`` times ``initial_mu``): complementarity products small
-        against the distance the iterates must travel make every step short (zambezi N = 276,
-        the first SQP step of block SR1 (Hessian I): the start is 53 outside the volume bounds, the
-        steps were 0.01-0.1 for 82 iterations; from initial_mu = 10 it takes 19; at N = 1 200 the
-        same QP reached the 200-iteration limit)."""
-        res = self._solve(qp, warm_start)
+        A cold start whose iterates stall or crawl (10 successive steps shorter than 0.1) without
+        any regularization of the Newton systems (i.e. not a nonconvex QP, whose regularized steps
+        are short for another reason: zambezi12 N = 48) is solved again from a
+        start ``stall_restart_mu`` (100) times as far inside (``initial_mu``), at most twice,
+        within the same ``max_iter`` budget: complementarity products small against the distance
+        the iterates must travel make every step short. The first SQP QP of block SR1 (Hessian I)
+        on zambezi starts 53 outside the volume bounds: at N = 276 the steps were 0.01-0.1 for 82
+        iterations until the iterates stalled, from initial_mu = 10 it takes 19 iterations; at
+        N = 1 200 the steps stay 0.01-0.03 for 300 iterations from 0.1 and 1, from 10 it takes
+        159, from 1 000 30."""
         opts = self.options
-        stalled = ((res.status is Status.NUMERICAL_ERROR and "stalled" in res.message)
-                   or res.status is Status.MAX_ITERATIONS)
-        if (warm_start is None and opts.stall_restart_mu > 1.0 and stalled
-                and res.regularization <= opts.regularization):
+        restartable = warm_start is None and opts.stall_restart_mu > 1.0
+        res = self._solve(qp, warm_start, opts.max_iter, crawl_exit=restartable)
+        mu = opts.initial_mu
+        for attempt in range(_MAX_RESTARTS):
+            if not (restartable and res.status is Status.NUMERICAL_ERROR and res.iterations < opts.max_iter
+                    and res.regularization <= opts.regularization
+                    and (_STALLED in res.message or _CRAWLED in res.message)):
+                break
+            mu *= opts.stall_restart_mu
+            why = "stalled" if _STALLED in res.message else "crawling"
             mu0 = opts.initial_mu
             try:
-                opts.initial_mu = mu0 * opts.stall_restart_mu
-                again = self._solve(qp, None)
+                opts.initial_mu = mu
+                again = self._solve(qp, None, opts.max_iter - res.iterations,
+                                    crawl_exit=attempt + 1 < _MAX_RESTARTS)
             finally:
                 opts.initial_mu = mu0
             again.iterations += res.iterations
             again.time_s += res.time_s
             again.history = list(res.history) + list(again.history)
-            again.message = (f"{again.message} (restarted from initial_mu = {mu0 * opts.stall_restart_mu:g} after "
-                             f"{res.iterations} stalled iterations)")
-            return again
+            again.message = (f"{again.message} (restarted from initial_mu = {mu:g} after {res.iterations} "
+                             f"iterations, {why})")
+            res = again
         return res
 
-    def _solve(self, qp: StageQP, warm_start: QPResult | None) -> QPResult:
+    def _solve(self, qp: StageQP, warm_start: QPResult | None, max_iter: int, crawl_exit: bool = False) -> QPResult:
         t0 = time.perf_counter()
         opts = self.options
         P = _Prepared(qp)
@@ -2036,7 +2050,16 @@ class InteriorPointQP:
                 status, message = self._certificates(P, it, last_d, loose=True) or self._stall_status(
                     pr / scales[0], du / scales[1], gap / (1.0 + abs(obj)))
                 break
-            if k >= opts.max_iter:
+            # crawling (see solve): only a convex QP whose Newton systems were never regularized
+            if (crawl_exit and P.shift == 0.0 and len(history) >= _CRAWL_W
+                    and all(max(h["alpha"], h["alpha_dual"]) < _CRAWL_A for h in history[-_CRAWL_W:])
+                    and all(h["regularization"] <= opts.regularization for h in history)):
+                status = Status.NUMERICAL_ERROR
+                message = (f"{status.sentence} The iterates {_CRAWLED} (10 successive steps shorter than 0.1; "
+                           f"scaled primal {pr / scales[0]:.3g}, dual {du / scales[1]:.3g}, gap "
+                           f"{gap / (1.0 + abs(obj)):.3g}).")
+                break
+            if k >= max_iter:
                 break
             try:
                 ctx = _StepContext(self, P, it, res, mu)
@@ -2134,7 +2157,7 @@ class InteriorPointQP:
             if key == "x":
                 aL[0] = aU[0] = False          # x_0 is fixed by its own row
             act[key] = [aL, aU]
-        solver = type(self)(self.options, polish=False, max_iter=5)
+        solver = type(self)(self.options, polish=False, max_iter=5, stall_restart_mu=1.0)
         r2, extra = None, 0
         for _ in range(opts.polish_rounds):
             kw = {}
@@ -2383,7 +2406,7 @@ class InteriorPointQP:
     def _stall_status(self, pr, du, gap):
         # Without a certificate a stall is not evidence of infeasibility (a tight tol, a nearly
         # singular or nonconvex Hessian stall too): report it as a numerical difficulty.
-        return Status.NUMERICAL_ERROR, (f"{Status.NUMERICAL_ERROR.sentence} The iterates stalled (scaled primal "
+        return Status.NUMERICAL_ERROR, (f"{Status.NUMERICAL_ERROR.sentence} The iterates {_STALLED} (scaled primal "
                                         f"{pr:.3g}, dual {du:.3g}, gap {gap:.3g}); no infeasibility certificate was found.")
 
     # ------------------------------------------------------------------ result
