@@ -438,3 +438,32 @@ def test_stalled_cold_start_qp_is_restarted_further_inside(monkeypatch):
     assert SQPSolver(hessian="sr1", max_iter=1, qp_options={"stall_restart_mu": 1.0}).solve(p).status \
         == Status.NUMERICAL_ERROR
     assert SQPSolver(hessian="sr1", max_iter=1).solve(p).status == Status.MAX_ITERATIONS
+
+
+def test_qp_options_from_the_raw_section_are_checked_and_applied(tmp_path):
+    """[sqp.raw] feeds qp_options: olado's QP options are validated and set, an unknown key is a
+    ConfigError naming it; with an external backend ExternalQPOptions fields are set and any
+    other key goes to the backend unchanged (backend_options)."""
+    from olado.config import load_config, make_solver
+    from olado.errors import ConfigError
+    from olado.solvers.sqp import _apply_qp_options, make_qp_solver
+
+    ini = tmp_path / "s.ini"
+    ini.write_text("[solver]\nname = sqp\n[sqp]\nqp = mehrotra\n[sqp.raw]\ninitial_mu = 10\nstall_restart_mu = 1.0\n")
+    o = make_solver(load_config(ini)).options
+    assert o.qp_options == {"initial_mu": 10, "stall_restart_mu": 1.0}
+    ip = make_qp_solver("mehrotra")
+    _apply_qp_options(ip, "mehrotra", o.qp_options)
+    assert ip.options.initial_mu == 10.0 and isinstance(ip.options.initial_mu, float)
+    assert ip.options.stall_restart_mu == 1.0
+    with pytest.raises(ConfigError, match="initial_mux"):
+        _apply_qp_options(ip, "mehrotra", {"initial_mux": 10.0})
+    with pytest.raises(ConfigError, match="initial_mu"):
+        _apply_qp_options(ip, "mehrotra", {"initial_mu": -1.0})      # out of range
+    ext = make_qp_solver("clarabel")
+    _apply_qp_options(ext, "clarabel", {"tol_feas": 1e-9, "direct_solve_method": "qdldl"})
+    assert ext.options.tol_feas == 1e-9 and ext.options.backend_options == {"direct_solve_method": "qdldl"}
+    # and an SQP run with a misspelt key stops with that error, not silently
+    p = zambezi_problem("zambezi12", N=12)
+    with pytest.raises(ConfigError, match="initial_mux"):
+        SQPSolver(qp_options={"initial_mux": 10.0}).solve(p)

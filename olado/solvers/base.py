@@ -23,10 +23,11 @@ from ..errors import ConfigError
 from ..result import Result
 
 
-def option(default, help="", *, choices=None, min=None, max=None, min_exclusive=False, ini=True):
-    """Declare a solver option (a dataclass field with validation metadata)."""
+def option(default, help="", *, choices=None, min=None, max=None, min_exclusive=False, ini=True, raw=False):
+    """Declare a solver option (a dataclass field with validation metadata). ``raw=True`` marks
+    the dict option that receives an ini file's ``[<solver>.raw]`` section (olado.config)."""
     meta = {"help": help, "choices": choices, "min": min, "max": max,
-            "min_exclusive": min_exclusive, "ini": ini}
+            "min_exclusive": min_exclusive, "ini": ini, "raw": raw}
     if isinstance(default, (dict, list)):
         return dataclasses.field(default_factory=lambda d=default: type(d)(d), metadata=meta)
     return dataclasses.field(default=default, metadata=meta)

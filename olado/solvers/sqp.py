@@ -92,6 +92,23 @@ def make_qp_solver(name, kkt="riccati", tol=1e-10, max_iter=200):
     return ExternalQP(backend=name)
 
 
+def _apply_qp_options(qp_solver, qp_name, qp_options):
+    """Set ``qp_options`` (SQPOptions) on the QP solver's options, each checked like any option;
+    with an external backend a key that ExternalQPOptions does not know is passed to the backend
+    itself (``backend_options``); with olado's methods it is an error naming the key."""
+    from .base import validate_value
+
+    opts = qp_solver.options
+    known = {f.name for f in dataclasses.fields(opts)}
+    for key, value in qp_options.items():
+        if key in known:
+            setattr(opts, key, validate_value(type(opts), key, value, section="sqp.raw"))
+        elif qp_name not in INTERIOR_POINT_QP:
+            opts.backend_options = {**opts.backend_options, key: value}
+        else:
+            validate_value(type(opts), key, value, section="sqp.raw (qp_options)")   # raises: unknown option
+
+
 def convex_step_qp(problem, shift=1e-4, U=None):
     """The QP of a first SQP step at U (default: the problem's initial guess), convexified for
     comparisons with external convex QP solvers: A, B from the dynamics Jacobians, Hessian blocks
@@ -137,8 +154,11 @@ class SQPOptions(SolverOptions):
     min_eigenvalue: float = option(1e-8, "smallest eigenvalue kept in a Hessian block", min=0.0, min_exclusive=True)
     max_condition: float = option(1e8, "block BFGS: a block whose condition number exceeds this after an update is "
                                   "restarted as the geometric mean of its eigenvalues times I (inf: never)", min=1.0)
-    qp_tol: float = option(1e-9, "tolerance of the QP subproblem solver", min=0.0, min_exclusive=True)
-    qp_max_iter: int = option(200, "iteration limit of the QP subproblem solver", min=1)
+    qp_tol: float = option(1e-9, "tolerance of olado's interior-point QP methods (external backends keep their own "
+                           "tolerances: set them in qp_options, e.g. eps_abs / eps_rel for OSQP, tol_feas / "
+                           "tol_gap_abs / tol_gap_rel for Clarabel)", min=0.0, min_exclusive=True)
+    qp_max_iter: int = option(200, "iteration limit of olado's interior-point QP methods (OSQP: 100 times this, at "
+                              "least 50 000; the other external backends keep their own)", min=1)
     watchdog: bool = option(True, "use the watchdog technique (Chamberlain et al. 1982)")
     watchdog_steps: int = option(2, "relaxed iterations allowed before returning to the last good point", min=1)
     armijo: float = option(1e-4, "sufficient-decrease constant of the line search", min=0.0, max=0.5, min_exclusive=True)
@@ -203,8 +223,10 @@ class SQPOptions(SolverOptions):
     second_order_correction: bool = option(False, "when a full step along a descent direction fails the Armijo test, "
                                            "try the second-order correction step once (Fletcher 1982; Nocedal & Wright "
                                            "sec. 18.3): the QP again with the constraint values c(y + s) - J s")
-    qp_options: dict = option({}, "extra options of the QP solver (e.g. {'warm_start_push': 1e-3} for olado's "
-                              "interior-point methods)", ini=False)
+    qp_options: dict = option({}, "extra options of the QP solver, in an ini file the [sqp.raw] section: options of "
+                              "olado's interior-point methods (InteriorPointQPOptions, e.g. initial_mu) or of "
+                              "ExternalQPOptions (eps_abs, tol_feas, ...); for an external backend any other key "
+                              "goes to the backend unchanged", ini=False, raw=True)
     proximal: float | None = option(None, "proximal term delta*I added to the QP Hessian, delta = proximal * max|H|: "
                                     "picks the shortest step when the reduced Hessian is singular (flat directions, "
                                     "degenerate optima); it vanishes at the solution (s = 0). None (default): 1e-4 with "
@@ -288,8 +310,7 @@ class SQPSolver(Solver):
         interior = o.qp in INTERIOR_POINT_QP
         if interior:
             qp_solver.options.warm_start_push = o.qp_warm_start_push
-        for key, value in o.qp_options.items():
-            setattr(qp_solver.options, key, value)
+        _apply_qp_options(qp_solver, o.qp, o.qp_options)
         convexify = o.convexify
         if o.hessian == "exact" and convexify == "inertia" and not interior:
             # external QP solvers need a convex QP and do not report a failed factorization:
