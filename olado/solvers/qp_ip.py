@@ -1954,13 +1954,8 @@ class InteriorPointQP:
                 break
             mu *= opts.stall_restart_mu
             why = "stalled" if _STALLED in res.message else "crawling"
-            mu0 = opts.initial_mu
-            try:
-                opts.initial_mu = mu
-                again = self._solve(qp, None, opts.max_iter - res.iterations,
-                                    crawl_exit=attempt + 1 < _MAX_RESTARTS)
-            finally:
-                opts.initial_mu = mu0
+            again = self._solve(qp, None, opts.max_iter - res.iterations, crawl_exit=attempt + 1 < _MAX_RESTARTS,
+                                initial_mu=mu)
             again.iterations += res.iterations
             again.time_s += res.time_s
             again.history = list(res.history) + list(again.history)
@@ -1969,7 +1964,8 @@ class InteriorPointQP:
             res = again
         return res
 
-    def _solve(self, qp: StageQP, warm_start: QPResult | None, max_iter: int, crawl_exit: bool = False) -> QPResult:
+    def _solve(self, qp: StageQP, warm_start: QPResult | None, max_iter: int, crawl_exit: bool = False,
+               initial_mu: float | None = None) -> QPResult:
         t0 = time.perf_counter()
         opts = self.options
         P = _Prepared(qp)
@@ -1983,7 +1979,7 @@ class InteriorPointQP:
                                 f"{Status.INFEASIBLE.sentence} (the fixed initial state x0 violates the bounds of x_0 "
                                 f"by {v0:.3g})", 0, history, t0)
         try:
-            it = self._initial_point(P) if warm_start is None else self._warm_point(P, warm_start)
+            it = self._initial_point(P, initial_mu) if warm_start is None else self._warm_point(P, warm_start)
         except NotPositiveDefiniteError as exc:
             res = self._finish(P, None, Status.NUMERICAL_ERROR,
                                f"{Status.NUMERICAL_ERROR.sentence} (starting point: the KKT factorization with unit "
@@ -2055,7 +2051,8 @@ class InteriorPointQP:
                     and all(max(h["alpha"], h["alpha_dual"]) < _CRAWL_A for h in history[-_CRAWL_W:])
                     and all(h["regularization"] <= opts.regularization for h in history)):
                 status = Status.NUMERICAL_ERROR
-                message = (f"{status.sentence} The iterates {_CRAWLED} (10 successive steps shorter than 0.1; "
+                message = (f"{status.sentence} The iterates {_CRAWLED} ({_CRAWL_W} successive steps shorter than "
+                           f"{_CRAWL_A:g}; "
                            f"scaled primal {pr / scales[0]:.3g}, dual {du / scales[1]:.3g}, gap "
                            f"{gap / (1.0 + abs(obj)):.3g}).")
                 break
@@ -2270,12 +2267,12 @@ class InteriorPointQP:
         return d, 0
 
     # ------------------------------------------------------------------ starting points
-    def _initial_point(self, P):
+    def _initial_point(self, P, mu0=None):
         """Cold start: (X, U) minimizes f + 1/2 |w - w_ref|^2 (+ 1/2 |z|^2 on unbounded
         components) subject to the equality constraints -- one factorization -- with w_ref the
         middle of two-sided boxes and 0 clipped into one-sided ones; its lam, nu are kept; slacks
         t = max(w - lo, 1) (resp. max(hi - w, 1)) and multipliers z = mu0 / t on every finite side
-        (a perfectly centred start, mu = mu0 = ``initial_mu``)."""
+        (a perfectly centred start, mu = mu0, by default ``initial_mu``)."""
         N, n, m, nc = P.N, P.n, P.m, P.nc
         two = P.fl & P.fu
         ref = np.where(two, 0.5 * (P.lo + P.hi),
@@ -2306,7 +2303,7 @@ class InteriorPointQP:
         if P.n_nu:
             k = min(P.n_nu, sol.nu.shape[1])
             nu[:, :k] = sol.nu[:, :k]
-        mu0 = self.options.initial_mu
+        mu0 = self.options.initial_mu if mu0 is None else mu0
         zl = np.where(P.fl, mu0 / np.where(P.fl, tl, 1.0), 0.0)
         zu = np.where(P.fu, mu0 / np.where(P.fu, tu, 1.0), 0.0)
         return P.point_from(X, U, np.array(sol.lam, dtype=float), nu, tl, tu, zl, zu)

@@ -102,7 +102,7 @@ def _apply_qp_options(qp_solver, qp_name, qp_options):
     known = {f.name for f in dataclasses.fields(opts)}
     for key, value in qp_options.items():
         if key in known:
-            setattr(opts, key, validate_value(type(opts), key, value, section="sqp.raw"))
+            setattr(opts, key, validate_value(type(opts), key, value, section="sqp.raw (qp_options)"))
         elif qp_name not in INTERIOR_POINT_QP:
             opts.backend_options = {**opts.backend_options, key: value}
         else:
