@@ -467,3 +467,20 @@ def test_qp_options_from_the_raw_section_are_checked_and_applied(tmp_path):
     p = zambezi_problem("zambezi12", N=12)
     with pytest.raises(ConfigError, match="initial_mux"):
         SQPSolver(qp_options={"initial_mux": 10.0}).solve(p)
+
+
+def test_quasi_newton_step_that_is_no_descent_direction_resolves_its_qp_more_accurately():
+    """zambezi10 N = 12 (SIF start), block BFGS: near the solution (KKT residual 4.7e-8) the QP
+    step solved to qp_tol = 1e-9 was an ascent direction of the merit function (D = +2.4e-11);
+    with positive definite blocks that only comes from the QP's inexactness. The SQP backtracked
+    uphill by 2^-7 of the step for the last 110 of 200 iterations; re-solving the QP 100 times
+    more accurately (down to qp_tol_min) gives descent steps and convergence."""
+    p = zambezi_problem("zambezi10", N=12, start="sif")
+    ref = olado.solve(p, solver="ipopt", tol=1e-10)
+    old = olado.solve(p, config="configs/sqp-bfgs.ini", qp_tol_min=0.0)
+    assert old.status == Status.MAX_ITERATIONS
+    assert sum(h["mode"] == "backtrack" and h["D"] > 0 for h in old.history) >= 50
+    r = olado.solve(p, config="configs/sqp-bfgs.ini")
+    assert r.success and r.iterations <= 120, r.message
+    assert abs(r.objective - ref.objective) <= 1e-6 * abs(ref.objective)
+    assert not any(h["mode"] == "backtrack" and h["D"] > 0 for h in r.history)   # no uphill steps
