@@ -194,3 +194,39 @@ def test_singular_system_is_reported():
     mats["F"][1, 1] = mats["F"][1, 0]
     with pytest.raises(KKTSolveError, match="superlu-reduced"):
         make_kkt_solver("superlu-reduced", **mats).solve(**rhs)
+
+
+def test_gmres_preconditioner_falls_back_when_the_incomplete_lu_breaks_down(monkeypatch):
+    """A zero pivot in spilu ("Factor is exactly singular") is retried with COLAMD and less
+    dropping, then with the complete LU: the solution still matches the Riccati solver."""
+    import olado.linalg.kkt as kkt
+
+    rng = np.random.default_rng(9)
+    mats, rhs = well_conditioned_problem(rng, 6, 3, 2, bounds=True)
+    ref = RiccatiFactorization(**mats).solve(**rhs)
+    calls = []
+    real_spilu = kkt.spla.spilu
+
+    def spilu(A, **kw):
+        calls.append(kw["permc_spec"])
+        if kw["permc_spec"] == "NATURAL" or len(calls) > 2:
+            raise RuntimeError("Factor is exactly singular")
+        return real_spilu(A, **kw)
+
+    monkeypatch.setattr(kkt.spla, "spilu", spilu)
+    s = make_kkt_solver("gmres", **mats)
+    assert s.ilu_fallback == 1 and calls == ["NATURAL", "COLAMD"]
+    assert_same_solution(s.solve(**rhs), ref, 1e-8)
+    s = make_kkt_solver("gmres", **mats)                     # both incomplete LUs fail: complete LU
+    assert s.ilu_fallback == 2
+    assert_same_solution(s.solve(**rhs), ref, 1e-8)
+    assert s.iterations <= 2                                 # an exact preconditioner
+
+
+def test_gmres_on_a_singular_system_is_reported():
+    rng = np.random.default_rng(8)
+    mats, rhs = well_conditioned_problem(rng, 3, 2, 2, ne=2)
+    mats["E"][1, 1] = mats["E"][1, 0]     # two identical rows at stage 1
+    mats["F"][1, 1] = mats["F"][1, 0]
+    with pytest.raises(KKTSolveError, match="gmres"):
+        make_kkt_solver("gmres", **mats).solve(**rhs)
