@@ -37,12 +37,22 @@ def machine(with_ipopt=True) -> str:
     return text
 
 
+#: hand-written notes inside a section, kept when a script rewrites the section
+NOTES = re.compile(r"^<!-- notes -->\n.*?^<!-- /notes -->\n", re.S | re.M)
+
+
 def write_section(section: str, text: str, path: Path = RESULTS) -> None:
-    """Replace (or append) the '## <section>' part of a markdown file, atomically."""
+    """Replace (or append) the '## <section>' part of a markdown file, atomically. Notes written
+    by hand between the lines ``<!-- notes -->`` and ``<!-- /notes -->`` in the old section are
+    kept, after the new text (they say at which commit and why; the script cannot)."""
     old = path.read_text(encoding="utf-8") if path.exists() else "# olado benchmark results\n\n"
     pattern = re.compile(rf"^## {re.escape(section)}\n.*?(?=^## |\Z)", re.S | re.M)
-    if pattern.search(old):
-        new = pattern.sub(lambda _m: text.rstrip("\n") + "\n\n", old, count=1)
+    m = pattern.search(old)
+    if m:
+        notes = NOTES.findall(m.group(0))
+        body = text.rstrip("\n") + "\n\n" + "".join(n + "\n" for n in notes)
+        rest = old[m.end():]
+        new = old[:m.start()] + body.rstrip("\n") + ("\n\n" + rest if rest else "\n")
     else:
         new = old.rstrip("\n") + "\n\n" + text.rstrip("\n") + "\n"
     atomic_write_bytes(path, new.encode("utf-8"))
