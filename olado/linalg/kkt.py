@@ -397,7 +397,7 @@ class GmresKKT(_IterativeKKT):
     def _factorize(self):
         # the stage ordering keeps the factor banded; when dropping leaves a zero pivot (the zero
         # dual block of (25) and the interior-point diagonal terms: "Factor is exactly singular"
-        # on 6 of 70 factorizations of the SQP on zambezi12 N = 36, 3 of the first 8 QPs at
+        # on 5 of 65 factorizations of the SQP on zambezi12 N = 36, 3 of the first 8 QPs at
         # N = 120), a fill-reducing column ordering with 100 times less dropping, and last the
         # complete LU (cheap for a banded matrix; GMRES then converges at once)
         self.ilu_fallback = 0
