@@ -2052,8 +2052,7 @@ class InteriorPointQP:
                     and all(h["regularization"] <= opts.regularization for h in history)):
                 status = Status.NUMERICAL_ERROR
                 message = (f"{status.sentence} The iterates {_CRAWLED} ({_CRAWL_W} successive steps shorter than "
-                           f"{_CRAWL_A:g}; "
-                           f"scaled primal {pr / scales[0]:.3g}, dual {du / scales[1]:.3g}, gap "
+                           f"{_CRAWL_A:g}; scaled primal {pr / scales[0]:.3g}, dual {du / scales[1]:.3g}, gap "
                            f"{gap / (1.0 + abs(obj)):.3g}).")
                 break
             if k >= max_iter:

@@ -101,12 +101,10 @@ def _apply_qp_options(qp_solver, qp_name, qp_options):
     opts = qp_solver.options
     known = {f.name for f in dataclasses.fields(opts)}
     for key, value in qp_options.items():
-        if key in known:
-            setattr(opts, key, validate_value(type(opts), key, value, section="sqp.raw (qp_options)"))
-        elif qp_name not in INTERIOR_POINT_QP:
+        if key not in known and qp_name not in INTERIOR_POINT_QP:
             opts.backend_options = {**opts.backend_options, key: value}
-        else:
-            validate_value(type(opts), key, value, section="sqp.raw (qp_options)")   # raises: unknown option
+        else:   # validate_value also names an unknown key and the allowed ones
+            setattr(opts, key, validate_value(type(opts), key, value, section="sqp.raw (qp_options)"))
 
 
 def convex_step_qp(problem, shift=1e-4, U=None):
