@@ -26,7 +26,7 @@ sys.path.insert(0, str(HERE.parent))
 from _common import machine, write_section  # noqa: E402
 
 from olado.problems.zambezi import table1_counts, zambezi_problem  # noqa: E402
-from olado.solvers.ipopt import IpoptSolver  # noqa: E402
+from olado.solvers.nlp.ipopt import IpoptSolver  # noqa: E402
 
 SECTION = "IPOPT on zambezi12 (Table 1 horizons)"
 

@@ -18,9 +18,9 @@ from _common import HERE, machine, write_section
 sys.path.insert(0, str(HERE.parent / "tests"))
 
 import olado  # noqa: E402
-import olado.solvers.pdmin  # noqa: E402,F401  (registers "pdmin")
+import olado.solvers.control.pdmin  # noqa: E402,F401  (registers "pdmin")
 from olado.problems.testproblems import PROBLEMS as BUILTIN  # noqa: E402
-from olado.solvers.pdmin import DIRECTIONS, PDMINSolver  # noqa: E402
+from olado.solvers.control.pdmin import DIRECTIONS, PDMINSolver  # noqa: E402
 from pdmin_problems import double_tracking, scalar_tracking  # noqa: E402
 
 SECTION = "PDMIN at N = 100 000"

@@ -1,7 +1,7 @@
 """QP subproblem: the interior-point Riccati QP against OSQP and Clarabel.
 
 The QP is the Zambezi QP subproblem (14) of the first SQP step at the balance start, built as
-tests/test_qp_ip.py builds it: A, B from the dynamics Jacobians, the Hessian blocks of the stage
+tests/qp/test_interior_point.py builds it: A, B from the dynamics Jacobians, the Hessian blocks of the stage
 costs (zero multipliers) shifted per stage to be positive definite (most negative eigenvalue +
 1e-4), bounds shifted to the step. n = 6, m = 7, two-sided bounds on every control and on 4 of
 the 6 states. N = 252 is zambezi12; larger N use the 'zambezi' family (any multiple of 12,
@@ -9,16 +9,16 @@ inflows repeated cyclically).
 
 Side by side in one run, on the same QP:
 
-- Mehrotra and Gondzio (olado.solvers.qp_ip, KKT back-end Riccati, default tol 1e-8);
-- OSQP and Clarabel through olado.solvers.qp_external.ExternalQP (sparse form; OSQP eps_abs =
+- Mehrotra and Gondzio (olado.qp.interior_point, KKT back-end Riccati, default tol 1e-8);
+- OSQP and Clarabel through olado.qp.external.ExternalQP (sparse form; OSQP eps_abs =
   eps_rel = 1e-7 with polishing, Clarabel gap and feasibility tolerances 1e-8 -- the accuracy
   of the default interior-point tolerance, checked by the KKT residuals in the table);
 
 each solve timed as the best of several repeats after a warm-up solve (numba compilation,
-imports). Every result's KKT residuals come from olado.linalg.stageqp.qp_kkt_residuals
+imports). Every result's KKT residuals come from olado.qp.stageqp.qp_kkt_residuals
 (max-norms of stationarity, primal infeasibility, complementarity), so the accuracy is measured
 the same way for all solvers. ``--before REV`` also times the interior-point methods of
-olado/solvers/qp_ip.py as of git revision REV (loaded from ``git show``), for a before/after
+olado/qp/interior_point.py as of git revision REV (loaded from ``git show``), for a before/after
 per-iteration table.
 
     python benchmarks/bench_qp.py                          # N = 1200, 12000; print the tables
@@ -37,8 +37,8 @@ import time
 import numpy as np
 from _common import HERE, RESULTS, machine, write_section
 
-from olado.solvers import qp_ip  # noqa: E402
-from olado.solvers.qp_external import ExternalQP, available_qp_backends  # noqa: E402
+from olado.qp import interior_point as qp_ip  # noqa: E402
+from olado.qp.external import ExternalQP, available_qp_backends  # noqa: E402
 
 SECTION = "QP subproblem: interior-point Riccati QP vs OSQP and Clarabel"
 
@@ -46,14 +46,14 @@ SECTION = "QP subproblem: interior-point Riccati QP vs OSQP and Clarabel"
 def zambezi_qp(N, shift=1e-4):
     """The Zambezi step QP at the balance start (olado.solvers.sqp.convex_step_qp)."""
     from olado.problems.zambezi import zambezi_problem
-    from olado.solvers.sqp import convex_step_qp
+    from olado.solvers.sqp.solver import convex_step_qp
 
     return convex_step_qp(zambezi_problem("zambezi12" if N <= 252 else "zambezi", N=N, extend="cyclic"), shift=shift)
 
 
 def load_revision(rev):
-    """olado/solvers/qp_ip.py as of git revision ``rev``, imported as a sibling module."""
-    src = subprocess.run(["git", "show", f"{rev}:olado/solvers/qp_ip.py"], cwd=HERE.parent, check=True,
+    """olado/qp/interior_point.py as of git revision ``rev``, imported as a sibling module."""
+    src = subprocess.run(["git", "show", f"{rev}:olado/qp/interior_point.py"], cwd=HERE.parent, check=True,
                          capture_output=True, text=True).stdout
     path = HERE / f".qp_ip_{rev}.py"
     path.write_text(src, encoding="utf-8")
@@ -167,7 +167,7 @@ Date: {datetime.date.today().isoformat()}
 Machine: {machine(with_ipopt=False)}; {versions}
 
 The Zambezi QP subproblem (first SQP step at the balance start, stage Hessians shifted to be
-positive definite, as in tests/test_qp_ip.py; n = 6, m = 7, 14 control and 8 state bounds per
+positive definite, as in tests/qp/test_interior_point.py; n = 6, m = 7, 14 control and 8 state bounds per
 stage), N = 252 from zambezi12, larger N from the 'zambezi' family (cyclic inflows). Mehrotra and
 Gondzio are olado's interior-point QP methods with the Riccati KKT back-end at the default
 tol = 1e-8; OSQP (eps 1e-7, polishing) and Clarabel (tolerances 1e-8) solve the sparse form through

@@ -19,7 +19,7 @@ from _common import HERE, machine, write_section
 
 import olado  # noqa: E402
 from olado.problems.testproblems import PROBLEMS  # noqa: E402
-from olado.solvers.control_space import ReducedProblem  # noqa: E402
+from olado.solvers.control.control_space import ReducedProblem  # noqa: E402
 
 SECTION1 = "Unconstrained methods at N = 1 000 and N = 100 000"
 SECTION2 = "Time per iteration vs N (gradient, DDP, PDMIN)"

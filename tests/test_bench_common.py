@@ -1,9 +1,10 @@
 """benchmarks/_common.write_section: sections replaced atomically, hand-written notes kept."""
 
 import sys
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+from fixtures import REPO
+
+sys.path.insert(0, str(REPO / "benchmarks"))
 
 from _common import write_section  # noqa: E402
 

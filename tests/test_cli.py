@@ -10,8 +10,8 @@ import pytest
 
 from olado.cli import main
 from olado.solvers import registry
+from fixtures import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 
 
 def ipopt_available():

@@ -12,8 +12,8 @@ from olado.config import (SolverConfig, config_from_kwargs, default_solver_name,
 from olado.errors import ConfigError
 from olado.solvers import registry
 from olado.solvers.base import Solver, SolverOptions, option
+from fixtures import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 
 
 # ---------------------------------------------------------------------------- a test solver

@@ -3,7 +3,7 @@ container, the Riccati LQ-DOCP solver and the general sparse KKT back-ends."""
 
 from .kkt import KKT_SOLVERS, KKTSolveError, make_kkt_solver
 from .riccati import LQSolution, NotPositiveDefiniteError, RiccatiFactorization, solve_lq_docp
-from .stageqp import QPResult, StageQP, qp_kkt_residuals
+
 
 __all__ = ["KKT_SOLVERS", "KKTSolveError", "make_kkt_solver", "LQSolution", "NotPositiveDefiniteError",
            "RiccatiFactorization", "solve_lq_docp", "QPResult", "StageQP", "qp_kkt_residuals"]

@@ -28,4 +28,6 @@ def available_solvers() -> dict:
 
 def _load_builtin():
     # Importing the modules registers their solvers.
-    from . import ddp, ipopt, pdmin, penalty, reduced_gradient, scipy_nlp, sqp  # noqa: F401
+    from .control import ddp, pdmin, penalty, reduced_gradient  # noqa: F401
+    from .nlp import ipopt, scipy_nlp  # noqa: F401
+    from .sqp import solver  # noqa: F401
