@@ -1,2 +1,46 @@
 """The QP layer: the stage-structured QP (paper 001 sec. 4.2.2), olado's interior-point QP methods
-whose Newton steps are KKT back-end solves, and adapters to external QP solvers."""
+whose Newton steps are KKT back-end solves, and adapters to external QP solvers.
+
+``QP_METHODS`` is the one table of QP methods: olado's interior-point methods (classes, loaded on
+first use) and the external qpsolvers back-ends (:class:`~olado.qp.external.ExternalQP` with that
+back-end). :func:`make_qp_solver` builds either by name.
+"""
+
+from __future__ import annotations
+
+from .._registry import LazyRegistry
+
+#: olado's interior-point QP methods: name -> class (lazy)
+INTERIOR_POINT_METHODS = LazyRegistry("QP method", {
+    "mehrotra": "olado.qp.interior_point:MehrotraQP",
+    "gondzio": "olado.qp.interior_point:GondzioQP",
+    "weighted": "olado.qp.interior_point:WeightedCorrectorQP",
+}, key="qp")
+#: external QP solvers reached through qpsolvers (olado.qp.external)
+EXTERNAL_METHODS = ("osqp", "clarabel", "piqp", "proxqp", "highs", "quadprog", "cvxopt")
+#: every QP method name accepted by ``make_qp_solver`` (and the SQP's ``qp`` option)
+QP_METHODS = (*INTERIOR_POINT_METHODS, *EXTERNAL_METHODS)
+
+
+def make_qp_solver(name="mehrotra", options=None, *, kkt=None, tol=None, max_iter=None, **overrides):
+    """QP method by name: olado's interior-point methods (Newton steps by the KKT back-end
+    ``kkt``) or an external qpsolvers back-end (OSQP, Clarabel, ...). ``options`` (an options
+    object) and ``overrides`` are validated like every option; ``kkt``, ``tol`` and ``max_iter``
+    left at None keep the method's defaults. An external back-end ignores ``kkt`` and ``tol``
+    (its own tolerances are set through ``overrides``); OSQP, a first-order method, gets
+    ``max(100 max_iter, 50 000)`` iterations."""
+    if name in INTERIOR_POINT_METHODS:
+        given = {k: v for k, v in (("kkt", kkt), ("tol", tol), ("max_iter", max_iter)) if v is not None}
+        return INTERIOR_POINT_METHODS[name](options, **given, **overrides)
+    if name not in EXTERNAL_METHODS:
+        from ..errors import ConfigError
+
+        raise ConfigError(f"unknown QP method {name!r}", key="qp", allowed=", ".join(QP_METHODS))
+    from .external import ExternalQP
+
+    if name == "osqp":
+        overrides.setdefault("max_iter", max(100 * (200 if max_iter is None else max_iter), 50_000))
+    return ExternalQP(backend=name, options=options, **overrides)
+
+
+__all__ = ["QP_METHODS", "INTERIOR_POINT_METHODS", "EXTERNAL_METHODS", "make_qp_solver"]

@@ -66,6 +66,7 @@ import time
 
 import numpy as np
 
+from ...qp import INTERIOR_POINT_METHODS, QP_METHODS, make_qp_solver
 from ...qp.stageqp import StageQP
 from ...result import Status
 from ..common import EVALUATION_KINDS, Deadline, build_result, make_nlp
@@ -73,23 +74,7 @@ from ..base import Solver, SolverOptions, option
 from .hessian import make_hessian
 from ..registry import register
 
-QP_METHODS = ("mehrotra", "gondzio", "weighted", "osqp", "clarabel", "piqp", "proxqp", "highs", "quadprog", "cvxopt")
-INTERIOR_POINT_QP = ("mehrotra", "gondzio", "weighted")
 KKT_SOLVERS = ("riccati", "superlu-full", "superlu-reduced", "minres", "gmres")
-
-
-def make_qp_solver(name, kkt="riccati", tol=1e-10, max_iter=200):
-    """QP method by name: olado's interior-point methods (the KKT systems solved by ``kkt``) or
-    an external qpsolvers backend (OSQP, Clarabel, ...)."""
-    if name in INTERIOR_POINT_QP:
-        from ...qp.interior_point import make_qp_solver as make_ip
-
-        return make_ip(name, kkt=kkt, tol=tol, max_iter=max_iter)
-    from ...qp.external import ExternalQP
-
-    if name == "osqp":   # first-order method: its default iteration limit is far too low here
-        return ExternalQP(backend=name, max_iter=max(100 * max_iter, 50_000))
-    return ExternalQP(backend=name)
 
 
 def _apply_qp_options(qp_solver, qp_name, qp_options):
@@ -101,7 +86,7 @@ def _apply_qp_options(qp_solver, qp_name, qp_options):
     opts = qp_solver.options
     known = {f.name for f in dataclasses.fields(opts)}
     for key, value in qp_options.items():
-        if key not in known and qp_name not in INTERIOR_POINT_QP:
+        if key not in known and qp_name not in INTERIOR_POINT_METHODS:
             opts.backend_options = {**opts.backend_options, key: value}
         else:   # validate_value also names an unknown key and the allowed ones
             setattr(opts, key, validate_value(type(opts), key, value, section="sqp.raw (qp_options)"))
@@ -309,7 +294,7 @@ class SQPSolver(Solver):
         eq, ineq = p.stage_equality_mask, ~p.stage_equality_mask
         eqN, ineqN = p.final_equality_mask, ~p.final_equality_mask
         qp_solver = make_qp_solver(o.qp, kkt=o.kkt, tol=o.qp_tol, max_iter=o.qp_max_iter)
-        interior = o.qp in INTERIOR_POINT_QP
+        interior = o.qp in INTERIOR_POINT_METHODS
         if interior:
             qp_solver.options.warm_start_push = o.qp_warm_start_push
         _apply_qp_options(qp_solver, o.qp, o.qp_options)

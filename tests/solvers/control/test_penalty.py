@@ -16,7 +16,6 @@ from olado.errors import ConfigError
 from olado.problems import PROBLEMS, check_derivatives
 from olado.result import Status
 from olado.solvers.control.penalty import PenalizedProblem, PenaltySolver, solve_lbfgsb
-from olado.solvers.registry import SOLVERS
 
 from fixtures.toy_problems import Pendulum, PendulumVectorized
 from fixtures import REPO

@@ -446,7 +446,8 @@ def test_qp_options_from_the_raw_section_are_checked_and_applied(tmp_path):
     other key goes to the backend unchanged (backend_options)."""
     from olado.config import load_config, make_solver
     from olado.errors import ConfigError
-    from olado.solvers.sqp.solver import _apply_qp_options, make_qp_solver
+    from olado.qp import make_qp_solver
+    from olado.solvers.sqp.solver import _apply_qp_options
 
     ini = tmp_path / "s.ini"
     ini.write_text("[solver]\nname = sqp\n[sqp]\nqp = mehrotra\n[sqp.raw]\ninitial_mu = 10\nstall_restart_mu = 1.0\n")
