@@ -75,7 +75,7 @@ import time
 import numba as nb
 import numpy as np
 
-from ...errors import ProblemDefinitionError
+from ...errors import NonFiniteEvaluationError
 from ...linalg.riccati import _chol_inplace, _chol_solve_vec
 from ...result import Result, Status
 from ..base import Solver, SolverOptions, option
@@ -341,13 +341,9 @@ def _rollout(problem, Xbar, Ubar, kff, Kfb, alpha):
                 X[k + 1] = dyn(k, X[k], U[k])
     if not (np.isfinite(X).all() and np.isfinite(U).all()):
         bad = int(np.argwhere(~np.isfinite(X).all(axis=1))[0, 0]) - 1 if not np.isfinite(X).all() else 0
-        raise ProblemDefinitionError("non-finite value in the closed-loop rollout", function="dynamics",
-                                     stage=max(bad, 0), array="x_next")
+        raise NonFiniteEvaluationError("non-finite value in the closed-loop rollout", function="dynamics",
+                                       stage=max(bad, 0), array="x_next")
     return X, U
-
-
-def _is_nonfinite(exc):
-    return isinstance(exc, ProblemDefinitionError) and "non-finite" in str(exc)
 
 
 def stagewise_newton_step(problem, U, shift=0.0, regularization="control"):
@@ -472,9 +468,7 @@ class _DynamicProgrammingSolver(Solver):
                 break
             try:
                 Hxx, Hxu, Huu, Txx, Txu, Tuu, use_t, HN = _second_derivatives(p, d, self.method, second_order)
-            except ProblemDefinitionError as exc:
-                if not _is_nonfinite(exc):
-                    raise
+            except NonFiniteEvaluationError as exc:
                 status, message = Status.NUMERICAL_ERROR, f"non-finite second derivatives at iteration {it}: {exc}"
                 break
             # ---------------------------------------------------------- backward pass + line search
@@ -508,9 +502,7 @@ class _DynamicProgrammingSolver(Solver):
                         else:
                             Xn, Un = _rollout(p, X, U, kff, Kfb, alpha)
                         Jn = p.objective(Xn, Un)
-                    except ProblemDefinitionError as exc:
-                        if not _is_nonfinite(exc):
-                            raise
+                    except NonFiniteEvaluationError:
                         Jn = math.inf
                     dV = alpha * d1 + 0.5 * alpha * alpha * d2
                     if last_step or (math.isfinite(Jn) and Jn - J <= o.armijo * dV):
@@ -540,9 +532,7 @@ class _DynamicProgrammingSolver(Solver):
             X, U, J = Xn, Un, Jn
             try:
                 d = _Derivatives(p, X, U)
-            except ProblemDefinitionError as exc:
-                if not _is_nonfinite(exc):
-                    raise
+            except NonFiniteEvaluationError as exc:
                 status, message = Status.NUMERICAL_ERROR, f"non-finite derivatives after iteration {it + 1}: {exc}"
                 X, U, J, d = d_old.X, d_old.U, J_old, d_old
                 break

@@ -56,7 +56,8 @@ import time
 import numpy as np
 
 from ...result import Result, Status
-from ..common import MULTIPLIER_CONVENTION, is_nonfinite_error
+from ...errors import NonFiniteEvaluationError
+from ..common import MULTIPLIER_CONVENTION
 from ..base import Solver, SolverOptions, option
 from .control_space import ReducedProblem, unsupported_features
 from ..registry import register
@@ -156,9 +157,7 @@ class PDMINSolver(Solver):
 
         try:
             J, g, X, costate = gradient(U)
-        except Exception as exc:
-            if not is_nonfinite_error(exc):
-                raise
+        except NonFiniteEvaluationError as exc:
             X = np.full((p.N + 1, p.n), np.nan)
             return self._result(p, Status.INVALID_PROBLEM, f"the problem cannot be evaluated at the initial "
                                 f"controls (clipped into their bounds): {exc}", X, U, None, None, float("nan"),
@@ -252,9 +251,7 @@ class PDMINSolver(Solver):
                 pred = alpha * slope + _dot(gA, s)          # <= 0
                 try:
                     Jt, Xt = value(Ut)
-                except Exception as exc:
-                    if not is_nonfinite_error(exc):
-                        raise
+                except NonFiniteEvaluationError:
                     Jt, Xt = math.inf, None
                 dJ = Jt - J
                 if n_trials == 1:
@@ -334,9 +331,7 @@ class PDMINSolver(Solver):
             Ua = np.clip(U + a * d, lo, hi)
             try:
                 Ja, Xa = value(Ua)
-            except Exception as exc:
-                if not is_nonfinite_error(exc):
-                    raise
+            except NonFiniteEvaluationError:
                 return math.inf, None, None
             return Ja, Ua, Xa
 
@@ -394,9 +389,7 @@ class PDMINSolver(Solver):
             Us = np.clip(U + a_s * d, lo, hi)
             try:
                 Js, gs, Xs, cs = gradient(Us)
-            except Exception as exc:
-                if not is_nonfinite_error(exc):
-                    raise
+            except NonFiniteEvaluationError:
                 break
             extra += 1
             better = Js < Jt - noise or (abs(Js - Jt) <= noise and 0.5 * _dot(gt + gs, Us - Ut) < 0)

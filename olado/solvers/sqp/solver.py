@@ -66,6 +66,7 @@ import time
 
 import numpy as np
 
+from ...errors import NonFiniteEvaluationError
 from ...qp import INTERIOR_POINT_METHODS, QP_METHODS, make_qp_solver
 from ...qp.stageqp import StageQP
 from ...result import Status
@@ -850,11 +851,7 @@ class SQPSolver(Solver):
             try:
                 cand = _Point(p, X, U, derivatives=False, clock=pt.clock)
                 phi = merit(cand)
-            except Exception as exc:  # non-finite values at the trial point: shorten the step
-                from ..common import is_nonfinite_error
-
-                if not is_nonfinite_error(exc):
-                    raise
+            except NonFiniteEvaluationError:  # non-finite values at the trial point: shorten the step
                 phi = math.inf
                 cand = None
             if cand is not None and phi <= phi0 + o.armijo * alpha * D + noise:
@@ -867,11 +864,8 @@ class SQPSolver(Solver):
                         ccand = _Point(p, pt.X + corr[0], pt.U + corr[1], derivatives=False, clock=pt.clock)
                         if merit(ccand) <= phi0 + o.armijo * D + noise:
                             return 1.0, ccand, trials, "soc"
-                    except Exception as exc:  # non-finite values at the corrected point
-                        from ..common import is_nonfinite_error
-
-                        if not is_nonfinite_error(exc):
-                            raise
+                    except NonFiniteEvaluationError:  # non-finite values at the corrected point
+                        pass
             if alpha == 1.0 and cand is not None and o.watchdog and watch is None and relaxed_ok and math.isfinite(phi):
                 return alpha, cand, trials, "relaxed"
             if watch is not None and alpha == 1.0 and cand is not None and math.isfinite(phi) and not watch.get("expired"):
