@@ -1,8 +1,10 @@
-"""The small error hierarchy of olado (ARCHITECTURE.md, "Conventions").
+"""The small error hierarchy of olado (docs/architecture.md, "Conventions").
 
 Non-convergence is never an exception: it is a :class:`olado.result.Status`. Exceptions are for
 input that cannot be used (a bad config value, a problem function returning a wrong shape) and
-for missing optional components.
+for missing optional components. One of them is also a signal between a problem and a solver:
+:class:`NonFiniteEvaluationError`, a NaN or inf where a finite value is needed, which a solver's
+line search treats as "step too long" (solvers catch it by type).
 """
 
 from __future__ import annotations
@@ -48,6 +50,16 @@ class ProblemDefinitionError(OladoError, ValueError):
             where.append(f"array '{array}'")
         text = message if not where else ", ".join(where) + ": " + message
         super().__init__(text)
+
+
+class NonFiniteEvaluationError(ProblemDefinitionError):
+    """A problem function returned, or an array passed to the problem held, a NaN or inf value.
+
+    Raised by the problem's array validation (:meth:`olado.problems.docp.DOCP.check_array` and
+    its all-stages counterpart) and by DDP's closed-loop rollout; ``function``, ``stage`` and
+    ``array`` name where. At a trial point of a line search it is an evaluation failure the
+    solver recovers from (a shorter step); at the initial point it makes the problem unusable.
+    Solvers catch it by type, never by message text."""
 
 
 class SolverError(OladoError, RuntimeError):

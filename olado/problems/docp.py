@@ -14,7 +14,9 @@ Derivatives come from the problem's analytic methods when it overrides them, oth
 finite differences (forward, backward or central). Solvers use only the ``eval_*`` methods,
 which always work on all stages at once, validate every array a user function returns (shape,
 finiteness) and raise :class:`~olado.errors.ProblemDefinitionError` naming the function, the stage
-and the array when something is wrong.
+and the array when something is wrong -- for a NaN or inf its subclass
+:class:`~olado.errors.NonFiniteEvaluationError`, which the solvers catch by type (at a trial point
+of a line search it means "step too long").
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from collections import Counter
 
 import numpy as np
 
-from ..errors import ProblemDefinitionError
+from ..errors import NonFiniteEvaluationError, ProblemDefinitionError
 
 _EPS = np.finfo(float).eps
 
@@ -229,7 +231,8 @@ class DOCP:
 
     # ======================================================================== validation
     def check_array(self, value, shape, function, array, stage=None):
-        """Return ``value`` as a float array of ``shape``; ProblemDefinitionError otherwise."""
+        """Return ``value`` as a float array of ``shape``; ProblemDefinitionError otherwise
+        (NonFiniteEvaluationError for a NaN or inf entry)."""
         if type(value) is np.ndarray and value.dtype == np.float64:
             arr = value
         else:
@@ -247,8 +250,8 @@ class DOCP:
             where = stage
             if stage is None and arr.ndim >= 1 and len(shape) >= 2:
                 where = int(bad[0])
-            raise ProblemDefinitionError(f"non-finite value {arr[tuple(bad)]} at index {tuple(int(b) for b in bad)}",
-                                         function=function, stage=where, array=array)
+            raise NonFiniteEvaluationError(f"non-finite value {arr[tuple(bad)]} at index {tuple(int(b) for b in bad)}",
+                                           function=function, stage=where, array=array)
         return arr
 
     def _check_stacked(self, value, shape, function, array, stage0=0):
@@ -265,8 +268,8 @@ class DOCP:
         if not _all_finite(arr):
             finite = np.isfinite(arr)
             bad = np.argwhere(~finite)[0]
-            raise ProblemDefinitionError(f"non-finite value {arr[tuple(bad)]} at entry {tuple(int(b) for b in bad[1:])}",
-                                         function=function, stage=stage0 + int(bad[0]), array=array)
+            raise NonFiniteEvaluationError(f"non-finite value {arr[tuple(bad)]} at entry {tuple(int(b) for b in bad[1:])}",
+                                           function=function, stage=stage0 + int(bad[0]), array=array)
         return arr
 
     def _overrides(self, name):

@@ -262,31 +262,36 @@ class StructuredNLP:
         }
 
     def counts(self) -> dict:
-        """Problem size counted as in paper 001 Table 1.
+        """Problem size counted as in paper 001 Table 1 (:func:`nlp_counts`)."""
+        return nlp_counts(self.problem)
 
-        variables    m_y = N(n+m) + n
-        equalities   the N n state equations, the n fixed initial states, and the equality
-                     components of g^k and g^N
-        inequalities every finite simple bound of eqs. (4)-(5) -- for k = 0..N on states, as eq.
-                     (4) is written, and k = 0..N-1 on controls -- plus the inequality components
-                     of g^k and g^N.
-        """
-        p = self.problem
-        n_bx = int(np.isfinite(p.x_lower).sum() + np.isfinite(p.x_upper).sum())
-        n_bu = int(np.isfinite(p.u_lower).sum() + np.isfinite(p.u_upper).sum())
-        eq_stage = int(p.stage_equality_mask.sum()) * self.N
-        eq_final = int(p.final_equality_mask.sum())
-        ineq_stage = (self.r - int(p.stage_equality_mask.sum())) * self.N
-        ineq_final = self.rN - eq_final
-        return {
-            "N": self.N,
-            "variables": self.n_vars,
-            "equalities": self.n_dyn + self.n + eq_stage + eq_final,
-            "inequalities": n_bx + n_bu + ineq_stage + ineq_final,
-            "breakdown": {
-                "state_equations": self.n_dyn, "fixed_initial_states": self.n,
-                "equality_constraints": eq_stage + eq_final,
-                "state_bounds": n_bx, "control_bounds": n_bu,
-                "inequality_constraints": ineq_stage + ineq_final,
-            },
-        }
+
+def nlp_counts(p) -> dict:
+    """Size of the NLP view (6) of the DOCP ``p``, counted as in paper 001 Table 1.
+
+    variables    m_y = N(n+m) + n
+    equalities   the N n state equations, the n fixed initial states, and the equality
+                 components of g^k and g^N
+    inequalities every finite simple bound of eqs. (4)-(5) -- for k = 0..N on states, as eq.
+                 (4) is written, and k = 0..N-1 on controls -- plus the inequality components
+                 of g^k and g^N.
+    """
+    N, n_dyn, n_vars = p.N, p.N * p.n, p.N * (p.n + p.m) + p.n
+    n_bx = int(np.isfinite(p.x_lower).sum() + np.isfinite(p.x_upper).sum())
+    n_bu = int(np.isfinite(p.u_lower).sum() + np.isfinite(p.u_upper).sum())
+    eq_stage = int(p.stage_equality_mask.sum()) * N
+    eq_final = int(p.final_equality_mask.sum())
+    ineq_stage = (p.r - int(p.stage_equality_mask.sum())) * N
+    ineq_final = p.rN - eq_final
+    return {
+        "N": N,
+        "variables": n_vars,
+        "equalities": n_dyn + p.n + eq_stage + eq_final,
+        "inequalities": n_bx + n_bu + ineq_stage + ineq_final,
+        "breakdown": {
+            "state_equations": n_dyn, "fixed_initial_states": p.n,
+            "equality_constraints": eq_stage + eq_final,
+            "state_bounds": n_bx, "control_bounds": n_bu,
+            "inequality_constraints": ineq_stage + ineq_final,
+        },
+    }

@@ -48,12 +48,6 @@ def make_nlp(problem):
     return StructuredNLP(problem)
 
 
-def is_nonfinite_error(exc) -> bool:
-    """True for a ProblemDefinitionError about a non-finite value (an evaluation failure at a
-    trial point, which a line search can recover from), False for a definition bug."""
-    return isinstance(exc, ProblemDefinitionError) and "non-finite" in str(exc)
-
-
 class TimedNLP:
     """Counts and times the evaluations of a StructuredNLP.
 

@@ -64,6 +64,12 @@ NUMERICAL_ERROR when mu exceeds ``shift_max``.
 Cost per iteration O(N): the stage derivatives of all stages at once, the compiled backward and
 linear forward sweeps. The DDP rollout calls the per-stage dynamics once per stage in sequence,
 as :meth:`DOCP.simulate` does (the closed-loop control depends on the state just computed).
+
+Code: an iteration is the phases ``_stopped``, the second derivatives, ``_step`` (backward
+passes with the shift raised until the line search ``_line_search`` succeeds) and ``_advance``
+of :class:`_DynamicProgrammingSolver` over the solve's
+:class:`~olado.solvers.control.ddp_state.DPState` (with its :class:`ShiftSchedule`); the solver
+holds only options.
 """
 
 from __future__ import annotations
@@ -75,7 +81,8 @@ import time
 import numba as nb
 import numpy as np
 
-from ...errors import ProblemDefinitionError
+from ...errors import NonFiniteEvaluationError
+from .ddp_state import Accepted, DPState, ShiftSchedule, Sweeps
 from ...linalg.riccati import _chol_inplace, _chol_solve_vec
 from ...result import Result, Status
 from ..base import Solver, SolverOptions, option
@@ -341,13 +348,9 @@ def _rollout(problem, Xbar, Ubar, kff, Kfb, alpha):
                 X[k + 1] = dyn(k, X[k], U[k])
     if not (np.isfinite(X).all() and np.isfinite(U).all()):
         bad = int(np.argwhere(~np.isfinite(X).all(axis=1))[0, 0]) - 1 if not np.isfinite(X).all() else 0
-        raise ProblemDefinitionError("non-finite value in the closed-loop rollout", function="dynamics",
-                                     stage=max(bad, 0), array="x_next")
+        raise NonFiniteEvaluationError("non-finite value in the closed-loop rollout", function="dynamics",
+                                       stage=max(bad, 0), array="x_next")
     return X, U
-
-
-def _is_nonfinite(exc):
-    return isinstance(exc, ProblemDefinitionError) and "non-finite" in str(exc)
 
 
 def stagewise_newton_step(problem, U, shift=0.0, regularization="control"):
@@ -411,7 +414,8 @@ class StagewiseNewtonOptions(_DPOptions):
 
 # ============================================================================ solvers
 class _DynamicProgrammingSolver(Solver):
-    """Shared iteration of DDP and the stagewise Newton method (module docstring)."""
+    """Shared iteration of DDP and the stagewise Newton method (module docstring): phases over
+    the solve's DPState (the solver holds only options)."""
 
     method = ""
 
@@ -419,7 +423,6 @@ class _DynamicProgrammingSolver(Solver):
         o = self.options
         p = problem
         t_start = time.perf_counter()
-        N, n, m = p.N, p.n, p.m
         bad = unsupported_features(p)
         if bad:
             return Result(status=Status.INVALID_PROBLEM,
@@ -428,155 +431,141 @@ class _DynamicProgrammingSolver(Solver):
                                    "(general constraints and state bounds), or 'sqp' / 'ipopt'."),
                           objective=float("nan"), x=np.array(X0, dtype=float), u=np.array(U0, dtype=float),
                           info={"method": self.method, "unsupported": bad})
-        second_order = bool(getattr(o, "second_order_dynamics", True))
-        state_reg = o.regularization == "state"
         U = np.array(U0, dtype=float)
         X = p.simulate(U)
         J = p.objective(X, U)
-        d = _Derivatives(p, X, U)
-        mu = float(o.shift_init)
-        delta = 1.0
-        kff = np.empty((N, m)); Kfb = np.empty((N, m, n)); Vx = np.empty((N + 1, n)); Vxx = np.empty((N + 1, n, n))
-        dU = np.empty((N, m)); dX = np.empty((N + 1, n))
-        history = []
-        it = 0
-        n_backward = n_trials = 0
-        last_step = False
-        status, message = Status.MAX_ITERATIONS, f"maximum number of iterations ({o.max_iter}) reached"
-        name = self.name
-
-        inertia = o.shift_schedule == "inertia"
-        last_shift = 0.0          # inertia schedule: the last nonzero shift that worked
-
-        def raise_shift(mu, delta):
-            if inertia:            # Waechter & Biegler (2006) sec. 3.1, kappa- = 1/3, kappa+ = 8, 100
-                if mu == 0.0:
-                    return (max(o.shift_min, last_shift / 3.0) if last_shift > 0 else max(o.shift_min, 1e-4)), delta
-                return mu * (8.0 if last_shift > 0 else 100.0), delta
-            delta = max(o.shift_factor, delta * o.shift_factor)
-            return max(o.shift_min, mu * delta), delta
-
-        while True:
-            if d.gnorm <= o.tol:
-                status, message = Status.SUCCESS, (f"converged in {it} iterations: reduced gradient norm "
-                                                   f"{d.gnorm:.2e} <= tol {o.tol:g}")
-                break
-            if last_step:
-                status, message = Status.ACCEPTABLE, (f"stopped after {it} iterations: the expected decrease is below "
-                                                      f"decrease_tol (reduced gradient norm {d.gnorm:.2e})")
-                break
-            if it >= o.max_iter:
-                break
-            if math.isfinite(o.max_time) and time.perf_counter() - t_start >= o.max_time:
-                status, message = Status.MAX_TIME, f"time limit of {o.max_time:g} s reached after {it} iterations"
-                break
-            try:
-                Hxx, Hxu, Huu, Txx, Txu, Tuu, use_t, HN = _second_derivatives(p, d, self.method, second_order)
-            except ProblemDefinitionError as exc:
-                if not _is_nonfinite(exc):
-                    raise
-                status, message = Status.NUMERICAL_ERROR, f"non-finite second derivatives at iteration {it}: {exc}"
-                break
-            # ---------------------------------------------------------- backward pass + line search
-            if inertia:
-                mu = 0.0          # the unshifted (Newton) step first
-            shift_used = mu
-            accepted = None
-            passes = 0
-            while accepted is None:
-                fail, d1, d2 = _backward_pass(d.lx, d.lu, d.A, d.B, Hxx, Hxu, Huu, Txx, Txu, Tuu, use_t, d.pN, HN,
-                                              mu, state_reg, kff, Kfb, Vx, Vxx)
-                passes += 1
-                if fail >= 0 or not (math.isfinite(d1) and math.isfinite(d2)):
-                    mu, delta = raise_shift(mu, delta)
-                    if mu > o.shift_max:
-                        break
-                    continue
-                shift_used = mu
-                expected_full = -(d1 + 0.5 * d2)
-                if self.method == "stagewise-newton":
-                    _linear_forward(d.A, d.B, kff, Kfb, dU, dX)
-                if expected_full <= o.decrease_tol * (1.0 + abs(J)):
-                    last_step = True
-                alpha = 1.0
-                while alpha >= o.min_step:
-                    n_trials += 1
-                    try:
-                        if self.method == "stagewise-newton":
-                            Un = U + alpha * dU
-                            Xn = p.simulate(Un)
-                        else:
-                            Xn, Un = _rollout(p, X, U, kff, Kfb, alpha)
-                        Jn = p.objective(Xn, Un)
-                    except ProblemDefinitionError as exc:
-                        if not _is_nonfinite(exc):
-                            raise
-                        Jn = math.inf
-                    dV = alpha * d1 + 0.5 * alpha * alpha * d2
-                    if last_step or (math.isfinite(Jn) and Jn - J <= o.armijo * dV):
-                        accepted = (alpha, Xn, Un, Jn, dV)
-                        break
-                    alpha *= o.backtrack
-                if accepted is None:
-                    last_step = False
-                    mu, delta = raise_shift(mu, delta)
-                    if mu > o.shift_max:
-                        break
-            n_backward += passes
-            if accepted is None:
-                status, message = Status.NUMERICAL_ERROR, (
-                    f"iteration {it}: the shift mu exceeded shift_max={o.shift_max:g} without a positive definite "
-                    f"Q_uu at every stage and a step that decreases J (reduced gradient norm {d.gnorm:.2e})")
-                break
-            alpha, Xn, Un, Jn, dV = accepted
-            # ---------------------------------------------------------- shift decrease (Tassa et al. 2012)
-            if inertia:
-                last_shift = mu if mu > 0 else last_shift
-            else:
-                delta = min(1.0 / o.shift_factor, delta / o.shift_factor)
-                mu = mu * delta if mu * delta >= o.shift_min else 0.0
-            step_norm = float(np.max(np.abs(Un - U), initial=0.0))
-            J_old, d_old = J, d
-            X, U, J = Xn, Un, Jn
-            try:
-                d = _Derivatives(p, X, U)
-            except ProblemDefinitionError as exc:
-                if not _is_nonfinite(exc):
-                    raise
-                status, message = Status.NUMERICAL_ERROR, f"non-finite derivatives after iteration {it + 1}: {exc}"
-                X, U, J, d = d_old.X, d_old.U, J_old, d_old
-                break
-            if last_step and d.gnorm > d_old.gnorm and d.gnorm > o.tol:
-                # the unchecked last step did not help: keep the previous point
-                X, U, J, d = d_old.X, d_old.U, J_old, d_old
-            it += 1
-            rec = {"iter": it, "objective": J, "grad_norm": d.gnorm, "shift": shift_used, "step": alpha,
-                   "expected_decrease": -dV, "actual_decrease": J_old - J, "step_norm": step_norm,
-                   "backward_passes": passes}
-            history.append(rec)
-            if o.verbose >= 2:
-                if it == 1:
-                    print(f"{name}: {p.describe().splitlines()[0]}")
-                    print(f"{'iter':>5} {'objective':>20} {'|grad|':>10} {'shift':>9} {'alpha':>9} "
-                          f"{'exp.decr':>10} {'|du|':>10} {'bp':>3}")
-                print(f"{it:5d} {J:20.12e} {d.gnorm:10.3e} {shift_used:9.2e} {alpha:9.2e} {-dV:10.3e} "
-                      f"{step_norm:10.3e} {passes:3d}")
-            if self._call_callback(dict(rec)):
-                status, message = Status.USER_STOP, f"stopped by the callback after iteration {it}"
-                break
-
+        st = DPState(X=X, U=U, J=J, d=_Derivatives(p, X, U), shift=ShiftSchedule(o), sweeps=Sweeps(p.N, p.n, p.m),
+                      message=f"maximum number of iterations ({o.max_iter}) reached")
+        while not self._iterate(p, st, t_start):
+            pass
         elapsed = time.perf_counter() - t_start
         return Result(
-            status=status, message=message, objective=float(J), x=X, u=U,
-            multipliers={"dynamics": d.costate[1:].copy(), "stage_constraints": np.zeros((N, 0)),
+            status=st.status, message=st.message, objective=float(st.J), x=st.X, u=st.U,
+            multipliers={"dynamics": st.d.costate[1:].copy(), "stage_constraints": np.zeros((p.N, 0)),
                          "final_constraints": np.zeros(0)},
-            max_constraint_violation=0.0, kkt_residual=d.gnorm, iterations=it, history=history,
+            max_constraint_violation=0.0, kkt_residual=st.d.gnorm, iterations=st.it, history=st.history,
             time_s=elapsed,
-            info={"method": self.method, "regularization": o.regularization, "final_shift": mu,
-                  "backward_passes": n_backward, "line_search_trials": n_trials,
+            info={"method": self.method, "regularization": o.regularization, "final_shift": st.shift.mu,
+                  "backward_passes": st.n_backward, "line_search_trials": st.n_trials,
                   "kkt_residual_kind": "max-norm of the reduced gradient dJ/du from the adjoint recursion "
                                        "(= NLP stationarity with the costates as dynamics multipliers)"},
         )
+
+    def _iterate(self, p, st, t_start):
+        """One iteration; True when the solve stops."""
+        o = self.options
+        if self._stopped(st, t_start):
+            return True
+        try:
+            H = _second_derivatives(p, st.d, self.method, bool(getattr(o, "second_order_dynamics", True)))
+        except NonFiniteEvaluationError as exc:
+            return st.stop(Status.NUMERICAL_ERROR, f"non-finite second derivatives at iteration {st.it}: {exc}")
+        accepted, passes, shift_used = self._step(p, st, H)
+        st.n_backward += passes
+        if accepted is None:
+            return st.stop(Status.NUMERICAL_ERROR, (
+                f"iteration {st.it}: the shift mu exceeded shift_max={o.shift_max:g} without a positive definite "
+                f"Q_uu at every stage and a step that decreases J (reduced gradient norm {st.d.gnorm:.2e})"))
+        st.shift.decrease()
+        return self._advance(p, st, accepted, passes, shift_used)
+
+    def _stopped(self, st, t_start):
+        """Converged (reduced gradient <= tol), after the last step, or out of iterations / time."""
+        o = self.options
+        if st.d.gnorm <= o.tol:
+            return st.stop(Status.SUCCESS, (f"converged in {st.it} iterations: reduced gradient norm "
+                                            f"{st.d.gnorm:.2e} <= tol {o.tol:g}"))
+        if st.last_step:
+            return st.stop(Status.ACCEPTABLE, (f"stopped after {st.it} iterations: the expected decrease is below "
+                                               f"decrease_tol (reduced gradient norm {st.d.gnorm:.2e})"))
+        if st.it >= o.max_iter:
+            return True
+        if math.isfinite(o.max_time) and time.perf_counter() - t_start >= o.max_time:
+            return st.stop(Status.MAX_TIME, f"time limit of {o.max_time:g} s reached after {st.it} iterations")
+        return False
+
+    def _step(self, p, st, H):
+        """Backward passes with a rising shift until every Q_uu is positive definite and the line
+        search succeeds. Returns (Accepted or None when mu exceeded shift_max, passes, the shift
+        of the last successful backward pass)."""
+        o, d, w = self.options, st.d, st.sweeps
+        Hxx, Hxu, Huu, Txx, Txu, Tuu, use_t, HN = H
+        shift_used = st.shift.start()
+        passes = 0
+        while True:
+            mu = st.shift.mu
+            fail, d1, d2 = _backward_pass(d.lx, d.lu, d.A, d.B, Hxx, Hxu, Huu, Txx, Txu, Tuu, use_t, d.pN, HN,
+                                          mu, o.regularization == "state", w.kff, w.Kfb, w.Vx, w.Vxx)
+            passes += 1
+            if fail >= 0 or not (math.isfinite(d1) and math.isfinite(d2)):
+                if st.shift.raise_():
+                    return None, passes, shift_used
+                continue
+            shift_used = mu
+            if -(d1 + 0.5 * d2) <= o.decrease_tol * (1.0 + abs(st.J)):
+                st.last_step = True
+            if self.method == "stagewise-newton":
+                _linear_forward(d.A, d.B, w.kff, w.Kfb, w.dU, w.dX)
+            accepted = self._line_search(p, st, d1, d2)
+            if accepted is not None:
+                return accepted, passes, shift_used
+            st.last_step = False
+            if st.shift.raise_():
+                return None, passes, shift_used
+
+    def _line_search(self, p, st, d1, d2):
+        """alpha = 1, backtrack, ...: accepted when the change of J is at least armijo times the
+        expected one dV(alpha) (or unchecked, the last step). DDP: the closed-loop rollout;
+        stagewise Newton: J(u + alpha du). A non-finite trial point fails its test."""
+        o, w = self.options, st.sweeps
+        alpha = 1.0
+        while alpha >= o.min_step:
+            st.n_trials += 1
+            try:
+                if self.method == "stagewise-newton":
+                    st.trial_U = st.U + alpha * w.dU
+                    st.trial_X = p.simulate(st.trial_U)
+                else:
+                    st.trial_X, st.trial_U = _rollout(p, st.X, st.U, w.kff, w.Kfb, alpha)
+                Jn = p.objective(st.trial_X, st.trial_U)
+            except NonFiniteEvaluationError:
+                Jn = math.inf
+            dV = alpha * d1 + 0.5 * alpha * alpha * d2
+            if st.last_step or (math.isfinite(Jn) and Jn - st.J <= o.armijo * dV):
+                return Accepted(alpha, st.trial_X, st.trial_U, Jn, dV)
+            alpha *= o.backtrack
+        return None
+
+    def _advance(self, p, st, acc, passes, shift_used):
+        """Move to the accepted point (back to the previous one after an unchecked last step that
+        raised the gradient, or when the derivatives there are not finite); record, log, callback."""
+        o = self.options
+        step_norm = float(np.max(np.abs(acc.U - st.U), initial=0.0))
+        J_old, d_old = st.J, st.d
+        st.X, st.U, st.J = acc.X, acc.U, acc.J
+        try:
+            st.d = _Derivatives(p, st.X, st.U)
+        except NonFiniteEvaluationError as exc:
+            st.X, st.U, st.J, st.d = d_old.X, d_old.U, J_old, d_old
+            return st.stop(Status.NUMERICAL_ERROR, f"non-finite derivatives after iteration {st.it + 1}: {exc}")
+        if st.last_step and st.d.gnorm > d_old.gnorm and st.d.gnorm > o.tol:
+            # the unchecked last step did not help: keep the previous point
+            st.X, st.U, st.J, st.d = d_old.X, d_old.U, J_old, d_old
+        st.it += 1
+        rec = {"iter": st.it, "objective": st.J, "grad_norm": st.d.gnorm, "shift": shift_used, "step": acc.alpha,
+               "expected_decrease": -acc.dV, "actual_decrease": J_old - st.J, "step_norm": step_norm,
+               "backward_passes": passes}
+        st.history.append(rec)
+        if o.verbose >= 2:
+            if st.it == 1:
+                print(f"{self.name}: {p.describe().splitlines()[0]}")
+                print(f"{'iter':>5} {'objective':>20} {'|grad|':>10} {'shift':>9} {'alpha':>9} "
+                      f"{'exp.decr':>10} {'|du|':>10} {'bp':>3}")
+            print(f"{st.it:5d} {st.J:20.12e} {st.d.gnorm:10.3e} {shift_used:9.2e} {acc.alpha:9.2e} {-acc.dV:10.3e} "
+                  f"{step_norm:10.3e} {passes:3d}")
+        if self._call_callback(dict(rec)):
+            return st.stop(Status.USER_STOP, f"stopped by the callback after iteration {st.it}")
+        return False
 
 
 @register

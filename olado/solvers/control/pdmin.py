@@ -45,6 +45,11 @@ multipliers are the costates p^{k+1} of the adjoint recursion.
 
 All work is on (N, m) arrays (no Python loop over the stages); one iteration costs one gradient
 (simulation + adjoint sweep) and usually one extra simulation.
+
+Code: an iteration is the phases ``_measure`` (step 1 and the history record), ``_stop``,
+``_direction`` (2), ``_search`` (3) and ``_update`` of :class:`PDMINSolver` over the solve's
+:class:`~olado.solvers.control.pdmin_steps.State`; the solver holds only options. The state
+types, the arc refinements and the two-loop recursion are in :mod:`olado.solvers.control.pdmin_steps`.
 """
 
 from __future__ import annotations
@@ -56,7 +61,9 @@ import time
 import numpy as np
 
 from ...result import Result, Status
-from ..common import MULTIPLIER_CONVENTION, is_nonfinite_error
+from ...errors import NonFiniteEvaluationError
+from .pdmin_steps import Arc, Direction, Evaluations, Point, State, dot, refine, secant, two_loop
+from ..common import MULTIPLIER_CONVENTION
 from ..base import Solver, SolverOptions, option
 from .control_space import ReducedProblem, unsupported_features
 from ..registry import register
@@ -95,11 +102,6 @@ class PDMINOptions(SolverOptions):
                                     "|phi'(alpha)| <= 0.1 |phi'(0)| (conjugacy needs near-exact line searches)")
 
 
-def _dot(a, b):
-    """a.b over all entries (einsum: no BLAS call, whose threads would compete with the problem's)."""
-    return float(np.einsum("ij,ij->", a, b))
-
-
 def _box_project(U, lo, hi, out=None):
     return np.clip(U, lo, hi, out=out)
 
@@ -127,310 +129,201 @@ class PDMINSolver(Solver):
 
     # ---------------------------------------------------------------------------- solve
     def _solve(self, problem, X0, U0):
-        o = self.options
         p = problem
         t_start = time.perf_counter()
-        lo, hi = p.u_lower, p.u_upper
-        U = _box_project(np.array(U0, dtype=float), lo, hi)
+        U = _box_project(np.array(U0, dtype=float), p.u_lower, p.u_upper)
         why = self.unsupported(p)
         if why:
             X = p.simulate(U)
             return self._result(p, Status.INVALID_PROBLEM, why, X, U, None, None, float("nan"), 0, [], None, t_start)
-
-        rp = ReducedProblem(p)
-        self._eval_time = 0.0
-
-        def gradient(U, X=None):
-            t0 = time.perf_counter()
-            try:
-                return rp.gradient(U, X)
-            finally:
-                self._eval_time += time.perf_counter() - t0
-
-        def value(U):
-            t0 = time.perf_counter()
-            try:
-                return rp.value(U)
-            finally:
-                self._eval_time += time.perf_counter() - t0
-
+        evals = Evaluations(ReducedProblem(p))
         try:
-            J, g, X, costate = gradient(U)
-        except Exception as exc:
-            if not is_nonfinite_error(exc):
-                raise
+            J, g, X, costate = evals.gradient(U)
+        except NonFiniteEvaluationError as exc:
             X = np.full((p.N + 1, p.n), np.nan)
             return self._result(p, Status.INVALID_PROBLEM, f"the problem cannot be evaluated at the initial "
                                 f"controls (clipped into their bounds): {exc}", X, U, None, None, float("nan"),
-                                0, [], rp, t_start)
-
-        sd, cg, lbfgs = (o.direction == d for d in DIRECTIONS)
-        refine = o.interpolate_step and sd
-        S, Y = [], []               # lbfgs pairs (full vectors, masked in the two-loop)
-        gamma = 1.0                 # lbfgs H0 scaling
-        have_gamma = False
-        d_prev = g_prev = None      # CG
-        alpha_prev = slope_prev = None
-        active_prev = None
-        since_restart = 0
-        history = []
-        status, message = Status.MAX_ITERATIONS, f"maximum number of PDMIN iterations ({o.max_iter}) reached"
-        it = 0
-        n_ls_total = 0
-        step = 0.0
-        n_trials = 0
+                                0, [], evals.rp, t_start, eval_time=evals.time_s)
+        st = State(cur=Point(U, J, g, X, costate), evals=evals, t_start=t_start,
+                    message=f"maximum number of PDMIN iterations ({self.options.max_iter}) reached")
         while True:
-            pg = U - _box_project(U - g, lo, hi)
-            pgn = float(np.max(np.abs(pg), initial=0.0))
-            eps_k = min(o.epsilon, pgn)
-            active = ((U <= lo + eps_k) & (g > 0)) | ((U >= hi - eps_k) & (g < 0))
-            n_active = int(np.count_nonzero(active))
-            n_lower = int(np.count_nonzero(U == lo)); n_upper = int(np.count_nonzero(U == hi))
-            rec = {"iter": it, "objective": J, "pg_norm": pgn, "n_active": n_active,
-                   "n_at_bound": n_lower + n_upper, "step": step, "line_search": n_trials,
-                   "time_s": time.perf_counter() - t_start}
-            history.append(rec)
-            if o.verbose >= 2:
-                if it % 20 == 0:
-                    print(f"{'iter':>6} {'objective':>20} {'|pg|_inf':>10} {'active':>8} {'step':>10} {'ls':>3}")
-                print(f"{it:6d} {J:20.12e} {pgn:10.3e} {n_active:8d} {step:10.3e} {n_trials:3d}")
-            if pgn <= o.tol:
-                status, message = Status.SUCCESS, (f"converged in {it} iterations: projected gradient "
-                                                   f"{pgn:.2e} <= tol {o.tol:.1e}, {n_active} active bounds")
+            active, pgn = self._measure(p, st)
+            if self._stop(st, pgn, active):
                 break
-            if self._call_callback(dict(rec, x=X, u=U, gradient=g, solver=self.name)):
-                status, message = Status.USER_STOP, f"stopped by the callback after iteration {it}"
+            direction = self._direction(st, active)
+            trial = self._search(p, st, direction)
+            st.n_ls_total += st.n_trials
+            if trial is None:
+                st.status, st.message = Status.NUMERICAL_ERROR, (
+                    f"line search failed at iteration {st.it}: no sufficient decrease along the projection arc "
+                    f"after {st.n_trials} trial steps (projected gradient {pgn:.2e}, tol {self.options.tol:.1e})")
+                if pgn <= math.sqrt(self.options.tol):
+                    st.status = Status.ACCEPTABLE
+                    st.message += "; the point is kept as acceptable"
                 break
-            if it >= o.max_iter:
-                break
-            if time.perf_counter() - t_start > o.max_time:
-                status, message = Status.MAX_TIME, f"time limit of {o.max_time:g} s reached after {it} iterations"
-                break
+            self._update(st, direction, trial, active)
+        c = st.cur
+        return self._result(p, st.status, st.message, c.X, c.U, c.g, c.costate, pgn, st.it, st.history, evals.rp,
+                            t_start, extra={"line_search_trials": st.n_ls_total}, eval_time=evals.time_s)
 
-            # ---------------------------------------------------------------- direction
-            free = ~active
-            changed = active_prev is None or not np.array_equal(active, active_prev)
-            restart = changed and o.restart_on_active_change
-            freef = free.astype(float)
-            gF = g * freef
-            if sd:
-                dF = -gF
-            elif cg:
-                if (restart or d_prev is None or (o.cg_restart and since_restart >= o.cg_restart)):
-                    dF, since_restart = -gF, 0
-                else:
-                    gpF = g_prev * freef
-                    den = _dot(gpF, gpF)
-                    beta = max(0.0, _dot(gF, gF - gpF) / den) if den > 0 else 0.0
-                    dF = -gF + beta * (d_prev * freef)
-                    if _dot(gF, dF) > -1e-12 * _dot(gF, gF):   # not a descent direction
-                        dF, since_restart = -gF, 0
-                since_restart += 1
+    # ---------------------------------------------------------------------------- phases
+    def _measure(self, p, st):
+        """Step 1 at the iterate: projected gradient w, the epsilon-active set; the history record."""
+        o, c = self.options, st.cur
+        U, g, lo, hi = c.U, c.g, p.u_lower, p.u_upper
+        pg = U - _box_project(U - g, lo, hi)
+        pgn = float(np.max(np.abs(pg), initial=0.0))
+        eps_k = min(o.epsilon, pgn)
+        active = ((U <= lo + eps_k) & (g > 0)) | ((U >= hi - eps_k) & (g < 0))
+        n_active = int(np.count_nonzero(active))
+        n_lower = int(np.count_nonzero(U == lo)); n_upper = int(np.count_nonzero(U == hi))
+        rec = {"iter": st.it, "objective": c.J, "pg_norm": pgn, "n_active": n_active,
+               "n_at_bound": n_lower + n_upper, "step": st.step, "line_search": st.n_trials,
+               "time_s": time.perf_counter() - st.t_start}
+        st.history.append(rec)
+        if o.verbose >= 2:
+            if st.it % 20 == 0:
+                print(f"{'iter':>6} {'objective':>20} {'|pg|_inf':>10} {'active':>8} {'step':>10} {'ls':>3}")
+            print(f"{st.it:6d} {c.J:20.12e} {pgn:10.3e} {n_active:8d} {st.step:10.3e} {st.n_trials:3d}")
+        return active, pgn
+
+    def _stop(self, st, pgn, active):
+        """Converged (w <= tol), stopped by the callback, or out of iterations / time."""
+        o, c = self.options, st.cur
+        if pgn <= o.tol:
+            st.status, st.message = Status.SUCCESS, (f"converged in {st.it} iterations: projected gradient "
+                                                     f"{pgn:.2e} <= tol {o.tol:.1e}, "
+                                                     f"{int(np.count_nonzero(active))} active bounds")
+            return True
+        if self._call_callback(dict(st.history[-1], x=c.X, u=c.U, gradient=c.g, solver=self.name)):
+            st.status, st.message = Status.USER_STOP, f"stopped by the callback after iteration {st.it}"
+            return True
+        if st.it >= o.max_iter:
+            return True
+        if time.perf_counter() - st.t_start > o.max_time:
+            st.status, st.message = Status.MAX_TIME, f"time limit of {o.max_time:g} s reached after {st.it} iterations"
+            return True
+        return False
+
+    def _direction(self, st, active):
+        """Step 2: d_A = -gamma g_A on the active set, d_F by the chosen method on the free set
+        (restarted as the module docstring says)."""
+        o, mem, g = self.options, st.memory, st.cur.g
+        sd, cg, lbfgs = (o.direction == d for d in DIRECTIONS)
+        free = ~active
+        changed = mem.active_prev is None or not np.array_equal(active, mem.active_prev)
+        restart = changed and o.restart_on_active_change
+        freef = free.astype(float)
+        gF = g * freef
+        if sd:
+            dF = -gF
+        elif cg:
+            if restart or mem.d_prev is None or (o.cg_restart and mem.since_restart >= o.cg_restart):
+                dF, mem.since_restart = -gF, 0
             else:
-                if restart:
-                    S.clear(); Y.clear()
-                dF = -self._two_loop(gF, freef, S, Y, gamma)
-            gA = g - gF
-            d = dF - (gamma if lbfgs else 1.0) * gA          # dF is zero on the active set
-            slope = _dot(gF, dF)       # g_F.d_F < 0
+                gpF = mem.g_prev * freef
+                den = dot(gpF, gpF)
+                beta = max(0.0, dot(gF, gF - gpF) / den) if den > 0 else 0.0
+                dF = -gF + beta * (mem.d_prev * freef)
+                if dot(gF, dF) > -1e-12 * dot(gF, gF):   # not a descent direction
+                    dF, mem.since_restart = -gF, 0
+            mem.since_restart += 1
+        else:
+            if restart:
+                mem.S.clear(); mem.Y.clear()
+            dF = -two_loop(gF, freef, mem.S, mem.Y, mem.gamma)
+        gA = g - gF
+        d = dF - (mem.gamma if lbfgs else 1.0) * gA          # dF is zero on the active set
+        return Direction(d=d, gA=gA, slope=dot(gF, dF))    # slope g_F.d_F < 0
 
-            # ---------------------------------------------------------------- Armijo along the arc
-            dmax = float(np.max(np.abs(d), initial=0.0))
-            if lbfgs:
-                alpha = 1.0 if have_gamma else min(1.0, o.initial_step / max(dmax, 1e-300))
-            elif alpha_prev is None or slope_prev is None or slope >= 0:
-                alpha = min(1.0, o.initial_step / max(dmax, 1e-300))
-            else:
-                alpha = min(1e10, alpha_prev * slope_prev / slope)
-            noise = 1e3 * _EPS * (1.0 + abs(J))
-            accepted = False
-            n_trials = 0
-            while n_trials < o.max_line_search:
-                n_trials += 1
-                Ut = _box_project(U + alpha * d, lo, hi)
-                s = Ut - U
-                pred = alpha * slope + _dot(gA, s)          # <= 0
-                try:
-                    Jt, Xt = value(Ut)
-                except Exception as exc:
-                    if not is_nonfinite_error(exc):
-                        raise
-                    Jt, Xt = math.inf, None
-                dJ = Jt - J
-                if n_trials == 1:
-                    # end game: the decrease predicted for the first trial is near the rounding
-                    # level of J; only then may the gradients stand in for the values
-                    endgame = abs(pred) <= 1e3 * noise
-                if math.isfinite(Jt) and dJ <= o.armijo * pred:
-                    if refine and n_trials == 1 and dJ < 0 and not endgame:
-                        Ut, Xt, alpha, extra = self._refine(value, U, d, lo, hi, J, Jt, Ut, Xt, alpha, pred / alpha)
-                        n_trials += extra
-                    J_new, g_new, X_new, c_new = gradient(Ut, Xt)
-                    accepted = True
-                    break
-                if endgame and math.isfinite(Jt) and abs(dJ) <= noise:
-                    # decrease at the rounding level of J: estimate it from the end gradients
-                    # (trapezoid rule, exact for quadratics)
-                    J_new, g_new, X_new, c_new = gradient(Ut, Xt)
-                    if 0.5 * _dot(g + g_new, s) <= o.armijo * pred:
-                        accepted = True
-                        break
-                # safeguarded quadratic interpolation on phi(a) ~ J + a*slope_total
-                slope_tot = pred / alpha
-                if math.isfinite(Jt) and slope_tot < 0 and not endgame:
-                    denom = 2.0 * (dJ - slope_tot * alpha)
-                    a_new = -slope_tot * alpha * alpha / denom if denom > 0 else o.backtrack * alpha
-                    alpha = min(max(a_new, 0.1 * alpha), o.backtrack * alpha)
-                else:
-                    alpha *= 0.1 if not math.isfinite(Jt) else o.backtrack
-                if alpha * dmax <= 1e-15 * (1.0 + float(np.max(np.abs(U), initial=0.0))):
-                    break
-            if accepted and cg and o.interpolate_step:
-                Ut, J_new, g_new, X_new, c_new, alpha, extra = self._secant(
-                    gradient, U, d, lo, hi, J, g, Ut, J_new, g_new, X_new, c_new, alpha, noise)
-                n_trials += extra
-            n_ls_total += n_trials
-            if not accepted:
-                status, message = Status.NUMERICAL_ERROR, (
-                    f"line search failed at iteration {it}: no sufficient decrease along the projection arc "
-                    f"after {n_trials} trial steps (projected gradient {pgn:.2e}, tol {o.tol:.1e})")
-                if pgn <= math.sqrt(o.tol):
-                    status = Status.ACCEPTABLE
-                    message += "; the point is kept as acceptable"
-                break
+    def _first_step(self, st, direction, dmax):
+        """alpha_0: 1 for lbfgs (once it has a scaling), else the previous step scaled by the
+        ratio of the slopes, at most initial_step / |d|_inf at the first iteration."""
+        o, mem, slope = self.options, st.memory, direction.slope
+        if o.direction == "lbfgs":
+            return 1.0 if mem.have_gamma else min(1.0, o.initial_step / max(dmax, 1e-300))
+        if mem.alpha_prev is None or mem.slope_prev is None or slope >= 0:
+            return min(1.0, o.initial_step / max(dmax, 1e-300))
+        return min(1e10, mem.alpha_prev * mem.slope_prev / slope)
 
-            # ---------------------------------------------------------------- update
+    def _search(self, p, st, direction):
+        """Step 3: the Armijo rule along the projection arc (module docstring); the accepted
+        Point or None. ``st.n_trials`` counts the trial points."""
+        o, c, evals = self.options, st.cur, st.evals
+        U, J, g, lo, hi = c.U, c.J, c.g, p.u_lower, p.u_upper
+        d, gA, slope = direction
+        arc = Arc(U, d, lo, hi)
+        interpolate = o.interpolate_step and o.direction == "steepest-descent"
+        dmax = float(np.max(np.abs(d), initial=0.0))
+        alpha = self._first_step(st, direction, dmax)
+        noise = 1e3 * _EPS * (1.0 + abs(J))
+        accepted = None
+        st.n_trials = n_trials = 0
+        while n_trials < o.max_line_search:
+            n_trials += 1
+            Ut = arc.at(alpha)
             s = Ut - U
-            step = float(np.max(np.abs(s), initial=0.0))
-            if lbfgs:
-                yv = g_new - g
-                sy = _dot(s, yv)
-                yy = _dot(yv, yv)
-                if sy > 1e-12 * math.sqrt(_dot(s, s) * yy) and yy > 0:
-                    S.append(s); Y.append(yv)
-                    if len(S) > o.memory:
-                        S.pop(0); Y.pop(0)
-                    gamma, have_gamma = sy / yy, True
-            d_prev, g_prev = d, g
-            alpha_prev, slope_prev = alpha, slope
-            active_prev = active
-            U, J, g, X, costate = Ut, J_new, g_new, X_new, c_new
-            it += 1
-
-        return self._result(p, status, message, X, U, g, costate, pgn, it, history, rp, t_start,
-                            extra={"line_search_trials": n_ls_total})
-
-    # ---------------------------------------------------------------------------- pieces
-    @staticmethod
-    def _refine(value, U, d, lo, hi, J, Jt, Ut, Xt, alpha, slope, max_expand=10):
-        """After an accepted first trial: try the minimizer of the quadratic through J(u), the
-        slope along the arc and J(u(alpha)); when J fell almost linearly (the step is far too
-        short to feel any curvature) extrapolate alpha by 4 while J keeps falling. The lowest
-        point is kept. Returns (u, x, alpha, number of extra values)."""
-        count = [0]
-
-        def trial(a):
-            count[0] += 1
-            Ua = np.clip(U + a * d, lo, hi)
+            pred = alpha * slope + dot(gA, s)          # <= 0
             try:
-                Ja, Xa = value(Ua)
-            except Exception as exc:
-                if not is_nonfinite_error(exc):
-                    raise
-                return math.inf, None, None
-            return Ja, Ua, Xa
-
-        curv = (Jt - J - slope * alpha) / (alpha * alpha)
-        if curv > 0 and (Jt - J) > 0.9 * slope * alpha:     # curvature felt: quadratic model
-            a_q = -slope / (2.0 * curv)
-            if 0.8 * alpha <= a_q <= 1.25 * alpha:
-                return Ut, Xt, alpha, 0
-            Jq, Uq, Xq = trial(min(a_q, 100.0 * alpha))
-            if Jq < Jt:
-                return Uq, Xq, min(a_q, 100.0 * alpha), 1
-            return Ut, Xt, alpha, 1
-        best = (Jt, Ut, Xt, alpha)        # nearly linear decrease: extrapolate
-        pts = [(0.0, J), (alpha, Jt)]
-        a = alpha
-        for _ in range(max_expand):
-            a *= 4.0
-            Ja, Ua, Xa = trial(a)
-            pts.append((a, Ja))
-            if not Ja < best[0]:
+                Jt, Xt = evals.value(Ut)
+            except NonFiniteEvaluationError:
+                Jt, Xt = math.inf, None
+            dJ = Jt - J
+            if n_trials == 1:
+                # end game: the decrease predicted for the first trial is near the rounding
+                # level of J; only then may the gradients stand in for the values
+                endgame = abs(pred) <= 1e3 * noise
+            if math.isfinite(Jt) and dJ <= o.armijo * pred:
+                if interpolate and n_trials == 1 and dJ < 0 and not endgame:
+                    Ut, Xt, alpha, extra = refine(evals.value, arc, J, Jt, Ut, Xt, alpha, pred / alpha)
+                    n_trials += extra
+                accepted = Point(Ut, *evals.gradient(Ut, Xt), alpha)
                 break
-            best = (Ja, Ua, Xa, a)
-        (a0, J0), (a1, J1), (a2, J2) = pts[-3:]
-        if math.isfinite(J2) and J2 >= J1 <= J0:
-            # minimizer of the parabola through the last three points (a bracket)
-            num = (a1 - a0) ** 2 * (J1 - J2) - (a1 - a2) ** 2 * (J1 - J0)
-            den = (a1 - a0) * (J1 - J2) - (a1 - a2) * (J1 - J0)
-            if den != 0:
-                a_p = a1 - 0.5 * num / den
-                if a0 < a_p < a2 and abs(a_p - a1) > 0.1 * a1:
-                    Jp, Up, Xp = trial(a_p)
-                    if Jp < best[0]:
-                        best = (Jp, Up, Xp, a_p)
-        return best[1], best[2], best[3], count[0]
-
-    @staticmethod
-    def _secant(gradient, U, d, lo, hi, J, g, Ut, Jt, gt, Xt, ct, alpha, noise, max_steps=2):
-        """CG: make the line search near exact with secant steps on the directional derivative
-        phi'(a) = grad J(u(a)).d (over the components not stopped by a bound) while
-        |phi'(alpha)| > 0.1 |phi'(0)|. Gradients, not values: works at the rounding level of J.
-        Each new point is kept only when it is lower (the trapezoid estimate of the change when
-        the values cannot tell)."""
-        moving = ((Ut > lo) & (Ut < hi)).astype(float)
-        dm = d * moving
-        s0 = _dot(g, dm)
-        extra = 0
-        if not s0 < 0:
-            return Ut, Jt, gt, Xt, ct, alpha, extra
-        for _ in range(max_steps):
-            s1 = _dot(gt, dm)
-            if abs(s1) <= 0.1 * abs(s0) or s1 <= s0:
+            if endgame and math.isfinite(Jt) and abs(dJ) <= noise:
+                # decrease at the rounding level of J: estimate it from the end gradients
+                # (trapezoid rule, exact for quadratics)
+                trial = Point(Ut, *evals.gradient(Ut, Xt), alpha)
+                if 0.5 * dot(g + trial.g, s) <= o.armijo * pred:
+                    accepted = trial
+                    break
+            # safeguarded quadratic interpolation on phi(a) ~ J + a*slope_total
+            slope_tot = pred / alpha
+            if math.isfinite(Jt) and slope_tot < 0 and not endgame:
+                denom = 2.0 * (dJ - slope_tot * alpha)
+                a_new = -slope_tot * alpha * alpha / denom if denom > 0 else o.backtrack * alpha
+                alpha = min(max(a_new, 0.1 * alpha), o.backtrack * alpha)
+            else:
+                alpha *= 0.1 if not math.isfinite(Jt) else o.backtrack
+            if alpha * dmax <= 1e-15 * (1.0 + float(np.max(np.abs(U), initial=0.0))):
                 break
-            a_s = alpha * s0 / (s0 - s1)
-            a_s = min(a_s, 10.0 * alpha)
-            Us = np.clip(U + a_s * d, lo, hi)
-            try:
-                Js, gs, Xs, cs = gradient(Us)
-            except Exception as exc:
-                if not is_nonfinite_error(exc):
-                    raise
-                break
-            extra += 1
-            better = Js < Jt - noise or (abs(Js - Jt) <= noise and 0.5 * _dot(gt + gs, Us - Ut) < 0)
-            if not better:
-                break
-            Ut, Jt, gt, Xt, ct, alpha = Us, Js, gs, Xs, cs, a_s
-        return Ut, Jt, gt, Xt, ct, alpha, extra
+        if accepted is not None and o.direction == "polak-ribiere" and o.interpolate_step:
+            accepted, extra = secant(evals.gradient, arc, g, accepted, noise)
+            n_trials += extra
+        st.n_trials = n_trials
+        return accepted
 
-    @staticmethod
-    def _two_loop(gF, freef, S, Y, gamma):
-        """H_F g_F by the L-BFGS two-loop recursion on the free components: the pairs are masked
-        to F (``freef`` is the 0/1 float mask; q and r stay zero on the active set, so only the
-        updates need the mask), pairs without positive curvature on F are skipped."""
-        q = gF.copy()
-        kept = []
-        for s, y in zip(reversed(S), reversed(Y)):
-            sy = float(np.einsum("ij,ij,ij->", s, y, freef))
-            ss = float(np.einsum("ij,ij,ij->", s, s, freef))
-            yy = float(np.einsum("ij,ij,ij->", y, y, freef))
-            if sy <= 1e-12 * math.sqrt(ss * yy) or sy <= 0:
-                continue
-            rho = 1.0 / sy
-            a = rho * _dot(s, q)
-            q -= (a * y) * freef
-            kept.append((s, y, rho, a, sy / yy))
-        if kept:   # H0 scaling from the newest usable pair
-            gamma = kept[0][4]
-        r = gamma * q
-        for s, y, rho, a, _ in reversed(kept):
-            b = rho * _dot(y, r)
-            r += ((a - b) * s) * freef
-        return r
+    def _update(self, st, direction, trial, active):
+        """Step 4: the new iterate; the lbfgs pair (s, y) when s.y > 0; the CG and step memory."""
+        o, mem, c = self.options, st.memory, st.cur
+        s = trial.U - c.U
+        st.step = float(np.max(np.abs(s), initial=0.0))
+        if o.direction == "lbfgs":
+            yv = trial.g - c.g
+            sy = dot(s, yv)
+            yy = dot(yv, yv)
+            if sy > 1e-12 * math.sqrt(dot(s, s) * yy) and yy > 0:
+                mem.S.append(s); mem.Y.append(yv)
+                if len(mem.S) > o.memory:
+                    mem.S.pop(0); mem.Y.pop(0)
+                mem.gamma, mem.have_gamma = sy / yy, True
+        mem.d_prev, mem.g_prev = direction.d, c.g
+        mem.alpha_prev, mem.slope_prev = trial.alpha, direction.slope
+        mem.active_prev = active
+        st.cur = trial
+        st.it += 1
 
-    def _result(self, p, status, message, X, U, g, costate, pgn, it, history, rp, t_start, extra=None):
+    def _result(self, p, status, message, X, U, g, costate, pgn, it, history, rp, t_start, extra=None,
+                eval_time=0.0):
         N, n, m = p.N, p.n, p.m
         lo, hi = p.u_lower, p.u_upper
         zl = np.zeros((N, m)); zu = np.zeros((N, m))
@@ -455,9 +348,8 @@ class PDMINSolver(Solver):
         if extra:
             info.update(extra)
         solve_time = time.perf_counter() - t_start
-        ev_time = getattr(self, "_eval_time", 0.0)
-        info.update(solve_time_s=solve_time, callback_time_s=ev_time,
-                    callback_share=ev_time / solve_time if solve_time > 0 else float("nan"))
+        info.update(solve_time_s=solve_time, callback_time_s=eval_time,
+                    callback_share=eval_time / solve_time if solve_time > 0 else float("nan"))
         mult = {"dynamics": costate[1:].copy() if costate is not None else np.zeros((N, n)),
                 "stage_constraints": np.zeros((N, 0)), "final_constraints": np.zeros(0),
                 "bound_lower_x": np.zeros((N + 1, n)), "bound_upper_x": np.zeros((N + 1, n)),

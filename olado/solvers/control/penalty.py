@@ -53,7 +53,7 @@ from collections import Counter
 
 import numpy as np
 
-from ...errors import ProblemDefinitionError, SolverNotAvailableError
+from ...errors import NonFiniteEvaluationError, ProblemDefinitionError, SolverNotAvailableError
 from ...problems.docp import DOCP
 from ...result import Result, Status
 from ..base import Solver, SolverOptions, option
@@ -363,10 +363,8 @@ def solve_lbfgsb(problem, U0, *, tol, max_iter, memory=20, ftol=1e-15, max_resta
             raise _Stop
         try:
             J, g, _, _ = rp.gradient(u.reshape(N, m))
-        except ProblemDefinitionError as exc:
-            if "non-finite" in str(exc):
-                return np.inf, np.zeros_like(u)
-            raise
+        except NonFiniteEvaluationError:
+            return np.inf, np.zeros_like(u)
         return J, g.ravel()
 
     best = {"u": u0}
@@ -555,9 +553,7 @@ class PenaltySolver(Solver):
             if status is Status.MAX_ITERATIONS:
                 message = (f"{o.max_iter} penalty iterations without reaching violation <= {o.constr_viol_tol:g} "
                            f"(violation {viol:.2e}, rho = {rho:.3g})")
-        except ProblemDefinitionError as exc:
-            if "non-finite" not in str(exc):
-                raise
+        except NonFiniteEvaluationError as exc:
             status, message = Status.NUMERICAL_ERROR, f"non-finite values: {exc}"
 
         return self._result(problem, pen, X, U, status, message, iters, inner_total, history, viol)

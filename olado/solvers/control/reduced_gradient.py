@@ -58,9 +58,9 @@ import time
 
 import numpy as np
 
-from ...errors import ProblemDefinitionError
+from ...errors import NonFiniteEvaluationError
 from ...result import Result, Status
-from ..common import Deadline, is_nonfinite_error
+from ..common import Deadline
 from ..base import Solver, SolverOptions, option
 from .control_space import ReducedProblem, unsupported_features
 from .line_search import strong_wolfe
@@ -136,9 +136,7 @@ class ReducedGradientSolver(Solver):
         U = np.array(U0, dtype=float)
         try:
             J, g, X, costate = rp.gradient(U)
-        except ProblemDefinitionError as exc:
-            if not is_nonfinite_error(exc):
-                raise
+        except NonFiniteEvaluationError as exc:
             return Result(status=Status.INVALID_PROBLEM, message=f"the initial guess cannot be evaluated: {exc}",
                           objective=float("nan"), x=np.asarray(X0, dtype=float), u=U)
         if not math.isfinite(J):
@@ -260,10 +258,8 @@ class ReducedGradientSolver(Solver):
             U = cur.U + a * d
             try:
                 J, X = rp.value(U)
-            except ProblemDefinitionError as exc:
-                if is_nonfinite_error(exc):
-                    return math.inf
-                raise
+            except NonFiniteEvaluationError:
+                return math.inf
             trials[a] = [U, X, J, None, None]
             return J
 

@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from ...errors import ConfigError, ProblemDefinitionError, SolverNotAvailableError
+from ...errors import ConfigError, NonFiniteEvaluationError, SolverNotAvailableError
 from ...result import Status
 from .. import common
 from ..base import Solver, SolverOptions, option
@@ -236,11 +236,9 @@ class _IpoptAdapter:
         step, or stops with Invalid_Number_Detected); definition bugs propagate."""
         try:
             return fn(*args)
-        except ProblemDefinitionError as exc:
-            if common.is_nonfinite_error(exc):
-                self.evaluation_error = str(exc)
-                raise self._cyipopt_error(str(exc)) from exc
-            raise
+        except NonFiniteEvaluationError as exc:
+            self.evaluation_error = str(exc)
+            raise self._cyipopt_error(str(exc)) from exc
 
     def objective(self, y):
         return self._guard(self.timed.objective, y)

@@ -106,8 +106,8 @@ class BlockBFGS(HessianApproximation):
     geometric mean of their eigenvalues times I (a restart of that block's approximation). In
     the flat directions of a degenerate optimum the damping lets a block's curvature fall
     geometrically (s.y ~ 0), and a later step with a component there adds r r^T / s.r with a
-    tiny s.r: zambezi12 N = 252 reached max|B| = 6.4e8 next to eigenvalues of 1e-13 in one block,
-    after which the steps were ~1e-6 long and the KKT residual stayed at 2.3e-5 for 50 iterations."""
+    tiny s.r: the block becomes ill-conditioned and the steps tiny (measured on zambezi12:
+    docs/structure-exploiting-sqp.md, Known limitations)."""
 
     name = "bfgs"
 

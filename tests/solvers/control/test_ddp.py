@@ -395,3 +395,32 @@ def test_iteration_log(capsys):
     out = capsys.readouterr().out
     assert "|grad|" in out and "shift" in out and "exp.decr" in out
     assert "status       : success" in out
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_one_instance_solves_from_its_own_callback(method):
+    """The solver holds only options: a solve started from the callback of another one on the
+    same instance (inertia schedule, whose last shift carries over between iterations) gives the
+    results of separate instances."""
+    from olado.solvers import get_solver_class
+
+    cls = get_solver_class(method)
+    nested = {}
+
+    def callback(info):
+        if not nested:
+            nested["r"] = None
+            nested["r"] = solver.solve(Swing())
+        return False
+
+    p = DoubleWell()
+    guess = np.full((p.N, 1), 0.01)
+    solver = cls(shift_schedule="inertia", callback=callback)
+    outer = solver.solve(p, guess=guess)
+    ref = cls(shift_schedule="inertia").solve(DoubleWell(), guess=guess)
+    ref_nested = cls(shift_schedule="inertia").solve(Swing())
+    for r, q in ((outer, ref), (nested["r"], ref_nested)):
+        assert r.success and r.iterations == q.iterations > 1
+        assert r.objective == q.objective and np.array_equal(r.u, q.u)
+        assert [h["shift"] for h in r.history] == [h["shift"] for h in q.history]
+    assert any(h["shift"] > 0 for h in ref.history)        # the schedule is exercised

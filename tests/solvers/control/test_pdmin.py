@@ -245,3 +245,25 @@ def test_large_horizon_reaches_the_ipopt_solution():
         strong = z_ref > 1e-4
         assert np.all(active[strong])                     # every strongly active bound found
         assert active.sum() == pytest.approx(strong.sum(), rel=1e-3)
+
+
+def test_one_instance_solves_from_its_own_callback_and_keeps_no_solve_state():
+    """The solver holds only options: a solve started from the callback of another (same
+    instance) gives the results of separate instances, and a rejected problem reports no
+    evaluation time of an earlier solve."""
+    nested = {}
+
+    def callback(info):
+        if not nested:
+            nested["r"] = None
+            nested["r"] = solver.solve(scalar_tracking(50))
+        return False
+
+    solver = PDMINSolver(callback=callback)
+    outer = solver.solve(BoundedPendulum(60))
+    for r, ref in ((outer, PDMINSolver().solve(BoundedPendulum(60))), (nested["r"], PDMINSolver().solve(scalar_tracking(50)))):
+        assert r.success and r.iterations == ref.iterations > 1
+        assert r.objective == ref.objective and np.array_equal(r.u, ref.u)
+    rejected = solver.solve(Pendulum(N=6))          # stage and final constraints: not PDMIN's
+    assert rejected.status == Status.INVALID_PROBLEM
+    assert rejected.info["callback_time_s"] == 0.0

@@ -10,7 +10,9 @@ from olado.config import load_config
 from olado.problems import DOCP
 from olado.problems.zambezi import zambezi_problem
 from olado.result import Status
+from olado.solvers.sqp import step as sqp_step
 from olado.solvers.sqp.solver import SQPSolver
+from olado.solvers.sqp.step import ShiftRule, proximal_factor
 
 from fixtures.toy_problems import Pendulum
 
@@ -91,9 +93,11 @@ def test_block_bfgs_restart_solves_a_horizon_where_it_stalled():
 
 
 def test_proximal_default_depends_on_the_hessian():
-    assert SQPSolver()._proximal() == 1e-4
-    assert SQPSolver(hessian="sr1")._proximal() == 0.0
-    assert SQPSolver(hessian="bfgs", proximal=1e-5)._proximal() == 1e-5
+    assert proximal_factor(SQPSolver().options, local=False) == 1e-4
+    assert proximal_factor(SQPSolver(hessian="sr1").options, local=False) == 0.0
+    assert proximal_factor(SQPSolver(hessian="bfgs", proximal=1e-5).options, local=False) == 1e-5
+    assert proximal_factor(SQPSolver().options, local=True) == 1e-6          # local_proximal
+    assert proximal_factor(SQPSolver(local_proximal=None).options, local=True) == 1e-4
     assert load_config("configs/sqp-sr1.ini").options.proximal is None
     assert load_config("configs/sqp-ip.ini", overrides=["sqp.proximal=none"]).options.proximal is None
     assert load_config("configs/sqp-ip.ini", overrides=["sqp.proximal=3e-4"]).options.proximal == 3e-4
@@ -270,16 +274,16 @@ def test_a_qp_step_that_is_no_descent_direction_is_solved_again_with_a_larger_sh
     the SQP must not line-search along it but shift the Hessian and solve the QP again."""
     p, ref = pendulum_reference
     calls = []
-    original = SQPSolver._solve_qp
+    original = sqp_step.solve_qp
 
-    def flipped(self, *args, **kw):
-        qres, delta = original(self, *args, **kw)
-        calls.append(delta)
+    def flipped(*args, **kw):
+        qs = original(*args, **kw)
+        calls.append(qs.delta)
         if len(calls) == 1:
-            qres = dataclasses.replace(qres, X=-qres.X, U=-qres.U)
-        return qres, delta
+            qs = qs._replace(result=dataclasses.replace(qs.result, X=-qs.result.X, U=-qs.result.U))
+        return qs
 
-    monkeypatch.setattr(SQPSolver, "_solve_qp", flipped)
+    monkeypatch.setattr(sqp_step, "solve_qp", flipped)
     r = SQPSolver(hessian="exact", watchdog=False, max_ascent_steps=0).solve(p)
     assert r.success, r.message
     assert np.all(calls[0] == 0.0) and np.all(calls[1] > 0.0)   # the same point again, with a shift
@@ -296,16 +300,22 @@ def test_stage_shift_raises_only_the_blocks_without_positive_curvature_along_the
     BN = np.eye(1)
     dX, dU = np.ones((N + 1, 1)), np.ones((N, 1))
     delta = np.array([0.0, 1e-3, 0.0, 0.0])
-    s = SQPSolver(shift_mode="stage", proximal=1e-4, shift_init=1e-4, shift_increase=10.0)
-    flat = s._flat_stages(Bk, BN, delta, scale, dX, dU)
+    s = ShiftRule(SQPSolver(shift_mode="stage", proximal=1e-4, shift_init=1e-4, shift_increase=10.0).options)
+    flat = s.flat_stages(Bk, BN, delta, scale, dX, dU)
     # curvatures: 2 + 2 * 2e-4, -4 + 2 * (1e-3 + 2e-4), 2 + 2 * 2e-4, 1 + 2e-4
     assert flat.tolist() == [False, True, False, False]
-    new = s._raise_shift(delta, scale, flat)
+    new = s.raise_(delta, scale, flat)
     assert new.tolist() == [0.0, 1e-2, 0.0, 0.0]            # max(10 * 1e-3, 1e-4 * 2) on block 1 only
-    assert SQPSolver(shift_mode="global")._flat_stages(Bk, BN, delta, scale, dX, dU) is None
-    assert np.all(s._raise_shift(delta, scale) == [2e-4, 1e-2, 2e-4, 2e-4])   # all blocks: max(10 delta, 2e-4)
+    assert ShiftRule(SQPSolver(shift_mode="global").options).flat_stages(Bk, BN, delta, scale, dX, dU) is None
+    assert np.all(s.raise_(delta, scale) == [2e-4, 1e-2, 2e-4, 2e-4])   # all blocks: max(10 delta, 2e-4)
     # no block without positive curvature: all blocks are raised
-    assert s._flat_stages(np.array([np.eye(2)] * N), BN, delta, scale, dX, dU) is None
+    assert s.flat_stages(np.array([np.eye(2)] * N), BN, delta, scale, dX, dU) is None
+    # the proximal term is the one of the phase: 1e-4 * max|H| outside the local phase,
+    # local_proximal = 1e-6 * max|H| inside it; block 1 = -1.5e-4 I has curvature -3e-4 along s
+    tight = np.array([np.eye(2), -1.5e-4 * np.eye(2), np.eye(2)])
+    zero = np.zeros(N + 1)
+    assert s.flat_stages(tight, BN, zero, scale, dX, dU, local=False) is None          # -3e-4 + 2 * 2e-4 > 0
+    assert s.flat_stages(tight, BN, zero, scale, dX, dU, local=True).tolist() == [False, True, False, False]
 
 
 def test_shift_after_a_rejected_step_is_at_least_a_fraction_of_its_negative_curvature():
@@ -316,14 +326,14 @@ def test_shift_after_a_rejected_step_is_at_least_a_fraction_of_its_negative_curv
     Bk = np.array([np.eye(2), -4.0 * np.eye(2), np.eye(2)])
     BN = np.eye(1)
     dX, dU = np.ones((N + 1, 1)), np.ones((N, 1))
-    s = SQPSolver(shift_curvature=0.5, shift_init=1e-4, shift_increase=10.0)
-    floor = s._curvature_floor(Bk, BN, dX, dU)
+    s = ShiftRule(SQPSolver(shift_curvature=0.5, shift_init=1e-4, shift_increase=10.0).options)
+    floor = s.curvature_floor(Bk, BN, dX, dU)
     assert floor == pytest.approx(0.5 * 3.0 / 7.0, rel=1e-14)
     delta = np.array([0.0, 1e-3, 0.0, 0.0])
-    assert np.allclose(s._raise_shift(delta, scale, floor=floor), 0.5 * 3.0 / 7.0)   # above 10 delta and 2e-4
-    assert np.allclose(s._raise_shift(np.full(4, 0.1), scale, floor=floor), 1.0)     # 10 delta wins
-    assert s._curvature_floor(np.array([np.eye(2)] * N), BN, dX, dU) == 0.0
-    assert SQPSolver(shift_curvature=0.0)._curvature_floor(Bk, BN, dX, dU) == 0.0
+    assert np.allclose(s.raise_(delta, scale, floor=floor), 0.5 * 3.0 / 7.0)   # above 10 delta and 2e-4
+    assert np.allclose(s.raise_(np.full(4, 0.1), scale, floor=floor), 1.0)     # 10 delta wins
+    assert s.curvature_floor(np.array([np.eye(2)] * N), BN, dX, dU) == 0.0
+    assert ShiftRule(SQPSolver(shift_curvature=0.0).options).curvature_floor(Bk, BN, dX, dU) == 0.0
 
 
 def test_stage_shift_solves_a_long_zambezi_horizon():
@@ -414,11 +424,11 @@ def test_stalled_cold_start_qp_is_restarted_further_inside(monkeypatch):
     bounds) stalled from initial_mu = 0.1 (82 short steps, NUMERICAL_ERROR ended the SQP at
     iteration 0); its steps stay below 0.1 from iteration 12 on, so the cold start is abandoned
     after 10 such steps and solved again from initial_mu = 10, within the same max_iter."""
-    from olado.qp.interior_point import make_qp_solver
+    from olado.qp import make_qp_solver
 
     qps = []
-    build = SQPSolver._build_qp
-    monkeypatch.setattr(SQPSolver, "_build_qp", staticmethod(lambda *a, **k: qps.append(build(*a, **k)) or qps[-1]))
+    build = sqp_step.build_qp
+    monkeypatch.setattr(sqp_step, "build_qp", lambda *a, **k: qps.append(build(*a, **k)) or qps[-1])
     r = SQPSolver(hessian="sr1", max_iter=1).solve(zambezi_problem("zambezi", N=276))
     assert r.status == Status.MAX_ITERATIONS, r.message          # not the QP's numerical_error
     qp = qps[0]

@@ -1,0 +1,75 @@
+"""The L1 exact penalty (merit) function of the SQP line search (paper 001 sec. 4.2.1, the step
+length alpha of eq. (11)):
+
+    phi(y) = J(y) + sum_i rho_i |h_i(y)| + sum_j rho_j max(0, -g_j(y))  (+ bound violations)
+
+with equality rows of g counted as |g_j|, the bounds (4)-(5) of x^1..x^N and u as their
+violations, and Powell's (1978) weights rho_i := max(|mu_i|, (rho_i + |mu_i|)/2, penalty_min)
+from the QP multipliers mu. D = grad J . s - sum rho |c| is the directional derivative of phi
+along the QP step s (Nocedal & Wright 2006, (18.29)).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class Merit:
+    """Constraint violations and phi for one problem (masks of its equality components)."""
+
+    def __init__(self, problem, masks):
+        self.problem = problem
+        self.masks = masks
+
+    def violations(self, q):
+        """Constraint violations (arrays) at the point q: (|h|, g, gN, x bounds, u bounds)."""
+        p, (eq, _, eqN, _) = self.problem, self.masks
+        vg = np.where(eq, np.abs(q.g), np.maximum(-q.g, 0.0)) if p.r else q.g
+        vgN = np.where(eqN, np.abs(q.gN), np.maximum(-q.gN, 0.0)) if p.rN else q.gN
+        vbx = np.maximum(p.x_lower - q.X, 0.0) + np.maximum(q.X - p.x_upper, 0.0)
+        vbx[0] = 0.0
+        vbu = np.maximum(p.u_lower - q.U, 0.0) + np.maximum(q.U - p.u_upper, 0.0)
+        return np.abs(q.h), vg, vgN, vbx, vbu
+
+    def max_violation(self, q):
+        return max(float(np.max(v, initial=0.0)) for v in self.violations(q))
+
+    def penalty(self, q, weights):
+        return sum(float(np.sum(w * v)) for w, v in zip(weights, self.violations(q)))
+
+    def value(self, q, weights):
+        """phi(q) with the penalty weights ``weights``."""
+        return q.J + self.penalty(q, weights)
+
+
+def zero_weights(N, n, r, rN, m):
+    """Initial exact-penalty weights (rho_h, rho_g, rho_gN, rho_bx, rho_bu), all 0."""
+    return (np.zeros((N, n)), np.zeros((N, r)), np.zeros(rN), np.zeros((N + 1, n)), np.zeros((N, m)))
+
+
+def powell_weights(rho, mult, bounds, penalty_min):
+    """Powell's (1978) update rho := max(|mu|, (rho + |mu|)/2, penalty_min), componentwise, with
+    mu the QP multipliers ``mult`` (dynamics, stage, final) and ``bounds`` (z_L + z_U)."""
+    zbx = bounds.zl_x + bounds.zu_x
+    zbu = bounds.zl_u + bounds.zu_u
+    return tuple(np.maximum(np.maximum(mu, 0.5 * (w + mu)), penalty_min)
+                 for w, mu in zip(rho, (np.abs(mult.lam[1:]), np.abs(mult.Lg), np.abs(mult.LgN), zbx, zbu)))
+
+
+def directional_derivative(merit, pt, dX, dU, weights):
+    """D = grad J . s - sum rho |c| along the step s = (dX, dU) at pt (Nocedal & Wright (18.29))."""
+    return (float(np.sum(pt.lx * dX[:-1]) + np.sum(pt.lu * dU) + pt.lN @ dX[-1]) - merit.penalty(pt, weights))
+
+
+def descent_tolerance(phi0, tol, grad_scale, dX, dU):
+    """A directional derivative below what the optimality tolerance resolves -- a gradient error
+    of tol * |grad J| along the step, or the rounding level of phi -- counts as descent."""
+    return (10.0 * np.finfo(float).eps * max(1.0, abs(phi0))
+            + tol * grad_scale * (float(np.sum(np.abs(dX[1:]))) + float(np.sum(np.abs(dU)))))
+
+
+def watch_target(merit, watch, weights, armijo):
+    """The merit value the iterates must reach below the watched point (Chamberlain et al. 1982):
+    phi(watched) - armijo * max(|D|, d_tol) (after a relaxed step that was no descent direction,
+    by at least armijo * |D|)."""
+    return merit.value(watch.pt, weights) - armijo * max(abs(watch.D), watch.d_tol)

@@ -1,0 +1,436 @@
+"""One major iteration of the SQP method (paper 001 sec. 4.2.1), as phases over the solve's
+:class:`~olado.solvers.sqp.state.SQPState`:
+
+1. limits and the convergence test at the iterate with the multipliers of the QP that produced
+   it (the pair (y_k, lambda_k) of Nocedal & Wright 2006, Alg. 18.3: no QP after convergence);
+2. the Hessian blocks (12): exact (inertia-corrected in the QP) or the quasi-Newton matrices;
+3. the QP (8)-(10) and its multipliers (olado.solvers.sqp.step);
+4. the convergence test with the new multipliers, and an optional feasibility step;
+5. Powell's penalty update, the directional derivative D of the merit function, and the
+   decision to re-solve the QP (a step that is no descent direction: larger Hessian shift, or
+   with quasi-Newton Hessians a more accurate QP);
+6. the line search on the merit function with the watchdog (olado.solvers.sqp.line_search);
+7. accepting the step y^{i+1} = y^i + alpha s^i (11): watchdog bookkeeping, quasi-Newton update,
+   local phase; the history record and the callback; the watchdog's return to the watched point.
+
+A phase that ends the iteration early returns :data:`STOP` (the solve ends, ``st.status`` set)
+or :data:`NEXT` (the next iteration, e.g. the QP solved again at the same point); ``None`` lets
+the iteration go on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Any
+
+import numpy as np
+
+from ...result import Status
+from .line_search import Direction, SearchResult, line_search
+from .merit import descent_tolerance, directional_derivative, powell_weights, watch_target, zero_weights
+from .residuals import kkt_residual
+from .state import BoundMultipliers, Multipliers, Point, SQPState, Watch
+from . import step as qp_step
+from .step import ShiftRule, hessian_scale, qp_multipliers, qp_tolerance, soc_offsets
+
+STOP = True
+NEXT = False
+
+
+@dataclasses.dataclass
+class Step:
+    """The QP step of the current iteration and what the phases derive from it."""
+
+    qres: Any                   # the QP result
+    delta: np.ndarray           # the Hessian shift it was solved with
+    dX: np.ndarray
+    dU: np.ndarray
+    mult_new: Multipliers       # its multipliers, the new estimates
+    hscale: float               # max|H|
+    warm: bool                  # the QP was warm-started
+    viol: float = float("nan")          # constraint violation at the iterate
+    step_norm: float = float("nan")
+    rho_new: tuple = ()                 # Powell's penalty weights for this step
+    phi0: float = float("nan")          # merit at the iterate with rho_new
+    D: float = float("nan")             # directional derivative of the merit along the step
+    d_tol: float = 0.0
+    descent: bool = True
+    relaxed_ok: bool = True
+    search: SearchResult | None = None
+
+
+def initial_state(setup, X0, U0, hess, clock):
+    """The state at the start: controls clipped into their bounds, x0 exact, zero multipliers
+    and penalty weights."""
+    o, p = setup.options, setup.problem
+    N, n, m, r, rN = p.N, p.n, p.m, p.r, p.rN
+    U = np.clip(U0, p.u_lower, p.u_upper)
+    X = np.array(X0, dtype=float)
+    X[0] = p.x0
+    pt = Point(p, X, U, clock=clock)
+    return SQPState(pt=pt, mult=Multipliers.zeros(N, n, r, rN), bounds=BoundMultipliers.zeros(N, n, m),
+                    rho=zero_weights(N, n, r, rN, m), hess=hess, clock=clock, shift=np.zeros(N + 1),
+                    ascent_relaxed=o.max_ascent_steps,
+                    message=f"maximum number of SQP iterations ({o.max_iter}) reached")
+
+
+def iterate(setup, st: SQPState) -> bool:
+    """One major iteration; True when the solve stops (``st.status`` says why)."""
+    if limits_reached(setup, st) or converged_at_iterate(setup, st):
+        return STOP
+    hscale = hessian_phase(setup, st)
+    step = qp_phase(setup, st, hscale)
+    if step is None:
+        return STOP
+    for phase in (test_with_new_multipliers, feasibility_step, merit_phase, search_phase):
+        end = phase(setup, st, step)
+        if end is not None:
+            return end
+    accept(setup, st, step)
+    if report(setup, st, step):
+        return STOP
+    end_expired_watch(setup, st, step)
+    return NEXT
+
+
+# ---------------------------------------------------------------------------- 1. limits, test
+def limits_reached(setup, st):
+    if setup.deadline.expired():
+        return st.stop(Status.MAX_TIME, f"time limit of {setup.options.max_time:g} s reached after {st.it} SQP iterations")
+    return st.it >= setup.options.max_iter
+
+
+def converged_at_iterate(setup, st):
+    """The KKT test at a new iterate with the multipliers of the QP that produced it (not after a
+    QP re-solve at the same point)."""
+    o = setup.options
+    if not (st.it > 0 and st.retries == 0 and st.force_delta is None and st.force_qp_tol is None):
+        return False
+    kkt0, gscale = kkt_residual(setup.problem, st.pt, st.mult, st.bounds)
+    st.grad_scale = max(st.grad_scale, gscale)
+    viol0 = setup.merit.max_violation(st.pt)
+    if viol0 <= o.constr_viol_tol and kkt0 <= o.tol * st.grad_scale:
+        st.kkt_res = kkt0
+        return st.stop(Status.SUCCESS, (f"converged in {st.it} SQP iterations: KKT residual {kkt0:.2e}, "
+                                        f"constraint violation {viol0:.2e}"))
+    return False
+
+
+# ---------------------------------------------------------------------------- 2. Hessian
+def hessian_phase(setup, st):
+    """The Hessian blocks at (pt, multipliers), evaluated once per iterate; returns max|H|."""
+    if st.Bk is None:
+        hess, p, pt = st.hess, setup.problem, st.pt
+        if hess.needs_exact:
+            N, n, m = p.N, p.n, p.m
+            t0 = time.perf_counter()
+            Hxx, Hxu, Huu = p.eval_stage_hessians(pt.X, pt.U, 1.0, st.mult.lam[1:], st.mult.Lg)
+            HN = p.eval_final_hessian(pt.X[-1], 1.0, st.mult.LgN)
+            st.clock.add(("hessian",), t0)
+            blocks = np.empty((N, n + m, n + m))
+            blocks[:, :n, :n] = Hxx; blocks[:, :n, n:] = Hxu
+            blocks[:, n:, :n] = np.transpose(Hxu, (0, 2, 1)); blocks[:, n:, n:] = Huu
+            hess.set_exact(blocks, HN)
+        st.Bk, st.BN = hess.current()
+    return hessian_scale(st.Bk, st.BN)
+
+
+# ---------------------------------------------------------------------------- 3. QP
+def starting_shift(setup, st, hscale):
+    """The Hessian shift to start from (inertia correction, Waechter & Biegler 2006 Alg. IC):
+    the one a rejected step asked for, none on entering the local phase, else a fraction of the
+    last."""
+    N = setup.problem.N
+    if not setup.inertia:
+        return np.zeros(N + 1)
+    if st.force_delta is not None:
+        return st.force_delta
+    if st.local and not st.was_local:
+        return np.zeros(N + 1)     # entering the local phase: the unshifted Hessian first
+    return ShiftRule(setup.options).start(st.shift, hscale)
+
+
+def qp_phase(setup, st, hscale):
+    """Solve the QP at the iterate; the Step, or None (status set) when the QP failed."""
+    o, p, qp_solver = setup.options, setup.problem, setup.qp_solver
+    if setup.interior:
+        qp_solver.options.tol = qp_tolerance(o, st.kkt_res, st.grad_scale)
+        if st.local and o.local_qp_tol > 0:
+            qp_solver.options.tol = min(qp_solver.options.tol, o.local_qp_tol)
+        if st.force_qp_tol is not None:
+            qp_solver.options.tol = min(qp_solver.options.tol, st.force_qp_tol)
+    st.force_qp_tol = None
+    delta0 = starting_shift(setup, st, hscale)
+    st.force_delta = None
+    warm = st.last_qp if (o.qp_warm_start == "always" or (o.qp_warm_start == "local" and st.local)) else None
+    st.qp_local = st.local
+    qs = qp_step.solve_qp(setup, st, st.pt, st.Bk, st.BN, delta0, inertia=setup.inertia, warm=warm)
+    st.qp_iters += qs.iterations
+    qres = qs.result
+    if not qres.success:
+        if qres.status == Status.INFEASIBLE:
+            st.stop(Status.INFEASIBLE, (f"the QP subproblem of SQP iteration {st.it} is infeasible: the linearized "
+                                        f"constraints are inconsistent ({qres.message})"))
+        else:
+            st.stop(Status.NUMERICAL_ERROR, f"the QP subproblem of SQP iteration {st.it} failed: {qres.message}")
+        return None
+    mult_new, st.bounds = qp_multipliers(qres, setup.masks, p.N, p.r, p.rN)
+    return Step(qres=qres, delta=qs.delta, dX=qres.X, dU=qres.U, mult_new=mult_new, hscale=hscale,
+                warm=warm is not None)
+
+
+# ---------------------------------------------------------------------------- 4. test, feasibility
+def test_with_new_multipliers(setup, st, step):
+    """KKT test at the iterate with the QP's multipliers; or a step below step_tol at a feasible
+    point (ACCEPTABLE)."""
+    o = setup.options
+    st.kkt_res, gscale = kkt_residual(setup.problem, st.pt, step.mult_new, st.bounds)
+    st.grad_scale = max(st.grad_scale, gscale)
+    st.kkt_rel = st.kkt_res / st.grad_scale
+    step.viol = viol = setup.merit.max_violation(st.pt)
+    step.step_norm = max(float(np.max(np.abs(step.dX))), float(np.max(np.abs(step.dU))))
+    y_norm = max(float(np.max(np.abs(st.pt.X))), float(np.max(np.abs(st.pt.U))))
+    if viol <= o.constr_viol_tol and st.kkt_res <= o.tol * st.grad_scale:
+        st.mult = step.mult_new
+        return st.stop(Status.SUCCESS, (f"converged in {st.it} SQP iterations: KKT residual {st.kkt_res:.2e}, "
+                                        f"constraint violation {viol:.2e}"))
+    if viol <= o.constr_viol_tol and step.step_norm <= o.step_tol * (1 + y_norm):
+        st.mult = step.mult_new
+        return st.stop(Status.ACCEPTABLE, (f"step below step_tol at SQP iteration {st.it} with a feasible point; "
+                                           f"KKT residual {st.kkt_res:.2e}"))
+    return None
+
+
+def feasibility_step(setup, st, step):
+    """``feasibility_steps``: optimal to tolerance but not feasible enough -- a QP with the
+    gradient removed gives the least-change (H-norm) correction onto the linearized constraints;
+    it keeps the iterate from wandering along flat directions of degenerate optima."""
+    o, p = setup.options, setup.problem
+    if not (o.feasibility_steps and st.kkt_res <= o.tol * st.grad_scale and step.viol > o.constr_viol_tol):
+        return None
+    fs = qp_step.solve_qp(setup, st, st.pt, st.Bk, st.BN, step.delta, inertia=setup.inertia, zero_gradient=True)
+    st.qp_iters += fs.iterations
+    fres = fs.result
+    if not fres.success:
+        return None
+    cand = Point(p, st.pt.X + fres.X, st.pt.U + fres.U, derivatives=False, clock=st.clock)
+    if not setup.merit.max_violation(cand) < step.viol:
+        return None
+    cand.add_derivatives(p)
+    st.pt = cand
+    st.mult = step.mult_new
+    st.Bk = None
+    st.it += 1
+    st.history.append({"iter": st.it, "objective": cand.J, "violation": setup.merit.max_violation(cand),
+                       "kkt": st.kkt_res, "step": 1.0,
+                       "step_norm": max(float(np.max(np.abs(fres.X))), float(np.max(np.abs(fres.U)))),
+                       "merit": float("nan"), "penalty": float("nan"), "qp_iterations": int(fres.iterations),
+                       "ls_trials": 0, "mode": "feasibility"})
+    if o.verbose >= 2:
+        h = st.history[-1]
+        print(f"{st.it:5d} {cand.J:16.9e} {h['violation']:10.2e} {st.kkt_res:10.2e} {1.0:8.2e} "
+              f"{h['step_norm']:10.2e} {'':9s} {int(fres.iterations):4d}  feasibility")
+    return NEXT
+
+
+# ---------------------------------------------------------------------------- 5. merit, re-solve
+def merit_phase(setup, st, step):
+    """Powell's penalty update, D along the step, and whether the step may be a relaxed one;
+    then the decision to solve the QP again at the same point instead of searching along it."""
+    o, merit, pt = setup.options, setup.merit, st.pt
+    step.rho_new = powell_weights(st.rho, step.mult_new, st.bounds, o.penalty_min)
+    step.phi0 = merit.value(pt, step.rho_new)
+    step.D = directional_derivative(merit, pt, step.dX, step.dU, step.rho_new)
+    step.d_tol = descent_tolerance(step.phi0, o.tol, st.grad_scale, step.dX, step.dU)
+    step.descent = step.D <= step.d_tol
+    # no relaxed step right after a watchdog return: from the point the return reached (often
+    # the watched step's own full step again) the same QP would give the same relaxed steps
+    step.relaxed_ok = (step.descent or (st.ascent_relaxed > 0 and not st.local)) and not st.returned
+    # nor a relaxed step before the merit function is sufficiently below the watched point of
+    # the last return: a return whose line search ends short of the watched step lets the next
+    # full step reach the watched point again, and its relaxed steps would repeat
+    if st.failed_watch is not None:
+        if merit.value(pt, st.rho) <= watch_target(merit, st.failed_watch, st.rho, o.armijo):
+            st.failed_watch = None
+        else:
+            step.relaxed_ok = False
+    if (not setup.inertia and setup.interior and not step.descent and o.qp_tol_min > 0
+            and setup.qp_solver.options.tol > o.qp_tol_min and st.watch is None):
+        # quasi-Newton (positive definite blocks): a step that is no descent direction of phi
+        # comes from the QP's inexact solution -- solve it again, 100 times more accurately
+        st.force_qp_tol = max(o.qp_tol_min, 0.01 * setup.qp_solver.options.tol)
+        return NEXT
+    if (setup.inertia and not step.descent and st.retries < o.max_shift_retries
+            and not (step.relaxed_ok and o.watchdog and st.watch is None)):
+        # not a descent direction of phi: with a positive definite reduced Hessian and
+        # rho >= |multipliers| it would be (Nocedal & Wright Thm. 18.2), so the Hessian is
+        # shifted further and the QP solved again at the same point
+        return shift_and_resolve(setup, st, step)
+    st.rho = step.rho_new
+    return None
+
+
+def shift_and_resolve(setup, st, step):
+    """Solve the QP again at the same point with delta raised along the rejected step."""
+    st.force_delta = ShiftRule(setup.options).raise_along(step.delta, step.hscale, st.Bk, st.BN,
+                                                          step.dX, step.dU, st.qp_local)
+    st.retries += 1
+    return NEXT
+
+
+# ---------------------------------------------------------------------------- 6. line search
+def merit_of(setup, st):
+    """phi with the current penalty weights, as a function of a point."""
+    return lambda q: setup.merit.value(q, st.rho)
+
+
+def second_order_correction(setup, st, step):
+    """soc(trial point) for the line search (Fletcher 1982; Nocedal & Wright sec. 18.3): the QP
+    at pt again with the constraint values c(pt + s) - J s of the rejected trial point."""
+    pt, Bk, BN = st.pt, st.Bk, st.BN
+
+    def soc(cand):
+        offsets = soc_offsets(setup.problem, pt, cand, step.dX, step.dU)
+        cs = qp_step.solve_qp(setup, st, pt, Bk, BN, step.delta, inertia=False, warm=step.qres, offsets=offsets)
+        st.qp_iters += cs.iterations
+        if not cs.result.success:
+            return None
+        return cs.result.X, cs.result.U
+
+    return soc
+
+
+def restore(setup, watch):
+    """Back to the watched point (watchdog return): it and its multipliers, with derivatives."""
+    watch.pt.add_derivatives(setup.problem)
+    return watch.pt, watch.mult
+
+
+def search_phase(setup, st, step):
+    """The line search along the step; when it fails during a watch, the return to the watched
+    point (along the watched step if that was a descent direction: the step's D, delta and
+    multipliers become the watched ones, mode "watchdog-return"). A failure ends the iteration:
+    a larger Hessian shift at the same point (exact Hessian), else NUMERICAL_ERROR."""
+    o, merit = setup.options, merit_of(setup, st)
+    soc = second_order_correction(setup, st, step) if o.second_order_correction else None
+    direction = Direction(st.pt, step.dX, step.dU, step.phi0, step.D)
+    found = line_search(o, setup.problem, direction, merit, st.watch, relaxed_ok=step.relaxed_ok, soc=soc,
+                        d_tol=step.d_tol, backtrack_uphill=not setup.inertia)
+    if found.point is None and st.watch is not None:
+        w, st.watch = st.watch, None
+        st.pt, st.mult = restore(setup, w)
+        st.Bk = None
+        if w.D < 0.0:
+            step.dX, step.dU, step.D, step.delta, step.mult_new = w.dX, w.dU, w.D, w.delta, w.mult_new
+            back = line_search(o, setup.problem, Direction(st.pt, w.dX, w.dU, merit(st.pt), w.D), merit, None)
+            found = back._replace(mode="watchdog-return")
+            st.returned = back.point is not None
+        st.failed_watch = w
+        if found.point is None and setup.inertia:
+            st.force_delta = ShiftRule(o).raise_(w.delta, step.hscale)
+            st.ascent_relaxed = 0
+            st.retries = 0
+            return NEXT
+    if found.point is None:
+        if setup.inertia and not step.descent and st.retries < o.max_shift_retries:
+            return shift_and_resolve(setup, st, step)
+        st.mult = step.mult_new
+        return st.stop(Status.NUMERICAL_ERROR, (f"line search failed at SQP iteration {st.it}: no step down to "
+                                                f"{o.min_step:g} decreases the L1 merit function (D={step.D:.2e})"))
+    step.search = found
+    return None
+
+
+# ---------------------------------------------------------------------------- 7. accept, report
+def accept(setup, st, step):
+    """Take the step: watchdog bookkeeping, quasi-Newton update, the new iterate and
+    multipliers, the local phase."""
+    o, p = setup.options, setup.problem
+    new_pt, mode = step.search.point, step.search.mode
+    st.retries = 0
+    if mode != "watchdog-return":
+        st.returned = False
+    if o.watchdog:
+        watchdog_bookkeeping(setup, st, step)
+    new_pt.add_derivatives(p)
+    if not st.hess.needs_exact:
+        pt = st.pt
+        g_old, gN_old = pt.lagrangian_gradients(step.mult_new)
+        g_new, gN_new = new_pt.lagrangian_gradients(step.mult_new)
+        s_blocks = np.concatenate([new_pt.X[:-1] - pt.X[:-1], new_pt.U - pt.U], axis=1)
+        st.hess.update(s_blocks, new_pt.X[-1] - pt.X[-1], g_new - g_old, gN_new - gN_old)
+    st.pt = new_pt
+    st.mult = step.mult_new
+    st.Bk = None
+    st.shift = step.delta
+    st.last_qp = dataclasses.replace(step.qres, X=np.zeros_like(step.qres.X), U=np.zeros_like(step.qres.U))
+    # local phase: a full step from a point whose relative KKT residual is small
+    st.was_local = st.local
+    st.local = mode == "full" and st.kkt_rel <= o.local_tol
+    st.it += 1
+
+
+def watchdog_bookkeeping(setup, st, step):
+    """A relaxed step starts a watch at the current point; a later step ends it when the merit
+    is sufficiently below the watched point, or marks it expired after watchdog_steps steps."""
+    o, mode = setup.options, step.search.mode
+    if mode == "relaxed" and not step.descent:
+        st.ascent_relaxed -= 1
+    if mode == "relaxed":
+        floor = 0.0 if step.descent else ShiftRule(o).curvature_floor(st.Bk, st.BN, step.dX, step.dU)
+        st.watch = Watch(pt=st.pt, dX=step.dX, dU=step.dU, D=step.D, d_tol=step.d_tol, delta=step.delta,
+                         floor=floor, mult=st.mult, mult_new=step.mult_new)
+    elif st.watch is not None:
+        st.watch.count += 1
+        if setup.merit.value(step.search.point, st.rho) <= watch_target(setup.merit, st.watch, st.rho, o.armijo):
+            st.watch = None
+        elif st.watch.count >= o.watchdog_steps:
+            st.watch.expired = True
+
+
+def report(setup, st, step):
+    """The history record of the iteration, the iteration log, and the callback (True: stop)."""
+    o, merit, pt, rho = setup.options, setup.merit, st.pt, st.rho
+    found = step.search
+    rec = {"iter": st.it, "objective": pt.J, "violation": merit.max_violation(pt), "kkt": st.kkt_res,
+           "step": found.alpha, "step_norm": step.step_norm, "merit": merit.value(pt, rho),
+           "penalty": float(max(w.max(initial=0) for w in (rho[0], rho[1], rho[3], rho[4]))),
+           "qp_iterations": int(step.qres.iterations), "ls_trials": found.trials, "mode": found.mode,
+           "shift": float(np.max(step.delta)), "D": step.D, "warm": step.warm}
+    st.history.append(rec)
+    if o.verbose >= 2:
+        if st.it == 1:
+            print(f"{'iter':>5} {'objective':>16} {'violation':>10} {'kkt':>10} {'alpha':>8} {'|s|':>10} {'penalty':>9} {'qp':>4}  mode")
+        print(f"{st.it:5d} {pt.J:16.9e} {rec['violation']:10.2e} {st.kkt_res:10.2e} {found.alpha:8.2e} "
+              f"{step.step_norm:10.2e} {rec['penalty']:9.2e} {rec['qp_iterations']:4d}  {found.mode}")
+    if setup.callback(dict(rec)):
+        return st.stop(Status.USER_STOP, f"stopped by the callback after SQP iteration {st.it}")
+    return False
+
+
+def end_expired_watch(setup, st, step):
+    """Merit not below the watched point after watchdog_steps relaxed iterations: return to it,
+    along its step if that was a descent direction; otherwise (exact Hessian) solve its QP again
+    with a larger shift, and try no more non-descent steps."""
+    o, merit = setup.options, merit_of(setup, st)
+    w = st.watch
+    if w is None or not w.expired:
+        return
+    st.watch = None
+    if not merit(st.pt) > watch_target(setup.merit, w, st.rho, o.armijo):
+        return
+    st.pt, st.mult = restore(setup, w)
+    back = None
+    if w.D < 0.0:
+        back = line_search(o, setup.problem, Direction(st.pt, w.dX, w.dU, merit(st.pt), w.D), merit, None).point
+    st.failed_watch = w
+    if back is not None:
+        back.add_derivatives(setup.problem)
+        st.pt = back
+        st.returned = True
+        st.mult = w.mult_new
+    elif setup.inertia:
+        st.force_delta = ShiftRule(o).raise_(w.delta, step.hscale, floor=w.floor)
+        st.ascent_relaxed = 0
+    st.local = False

@@ -1,0 +1,195 @@
+"""Everything one SQP solve works on (paper 001 sec. 4.2.1): the per-solve setup, the evaluated
+point y^i = (X, U) with its derivatives, the multiplier estimates, the watchdog's watched point
+and the mutable loop state. The solver object itself holds only options; a solve builds one
+:class:`SQPSetup` and one :class:`SQPState`, so one :class:`~olado.solvers.sqp.solver.SQPSolver`
+can run several solves at once (threads, or a callback that starts another solve).
+
+Layout of the stage arrays (the DOCP of eqs. (1)-(5) in its NLP form (6)): X (N+1, n),
+U (N, m); the dynamics residuals h^k = f^k(x^k, u^k) - x^{k+1} (N, n); stage constraints
+g (N, r), final constraints gN (rN,); the derivatives the QP (8)-(10) needs, per stage.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Any, Callable, NamedTuple
+
+import numpy as np
+
+from ...result import Status
+from ..common import EVALUATION_KINDS, Deadline
+
+
+class Clock:
+    """Counts and times the problem evaluations of the SQP (the share of solve time spent in
+    olado's evaluation code is reported as info["callback_share"], as for the NLP solvers)."""
+
+    def __init__(self):
+        self.counts = {k: 0 for k in EVALUATION_KINDS}
+        self.time_s = 0.0
+
+    def add(self, kinds, t0):
+        self.time_s += time.perf_counter() - t0
+        for k in kinds:
+            self.counts[k] += 1
+
+
+class Point:
+    """Values (J, h, g, gN) and, on demand, first derivatives of the DOCP at (X, U)."""
+
+    def __init__(self, problem, X, U, derivatives=True, clock=None):
+        p = problem
+        self.clock = clock if clock is not None else Clock()
+        t0 = time.perf_counter()
+        self.X, self.U = X, U
+        self.J = p.objective(X, U)
+        self.h = p.eval_dynamics(X, U) - X[1:]
+        self.g = p.eval_stage_constraints(X, U)
+        self.gN = p.eval_final_constraints(X[-1])
+        self.clock.add(("objective", "constraints"), t0)
+        self.derivs = False
+        if derivatives:
+            self.add_derivatives(problem)
+
+    def add_derivatives(self, p):
+        """Cost gradients lx, lu, lN and Jacobians A, B (dynamics), Cx, Cu (stage), CN (final)."""
+        if self.derivs:
+            return
+        t0 = time.perf_counter()
+        X, U = self.X, self.U
+        self.lx, self.lu = p.eval_stage_cost_gradients(X, U)
+        self.lN = p.eval_final_cost_gradient(X[-1])
+        self.A, self.B = p.eval_dynamics_jacobians(X, U)
+        self.Cx, self.Cu = p.eval_stage_constraint_jacobians(X, U)
+        self.CN = p.eval_final_constraint_jacobian(X[-1])
+        self.derivs = True
+        self.clock.add(("gradient", "jacobian"), t0)
+
+    def lagrangian_gradients(self, mult):
+        """Per-block gradients of the stage Lagrangians f0 + lam_{k+1}.f + Lg.g (z-blocks) and
+        of F + LgN.gN (final block); the terms linear in x_{k+1} cancel in differences."""
+        lam, Lg, LgN = mult
+        gx = self.lx + np.einsum("kij,ki->kj", self.A, lam[1:]) + np.einsum("kij,ki->kj", self.Cx, Lg)
+        gu = self.lu + np.einsum("kij,ki->kj", self.B, lam[1:]) + np.einsum("kij,ki->kj", self.Cu, Lg)
+        gN = self.lN + self.CN.T @ LgN
+        return np.concatenate([gx, gu], axis=1), gN
+
+
+class Multipliers(NamedTuple):
+    """Multiplier estimates in the Lagrangian J + sum lam_{k+1}.(f^k - x^{k+1}) + Lg.g + LgN.gN
+    (the sign convention of :mod:`olado.solvers.common`): ``lam`` (N+1, n), row k+1 for the
+    dynamics of stage k (row 0 unused); ``Lg`` (N, r) (nu for equality rows, -y for g >= 0);
+    ``LgN`` (rN,)."""
+
+    lam: np.ndarray
+    Lg: np.ndarray
+    LgN: np.ndarray
+
+    @classmethod
+    def zeros(cls, N, n, r, rN):
+        return cls(np.zeros((N + 1, n)), np.zeros((N, r)), np.zeros(rN))
+
+
+class BoundMultipliers(NamedTuple):
+    """Multipliers z_L, z_U >= 0 of the simple bounds (4)-(5), shaped like X and U."""
+
+    zl_x: np.ndarray
+    zu_x: np.ndarray
+    zl_u: np.ndarray
+    zu_u: np.ndarray
+
+    @classmethod
+    def zeros(cls, N, n, m):
+        return cls(np.zeros((N + 1, n)), np.zeros((N + 1, n)), np.zeros((N, m)), np.zeros((N, m)))
+
+
+class ConstraintMasks(NamedTuple):
+    """Equality / inequality components of the stage (g) and final (gN) constraints."""
+
+    eq: np.ndarray
+    ineq: np.ndarray
+    eqN: np.ndarray
+    ineqN: np.ndarray
+
+    @classmethod
+    def of(cls, problem):
+        return cls(problem.stage_equality_mask, ~problem.stage_equality_mask,
+                   problem.final_equality_mask, ~problem.final_equality_mask)
+
+
+@dataclasses.dataclass
+class Watch:
+    """The watchdog's watched point (Chamberlain et al. 1982): where a relaxed step started, its
+    QP step (dX, dU) with directional derivative D and tolerance d_tol, the shift delta of that
+    QP, the curvature floor of a step that was no descent direction, the multipliers at the
+    point (``mult``) and of its QP (``mult_new``), and the relaxed iterations since."""
+
+    pt: Point
+    dX: np.ndarray
+    dU: np.ndarray
+    D: float
+    d_tol: float
+    delta: np.ndarray
+    floor: float
+    mult: Multipliers
+    mult_new: Multipliers
+    count: int = 0
+    expired: bool = False
+
+
+@dataclasses.dataclass
+class SQPSetup:
+    """What stays fixed during one solve: options, problem, QP solver and the choices derived
+    from them (``inertia``: exact Hessian with the inertia correction of the QP Hessian)."""
+
+    options: Any
+    problem: Any
+    qp_solver: Any
+    interior: bool              # one of olado's interior-point QP methods
+    convexify: str              # the Hessian convexification in effect
+    inertia: bool
+    masks: ConstraintMasks
+    merit: Any                  # the merit function (olado.solvers.sqp.merit.Merit)
+    callback: Callable[[dict], bool]
+    deadline: Deadline
+    t_start: float
+
+
+@dataclasses.dataclass
+class SQPState:
+    """The mutable state of one solve: iterate, multipliers, merit weights, watchdog, Hessian,
+    inertia-correction and local-phase bookkeeping, counters and history."""
+
+    pt: Point                   # the iterate y^i, with derivatives
+    mult: Multipliers           # multipliers at pt (of the QP that produced it)
+    bounds: BoundMultipliers    # bound multipliers of the last solved QP
+    rho: tuple                  # exact-penalty weights (rho_h, rho_g, rho_gN, rho_bx, rho_bu)
+    hess: Any                   # the Hessian approximation (olado.solvers.sqp.hessian)
+    clock: Clock
+    shift: np.ndarray           # Hessian shift per stage block (N: the final block) of the last accepted step
+    ascent_relaxed: int         # non-descent steps that may still be tried as relaxed watchdog steps
+    status: Status = Status.MAX_ITERATIONS
+    message: str = ""
+    it: int = 0
+    qp_iters: int = 0
+    history: list = dataclasses.field(default_factory=list)
+    kkt_res: float = float("nan")   # KKT residual of the last test
+    kkt_rel: float = 1.0            # ... relative to grad_scale
+    grad_scale: float = 1e-300      # largest |grad J| seen
+    Bk: np.ndarray | None = None    # Hessian blocks at (pt, mult); None: to be evaluated
+    BN: np.ndarray | None = None
+    watch: Watch | None = None
+    failed_watch: Watch | None = None   # watched point of the last watchdog return
+    returned: bool = False          # the last step was a watchdog return: the next one is not relaxed
+    force_delta: np.ndarray | None = None   # shift for the next QP after a rejected step
+    force_qp_tol: float | None = None       # quasi-Newton: the tighter QP tolerance a non-descent step asked for
+    retries: int = 0                # QPs re-solved with a larger shift at the current point
+    last_qp: Any = None             # QP result of the last accepted step (warm start of the local phase)
+    local: bool = False             # local phase: full steps and a small KKT residual
+    was_local: bool = False
+    qp_local: bool = False          # the local flag the current iteration's QPs were built with
+
+    def stop(self, status, message):
+        self.status, self.message = status, message
+        return True

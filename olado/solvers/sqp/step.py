@@ -1,0 +1,224 @@
+"""The QP step of the SQP method (paper 001 sec. 4.2.1): the QP (8)-(10) in stage form at the
+iterate, its solution s with delta*I (+ the proximal term) added to the block-diagonal Hessian
+(12), the inertia correction of delta, and the QP's multipliers as the new estimates.
+
+Inertia correction (Waechter & Biegler 2006, Alg. IC, applied to the QP): a QP that fails (its
+Riccati factorizations find a reduced Hessian that is not positive definite and the interior
+point stalls) is solved again with delta = max(shift_increase delta, shift_init max|H|,
+shift_curvature (-s.H s / |s|^2)), s its last iterate; with shift_mode = "stage" only on the
+blocks without positive curvature along s, s_k.(H_k + delta_k I) s_k <= 0 (H block diagonal,
+so s.H s is the sum of these terms). A QP step that is no descent direction of the merit
+function gets the same treatment (olado.solvers.sqp.phases).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from ...qp.stageqp import StageQP
+from ...result import Status
+from .state import BoundMultipliers, Multipliers
+
+
+class QPSolve(NamedTuple):
+    """A solved QP subproblem: the QP result, the shift delta (per stage block) it was solved
+    with, and the interior-point iterations of all its attempts."""
+
+    result: Any
+    delta: np.ndarray
+    iterations: int
+
+
+def proximal_factor(options, local):
+    """The proximal factor: in the local phase ``local_proximal`` (unless None); else the
+    ``proximal`` option, by default 1e-4 with the exact Hessian and 0 with the quasi-Newton ones
+    (their blocks keep the initial scale in directions no step has explored, so max|H|
+    overstates the curvature; docs/structure-exploiting-sqp.md)."""
+    if local and options.local_proximal is not None:
+        return options.local_proximal
+    if options.proximal is not None:
+        return options.proximal
+    return 1e-4 if options.hessian == "exact" else 0.0
+
+
+def hessian_scale(Bk, BN):
+    """max|H| of the block-diagonal Hessian (at least 1e-300)."""
+    return max(1e-300, float(np.max(np.abs(Bk), initial=0.0)), float(np.max(np.abs(BN), initial=0.0)))
+
+
+def curvature(Bk, BN, dX, dU):
+    """(s.H s, s.s) for s = (dX, dU) and the block-diagonal H of the stage blocks Bk and BN."""
+    z = np.concatenate([dX[:-1], dU], axis=1)
+    sHs = float(np.einsum("ki,kij,kj->", z, Bk, z) + dX[-1] @ BN @ dX[-1])
+    return sHs, float(np.sum(z * z) + dX[-1] @ dX[-1])
+
+
+class ShiftRule:
+    """The inertia correction's shift delta (one value per stage block, N + 1 values)."""
+
+    def __init__(self, options):
+        self.options = options
+
+    def start(self, shift, hscale):
+        """The shift an iteration starts from: ``shift_decrease`` times the last one, 0 below
+        shift_min * max|H|."""
+        o = self.options
+        delta0 = shift * o.shift_decrease
+        delta0[delta0 < o.shift_min * hscale] = 0.0
+        return delta0
+
+    def raise_(self, delta, hscale, stages=None, floor=0.0):
+        """The next shift: max(shift_increase * delta_k, shift_init * max|H|, floor) on the
+        stage blocks in ``stages`` (a boolean mask over the N + 1 blocks; all if None)."""
+        o = self.options
+        new = np.maximum(o.shift_increase * delta, max(o.shift_init * hscale, floor))
+        return new if stages is None else np.where(stages, new, delta)
+
+    def raise_along(self, delta, hscale, Bk, BN, dX, dU, local):
+        """The next shift after a rejected QP step, or a failed QP's last iterate, s = (dX, dU):
+        raised on the blocks without positive curvature along s (shift_mode = 'stage'; all
+        otherwise) to at least the curvature floor of s."""
+        return self.raise_(delta, hscale, self.flat_stages(Bk, BN, delta, hscale, dX, dU, local),
+                           floor=self.curvature_floor(Bk, BN, dX, dU))
+
+    def curvature_floor(self, Bk, BN, dX, dU):
+        """shift_curvature times the negative curvature -s.H s / |s|^2 of the unshifted Hessian
+        along s (0 if none): s comes from a QP whose reduced Hessian had about that much negative
+        curvature, so a shift well below it cannot restore descent."""
+        sHs, ss = curvature(Bk, BN, dX, dU)
+        if not ss > 0.0:
+            return 0.0
+        return self.options.shift_curvature * max(0.0, -sHs / ss)
+
+    def flat_stages(self, Bk, BN, delta, hscale, dX, dU, local=False):
+        """With shift_mode = 'stage': the blocks without positive curvature along the rejected
+        step s (s_k.(H_k + (delta_k + proximal max|H|) I) s_k <= 0), or None (all blocks) when
+        there is none or shift_mode = 'global'."""
+        if self.options.shift_mode != "stage":
+            return None
+        prox = proximal_factor(self.options, local) * hscale
+        z = np.concatenate([dX[:-1], dU], axis=1)
+        curv = np.empty(len(delta))
+        curv[:-1] = np.einsum("ki,kij,kj->k", z, Bk, z) + (delta[:-1] + prox) * np.einsum("ki,ki->k", z, z)
+        curv[-1] = dX[-1] @ BN @ dX[-1] + (delta[-1] + prox) * (dX[-1] @ dX[-1])
+        flat = curv <= 0.0
+        return flat if flat.any() else None
+
+
+def qp_tolerance(options, kkt_res, grad_scale):
+    """Tolerance of the next interior-point QP: ``qp_tol``, or with ``qp_adaptive_tol`` the
+    inexact-SQP rule clip(qp_forcing * KKT residual / (1 + |grad J|), qp_tol, qp_tol_max)."""
+    o = options
+    if not o.qp_adaptive_tol or not math.isfinite(kkt_res):
+        return o.qp_tol if not o.qp_adaptive_tol else max(o.qp_tol, o.qp_tol_max)
+    return min(max(o.qp_tol, o.qp_forcing * kkt_res / (1.0 + grad_scale)), max(o.qp_tol, o.qp_tol_max))
+
+
+def build_qp(p, pt, Bk, BN, masks, offsets=None):
+    """The QP (8)-(10) in the step (dx, du) at the point pt, in stage form. ``offsets`` =
+    (h, g, gN) replaces the constraint values of the linearization (second-order correction)."""
+    eq, ineq, eqN, ineqN = masks
+    N, n = p.N, p.n
+    X, U = pt.X, pt.U
+    h, g, gN = (pt.h, pt.g, pt.gN) if offsets is None else offsets
+    Q = np.empty((N + 1, n, n))
+    Q[:-1] = Bk[:, :n, :n]; Q[-1] = BN
+    kw = {}
+    if p.r and eq.any():
+        kw.update(E=pt.Cx[:, eq, :], F=pt.Cu[:, eq, :], e=g[:, eq])
+    if p.r and ineq.any():
+        C = np.concatenate([pt.Cx[:, ineq, :], pt.Cu[:, ineq, :]], axis=2)
+        kw.update(C=C, c_lower=-g[:, ineq], c_upper=np.full((N, int(ineq.sum())), np.inf))
+    if p.rN and eqN.any():
+        kw.update(EN=pt.CN[eqN], eN=gN[eqN])
+    if p.rN and ineqN.any():
+        kw.update(CN=pt.CN[ineqN], cN_lower=-gN[ineqN], cN_upper=np.full(int(ineqN.sum()), np.inf))
+    xl = p.x_lower - X; xu = p.x_upper - X
+    xl[0] = -np.inf; xu[0] = np.inf      # x0 is fixed by the x0 row; its bounds are not the QP's business
+    return StageQP(Q=Q, R=Bk[:, n:, n:], S=Bk[:, :n, n:], q=np.vstack([pt.lx, pt.lN[None, :]]), r=pt.lu,
+                   A=pt.A, B=pt.B, c=h, x0=p.x0 - X[0], x_lower=xl, x_upper=xu,
+                   u_lower=p.u_lower - U, u_upper=p.u_upper - U, **kw)
+
+
+def _qp_shift(qp_solver, qres):
+    """The shift an interior-point QP in nonconvex = "shift" mode added to its Hessian (0 otherwise)."""
+    opts = getattr(qp_solver, "options", None)
+    if getattr(opts, "nonconvex", "regularize") != "shift":
+        return 0.0
+    reg = float(getattr(qres, "regularization", 0.0) or 0.0)
+    return reg if reg > 10.0 * opts.regularization else 0.0
+
+
+_FAILED = (Status.NUMERICAL_ERROR, Status.UNBOUNDED, Status.MAX_ITERATIONS, Status.FAILED)
+
+
+def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=False, offsets=None):
+    """Solve the QP subproblem at pt with delta*I (+ the proximal term) added to the Hessian.
+    With ``inertia`` a QP whose KKT factorization fails -- a reduced Hessian that is not positive
+    definite -- is solved again with a larger delta (:class:`ShiftRule`); with ``curvature_tol``
+    so is a QP step along which the Hessian has almost no positive curvature (inertia-free test,
+    Chiang & Zavala 2016). ``warm`` is a QPResult to start the QP from. Reads the local-phase flag
+    and the relative KKT residual of ``st``; returns a :class:`QPSolve`."""
+    o, p, qp_solver = setup.options, setup.problem, setup.qp_solver
+    rule = ShiftRule(o)
+    iterations = 0
+    scale = hessian_scale(Bk, BN)
+    # Levenberg-Marquardt-like: delta shrinks with the relative KKT residual of the last
+    # iterate (kept superlinear), but never exceeds proximal * max|H|
+    prox_factor = proximal_factor(o, st.qp_local)
+    prox = min(prox_factor, st.kkt_rel) * scale if o.adaptive_proximal else prox_factor * scale
+    n, m = p.n, p.m
+    for _ in range(30):
+        if np.any(delta + prox > 0):
+            Bd = Bk + (delta[:-1] + prox)[:, None, None] * np.eye(n + m)
+            BNd = BN + (delta[-1] + prox) * np.eye(n)
+        else:
+            Bd, BNd = Bk, BN
+        qp = build_qp(p, pt, Bd, BNd, setup.masks, offsets)
+        if zero_gradient:
+            qp.q[:] = 0.0
+            qp.r[:] = 0.0
+        qres = qp_solver.solve(qp, warm_start=warm)
+        iterations += int(qres.iterations)
+        if inertia and o.curvature_tol > 0 and qres.success:
+            sHs, ss = curvature(Bd, BNd, qres.X, qres.U)
+            if not sHs >= o.curvature_tol * scale * ss:
+                delta = rule.raise_(delta, scale)
+                continue
+        qshift = _qp_shift(qp_solver, qres)
+        if not inertia or qres.success or qres.status not in _FAILED:
+            return QPSolve(qres, delta + qshift, iterations)
+        # a failed QP: raise the shift (with shift_mode = 'stage' on the blocks without positive
+        # curvature along its last iterate, when it has one)
+        if qres.X is not None and np.all(np.isfinite(qres.X)) and np.all(np.isfinite(qres.U)):
+            delta = rule.raise_along(delta, scale, Bk, BN, qres.X, qres.U, st.qp_local)
+        else:
+            delta = rule.raise_(delta, scale)
+    return QPSolve(qres, delta, iterations)
+
+
+def qp_multipliers(qres, masks, N, r, rN):
+    """The QP's multipliers as the new NLP estimates: (Multipliers, BoundMultipliers)."""
+    eq, ineq, eqN, ineqN = masks
+    Lg = np.zeros((N, r))
+    if r:
+        Lg[:, eq] = qres.nu[:N, : int(eq.sum())]
+        Lg[:, ineq] = -(qres.yc_lower - qres.yc_upper)
+    LgN = np.zeros(rN)
+    if rN:
+        LgN[eqN] = qres.nu[N, : int(eqN.sum())]
+        LgN[ineqN] = -(qres.yN_lower - qres.yN_upper)
+    bounds = BoundMultipliers(qres.zx_lower, qres.zx_upper, qres.zu_lower, qres.zu_upper)
+    return Multipliers(qres.lam.copy(), Lg, LgN), bounds
+
+
+def soc_offsets(p, pt, cand, dX, dU):
+    """Constraint values for the second-order correction QP: c(pt + s) - J(pt) s for the
+    dynamics (h = f - x_+), the stage and the final constraints (the bounds are linear)."""
+    h = cand.h - (np.einsum("kij,kj->ki", pt.A, dX[:-1]) + np.einsum("kij,kj->ki", pt.B, dU) - dX[1:])
+    g = cand.g - (np.einsum("kij,kj->ki", pt.Cx, dX[:-1]) + np.einsum("kij,kj->ki", pt.Cu, dU)) if p.r else cand.g
+    gN = cand.gN - pt.CN @ dX[-1] if p.rN else cand.gN
+    return h, g, gN
