@@ -181,8 +181,7 @@ def _cmd_solve(args) -> int:
 
 
 def _cmd_list(args) -> int:
-    from .config import solver_available
-    from .solvers.registry import available_solvers
+    from .solvers.registry import SOLVERS  # a table: no solver module is imported to list them
 
     problems = _problem_registry()
     print("problems:")
@@ -191,19 +190,19 @@ def _cmd_list(args) -> int:
     width = max([len(n) for n in problems] + [8])
     for name in problems:  # registry order (zambezi, zambezi8, ..., zambezi12)
         print(f"  {name:<{width}}  {_first_line(problems[name])}".rstrip())
-    solvers = available_solvers()
     print("solvers:")
-    width = max([len(n) for n in solvers] + [8])
-    for name in sorted(solvers):
-        cls = solvers[name]
-        text = getattr(cls, "description", "") or _first_line(cls)
-        mark = "" if solver_available(cls) else "  [not installed"
-        if mark:
-            hint = getattr(cls, "install_hint", None) or (
-                "pip install 'olado[ipopt]'" if name == "ipopt" else None)
-            mark += f": {hint}]" if hint else "]"
-        print(f"  {name:<{width}}  {text}{mark}".rstrip())
+    width = max([len(n) for n in SOLVERS] + [8])
+    for name in sorted(SOLVERS):
+        print(f"  {name:<{width}}  {SOLVERS.summary(name)}{_missing_mark(SOLVERS, name)}".rstrip())
     return EXIT_SUCCESS
+
+
+def _missing_mark(registry, name) -> str:
+    """``"  [not installed: <how to install>]"`` when a module the solver needs is missing."""
+    if not registry.missing(name):
+        return ""
+    install = registry.entry(name).install
+    return f"  [not installed: {install}]" if install else "  [not installed]"
 
 
 def main(argv=None) -> int:

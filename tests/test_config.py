@@ -32,10 +32,10 @@ class DummySolver(Solver):
 
 
 @pytest.fixture
-def dummy(monkeypatch):
-    registry.available_solvers()  # load the built-ins first
-    monkeypatch.setitem(registry.SOLVERS, "dummy", DummySolver)
-    return DummySolver
+def dummy():
+    registry.SOLVERS.add("dummy", DummySolver)
+    yield DummySolver
+    registry.SOLVERS.remove("dummy")
 
 
 def write(tmp_path, text, name="conf.ini"):

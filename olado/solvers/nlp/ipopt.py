@@ -22,8 +22,8 @@ import numpy as np
 from ...errors import ConfigError, ProblemDefinitionError, SolverNotAvailableError
 from ...result import Status
 from .. import common
-from ..base import Solver, SolverOptions, option
-from ..registry import register
+from ...options import option
+from ..base import Solver, SolverOptions
 
 INSTALL_HINT = ('IPOPT support needs cyipopt: pip install "olado[ipopt]" (installs the '
                 "cyipopt-wheels package with IPOPT 3.14 and MUMPS), or on Debian/Ubuntu: "
@@ -101,19 +101,18 @@ class IpoptOptions(SolverOptions):
                                  ini=True)
 
 
-@register
 class IpoptSolver(Solver):
     """IPOPT (interior point, filter line search; paper 001 sec. 4.3.2) on the sparse NLP view."""
 
     name = "ipopt"
     Options = IpoptOptions
-    description = "IPOPT interior-point method (cyipopt) on the sparse NLP view, sec. 4.3.2"
 
     @classmethod
     def available(cls) -> bool:
+        """True when cyipopt imports (a broken installation counts as a missing one)."""
         try:
             import_cyipopt()
-        except SolverNotAvailableError:
+        except Exception:
             return False
         return True
 

@@ -70,9 +70,9 @@ from ...qp import INTERIOR_POINT_METHODS, QP_METHODS, make_qp_solver
 from ...qp.stageqp import StageQP
 from ...result import Status
 from ..common import EVALUATION_KINDS, Deadline, build_result, make_nlp
-from ..base import Solver, SolverOptions, option
+from ...options import option
+from ..base import Solver, SolverOptions
 from .hessian import make_hessian
-from ..registry import register
 
 KKT_SOLVERS = ("riccati", "superlu-full", "superlu-reduced", "minres", "gmres")
 
@@ -81,7 +81,7 @@ def _apply_qp_options(qp_solver, qp_name, qp_options):
     """Set ``qp_options`` (SQPOptions) on the QP solver's options, each checked like any option;
     with an external backend a key that ExternalQPOptions does not know is passed to the backend
     itself (``backend_options``); with olado's methods it is an error naming the key."""
-    from ..base import validate_value
+    from ...options import validate_value
 
     opts = qp_solver.options
     known = {f.name for f in dataclasses.fields(opts)}
@@ -275,13 +275,11 @@ class _Point:
         return np.concatenate([gx, gu], axis=1), gN
 
 
-@register
 class SQPSolver(Solver):
     """Powell's SQP (paper 001 sec. 4.2.1) with structure-exploiting QP subproblems."""
 
     name = "sqp"
     Options = SQPOptions
-    description = "Powell's SQP, L1 merit + watchdog, block Hessians, interior-point QP with the Riccati KKT solver"
 
     def _solve(self, problem, X0, U0):
         o = self.options
