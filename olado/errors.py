@@ -1,4 +1,4 @@
-"""The small error hierarchy of olado (ARCHITECTURE.md, "Conventions").
+"""The small error hierarchy of olado (docs/architecture.md, "Conventions").
 
 Non-convergence is never an exception: it is a :class:`olado.result.Status`. Exceptions are for
 input that cannot be used (a bad config value, a problem function returning a wrong shape) and
