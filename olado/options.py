@@ -29,8 +29,8 @@ from typing import Any
 
 from .errors import ConfigError
 
-__all__ = ["option", "option_fields", "OptionSpec", "option_specs", "split_optional", "parse_value",
-           "parse_scalar", "validate_value", "read_value", "make_options", "raw_options_field"]
+__all__ = ["option", "option_fields", "OptionSpec", "option_specs", "split_optional", "is_dict_type",
+           "parse_value", "parse_scalar", "validate_value", "read_value", "make_options", "raw_options_field"]
 
 TRUE_WORDS = ("true", "yes", "on", "1")
 FALSE_WORDS = ("false", "no", "off", "0")
