@@ -176,6 +176,10 @@ def parse_overrides(overrides) -> list:
     return out
 
 
+#: section -> key -> (value, origin: the file it was read from or "<overrides>")
+Layers = dict[str, dict[str, tuple[Any, str]]]
+
+
 def load_config(path=None, overrides=None) -> SolverConfig:
     """Read an ini file (or none) plus overrides into a validated :class:`SolverConfig`.
 
@@ -192,10 +196,6 @@ def load_config(path=None, overrides=None) -> SolverConfig:
     built = {name: _build_options(name, layers.get(name, {}), layers.get(f"{name}.raw", {}), source)
              for name in SOLVERS if name == solver or name in layers or f"{name}.raw" in layers}
     return SolverConfig(solver=solver, options=built[solver], problem=problem, source=source)
-
-
-#: section -> key -> (value, origin: the file it was read from or "<overrides>")
-Layers = dict[str, dict[str, tuple[Any, str]]]
 
 
 def _file_layers(path) -> tuple[Layers, str]:
