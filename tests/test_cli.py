@@ -137,6 +137,19 @@ def test_python_dash_m(tmp_path):
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
 
 
+@pytest.mark.parametrize("argv,code", [(["list"], 0), (["solve", "nosuchproblem"], 2)])
+def test_run_exits_with_mains_code_after_freezing_the_heap(argv, code):
+    script = ("import atexit, gc, sys\n"
+              "atexit.register(lambda: print('frozen at exit:', gc.get_freeze_count() > 0))\n"
+              f"sys.argv = ['olado', *{argv!r}]\n"
+              "from olado.cli import run\n"
+              "run()\n"
+              "print('not reached')\n")
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=REPO, timeout=120)
+    assert proc.returncode == code, proc.stderr
+    assert proc.stdout.rstrip().endswith("frozen at exit: True") and "not reached" not in proc.stdout
+
+
 def _console_script():
     """The installed ``olado`` command of this interpreter's environment, else one on PATH."""
     beside = Path(sys.executable).parent / "olado"
