@@ -1,8 +1,8 @@
 """Child process of bench_startup.py: run ``olado.cli.main(argv)`` of the checkout ROOT and print,
 as JSON, where the wall time went, each second attributed exclusively to one item:
 
-* phases of the command (``load_config``, ``build_problem``, ``counts``, ``make_solver``,
-  ``solve``, ``print``; ``main`` is what the command does outside them: parsing argv, ...);
+* phases of the command (``load_config``, ``build_problem``, ``counts_line``, ``make_solver``,
+  ``solve``; ``main`` is what the command does outside them: parsing argv, printing, ...);
 * within each phase: imports by top-level package (``olado`` modules by name), numba's one-off
   target-context set-up (``numba init``), loading each kernel module's compiled functions from
   numba's cache (``numba load``) and compiling them when the cache is cold (``numba compile``);
@@ -10,7 +10,9 @@ as JSON, where the wall time went, each second attributed exclusively to one ite
 
     python _startup_probe.py ROOT solve zambezi12 --N 24 --config configs/sqp-ip.ini
 
-Only olado's public command line and numba's caching entry points are wrapped, so the probe runs
+The last JSON field, ``end_time`` (time.time()), lets the parent measure the interpreter's teardown
+after the command. Only olado's command-line phases (``olado.cli.run`` where it exists, else
+``main``), the import machinery and numba's caching entry points are wrapped, so the probe runs
 unchanged on old and new checkouts. Run it with the working directory ROOT.
 """
 
@@ -158,15 +160,19 @@ def main():
     for attr in ("load_config", "make_solver"):
         _phase(config, attr)
     out = io.StringIO()
+    sys.argv = ["olado", *ARGV]
     with contextlib.redirect_stdout(out):
-        code = cli.main(ARGV)
+        try:  # the program's own entry point where it has one (it also prepares the exit)
+            code = cli.run() if hasattr(cli, "run") else cli.main()
+        except SystemExit as exc:
+            code = exc.code
     while len(LEDGER.stack) > 1:
         LEDGER.leave()
     LEDGER._book_top(_clock())
     rows = [{"phase": p, "kind": k, "detail": d, "wall": w, "cpu": c, "count": LEDGER.counts.get((p, k, d), 0)}
             for (p, k, d), (w, c) in LEDGER.totals.items()]
     print(json.dumps({"exit": code, "in_process_s": time.perf_counter() - T_START, "rows": rows,
-                      "output": out.getvalue()[-2000:]}))
+                      "output": out.getvalue()[-2000:], "end_time": time.time()}), flush=True)
 
 
 main()

@@ -4,13 +4,15 @@ Measured, each in fresh processes (PYTHONPATH and working directory = the checko
 
 * whole-process wall and CPU time (median of --runs) of ``olado solve zambezi12 --N 24 --config
   configs/sqp-ip.ini`` with a warm numba cache, of ``python -c "import olado"``, of ``olado
-  list`` and, for reference, of ``python -c pass`` and of the numba floor (``import numba`` and
-  the first call of one trivial cached kernel: what any numba-compiled solve pays at least);
+  list`` and, for reference, of ``python -c pass`` and of the numba floor (``import numba``, the
+  first call of one trivial cached kernel and ``gc.freeze()``: what any numba-compiled solve pays
+  at least);
 * the solve's imports itemised by package (``python -X importtime``, self times, median of
   --probe-runs);
 * the solve's time split by phase of the command and, inside each, into imports, numba's one-off
   target-context set-up, numba cache loads (per kernel module, with the number of compiled entry
-  points loaded) and the phase's own computation (``_startup_probe.py``, median of --probe-runs);
+  points loaded) and the phase's own computation, and the interpreter's teardown after the
+  command (``_startup_probe.py``, median of --probe-runs);
 * the first-ever run: the same solve with an empty numba cache (``NUMBA_CACHE_DIR`` set to a new
   temporary directory), whole wall time and compile time per kernel module.
 
@@ -45,7 +47,7 @@ from _common import HERE, machine, write_section
 
 SECTION = "Start-up time of the olado command (zambezi12, N = 24, sqp-ip)"
 SOLVE = ["solve", "zambezi12", "--N", "24", "--config", "configs/sqp-ip.ini"]
-FLOOR = "numba floor: import numba, call one cached kernel"
+FLOOR = "numba floor: import numba, call one cached kernel, gc.freeze()"
 #: a module with one cached numba kernel: the start-up any numba-compiled solve pays at least
 FLOOR_KERNEL = "import numba\n\n@numba.njit(cache=True)\ndef f(x):\n    return x + 1.0\n"
 
@@ -57,7 +59,8 @@ def commands(floor_dir) -> dict:
         'python -c "import olado"': ["-c", "import olado"],
         "olado list": ["-m", "olado", "list"],
         "python -c pass (interpreter alone)": ["-c", "pass"],
-        FLOOR: ["-c", f"import sys; sys.path.insert(0, {str(floor_dir)!r}); import numba_floor; numba_floor.f(1.0)"],
+        FLOOR: ["-c", f"import gc, sys; sys.path.insert(0, {str(floor_dir)!r}); import numba_floor; "
+                      "numba_floor.f(1.0); gc.freeze()"],
     }
 PROBE = HERE / "_startup_probe.py"
 KINDS = ("import", "numba init", "numba load", "numba compile")
@@ -89,6 +92,7 @@ class Run:
     cpu: float
     stdout: str
     stderr: str
+    end_time: float  # time.time() when the process had ended
 
 
 @dataclasses.dataclass
@@ -115,7 +119,7 @@ class Runner:
             raise RuntimeError(f"{checkout.label}: python {' '.join(args)} exited {proc.returncode}:\n"
                                f"{proc.stderr[-2000:]}")
         cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-        return Run(wall, cpu, proc.stdout, proc.stderr)
+        return Run(wall, cpu, proc.stdout, proc.stderr, time.time())
 
 
 def alternating(checkouts, count):
@@ -179,7 +183,8 @@ def probes(runner, checkouts, runs, extra_env=None) -> dict:
     out = defaultdict(list)
     for _, c in alternating(checkouts, runs):
         result = runner.run(c, [str(PROBE), str(c.root), *SOLVE], extra_env)
-        out[c.label].append(json.loads(result.stdout.strip().splitlines()[-1]) | {"wall": result.wall})
+        data = json.loads(result.stdout.strip().splitlines()[-1])
+        out[c.label].append(data | {"wall": result.wall, "teardown": result.end_time - data["end_time"]})
     return out
 
 
@@ -294,6 +299,12 @@ def numba_table(labels, results, kind) -> list[str]:
     return table(["kernel module"] + [f"{label}: ms (entry points)" for label in labels], rows)
 
 
+def teardown_line(labels, results) -> str:
+    parts = [f"{label} {ms(statistics.median(r['teardown'] for r in results[label]))} ms" for label in labels]
+    return ("Interpreter teardown after the command (wall time from the probe's last output to the end of "
+            "the process, median): " + ", ".join(parts) + ".")
+
+
 def init_line(labels, results) -> str:
     parts = [f"{label} {ms(statistics.median(split(r, numba_by_module('numba init')).get('target context', 0.0) for r in results[label]))} ms"
              for label in labels]
@@ -311,7 +322,7 @@ def report(args, checkouts, walls, imports, probe_results, first, load) -> str:
     lines += [f"Whole process, warm numba cache, {args.runs} runs per command and checkout, alternating. "
               f"The last row is a reference independent of olado: `import numba` plus the first call of one "
               "trivial cached kernel (numba's import, its target-context set-up, which imports scipy.linalg "
-              "for BLAS, and one cache load).", ""]
+              "for BLAS, and one cache load), then `gc.freeze()` as the olado program does before it exits.", ""]
     lines += whole_process_table(labels, walls) + [""]
     lines += ["Imports of the solve (`python -X importtime`, self time per package; `olado` modules one by one; "
               f"median of {args.probe_runs}):", ""]
@@ -324,7 +335,8 @@ def report(args, checkouts, walls, imports, probe_results, first, load) -> str:
         lines += phase_table(label, probe_results[label]) + [""]
     lines += ["Numba cache loads per kernel module (warm cache: CPU ms, median; in brackets the compiled "
               "entry points loaded):", ""]
-    lines += numba_table(labels, probe_results, "numba load") + ["", init_line(labels, probe_results), ""]
+    lines += numba_table(labels, probe_results, "numba load") + ["", init_line(labels, probe_results), "",
+                                                                 teardown_line(labels, probe_results), ""]
     if first:
         lines += ["First-ever run (empty numba cache): whole-process wall "
                   + ", ".join(f"{label} {first[label][0].wall:.1f} s" for label in labels)
