@@ -79,8 +79,8 @@ class Checkout:
         try:
             commit = subprocess.run([*git, "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
                                     check=True).stdout.strip()
-            dirty = subprocess.run([*git, "status", "--porcelain", "--untracked-files=no"], capture_output=True,
-                                   text=True, check=True).stdout.strip()
+            dirty = subprocess.run([*git, "status", "--porcelain", "--untracked-files=no", "--", ".",
+                                    ":!benchmarks/RESULTS.md"], capture_output=True, text=True, check=True).stdout.strip()
         except (OSError, subprocess.CalledProcessError):
             return f"{self.label}: {self.root}"
         return f"{self.label}: {self.root} at {commit}{' (with uncommitted changes)' if dirty else ''}"
