@@ -23,7 +23,8 @@ go to a temporary ``PYTHONPYCACHEPREFIX``), as for an installed package; one war
 command per checkout is not counted.
 
     python benchmarks/bench_startup.py                            # this checkout; writes RESULTS.md
-    python benchmarks/bench_startup.py --compare /path/to/old     # old vs this, side by side
+    git worktree add ../olado-old 45903b1                         # an old commit to compare with
+    python benchmarks/bench_startup.py --compare ../olado-old     # old vs this, side by side
     python benchmarks/bench_startup.py --runs 5 --no-compile --no-write
 """
 
