@@ -31,7 +31,7 @@ _LAZY = {
     "SolverError": "olado.errors",
     "SolverNotAvailableError": "olado.errors",
 }
-_SUBMODULES = ("errors", "result", "config", "api", "problems", "solvers", "linalg", "bench", "cli")
+_SUBMODULES = ("errors", "result", "config", "options", "api", "problems", "solvers", "linalg", "qp", "cli")
 
 __all__ = ["__version__", "errors", *_LAZY]
 

@@ -17,6 +17,7 @@ stderr without a traceback.
 from __future__ import annotations
 
 import argparse
+import gc
 import inspect
 import re
 import sys
@@ -181,8 +182,7 @@ def _cmd_solve(args) -> int:
 
 
 def _cmd_list(args) -> int:
-    from .config import solver_available
-    from .solvers.registry import available_solvers
+    from .solvers.registry import SOLVERS  # a table: no solver module is imported to list them
 
     problems = _problem_registry()
     print("problems:")
@@ -191,19 +191,19 @@ def _cmd_list(args) -> int:
     width = max([len(n) for n in problems] + [8])
     for name in problems:  # registry order (zambezi, zambezi8, ..., zambezi12)
         print(f"  {name:<{width}}  {_first_line(problems[name])}".rstrip())
-    solvers = available_solvers()
     print("solvers:")
-    width = max([len(n) for n in solvers] + [8])
-    for name in sorted(solvers):
-        cls = solvers[name]
-        text = getattr(cls, "description", "") or _first_line(cls)
-        mark = "" if solver_available(cls) else "  [not installed"
-        if mark:
-            hint = getattr(cls, "install_hint", None) or (
-                "pip install 'olado[ipopt]'" if name == "ipopt" else None)
-            mark += f": {hint}]" if hint else "]"
-        print(f"  {name:<{width}}  {text}{mark}".rstrip())
+    width = max([len(n) for n in SOLVERS] + [8])
+    for name in sorted(SOLVERS):
+        print(f"  {name:<{width}}  {SOLVERS.summary(name)}{_missing_mark(SOLVERS, name)}".rstrip())
     return EXIT_SUCCESS
+
+
+def _missing_mark(registry, name) -> str:
+    """``"  [not installed: <how to install>]"`` when a module the solver needs is missing."""
+    if not registry.missing(name):
+        return ""
+    install = registry.entry(name).install
+    return f"  [not installed: {install}]" if install else "  [not installed]"
 
 
 def main(argv=None) -> int:
@@ -241,5 +241,20 @@ def main(argv=None) -> int:
         return 130
 
 
+def run():
+    """The ``olado`` program (the console script and ``python -m olado``): :func:`main` on
+    ``sys.argv``, then exit with its code.
+
+    Before the exit every object alive is moved to the garbage collector's permanent generation
+    (:func:`gc.freeze`), which the interpreter's final collections skip: after numba has loaded
+    or compiled kernels, its object graph makes those collections take about 0.4 s, a quarter of a
+    small solve's wall time (benchmarks/RESULTS.md, start-up section). Nothing else changes: output
+    is flushed and atexit handlers run as usual. Not for use inside a longer-lived process (the
+    frozen objects would never be collected): call :func:`main` there."""
+    code = main()
+    gc.freeze()
+    sys.exit(code)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    run()

@@ -1,4 +1,4 @@
-"""Ini files -> typed, validated solver options (ARCHITECTURE.md, "Conventions").
+"""Ini files -> typed, validated solver options (docs/architecture.md, "Conventions").
 
 An olado configuration file is a plain ini file::
 
@@ -39,26 +39,31 @@ values.
 Overrides (the command line's ``--set``, or :func:`load_config`'s ``overrides``) are
 ``"section.key=value"`` strings, or a dict ``{"section.key": value}`` / ``{"section": {key:
 value}}``; a key with no section (``"tol=1e-6"``) goes to the selected solver's section. They are
-applied on top of the file.
+applied on top of the file; keyword options (:func:`with_overrides`, ``olado.solve(..., tol=...)``)
+on top of both.
+
+This module reads files and layers values; reading and checking one value is
+:mod:`olado.options`' job, the solver names come from :data:`olado.solvers.registry.SOLVERS`.
 """
 
 from __future__ import annotations
 
 import configparser
 import dataclasses
-import typing
 from pathlib import Path
 from typing import Any
 
 from .errors import ConfigError
+from .options import option_specs, parse_scalar, parse_value, raw_options_field, read_value, validate_value
+from .solvers.registry import SOLVERS
 
 __all__ = [
     "SolverConfig",
     "load_config",
     "config_from_kwargs",
+    "with_overrides",
     "make_solver",
     "default_solver_name",
-    "solver_available",
     "raw_options_field",
     "parse_overrides",
     "PROBLEM_KEYS",
@@ -67,9 +72,9 @@ __all__ = [
 #: Keys of the optional ``[problem]`` section and their types (matched case-insensitively).
 PROBLEM_KEYS = {"name": str, "N": int, "start": str, "year": int}
 
-_TRUE = ("true", "yes", "on", "1")
-_FALSE = ("false", "no", "off", "0")
 _OVERRIDES = "<overrides>"
+#: solvers tried, in order, when none is named
+_DEFAULT_SOLVERS = ("ipopt", "trust-constr", "slsqp")
 
 
 @dataclasses.dataclass
@@ -88,162 +93,20 @@ class SolverConfig:
 
 
 # ---------------------------------------------------------------------------- solver lookup
-def _registry():
-    from .solvers import registry
-
-    return registry
-
-
-def solver_available(cls_or_name) -> bool:
-    """True when the solver's optional back-end can be imported (e.g. cyipopt for ipopt).
-
-    A solver class may say so itself through an ``available()`` classmethod (or a boolean
-    ``available`` attribute); a solver that says nothing is taken to be available."""
-    cls = cls_or_name
-    if isinstance(cls_or_name, str):
-        try:
-            cls = _registry().get_solver_class(cls_or_name)
-        except ConfigError:
-            return False
-    for attr in ("available", "is_available", "backend_available"):
-        probe = getattr(cls, attr, None)
-        if probe is None:
-            continue
-        try:
-            return bool(probe() if callable(probe) else probe)
-        except Exception:  # a broken back-end is a missing one
-            return False
-    return True
-
-
 def default_solver_name() -> str:
     """The solver used when none is named: ``ipopt`` when cyipopt is installed (it exploits the
     sparse stage structure and is the reference solver of the paper), else SciPy's
     ``trust-constr`` (sparse-aware, always available)."""
-    solvers = _registry().available_solvers()
-    for name in ("ipopt", "trust-constr", "slsqp"):
-        if name in solvers and solver_available(solvers[name]):
+    for name in (*_DEFAULT_SOLVERS, *sorted(SOLVERS)):
+        if name in SOLVERS and SOLVERS[name].available():
             return name
-    for name, cls in sorted(solvers.items()):
-        if solver_available(cls):
-            return name
-    raise ConfigError("no solver is available", allowed=", ".join(sorted(solvers)))
+    raise ConfigError("no solver is available", allowed=", ".join(sorted(SOLVERS)))
 
 
-def _solver_class(name, *, file=None, section=None, key=None):
-    reg = _registry()
-    solvers = reg.available_solvers()
-    if name not in solvers:
-        raise ConfigError(f"unknown solver {name!r}", file=file, section=section, key=key,
-                          allowed=", ".join(sorted(solvers)))
-    return solvers[name]
-
-
-# ---------------------------------------------------------------------------- typing helpers
-def _type_hints(options_cls) -> dict:
-    try:
-        return typing.get_type_hints(options_cls)
-    except Exception:  # unresolvable annotation: fall back to the raw strings
-        return {f.name: f.type for f in dataclasses.fields(options_cls)}
-
-
-def _is_dict_type(typ) -> bool:
-    return typ is dict or typing.get_origin(typ) is dict
-
-
-def raw_options_field(options_cls, solver_name: str) -> str | None:
-    """Name of the Options field that receives a ``[<solver>.raw]`` section, or None.
-
-    In order: a dict field with metadata ``raw=True``; a field named ``<solver>_options``
-    (dashes as underscores); a field named ``raw_options``."""
-    hints = _type_hints(options_cls)
-    fields = {f.name: f for f in dataclasses.fields(options_cls)}
-    for f in fields.values():
-        if f.metadata.get("raw") and _is_dict_type(hints.get(f.name)):
-            return f.name
-    for candidate in (solver_name.replace("-", "_").replace(".", "_") + "_options", "raw_options"):
-        if candidate in fields and _is_dict_type(hints.get(candidate, dict)):
-            return candidate
-    return None
-
-
-def _split_optional(typ):
-    """(inner type, allows None) for ``X | None`` / ``Optional[X]``."""
-    args = typing.get_args(typ)
-    origin = typing.get_origin(typ)
-    if origin is typing.Union or type(typ).__name__ == "UnionType":
-        inner = [a for a in args if a is not type(None)]
-        if len(inner) == 1 and len(args) == 2:
-            return inner[0], True
-        return Any, type(None) in args
-    return typ, False
-
-
-def _parse_number(text):
-    """int, else float, else None."""
-    try:
-        return int(text, 10)
-    except ValueError:
-        pass
-    try:
-        return float(text)
-    except ValueError:
-        return None
-
-
-def _unquote(text: str) -> str:
-    if len(text) >= 2 and text[0] == text[-1] and text[0] in "'\"":
-        return text[1:-1]
-    return text
-
-
-def parse_scalar(text: str):
-    """Best-effort typing of an untyped value (raw back-end options): int, float or str."""
-    text = text.strip()
-    if len(text) >= 2 and text[0] == text[-1] and text[0] in "'\"":
-        return text[1:-1]
-    number = _parse_number(text)
-    return text if number is None else number
-
-
-def parse_value(text, typ, *, file=None, section=None, key=None):
-    """Convert an ini string to the declared type ``typ`` (validation of range/choices is
-    :func:`olado.solvers.base.validate_value`'s job)."""
-    if not isinstance(text, str):  # already typed (dict overrides, keyword arguments)
-        return text
-    text = text.strip()
-    inner, optional = _split_optional(typ)
-    if optional and text.lower() in ("none", "null", ""):
-        return None
-    typ = inner
-    if typ is bool:
-        low = text.lower()
-        if low in _TRUE:
-            return True
-        if low in _FALSE:
-            return False
-        raise ConfigError(f"expected a boolean, got {text!r}", file=file, section=section, key=key,
-                          allowed="true, false, yes, no, on, off, 1, 0")
-    if typ is int:
-        value = _parse_number(text)
-        if isinstance(value, float) and value.is_integer():
-            value = int(value)
-        if not isinstance(value, int):
-            raise ConfigError(f"expected an integer, got {text!r}", file=file, section=section,
-                              key=key, allowed="an integer such as 100")
-        return value
-    if typ is float:
-        value = _parse_number(text)
-        if value is None:
-            raise ConfigError(f"expected a number, got {text!r}", file=file, section=section,
-                              key=key, allowed="a number such as 1e-8, 0.5 or inf")
-        return float(value)
-    if typ is str:
-        return _unquote(text)
-    if _is_dict_type(typ):
-        raise ConfigError("a mapping cannot be written as one value; use a [<solver>.raw] section",
-                          file=file, section=section, key=key)
-    return parse_scalar(text)
+def _solver_class(name):
+    """The class of solver ``name`` (its module imported now); an unknown name is a ConfigError."""
+    _check_solver_name(name)
+    return SOLVERS[name]
 
 
 # ---------------------------------------------------------------------------- reading
@@ -313,74 +176,90 @@ def parse_overrides(overrides) -> list:
     return out
 
 
+#: section -> key -> (value, origin: the file it was read from or "<overrides>")
+Layers = dict[str, dict[str, tuple[Any, str]]]
+
+
 def load_config(path=None, overrides=None) -> SolverConfig:
     """Read an ini file (or none) plus overrides into a validated :class:`SolverConfig`.
 
     ``path`` None means defaults only (solver: :func:`default_solver_name`). ``overrides``: a
     list of ``"section.key=value"`` strings (the CLI's ``--set``) or a dict (see the module
     docstring). Raises :class:`ConfigError` naming file, section, key and allowed values."""
-    # layered raw values: section -> key -> (value, origin)
-    layers: dict[str, dict[str, tuple[Any, str]]] = {}
-    source = "<defaults>"
-    if path is not None:
-        path = Path(path)
-        source = str(path)
-        for section, items in _read_ini(path).items():
-            layers.setdefault(section, {}).update({k: (v, source) for k, v in items.items()})
+    layers, source = _file_layers(path)
     pending = parse_overrides(overrides)
+    solver = _selected_solver(layers, pending)
+    for section, key, value in pending:
+        layers.setdefault(section or solver, {})[key] = (value, _OVERRIDES)
+    problem = _check_sections(layers, source)
+    # every solver section is validated (presets for other solvers too); the selected one is used
+    built = {name: _build_options(name, layers.get(name, {}), layers.get(f"{name}.raw", {}), source)
+             for name in SOLVERS if name == solver or name in layers or f"{name}.raw" in layers}
+    return SolverConfig(solver=solver, options=built[solver], problem=problem, source=source)
 
-    # which solver: --set solver.name wins over the file, which wins over the default
+
+def _file_layers(path) -> tuple[Layers, str]:
+    """The values of the ini file ``path`` (None: no file) and the config's source name."""
+    if path is None:
+        return {}, "<defaults>"
+    source = str(Path(path))
+    layers = {section: {k: (v, source) for k, v in items.items()}
+              for section, items in _read_ini(Path(path)).items()}
+    return layers, source
+
+
+def _selected_solver(layers: Layers, pending) -> str:
+    """``--set solver.name`` wins over the file's ``[solver] name``, which wins over the default."""
     name_entry = layers.get("solver", {}).get("name")
     for section, key, value in pending:
         if section == "solver" and key.lower() == "name":
             name_entry = (value, _OVERRIDES)
     if name_entry is None:
-        solver = default_solver_name()
-    else:
-        solver = str(name_entry[0]).strip()
-        _solver_class(solver, file=name_entry[1], section="solver", key="name")
-    for section, key, value in pending:
-        if section is None:
-            section = solver
-        layers.setdefault(section, {})[key] = (value, _OVERRIDES)
+        return default_solver_name()
+    solver = str(name_entry[0]).strip()
+    _check_solver_name(solver, file=name_entry[1], section="solver", key="name")
+    return solver
 
-    solvers = _registry().available_solvers()
-    allowed_sections = ["solver", "problem"]
-    for sname in sorted(solvers):
-        allowed_sections += [sname, f"{sname}.raw"]
-    allowed_text = ", ".join(f"[{s}]" for s in allowed_sections)
 
-    options = None
+def _check_solver_name(name, *, file=None, section=None, key=None) -> None:
+    if name not in SOLVERS:
+        raise ConfigError(f"unknown solver {name!r}", file=file, section=section, key=key,
+                          allowed=", ".join(sorted(SOLVERS)))
+
+
+def _allowed_sections(solver=None) -> list[str]:
+    """``[solver]``, ``[problem]`` and the sections of ``solver`` (None: of every solver)."""
+    names = sorted(SOLVERS) if solver is None else [solver]
+    return ["solver", "problem", *(s for name in names for s in (name, f"{name}.raw"))]
+
+
+def _origin(items, source) -> str:
+    return next(iter(items.values()))[1] if items else source
+
+
+def _check_sections(layers: Layers, source) -> dict:
+    """Reject unknown sections and keys outside the solvers' sections; the ``[problem]`` values."""
     problem: dict = {}
     for section, items in layers.items():
         if section == "solver":
-            for key, (value, origin) in items.items():
+            for key, (_, origin) in items.items():
                 if key.lower() != "name":
-                    raise ConfigError("unknown key", file=origin, section="solver", key=key,
-                                      allowed="name")
+                    raise ConfigError("unknown key", file=origin, section="solver", key=key, allowed="name")
         elif section == "problem":
             problem = _problem_section(items)
-        elif section.endswith(".raw") and section[:-4] in solvers:
-            sname = section[:-4]
-            cls = solvers[sname]
-            if raw_options_field(cls.Options, sname) is None:
-                origin = next(iter(items.values()))[1] if items else source
-                raise ConfigError(f"solver {sname!r} takes no pass-through options", file=origin,
-                                  section=section, allowed=", ".join(f"[{s}]" for s in
-                                                                     allowed_sections[:2] + [sname]))
-        elif section in solvers:
-            pass  # checked below
-        else:
-            origin = next(iter(items.values()))[1] if items else source
-            raise ConfigError("unknown section", file=origin, section=section, allowed=allowed_text)
+        elif section.endswith(".raw") and section[:-4] in SOLVERS:
+            name = section[:-4]
+            if raw_options_field(SOLVERS[name].Options, name) is None:
+                raise ConfigError(f"solver {name!r} takes no pass-through options", file=_origin(items, source),
+                                  section=section, allowed=_bracketed(_allowed_sections(name)[:3]))
+        elif section not in SOLVERS:
+            raise ConfigError("unknown section", file=_origin(items, source), section=section,
+                              allowed=_bracketed(_allowed_sections()))
+    return problem
 
-    # validate every solver's section (presets for other solvers too), build the selected one
-    for sname in [s for s in solvers if s in layers or f"{s}.raw" in layers] + [solver]:
-        built = _build_options(solvers[sname], sname, layers.get(sname, {}),
-                               layers.get(f"{sname}.raw", {}), source)
-        if sname == solver:
-            options = built
-    return SolverConfig(solver=solver, options=options, problem=problem, source=source)
+
+def _bracketed(sections) -> str:
+    return ", ".join(f"[{s}]" for s in sections)
 
 
 def _problem_section(items) -> dict:
@@ -403,27 +282,24 @@ def _problem_section(items) -> dict:
     return out
 
 
-def _build_options(cls, sname, items, raw_items, source):
-    from .solvers.base import validate_value
-
-    options_cls = cls.Options
-    hints = _type_hints(options_cls)
-    fields = {f.name: f for f in dataclasses.fields(options_cls)}
-    raw_field = raw_options_field(options_cls, sname)
-    settable = [f.name for f in fields.values() if f.metadata.get("ini", True) and f.name != raw_field]
+def _build_options(name, items, raw_items, source):
+    """The Options of solver ``name`` from its section's values and its ``.raw`` section's."""
+    options_cls = SOLVERS[name].Options
+    specs = option_specs(options_cls)
+    raw_field = raw_options_field(options_cls, name)
     values = {}
     for key, (value, origin) in items.items():
-        f = fields.get(key)
-        if f is None or key == raw_field or (not f.metadata.get("ini", True) and isinstance(value, str)):
-            why = "unknown option" if f is None else (
+        spec = specs.get(key)
+        if spec is None or key == raw_field or (not spec.settable_from_file and isinstance(value, str)):
+            why = "unknown option" if spec is None else (
                 f"option '{key}' cannot be set from a file" if key != raw_field
-                else f"write pass-through options in a [{sname}.raw] section")
-            raise ConfigError(why, file=origin, section=sname, key=key, allowed=", ".join(settable))
-        typed = parse_value(value, hints.get(key, Any), file=origin, section=sname, key=key)
-        values[key] = validate_value(options_cls, key, typed, file=origin, section=sname)
+                else f"write pass-through options in a [{name}.raw] section")
+            settable = [s.name for s in specs.values() if s.settable_from_file and s.name != raw_field]
+            raise ConfigError(why, file=origin, section=name, key=key, allowed=", ".join(settable))
+        values[key] = read_value(options_cls, key, value, file=origin, section=name)
     if raw_items:
-        raw = dict(getattr(options_cls(), raw_field) or {}) if raw_field else {}
-        for key, (value, origin) in raw_items.items():
+        raw = dict(getattr(options_cls(), raw_field) or {})
+        for key, (value, _) in raw_items.items():
             raw[key] = parse_scalar(value) if isinstance(value, str) else value
         values[raw_field] = raw
     try:
@@ -431,15 +307,13 @@ def _build_options(cls, sname, items, raw_items, source):
     except (TypeError, ValueError) as exc:
         if isinstance(exc, ConfigError):
             raise
-        raise ConfigError(str(exc), file=source, section=sname) from None
+        raise ConfigError(str(exc), file=source, section=name) from None
 
 
 # ---------------------------------------------------------------------------- from code
 def config_from_kwargs(solver=None, **options) -> SolverConfig:
     """A :class:`SolverConfig` from keyword options, validated against the solver's Options
     (``solver`` None: :func:`default_solver_name`)."""
-    from .solvers.base import validate_value
-
     name = default_solver_name() if solver is None else solver
     cls = _solver_class(name)
     checked = {k: validate_value(cls.Options, k, v, section=name) for k, v in options.items()}
@@ -448,8 +322,6 @@ def config_from_kwargs(solver=None, **options) -> SolverConfig:
 
 def with_overrides(config: SolverConfig, **options) -> SolverConfig:
     """A copy of ``config`` with keyword options replaced (validated)."""
-    from .solvers.base import validate_value
-
     cls = _solver_class(config.solver)
     checked = {k: validate_value(cls.Options, k, v, section=config.solver) for k, v in options.items()}
     new_options = dataclasses.replace(config.options, **checked)
@@ -459,5 +331,4 @@ def with_overrides(config: SolverConfig, **options) -> SolverConfig:
 
 def make_solver(config: SolverConfig):
     """Instantiate the configured solver with its options."""
-    cls = _solver_class(config.solver)
-    return cls(config.options)
+    return _solver_class(config.solver)(config.options)

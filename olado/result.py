@@ -1,4 +1,4 @@
-"""The one result type every olado solver returns (ARCHITECTURE.md, "The solver side").
+"""The one result type every olado solver returns (docs/architecture.md, "The solver side").
 
 A :class:`Result` carries the status (an enum with a human sentence), the state and control
 trajectories, multipliers, objective, constraint violation, KKT residual, counts, timings and the

@@ -40,7 +40,7 @@ def test_list(capsys):
 
 
 def test_list_marks_missing_backend(capsys, monkeypatch):
-    monkeypatch.setattr(registry.get_solver_class("ipopt"), "available", classmethod(lambda cls: False))
+    monkeypatch.setitem(sys.modules, "cyipopt", None)  # importlib.util.find_spec then finds nothing
     code, out, _ = run(capsys, "list")
     assert code == 0
     line = next(l for l in out.splitlines() if l.strip().startswith("ipopt"))
@@ -135,6 +135,19 @@ def test_python_dash_m(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "olado", "solve", "nosuchproblem"],
                           capture_output=True, text=True, cwd=REPO, timeout=120)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
+
+
+@pytest.mark.parametrize("argv,code", [(["list"], 0), (["solve", "nosuchproblem"], 2)])
+def test_run_exits_with_mains_code_after_freezing_the_heap(argv, code):
+    script = ("import atexit, gc, sys\n"
+              "atexit.register(lambda: print('frozen at exit:', gc.get_freeze_count() > 0))\n"
+              f"sys.argv = ['olado', *{argv!r}]\n"
+              "from olado.cli import run\n"
+              "run()\n"
+              "print('not reached')\n")
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=REPO, timeout=120)
+    assert proc.returncode == code, proc.stderr
+    assert proc.stdout.rstrip().endswith("frozen at exit: True") and "not reached" not in proc.stdout
 
 
 def _console_script():

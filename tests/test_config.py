@@ -32,10 +32,10 @@ class DummySolver(Solver):
 
 
 @pytest.fixture
-def dummy(monkeypatch):
-    registry.available_solvers()  # load the built-ins first
-    monkeypatch.setitem(registry.SOLVERS, "dummy", DummySolver)
-    return DummySolver
+def dummy():
+    registry.SOLVERS.add("dummy", DummySolver)
+    yield DummySolver
+    registry.SOLVERS.remove("dummy")
 
 
 def write(tmp_path, text, name="conf.ini"):
@@ -407,3 +407,11 @@ def test_import_olado_is_light():
     for name in ("solve", "Result", "Status", "DOCP", "LagrangeDOCP", "MayerDOCP", "StructuredNLP",
                  "errors", "__version__"):
         assert hasattr(olado, name), name
+
+
+def test_every_lazy_submodule_of_olado_exists():
+    import importlib
+
+    for name in olado._SUBMODULES:
+        assert importlib.import_module(f"olado.{name}") is getattr(olado, name), name
+    assert "bench" not in olado._SUBMODULES and "options" in dir(olado)

@@ -1,4 +1,4 @@
-"""The matrix work the solvers share (ARCHITECTURE.md, "The matrix side"): the stage-wise QP
+"""The matrix work the solvers share (docs/architecture.md, "The matrix side"): the stage-wise QP
 container, the Riccati LQ-DOCP solver and the general sparse KKT back-ends."""
 
 from .kkt import KKT_SOLVERS, KKTSolveError, make_kkt_solver

@@ -46,7 +46,7 @@ import scipy.sparse as sp
 from ..errors import SolverNotAvailableError
 from .stageqp import QPResult, StageQP, qp_kkt_residuals
 from ..result import Status
-from ..solvers.base import make_options, option
+from ..options import make_options, option
 
 __all__ = ["ExternalQP", "ExternalQPOptions", "available_qp_backends"]
 
@@ -357,7 +357,7 @@ class ExternalQP:
     """Solve :class:`StageQP` subproblems with an installed qpsolvers backend.
 
     ``ExternalQP("clarabel", tol_feas=1e-9)`` or ``ExternalQP(options=ExternalQPOptions(...))``;
-    keyword overrides are validated like every olado option (:func:`olado.solvers.base.option`).
+    keyword overrides are validated like every olado option (:func:`olado.options.option`).
     """
 
     Options = ExternalQPOptions

@@ -157,7 +157,7 @@ from ..linalg.riccati import (_F64, _FIXED_SIZE_MAX, _I32, NotPositiveDefiniteEr
                                RiccatiStatusError, _ContractRowCode, _pieces, _size_tags, _stack_vector)
 from .stageqp import BOX_FIELDS, QPResult, StageQP, box_values, qp_kkt_residuals
 from ..result import Status
-from ..solvers.base import make_options, option
+from ..options import make_options, option
 
 KKT_BACKENDS = KKT_SOLVERS   # riccati, superlu-full, superlu-reduced, minres, gmres
 

@@ -1,6 +1,33 @@
-"""How problems are solved: the Solver base class and the solver families (paper 001 sec. 2.2)."""
+"""How problems are solved: the Solver base class and the solver families (paper 001 sec. 2.2).
 
-from .base import Solver, SolverOptions, option
-from .registry import SOLVERS, available_solvers, get_solver_class, register
+The solvers are listed, by name, in :data:`olado.solvers.registry.SOLVERS`; importing this
+package imports none of them (names below load on first access, PEP 562).
+"""
 
-__all__ = ["Solver", "SolverOptions", "option", "SOLVERS", "available_solvers", "get_solver_class", "register"]
+from __future__ import annotations
+
+import importlib
+
+#: public name -> module that defines it
+_LAZY = {
+    "Solver": "olado.solvers.base",
+    "SolverOptions": "olado.solvers.base",
+    "option": "olado.options",
+    "SOLVERS": "olado.solvers.registry",
+    "available_solvers": "olado.solvers.registry",
+    "get_solver_class": "olado.solvers.registry",
+}
+
+__all__ = list(_LAZY)
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'olado.solvers' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

@@ -85,9 +85,9 @@ from ...errors import NonFiniteEvaluationError
 from .ddp_state import Accepted, DPState, ShiftSchedule, Sweeps
 from ...linalg.riccati import _chol_inplace, _chol_solve_vec
 from ...result import Result, Status
-from ..base import Solver, SolverOptions, option
+from ...options import option
+from ..base import Solver, SolverOptions
 from .control_space import _adjoint, unsupported_features
-from ..registry import register
 
 __all__ = ["DDPSolver", "StagewiseNewtonSolver", "DDPOptions", "StagewiseNewtonOptions",
            "unsupported_features", "stagewise_newton_step"]
@@ -568,7 +568,6 @@ class _DynamicProgrammingSolver(Solver):
         return False
 
 
-@register
 class DDPSolver(_DynamicProgrammingSolver):
     """Differential dynamic programming with full second-order dynamics terms and an eigenvalue
     shift of Q_uu (Yakowitz and Rutherford 1984; Tassa et al. 2012 schedule)."""
@@ -576,10 +575,8 @@ class DDPSolver(_DynamicProgrammingSolver):
     name = "ddp"
     method = "ddp"
     Options = DDPOptions
-    description = "differential dynamic programming (unconstrained DOCPs), shifted Q_uu, O(N) per iteration"
 
 
-@register
 class StagewiseNewtonSolver(_DynamicProgrammingSolver):
     """Pantoja's stagewise Newton method: the exact (shifted) Newton step of the reduced problem
     by a Riccati-like recursion with the nominal costates (Pantoja 1988; Dunn and Bertsekas 1989)."""
@@ -587,4 +584,3 @@ class StagewiseNewtonSolver(_DynamicProgrammingSolver):
     name = "stagewise-newton"
     method = "stagewise-newton"
     Options = StagewiseNewtonOptions
-    description = "Pantoja's stagewise Newton method (unconstrained DOCPs), shifted Hessian, O(N) per iteration"

@@ -64,9 +64,9 @@ from ...result import Result, Status
 from ...errors import NonFiniteEvaluationError
 from .pdmin_steps import Arc, Direction, Evaluations, Point, State, dot, refine, secant, two_loop
 from ..common import MULTIPLIER_CONVENTION
-from ..base import Solver, SolverOptions, option
+from ...options import option
+from ..base import Solver, SolverOptions
 from .control_space import ReducedProblem, unsupported_features
-from ..registry import register
 
 DIRECTIONS = ("steepest-descent", "polak-ribiere", "lbfgs")
 
@@ -106,15 +106,11 @@ def _box_project(U, lo, hi, out=None):
     return np.clip(U, lo, hi, out=out)
 
 
-@register
 class PDMINSolver(Solver):
     """Projected descent minimization (PDMIN) for bound-constrained controls (paper 001 sec. 2.2)."""
 
     name = "pdmin"
     Options = PDMINOptions
-    description = ("projected descent (Schwartz-Polak / Bertsekas) on the controls: steepest descent, "
-                   "Polak-Ribiere CG or L-BFGS on the free variables, Armijo rule along the projection arc; "
-                   "simple control bounds only")
 
     # ---------------------------------------------------------------------------- checks
     @staticmethod

@@ -46,7 +46,6 @@ p^{k+1} of the penalized problem.
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import math
 import time
 from collections import Counter
@@ -56,21 +55,13 @@ import numpy as np
 from ...errors import NonFiniteEvaluationError, ProblemDefinitionError, SolverNotAvailableError
 from ...problems.docp import DOCP
 from ...result import Result, Status
-from ..base import Solver, SolverOptions, option
+from ...options import option
+from ..base import Solver, SolverOptions
 from .control_space import ReducedProblem
-from ..registry import SOLVERS, register
+from ..registry import SOLVERS
 
-#: inner methods and the module that registers each
-INNER_METHODS = {
-    "lbfgsb": None,
-    "gradient": "reduced_gradient",
-    "cg": "reduced_gradient",
-    "variable-metric": "reduced_gradient",
-    "newton": "reduced_gradient",
-    "ddp": "ddp",
-    "stagewise-newton": "ddp",
-    "pdmin": "pdmin",
-}
+#: inner methods: SciPy's L-BFGS-B, or an unconstrained solver of olado.solvers.registry.SOLVERS
+INNER_METHODS = ("lbfgsb", "gradient", "cg", "variable-metric", "newton", "ddp", "stagewise-newton", "pdmin")
 #: inner methods that keep simple control bounds as bounds (the others get them penalized)
 BOUND_INNER_METHODS = ("lbfgsb", "pdmin")
 
@@ -434,26 +425,18 @@ class PenaltyOptions(SolverOptions):
                                       "the violation by less than 10%", min=1)
     al_decrease: float = option(0.25, "augmented Lagrangian: grow rho only when the violation fell by less than this factor",
                                 min=0.0, max=1.0)
-    inner_options: dict = dataclasses.field(
-        default_factory=dict,
-        metadata={"help": "further options of the inner solver (ini section [penalty.raw])", "choices": None,
-                  "min": None, "max": None, "min_exclusive": False, "ini": True, "raw": True})
+    inner_options: dict = option({}, "further options of the inner solver (ini section [penalty.raw])", raw=True)
 
 
 def _inner_solver_class(name):
-    module = INNER_METHODS[name]
+    """The registered solver class of inner method ``name``."""
     try:
-        importlib.import_module(f"{__package__}.{module}")
+        return SOLVERS[name]
     except ImportError as exc:
-        raise SolverNotAvailableError(f"inner method {name!r} needs olado.solvers.{module}, which cannot be "
+        raise SolverNotAvailableError(f"inner method {name!r} needs {SOLVERS.target(name)}, which cannot be "
                                       f"imported ({exc}); use inner = lbfgsb") from None
-    if name not in SOLVERS:
-        raise SolverNotAvailableError(f"inner method {name!r} is not registered by olado.solvers.{module}; "
-                                      "use inner = lbfgsb")
-    return SOLVERS[name]
 
 
-@register
 class PenaltySolver(Solver):
     """Quadratic penalty / augmented Lagrangian method (paper 001 sec. 2.2); see the module
     docstring. Result: history per outer iteration (rho, violation, inner iterations and status,
@@ -462,7 +445,6 @@ class PenaltySolver(Solver):
 
     name = "penalty"
     Options = PenaltyOptions
-    description = "quadratic penalty / augmented Lagrangian method with an unconstrained inner solver"
 
     def _solve(self, problem, X0, U0) -> Result:
         o = self.options

@@ -61,10 +61,10 @@ import numpy as np
 from ...errors import NonFiniteEvaluationError
 from ...result import Result, Status
 from ..common import Deadline
-from ..base import Solver, SolverOptions, option
+from ...options import option
+from ..base import Solver, SolverOptions
 from .control_space import ReducedProblem, unsupported_features
 from .line_search import strong_wolfe
-from ..registry import register
 
 __all__ = ["GradientSolver", "ConjugateGradientSolver", "VariableMetricSolver", "NewtonSolver",
            "unsupported_features"]
@@ -233,7 +233,7 @@ class ReducedGradientSolver(Solver):
 
     # -- pieces -----------------------------------------------------------------------------
     def method_description(self) -> str:
-        return self.description
+        return self.summary()
 
     def _initial_step(self, cur, d, slope, prev_J, prev_slope, prev_alpha, steepest):
         """First trial step of the line search: 1 for a Newton-like direction; else the minimizer
@@ -298,12 +298,10 @@ class ReducedGradientSolver(Solver):
 
 
 # ============================================================================== gradient
-@register
 class GradientSolver(ReducedGradientSolver):
     """Steepest descent in the control space, d = -dJ/du, strong Wolfe line search."""
 
     name = "gradient"
-    description = "steepest descent in the control space (adjoint gradient), strong Wolfe line search"
 
     def _direction(self, rp, cur):
         return -cur.g, {"steepest": True}
@@ -323,17 +321,15 @@ class ConjugateGradientOptions(ReducedGradientOptions):
                              "Fletcher-Reeves directions descent directions)", min=0.0, max=1.0, min_exclusive=True)
 
 
-@register
 class ConjugateGradientSolver(ReducedGradientSolver):
     """Nonlinear conjugate gradients in the control space (Fletcher-Reeves, Polak-Ribiere,
     Sinnot-Luenberger), with restarts."""
 
     name = "cg"
     Options = ConjugateGradientOptions
-    description = "conjugate directions in the control space, strong Wolfe line search, restarts"
 
     def method_description(self):
-        return f"{self.description}; beta = {self.options.formula}"
+        return f"{self.summary()}; beta = {self.options.formula}"
 
     def _start(self, rp, cur):
         self._d = None
@@ -389,18 +385,16 @@ class VariableMetricOptions(ReducedGradientOptions):
     dense_max_size: int = option(2000, "largest N*m for which the dense variant is allowed", min=1)
 
 
-@register
 class VariableMetricSolver(ReducedGradientSolver):
     """BFGS in the control space: limited memory (default) or dense for small N*m."""
 
     name = "variable-metric"
     Options = VariableMetricOptions
-    description = "variable metric (BFGS) in the control space, strong Wolfe line search"
     unit_step = True
 
     def method_description(self):
         o = self.options
-        return f"{self.description}; {o.variant}" + (f", memory {o.memory}" if o.variant == "limited-memory" else "")
+        return f"{self.summary()}; {o.variant}" + (f", memory {o.memory}" if o.variant == "limited-memory" else "")
 
     def _solve(self, problem, X0, U0):
         o = self.options
@@ -475,15 +469,12 @@ class NewtonOptions(ReducedGradientOptions):
                           "min(0.5, sqrt(|g|_2))", choices=("quadratic", "superlinear"))
 
 
-@register
 class NewtonSolver(ReducedGradientSolver):
     """Truncated Newton in the control space: CG on second-order-adjoint Hessian-vector products
     with the negative-curvature exit, strong Wolfe line search."""
 
     name = "newton"
     Options = NewtonOptions
-    description = ("Newton's method in the control space: truncated CG on reduced-Hessian products "
-                   "(second-order adjoint), negative-curvature exit, strong Wolfe line search")
     unit_step = True
 
     def _direction(self, rp, cur):

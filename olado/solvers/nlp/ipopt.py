@@ -22,8 +22,8 @@ import numpy as np
 from ...errors import ConfigError, NonFiniteEvaluationError, SolverNotAvailableError
 from ...result import Status
 from .. import common
-from ..base import Solver, SolverOptions, option
-from ..registry import register
+from ...options import option
+from ..base import Solver, SolverOptions
 
 INSTALL_HINT = ('IPOPT support needs cyipopt: pip install "olado[ipopt]" (installs the '
                 "cyipopt-wheels package with IPOPT 3.14 and MUMPS), or on Debian/Ubuntu: "
@@ -88,32 +88,36 @@ class IpoptOptions(SolverOptions):
                                          "pardisomkl", "spral", "wsmp", "custom"))
     print_level: int = option(0, "IPOPT's own output level (0 silent .. 12); with verbose >= 3 and "
                               "print_level 0, level 5 is used", min=0, max=12)
-    acceptable_tol: float = option(1e-6, "IPOPT acceptable_tol (looser 'acceptable' stop)",
+    acceptable_tol: float = option(1e-6, "IPOPT acceptable_tol: the looser tolerance of the "
+                                   "'acceptable' stop (status acceptable)",
                                    min=0.0, min_exclusive=True)
-    acceptable_iter: int = option(15, "IPOPT acceptable_iter (0 disables the acceptable stop)", min=0)
+    acceptable_iter: int = option(15, "IPOPT acceptable_iter: stop after this many consecutive "
+                                  "'acceptable' iterates (0 disables the acceptable stop)", min=0)
     bound_push: float = option(1e-2, "IPOPT bound_push: minimal relative distance of the "
                                "initial point from its bounds", min=0.0, min_exclusive=True)
-    bound_frac: float = option(1e-2, "IPOPT bound_frac", min=0.0, max=0.5, min_exclusive=True)
+    bound_frac: float = option(1e-2, "IPOPT bound_frac: minimal distance of the initial point from "
+                               "its bounds, as a fraction of the distance between the two bounds",
+                               min=0.0, max=0.5, min_exclusive=True)
     mu_init: float = option(0.1, "IPOPT mu_init: initial barrier parameter", min=0.0, min_exclusive=True)
-    nlp_scaling_method: str = option("gradient-based", "IPOPT nlp_scaling_method",
+    nlp_scaling_method: str = option("gradient-based", "how IPOPT scales the objective and the "
+                                     "constraints (IPOPT nlp_scaling_method)",
                                      choices=("gradient-based", "none", "equilibration-based"))
     ipopt_options: dict = option({}, "raw IPOPT options passed verbatim ([ipopt.raw] in ini files)",
                                  ini=True)
 
 
-@register
 class IpoptSolver(Solver):
     """IPOPT (interior point, filter line search; paper 001 sec. 4.3.2) on the sparse NLP view."""
 
     name = "ipopt"
     Options = IpoptOptions
-    description = "IPOPT interior-point method (cyipopt) on the sparse NLP view, sec. 4.3.2"
 
     @classmethod
     def available(cls) -> bool:
+        """True when cyipopt imports (a broken installation counts as a missing one)."""
         try:
             import_cyipopt()
-        except SolverNotAvailableError:
+        except Exception:
             return False
         return True
 

@@ -27,8 +27,8 @@ from scipy import optimize
 
 from ...result import Status
 from .. import common
-from ..base import Solver, SolverOptions, option
-from ..registry import register
+from ...options import option
+from ..base import Solver, SolverOptions
 
 
 class _StopSolve(Exception):
@@ -108,13 +108,11 @@ class SLSQPOptions(SolverOptions):
                                "when bound multipliers are recovered", min=0.0)
 
 
-@register
 class SLSQPSolver(_SciPyNLPSolver):
     """SciPy SLSQP (dense SQP with BFGS) on the NLP view; for small problems."""
 
     name = "slsqp"
     Options = SLSQPOptions
-    description = "SciPy SLSQP (dense SQP, BFGS) on the NLP view; small problems"
 
     #: SLSQP exit mode -> olado status
     STATUS = {
@@ -237,13 +235,11 @@ class TrustConstrOptions(SolverOptions):
                                        choices=("auto", "NormalEquation", "AugmentedSystem"))
 
 
-@register
 class TrustConstrSolver(_SciPyNLPSolver):
     """SciPy trust-constr (trust-region SQP / interior point) with the sparse NLP view."""
 
     name = "trust-constr"
     Options = TrustConstrOptions
-    description = "SciPy trust-constr (trust-region SQP / barrier) with sparse Jacobian and Hessian"
 
     #: trust-constr status -> olado status (2 and 3 are refined in _solve)
     STATUS = {0: Status.MAX_ITERATIONS, 1: Status.SUCCESS, 2: Status.ACCEPTABLE, 3: Status.USER_STOP,

@@ -87,9 +87,9 @@ from .phases import initial_state, iterate
 from .residuals import finish
 from .state import Clock, ConstraintMasks, SQPSetup
 from ..common import Deadline
-from ..base import Solver, SolverOptions, option
+from ...options import option
+from ..base import Solver, SolverOptions
 from .hessian import make_hessian
-from ..registry import register
 
 KKT_SOLVERS = ("riccati", "superlu-full", "superlu-reduced", "minres", "gmres")
 
@@ -98,7 +98,7 @@ def _apply_qp_options(qp_solver, qp_name, qp_options):
     """Set ``qp_options`` (SQPOptions) on the QP solver's options, each checked like any option;
     with an external backend a key that ExternalQPOptions does not know is passed to the backend
     itself (``backend_options``); with olado's methods it is an error naming the key."""
-    from ..base import validate_value
+    from ...options import validate_value
 
     opts = qp_solver.options
     known = {f.name for f in dataclasses.fields(opts)}
@@ -237,13 +237,11 @@ class SQPOptions(SolverOptions):
                                     "the term stalls the SQP)", min=0.0)
 
 
-@register
 class SQPSolver(Solver):
     """Powell's SQP (paper 001 sec. 4.2.1) with structure-exploiting QP subproblems."""
 
     name = "sqp"
     Options = SQPOptions
-    description = "Powell's SQP, L1 merit + watchdog, block Hessians, interior-point QP with the Riccati KKT solver"
 
     def _solve(self, problem, X0, U0):
         setup, hess = self._setup(problem)
