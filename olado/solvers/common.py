@@ -12,7 +12,8 @@ This module holds what they have in common, written once:
 * :class:`FreeVariableNLP` -- the NLP with fixed variables (lb == ub, e.g. x^0) removed, for the
   SciPy methods that do not handle them;
 * the KKT quantities at a point and :func:`build_result`, which turns y and multipliers into a
-  :class:`~olado.result.Result`.
+  :class:`~olado.result.Result`. (The SQP, which works on the stage data, computes the same
+  quantities stage by stage: :mod:`olado.solvers.sqp.residuals`.)
 
 Multiplier sign convention (the one of IPOPT and of ``StructuredNLP.hessian``): with
 ``lam`` for the constraints c and ``z_L, z_U >= 0`` for the variable bounds,

@@ -237,6 +237,33 @@ class SQPOptions(SolverOptions):
                                     "the term stalls the SQP)", min=0.0)
 
 
+def make_setup(options, problem, callback):
+    """The per-solve setup of an SQP solve: the QP solver with its options, the Hessian
+    approximation (returned with the setup; it changes during the solve) and the convexification
+    in effect."""
+    o = options
+    t_start = time.perf_counter()
+    deadline = Deadline(o.max_time)
+    qp_solver = make_qp_solver(o.qp, kkt=o.kkt, tol=o.qp_tol, max_iter=o.qp_max_iter)
+    interior = o.qp in INTERIOR_POINT_METHODS
+    if interior:
+        qp_solver.options.warm_start_push = o.qp_warm_start_push
+    _apply_qp_options(qp_solver, o.qp, o.qp_options)
+    convexify = o.convexify
+    if o.hessian == "exact" and convexify == "inertia" and not interior:
+        # external QP solvers need a convex QP and do not report a failed factorization:
+        # shift every block to positive definiteness instead
+        convexify = "levenberg"
+    hess = make_hessian(o.hessian, convexify=convexify, initial_scale=o.initial_hessian_scale,
+                        min_eig=o.min_eigenvalue, max_condition=o.max_condition)
+    hess.initial(problem.N, problem.n, problem.m)
+    masks = ConstraintMasks.of(problem)
+    setup = SQPSetup(options=o, problem=problem, qp_solver=qp_solver, interior=interior, convexify=convexify,
+                     inertia=hess.needs_exact and convexify == "inertia", masks=masks,
+                     merit=Merit(problem, masks), callback=callback, deadline=deadline, t_start=t_start)
+    return setup, hess
+
+
 class SQPSolver(Solver):
     """Powell's SQP (paper 001 sec. 4.2.1) with structure-exploiting QP subproblems."""
 
@@ -244,35 +271,10 @@ class SQPSolver(Solver):
     Options = SQPOptions
 
     def _solve(self, problem, X0, U0):
-        setup, hess = self._setup(problem)
+        setup, hess = make_setup(self.options, problem, self._call_callback)
         st = initial_state(setup, X0, U0, hess, Clock())
         while not iterate(setup, st):
             pass
         return finish(setup, st, {"qp": self.options.qp, "kkt": self.options.kkt, "hessian": self.options.hessian,
                                   "convexify": setup.convexify, "hessian_updates": hess.updates,
                                   "hessian_skipped": hess.skipped})
-
-    def _setup(self, problem):
-        """The per-solve setup (QP solver with its options, Hessian approximation, convexification)."""
-        o = self.options
-        t_start = time.perf_counter()
-        deadline = Deadline(o.max_time)
-        qp_solver = make_qp_solver(o.qp, kkt=o.kkt, tol=o.qp_tol, max_iter=o.qp_max_iter)
-        interior = o.qp in INTERIOR_POINT_METHODS
-        if interior:
-            qp_solver.options.warm_start_push = o.qp_warm_start_push
-        _apply_qp_options(qp_solver, o.qp, o.qp_options)
-        convexify = o.convexify
-        if o.hessian == "exact" and convexify == "inertia" and not interior:
-            # external QP solvers need a convex QP and do not report a failed factorization:
-            # shift every block to positive definiteness instead
-            convexify = "levenberg"
-        hess = make_hessian(o.hessian, convexify=convexify, initial_scale=o.initial_hessian_scale,
-                            min_eig=o.min_eigenvalue, max_condition=o.max_condition)
-        hess.initial(problem.N, problem.n, problem.m)
-        masks = ConstraintMasks.of(problem)
-        setup = SQPSetup(options=o, problem=problem, qp_solver=qp_solver, interior=interior, convexify=convexify,
-                         inertia=hess.needs_exact and convexify == "inertia", masks=masks,
-                         merit=Merit(problem, masks), callback=self._call_callback, deadline=deadline,
-                         t_start=t_start)
-        return setup, hess
