@@ -153,8 +153,9 @@ from numba.core import cgutils
 from numba.extending import intrinsic, overload
 
 from ..linalg.kkt import KKT_SOLVERS, make_kkt_solver
-from ..linalg.riccati import (_F64, _FIXED_SIZE_MAX, _I32, NotPositiveDefiniteError, RiccatiFactorization,
-                               RiccatiStatusError, _ContractRowCode, _pieces, _size_tags, _stack_vector)
+from ..linalg.codegen import F64 as _F64, I32 as _I32, ContractRowCode as _ContractRowCode, fixed_size_tags
+from ..linalg.codegen import pieces as _pieces, stack_vector as _stack_vector
+from ..linalg.riccati import NotPositiveDefiniteError, RiccatiFactorization, RiccatiStatusError
 from .stageqp import BOX_FIELDS, QPResult, StageQP, box_values, qp_kkt_residuals
 from ..result import Status
 from ..solvers.base import make_options, option
@@ -1369,7 +1370,7 @@ class _Prepared:
                                            np.ascontiguousarray(self.R), np.empty((N, nz, nz)))
         self.QN = np.ascontiguousarray(0.5 * (self.Q[N] + self.Q[N].T))
         self.AB = np.ascontiguousarray(np.concatenate([self.A, self.B], axis=2))
-        self.sizes = _size_tags(n, m, n + m) if 0 < n and 0 < m and n + m <= _FIXED_SIZE_MAX else (n, m, n + m)
+        self.sizes = fixed_size_tags(n, m) or (n, m, n + m)
         self.EF = np.ascontiguousarray(np.concatenate([self.E, self.F], axis=2)); self.EFt = tr(self.EF)
         self.eqm = self.eq_mask.astype(float)
         self.be = self.e * self.eqm

@@ -4,7 +4,8 @@ the any-size kernel _solve_unconstrained and a dense KKT solve."""
 import numpy as np
 import pytest
 
-from olado.linalg import riccati as rc
+from olado.linalg import riccati as rc, riccati_fixed as rf, riccati_kernels as rk
+from olado.linalg.codegen import size_tags
 
 
 def _problem(N, n, m, ni, seed):
@@ -28,10 +29,10 @@ def _problem(N, n, m, ni, seed):
 
 def _factor(d, n, m):
     N = d["A"].shape[0]
-    tags = rc._size_tags(n, m, n + m)
+    tags = size_tags(n, m)
     P = np.empty((N + 1, n, n)); K = np.empty((N, m, n)); L = np.empty((N, m, m))
     args = (d["Q"], d["S"], d["R"], d["A"], d["B"], d["Dx"], d["Du"], d["Ci"], d["sig"], d["ni"], 0.0, P, K, L)
-    kernel = rc._factor_unconstrained_fixed if n <= rc._STRAIGHT_N_MAX else rc._factor_unconstrained_fixed_loops
+    kernel = rf._factor_unconstrained_fixed if n <= rf._STRAIGHT_N_MAX else rf._factor_unconstrained_fixed_loops
     assert kernel(tags, *args) == -1
     return tags, P, K, L
 
@@ -39,7 +40,7 @@ def _factor(d, n, m):
 def _solve_fixed(d, rhs, tags, P, K, L):
     N, n, m = d["B"].shape
     X = np.empty((N + 1, n)); U = np.empty((N, m)); lam = np.empty((N + 1, n))
-    rc._solve_unconstrained_fixed(tags, d["A"], d["B"], d["Ci"], d["sig"], d["ni"], P, K, L, rhs["q"], rhs["r"],
+    rf._solve_unconstrained_fixed(tags, d["A"], d["B"], d["Ci"], d["sig"], d["ni"], P, K, L, rhs["q"], rhs["r"],
                                   rhs["c"], rhs["x0"], rhs["ci"], X, U, lam)
     return X, U, lam
 
@@ -47,7 +48,7 @@ def _solve_fixed(d, rhs, tags, P, K, L):
 def _solve_any(d, rhs, P, K, L):
     N, n, m = d["B"].shape
     X = np.empty((N + 1, n)); U = np.empty((N, m)); lam = np.empty((N + 1, n))
-    rc._solve_unconstrained(d["Q"], d["S"], d["A"], d["B"], d["Dx"], d["Ci"], d["sig"], d["ni"], P, K, L,
+    rk._solve_unconstrained(d["Q"], d["S"], d["A"], d["B"], d["Dx"], d["Ci"], d["sig"], d["ni"], P, K, L,
                             rhs["q"], rhs["r"], rhs["c"], rhs["x0"], rhs["ci"], X, U, lam,
                             np.empty((N, m)), np.empty((N + 1, n)))
     return X, U, lam

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from numba import typeof
 
-from olado.linalg.riccati import _size_tags
+from olado.linalg.codegen import size_tags
 from olado.qp import interior_point as qp_ip
 from olado.qp.interior_point import MehrotraQP
 
@@ -109,7 +109,7 @@ def assert_close(out, ref, rtol=1e-12, atol=1e-12):
 @pytest.mark.parametrize("N", [1, 2, 7])
 def test_fixed_size_kernel_matches_the_formulas_and_the_loops(n, m, ne, nc, neN, ncN, N):
     d = random_args(1000 * n + 10 * m + N, N, n, m, ne, nc, neN, ncN)
-    sizes = _size_tags(n, m, n + m)
+    sizes = size_tags(n, m)
     assert qp_ip._kkt_fixed_applies(*(typeof(a) for a in [sizes] + [d[k] for k in ORDER]))
     fixed = run(sizes, d)
     loops = run((n, m, n + m), d)
@@ -163,7 +163,7 @@ def test_non_finite_inputs_propagate_as_in_the_loops(n, m, ne, nc):
         else:
             d["X"][...] = np.nan
             d["H"][1, 0, 0] = np.inf
-        fixed = run(_size_tags(n, m, n + m), d)
+        fixed = run(size_tags(n, m), d)
         loops = run((n, m, n + m), d)
         for k in OUTPUTS:
             a, b = fixed[k], loops[k]
@@ -181,12 +181,12 @@ def test_non_contiguous_arrays_take_the_loop_kernel():
     """Arrays that are not C-contiguous are accepted (the loop kernel), with the same results."""
     n, m, N = 3, 2, 5
     d = random_args(11, N, n, m, 1, 1, 1, 1)
-    ref = run(_size_tags(n, m, n + m), d)
+    ref = run(size_tags(n, m), d)
     d2 = dict(d)
     d2["X"] = np.asfortranarray(d["X"])
     big = np.zeros((N, 2 * (n + m), n + m))
     big[:, ::2] = d["H"]
     d2["H"] = big[:, ::2]
-    assert not qp_ip._kkt_fixed_applies(*(typeof(a) for a in [_size_tags(n, m, n + m)] + [d2[k] for k in ORDER]))
-    out = run(_size_tags(n, m, n + m), d2)
+    assert not qp_ip._kkt_fixed_applies(*(typeof(a) for a in [size_tags(n, m)] + [d2[k] for k in ORDER]))
+    out = run(size_tags(n, m), d2)
     assert_close(out, ref)

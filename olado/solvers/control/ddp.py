@@ -76,7 +76,7 @@ import numba as nb
 import numpy as np
 
 from ...errors import ProblemDefinitionError
-from ...linalg.riccati import _chol_inplace, _chol_solve_vec
+from ...linalg.riccati_kernels import chol_inplace as _chol_inplace, chol_solve_vec as _chol_solve_vec
 from ...result import Result, Status
 from ..base import Solver, SolverOptions, option
 from .control_space import _adjoint, unsupported_features
