@@ -18,9 +18,18 @@ however they are ordered. The stage intrinsics therefore write straight-line SIM
 themselves, with the helpers here: a row is a list of *pieces* (first column, width, LLVM
 value: a double or a vector of 2 or 4 doubles, :func:`pieces`), and :class:`RowCode` /
 :class:`ContractRowCode` emit loads, stores, axpys and transposing row reductions on them.
+
+numba caches a compiled kernel on disk keyed on the kernel's own source file and signature, not
+on the modules whose code it inlines: after a change of the code generated here, the kernels of
+other files would keep their old generated code. So every kernel compiled for the sizes takes
+the size tags, and the size tags carry :data:`KERNEL_VERSION` as a fourth tag of that length:
+the version is part of each kernel's signature, and a new version is a new signature, compiled
+afresh (the old cache entries are never loaded again).
 """
 
 from __future__ import annotations
+
+import collections
 
 import numba as nb
 from llvmlite import ir as llir
@@ -34,6 +43,14 @@ CONTRACT = {"contract"}
 REASSOC = {"reassoc", "contract", "nsz"}
 #: blocks with n + m up to this get the kernels compiled for their sizes
 FIXED_SIZE_MAX = 24
+#: version of the generated code: bump it with every change of what this module generates (or
+#: of the code it inlines into the kernels), so that numba's on-disk caches of the kernels that
+#: use it are not loaded again (see the module docstring)
+KERNEL_VERSION = 1
+
+#: the size tags of a kernel compiled for stage blocks of n states and m controls: tuples of
+#: zeros of the lengths n, m, n + m and KERNEL_VERSION (see size_tags)
+SizeTags = collections.namedtuple("SizeTags", "n m nz version")
 
 
 
@@ -64,9 +81,10 @@ def stack_vector(rows):
 
 
 def size_tags(n, m):
-    """The size tags of the kernels compiled for stage blocks of n states and m controls: a
-    tuple of zeros of each of the lengths n, m and n + m."""
-    return ((0,) * n, (0,) * m, (0,) * (n + m))
+    """The size tags of the kernels compiled for stage blocks of n states and m controls: for
+    each of n, m, n + m a tuple of zeros of that length (numba specializes on the lengths, which
+    are compile-time constants in the kernel), and the version tag of length KERNEL_VERSION."""
+    return SizeTags((0,) * n, (0,) * m, (0,) * (n + m), (0,) * KERNEL_VERSION)
 
 
 def fixed_size_tags(n, m):
@@ -100,10 +118,7 @@ class RowCode:
     value: a double or a vector of 2 or 4 doubles), data pointers point to C-ordered float64
     matrices of ncols columns.
 
-    numba's on-disk cache of a kernel is invalidated only by changes to the kernel's own source
-    file: after editing this module, delete the cached kernels that use it
-    (olado/linalg/__pycache__/riccati_fixed.*.nb[ic], olado/qp/interior_point/__pycache__/kkt_map.*.nb[ic]),
-    or they keep the old generated code."""
+    A change of the code these helpers generate needs a new KERNEL_VERSION (module docstring)."""
 
     def __init__(self, builder):
         self.b = builder

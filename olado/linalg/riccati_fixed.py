@@ -126,7 +126,7 @@ def _factor_unconstrained_fixed(tags, Q, S, R, A, B, Dx, Du, Ci, sig, ni, reg, P
     L_xu = H_xu L^{-T}; then K_k = -L^{-T} L_xu^T and P_k = H_xx - L_xu L_xu^T (the Schur
     complement, symmetric by construction); see _eliminate_stage. Returns -1 on success, else
     the stage whose Q_uu is not positive definite."""
-    nt, mt, zt = tags
+    nt, mt, zt = tags.n, tags.m, tags.nz
     n, m = len(nt), len(mt)
     N = A.shape[0]
     Hs = stack_matrix(zt, zt)      # upper triangle of the stage Hessian without the P term
@@ -176,7 +176,7 @@ def _factor_unconstrained_fixed_loops(tags, Q, S, R, A, B, Dx, Du, Ci, sig, ni, 
     L_xu = H_xu L^{-T}; then K_k = -L^{-T} L_xu^T and P_k = H_xx - L_xu L_xu^T (the Schur
     complement, symmetric by construction). Returns -1 on success, else the stage whose Q_uu
     is not positive definite."""
-    nt, mt, zt = tags
+    nt, mt, zt = tags.n, tags.m, tags.nz
     n, m, nz = len(nt), len(mt), len(zt)
     N = A.shape[0]
     Pn = stack_matrix(nt, nt)      # P_{k+1}
@@ -508,7 +508,7 @@ def _solve_unconstrained_fixed(tags, A, B, Ci, sig, ni, P, K, L, q, r, c, x0, ci
     lam holds p and U holds k_k between the sweeps. The sweeps are straight-line SIMD code
     (_solve_back_sweep over runs of stages without stage rows, one stage at a time with them;
     _solve_forward_sweep); P_k must be symmetric (as the factorizations store it)."""
-    nt, mt, zt = tags
+    nt, mt, zt = tags.n, tags.m, tags.nz
     n, m = len(nt), len(mt)
     N = A.shape[0]
     gc = stack_vector(zt)

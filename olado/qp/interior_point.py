@@ -153,7 +153,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic, overload
 
 from ..linalg.kkt import KKT_SOLVERS, make_kkt_solver
-from ..linalg.codegen import F64 as _F64, I32 as _I32, ContractRowCode as _ContractRowCode, fixed_size_tags
+from ..linalg.codegen import F64 as _F64, I32 as _I32, ContractRowCode as _ContractRowCode, SizeTags, fixed_size_tags
 from ..linalg.codegen import pieces as _pieces, stack_vector as _stack_vector
 from ..linalg.riccati import NotPositiveDefiniteError, RiccatiFactorization, RiccatiStatusError
 from .stageqp import BOX_FIELDS, QPResult, StageQP, box_values, qp_kkt_residuals
@@ -380,7 +380,7 @@ def _kkt_map_loops(sizes, H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu
                    X, U, lam, nu, tl, tu, zl, zu, bx, bu, bdyn, bx0, be, beN,
                    rx, ru, dyn, x0r, rE, rEN, rl, rup, w, stats):
     """_kkt_map with loops over the blocks (the any-size kernel; see _kkt_map)."""
-    nt, mt, zt = sizes
+    nt, mt, zt = sizes[0], sizes[1], sizes[2]
     n, m, nz = _size(nt), _size(mt), _size(zt)
     z, hz, g, ax = _work(zt), _work(zt), _work(zt), _work(nt)
     N = AB.shape[0]
@@ -797,7 +797,7 @@ def _kkt_map_fixed(tags, H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu,
     """_kkt_map for the sizes of tags = _size_tags(n, m, n + m) and C-contiguous arrays: the
     stages by _kkt_stage, the stage-row and equality terms, the final stage and the boxes of the
     stage and final rows by loops."""
-    nt, mt, zt = tags
+    nt, mt, zt = tags.n, tags.m, tags.nz
     n, m, nz = len(nt), len(mt), len(zt)
     N = AB.shape[0]
     ne = EF.shape[1]
@@ -867,8 +867,7 @@ def _kkt_fixed_applies(sizes, H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl
                        rx, ru, dyn, x0r, rE, rEN, rl, rup, w, stats):
     """Whether _kkt_map with arguments of these numba types runs _kkt_map_fixed: size tags of
     n, m >= 1 and C-contiguous arrays where _kkt_stage and _kkt_boxes read and write."""
-    tagged = isinstance(sizes, types.BaseTuple) and len(sizes) == 3 and all(isinstance(t, types.BaseTuple)
-                                                                            for t in sizes)
+    tagged = isinstance(sizes, types.BaseNamedTuple) and sizes.instance_class is SizeTags
     return (tagged and len(sizes[0]) > 0 and len(sizes[1]) > 0
             and all(_is_c_array(a) for a in (H, AB, X, U, lam, bx, bu, bdyn, rx, ru, dyn, al, au, tl, tu, zl, zu,
                                               rl, rup, w))
