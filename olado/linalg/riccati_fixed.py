@@ -36,7 +36,7 @@ _STRAIGHT_N_MAX = 12     # larger n: _factor_unconstrained_fixed_loops
 @intrinsic
 def _eliminate_stage(typingctx, tags, Hs, Pn, Ak, Bk, Pk, Kk, Lk):
     """One stage of _factor_unconstrained_fixed as straight-line SIMD code, for the sizes of
-    tags = size_tags(n, m, n + m); all arguments are C-contiguous 2-d float64 arrays: Hs
+    tags = size_tags(n, m); all arguments are C-contiguous 2-d float64 arrays: Hs
     (n+m, n+m) the upper triangle of the stage Hessian in [u; x] order (R + diag(Du) + reg I,
     S^T; Q + diag(Dx), plus the C terms), Pn = P_{k+1} (n, n), Ak (n, n), Bk (n, m); writes
     P_k -> Pk, K_k -> Kk, L_k -> Lk. Returns False if a pivot of Q_uu is not positive (or NaN).
@@ -116,8 +116,8 @@ def _eliminate_stage(typingctx, tags, Hs, Pn, Ak, Bk, Pk, Kk, Lk):
 
 
 @nb.njit(cache=True, fastmath=CONTRACT)
-def _factor_unconstrained_fixed(tags, Q, S, R, A, B, Dx, Du, Ci, sig, ni, reg, P, K, L):
-    """_factor_unconstrained compiled for the sizes of tags = size_tags(n, m, n + m).
+def _factor_unconstrained_fixed(tags, st, reg, fac):
+    """_factor_unconstrained compiled for the sizes of tags = size_tags(n, m).
 
     Stage k assembles the upper triangle of its Hessian in [u; x] order,
         H = [R + diag(Du) + reg I, S^T; S, Q + diag(Dx)] + [B A]^T P_{k+1} [B A] (+ C^T diag(sig) C)
@@ -126,6 +126,8 @@ def _factor_unconstrained_fixed(tags, Q, S, R, A, B, Dx, Du, Ci, sig, ni, reg, P
     L_xu = H_xu L^{-T}; then K_k = -L^{-T} L_xu^T and P_k = H_xx - L_xu L_xu^T (the Schur
     complement, symmetric by construction); see _eliminate_stage. Returns -1 on success, else
     the stage whose Q_uu is not positive definite."""
+    Q, S, R, A, B, E, F, ne, EN, Dx, Du, Ci, sig, ni = st
+    P, K, L = fac
     nt, mt, zt = tags.n, tags.m, tags.nz
     n, m = len(nt), len(mt)
     N = A.shape[0]
@@ -165,7 +167,7 @@ def _factor_unconstrained_fixed(tags, Q, S, R, A, B, Dx, Du, Ci, sig, ni, reg, P
 
 
 @nb.njit(cache=True, fastmath=CONTRACT)
-def _factor_unconstrained_fixed_loops(tags, Q, S, R, A, B, Dx, Du, Ci, sig, ni, reg, P, K, L):
+def _factor_unconstrained_fixed_loops(tags, st, reg, fac):
     """_factor_unconstrained_fixed in scalar loops, for n > _STRAIGHT_N_MAX (where the
     straight-line code of _eliminate_stage runs out of registers and is slower).
 
@@ -176,6 +178,8 @@ def _factor_unconstrained_fixed_loops(tags, Q, S, R, A, B, Dx, Du, Ci, sig, ni, 
     L_xu = H_xu L^{-T}; then K_k = -L^{-T} L_xu^T and P_k = H_xx - L_xu L_xu^T (the Schur
     complement, symmetric by construction). Returns -1 on success, else the stage whose Q_uu
     is not positive definite."""
+    Q, S, R, A, B, E, F, ne, EN, Dx, Du, Ci, sig, ni = st
+    P, K, L = fac
     nt, mt, zt = tags.n, tags.m, tags.nz
     n, m, nz = len(nt), len(mt), len(zt)
     N = A.shape[0]
@@ -422,7 +426,7 @@ def _forward_stage(g, d, n, m, x):
 def _solve_back_sweep(typingctx, tags, k_lo, k_hi, P, p, c, A, B, K, L, q, r, gk, U):
     """Stages k = k_hi - 1, ..., k_lo of the backward sweep of _solve_unconstrained_fixed as
     straight-line SIMD code in one loop, p_k carried in registers from stage to stage; for the
-    sizes of tags = size_tags(n, m, n + m), C-contiguous float64 arrays of the kernel's shapes,
+    sizes of tags = size_tags(n, m), C-contiguous float64 arrays of the kernel's shapes,
     P_k symmetric (as the factorizations store it), p (the kernel's lam) holding p_{k_hi} on
     entry; gk None or the stage-row gradient terms C^T sig ci (n + m values, [x; u]) added to
     every stage of the range. Stage k writes p_k -> p[k] and k_k -> U[k]:
@@ -496,7 +500,7 @@ def _solve_forward_sweep(typingctx, tags, X, K, U, P, lam, A, B, c):
 
 
 @nb.njit(cache=True, fastmath=REASSOC)
-def _solve_unconstrained_fixed(tags, A, B, Ci, sig, ni, P, K, L, q, r, c, x0, ci, X, U, lam):
+def _solve_unconstrained_fixed(tags, st, fac, rhs, sol):
     """One right-hand side without equality rows, compiled for the sizes of tags (as
     _factor_unconstrained_fixed).
 
@@ -508,6 +512,10 @@ def _solve_unconstrained_fixed(tags, A, B, Ci, sig, ni, P, K, L, q, r, c, x0, ci
     lam holds p and U holds k_k between the sweeps. The sweeps are straight-line SIMD code
     (_solve_back_sweep over runs of stages without stage rows, one stage at a time with them;
     _solve_forward_sweep); P_k must be symmetric (as the factorizations store it)."""
+    Q, S, R, A, B, E, F, ne, EN, Dx, Du, Ci, sig, ni = st
+    P, K, L = fac
+    q, r, c, x0, e, eN, ci = rhs
+    X, U, lam, nu = sol
     nt, mt, zt = tags.n, tags.m, tags.nz
     n, m = len(nt), len(mt)
     N = A.shape[0]

@@ -29,8 +29,24 @@ O(N (n+m)^3) for the factorization, O(N (n+m)^2) per right-hand side.
 
 from __future__ import annotations
 
+import collections
+
 import numba as nb
 import numpy as np
+
+# ---------------------------------------------------------------- the kernels' argument bundles
+#: the stage arrays of an LQ-DOCP KKT system: Hessian blocks Q (N+1, n, n), S (N, n, m),
+#: R (N, m, m), dynamics A (N, n, n), B (N, n, m), stage equality rows E (N, ne_max, n),
+#: F (N, ne_max, m) of which the first ne[k] count at stage k, final rows EN (neN, n), the
+#: diagonal terms Dx (N+1, n), Du (N, m) and the stage inequality terms C_k^T diag(sig_k) C_k,
+#: Ci (N, ni_max, n+m) and sig (N, ni_max), of which the first ni[k] count
+StageArrays = collections.namedtuple("StageArrays", "Q S R A B E F ne EN Dx Du Ci sig ni")
+#: the factors of the general recursion (see _factor)
+GeneralFactors = collections.namedtuple("GeneralFactors", "P K Quu Qux Lww Qm Rm perm rank nc Cx G ng Wx Dmat pg Zg")
+#: the factors of the plain recursion: P_k (N+1, n, n), K_k (N, m, n) and the Cholesky factor L_k
+#: (N, m, m) of Q_uu
+PlainFactors = collections.namedtuple("PlainFactors", "P K L")
+# (the right-hand side and the solution arrays: olado.linalg.backend.RHS, .Solution)
 
 
 @nb.njit(cache=True)
@@ -183,8 +199,7 @@ def _closed_loop(A, B, c, K, kff, X, U):
 
 
 @nb.njit(cache=True)
-def _factor(Q, S, R, A, B, E, F, ne, EN, neN, Dx, Du, Ci, sig, ni, reg, rank_tol,
-            P, K, Quu_s, Qux_s, Lww, Qm, Rm, perm, rank, nc, Cx_s, G, ng, Wx, Dmat, pg, Zg):
+def _factor(st, reg, rank_tol, fac):
     """Backward factorization sweep (paper 001 sec. 4.2.3, Arnold's elimination in the
     constraint-propagating form). Returns -1 on success, the stage index of a failure
     (non-positive-definite reduced Hessian), or -(1000 + k) when more rows than the buffers hold
@@ -205,6 +220,9 @@ def _factor(Q, S, R, A, B, E, F, ne, EN, neN, Dx, Du, Ci, sig, ni, reg, rank_tol
     rg x (nc[k] - rk - rg)), so for the constants they only impose the consistency
     (Pi_g^T graw)[rg:] = Zg^T g_k, checked by :func:`_solve`. The row sets G_N = E_N and G_k are
     stored in G (rows on x_k only)."""
+    Q, S, R, A, B, E, F, ne, EN, Dx, Du, Ci, sig, ni = st
+    neN = EN.shape[0]
+    P, K, Quu_s, Qux_s, Lww, Qm, Rm, perm, rank, nc, Cx_s, G, ng, Wx, Dmat, pg, Zg = fac
     N = A.shape[0]
     n = A.shape[1]
     m = B.shape[2]
@@ -443,9 +461,7 @@ def _factor(Q, S, R, A, B, E, F, ne, EN, neN, Dx, Du, Ci, sig, ni, reg, rank_tol
 
 
 @nb.njit(cache=True)
-def _solve(A, B, c, q, r, e, eN, x0, Dx, Du, S, Q, R, E, F, ne, EN, neN, Ci, sig, ni, ci_rhs,
-           P, K, Quu_s, Qux_s, Lww, Qm, Rm, perm, rank, nc, Cx_s, G, ng, Wx, Dmat, pg, Zg,
-           X, U, lam, nu, kff, pvec, gvec, dvec):
+def _solve(st, fac, rhs, sol):
     """One right-hand side (paper 001 sec. 4.2.3): backward vector sweep, forward simulation,
     multiplier sweeps, with the factors of :func:`_factor`.
 
@@ -460,6 +476,11 @@ def _solve(A, B, c, q, r, e, eN, x0, Dx, Du, S, Q, R, E, F, ne, EN, neN, Ci, sig
     Returns the infeasibility of the equality rows (max norm): the largest of the residual
     G_0 x0 + g_0 of the rows reaching x_0 and the consistency defects of the dependent rows
     dropped at every stage (zero up to rounding for a consistent constraint set)."""
+    Q, S, R, A, B, E, F, ne, EN, Dx, Du, Ci, sig, ni = st
+    neN = EN.shape[0]
+    P, K, Quu_s, Qux_s, Lww, Qm, Rm, perm, rank, nc, Cx_s, G, ng, Wx, Dmat, pg, Zg = fac
+    q, r, c, x0, e, eN, ci_rhs = rhs
+    X, U, lam, nu = sol
     N = A.shape[0]
     n = A.shape[1]
     m = B.shape[2]
@@ -468,6 +489,7 @@ def _solve(A, B, c, q, r, e, eN, x0, Dx, Du, S, Q, R, E, F, ne, EN, neN, Ci, sig
     v1 = np.empty(max(ncmax, 1)); bu = np.empty(m); mu = np.empty(max(ncmax, 1)); mup = np.empty(max(ncmax, 1))
     eta = np.empty(max(ncmax, 1)); a_next = np.empty(n); a_cur = np.empty(n)
     graw = np.empty(max(ncmax, 1)); etar = np.empty(max(ncmax, 1))
+    kff = np.empty((N, m)); pvec = np.empty((N + 1, n)); gvec = np.zeros((N + 1, ncmax)); dvec = np.zeros((N, ncmax))
     res = 0.0
     # terminal
     for i in range(n):
@@ -682,9 +704,11 @@ def _solve(A, B, c, q, r, e, eN, x0, Dx, Du, S, Q, R, E, F, ne, EN, neN, Ci, sig
 # gets its own kernels (about 2x fewer flops, 4x less memory than the general path).
 
 @nb.njit(cache=True)
-def _factor_unconstrained(Q, S, R, A, B, Dx, Du, Ci, sig, ni, reg, P, K, L):
+def _factor_unconstrained(st, reg, fac):
     """Backward Riccati sweep without equality rows. With Q_uu = L L^T and V = L^{-1} Q_ux:
     K_k = -L^{-T} V, P_k = Q_xx - V^T V. Returns -1 on success, else the failing stage index."""
+    Q, S, R, A, B, E, F, ne, EN, Dx, Du, Ci, sig, ni = st
+    P, K, L = fac
     N = A.shape[0]
     n = A.shape[1]
     m = B.shape[2]
@@ -784,13 +808,18 @@ def _factor_unconstrained(Q, S, R, A, B, Dx, Du, Ci, sig, ni, reg, P, K, L):
 
 
 @nb.njit(cache=True)
-def _solve_unconstrained(Q, S, A, B, Dx, Ci, sig, ni, P, K, L, q, r, c, x0, ci, X, U, lam, kff, pvec):
+def _solve_unconstrained(st, fac, rhs, sol):
     """One right-hand side without equality rows: backward vector sweep (kff_k = -Q_uu^{-1} q_u,
     p_k = q_x + K_k^T q_u), forward simulation, and lam_k from the x-stationarity rows."""
+    Q, S, R, A, B, E, F, ne, EN, Dx, Du, Ci, sig, ni = st
+    P, K, L = fac
+    q, r, c, x0, e, eN, ci = rhs
+    X, U, lam, nu = sol
     N = A.shape[0]
     n = A.shape[1]
     m = B.shape[2]
     t1 = np.empty(n); qu = np.empty(m); a_cur = np.empty(n)
+    kff = np.empty((N, m)); pvec = np.empty((N + 1, n))
     for i in range(n):
         pvec[N, i] = q[N, i]
     for k in range(N - 1, -1, -1):

@@ -152,10 +152,11 @@ from llvmlite import ir as llir
 from numba.core import cgutils
 from numba.extending import intrinsic, overload
 
-from ..linalg.kkt import KKT_SOLVERS, make_kkt_solver
+from ..linalg.backend import KKT_SOLVERS, RHS, Solution, make_kkt_solver
 from ..linalg.codegen import F64 as _F64, I32 as _I32, ContractRowCode as _ContractRowCode, SizeTags, fixed_size_tags
 from ..linalg.codegen import pieces as _pieces, stack_vector as _stack_vector
-from ..linalg.riccati import NotPositiveDefiniteError, RiccatiFactorization, RiccatiStatusError
+from ..linalg.backend import NotPositiveDefiniteError
+from ..linalg.riccati import RiccatiStatusError
 from .stageqp import BOX_FIELDS, QPResult, StageQP, box_values, qp_kkt_residuals
 from ..result import Status
 from ..solvers.base import make_options, option
@@ -1411,7 +1412,7 @@ class _Prepared:
         self.work_el, self.work_eu, self.work_w = np.empty(self.nw), np.empty(self.nw), np.empty(self.nw)
         self.Q_final = self.Q.copy() if ncN else self.Q   # Q with C_N^T diag(D) C_N added to Q_N
         self.shift = 0.0   # delta added to the Hessian by the nonconvex = "shift" mode
-        self.fact = None   # the Riccati factorization, refactored in every iteration
+        self.fact = None   # the KKT back-end's factorization, refactored in every iteration
         self.reg_rung = 0  # index (in reg_rungs) of the last iteration's Newton-system regularization
         self._rungs = None
         self.work_Dx, self.work_Du = np.empty((N + 1, n)), np.empty((N, m))
@@ -1582,10 +1583,11 @@ class _InconsistentRows(ArithmeticError):
     rows reaching the fixed x_0 (``LQSolution.x0_residual``), is above the data's rounding level."""
 
 
-def _check_rows(P, sol, rhs_size, where):
-    """Raise _InconsistentRows if the solve ``sol`` found inconsistent equality rows."""
-    defect = float(getattr(sol, "x0_residual", 0.0))
-    if defect > 1e-6 * (1.0 + P.p_data + rhs_size):
+def _check_rows(P, defect, rhs, where):
+    """Raise _InconsistentRows if a solve found inconsistent equality rows: its defect
+    (``LQSolution.x0_residual``) above the rounding level of the data and of the right-hand side
+    ``rhs`` (an _Rhs, or None for a right-hand side made of the data)."""
+    if defect > 1e-6 * (1.0 + P.p_data) and defect > 1e-6 * (1.0 + P.p_data + (0.0 if rhs is None else rhs.size())):
         raise _InconsistentRows(f"the equality constraints (dynamics, equality rows, fixed states and x_0) are "
                                 f"inconsistent: a combination of them is violated by {defect:.3g} at every point "
                                 f"({where})")
@@ -1734,7 +1736,7 @@ class _StepContext:
         np.add(P.Dub, reg, out=Du)
         try:
             if P.fact is not None:
-                self.fact = P.fact.refactor(Dx=Dx, Du=Du, sigma=self.Ds if P.nc else None)
+                P.fact.refactor(Dx=Dx, Du=Du, sigma=self.Ds if P.nc else None)
             else:
                 kw = {}
                 if P.nc:
@@ -1743,10 +1745,9 @@ class _StepContext:
                     kw.update(E=P.E, F=P.F, n_eq=P.n_eq, EN=P.EN)
                 options = self.solver.options
                 kw.update(options.kkt_options)
-                self.fact = make_kkt_solver(options.kkt, P.Q_final if P.ncN else P.Q, P.S, P.R, P.A, P.B,
-                                            Dx=Dx, Du=Du, **kw)
-                if isinstance(self.fact, RiccatiFactorization):
-                    P.fact = self.fact
+                P.fact = make_kkt_solver(options.kkt, P.Q_final if P.ncN else P.Q, P.S, P.R, P.A, P.B,
+                                         Dx=Dx, Du=Du, **kw)
+            self.fact = P.fact
             return True
         except NotPositiveDefiniteError as exc:
             exc.regularization = reg
@@ -1776,28 +1777,10 @@ class _StepContext:
             d = P.point(np.empty(P.point_layout[1]))
         else:
             d = out
-        if self.fact is P.fact and self.fact.unconstrained:
-            # Riccati without equality rows: the work arrays were validated when the QP was
-            # prepared; the solution goes straight into the direction's arrays
-            self.fact.solve_trusted(q, r, res.dyn, res.x0r, ci, d.X, d.U, d.lam)
-            if P.n_nu:
-                d.nu[...] = 0.0
-        else:
-            kw = {}
-            if P.nc:
-                kw["ci"] = ci
-            if P.has_eq:
-                kw["e"] = res.rE; kw["eN"] = res.rEN
-            if self.fact is P.fact:
-                sol = self.fact.solve(q, r, res.dyn, res.x0r, out=(d.X, d.U, d.lam), **kw)
-            else:
-                sol = self.fact.solve(q, r, res.dyn, res.x0r, **kw)
-                d.X[...] = sol.X; d.U[...] = sol.U; d.lam[...] = sol.lam
-            _check_rows(P, sol, res.size(), "Newton step")
-            if P.n_nu:
-                k = min(P.n_nu, sol.nu.shape[1])
-                d.nu[:, :k] = sol.nu[:, :k]
-                d.nu[:, k:] = 0.0
+        # the work arrays were validated when the QP was prepared: the solution goes straight into
+        # the direction's arrays
+        defect = self.fact.solve_into(RHS(q, r, res.dyn, res.x0r, res.rE, res.rEN, ci), Solution(d.X, d.U, d.lam, d.nu))
+        _check_rows(P, defect, res, "Newton step")
         ok, ap, ad = _recover_step(d.X, d.U, P.Ct, P.CN, res.rl, res.rup, rho_l, rho_u, it.tl, it.tu, it.zl, it.zu,
                                    self.inv_tl, self.inv_tu, P.fl, P.fu, d.tl, d.tu, d.zl, d.zu, P.work_w)
         if not ok:
@@ -2293,7 +2276,7 @@ class InteriorPointQP:
             rhs.update(e=P.e, eN=P.eN)
         kw.update(self.options.kkt_options)
         sol = make_kkt_solver(self.options.kkt, Q, P.S, P.R, P.A, P.B, **kw).solve(q, r, P.c, P.x0, **rhs)
-        _check_rows(P, sol, 0.0, "starting point")
+        _check_rows(P, float(sol.x0_residual), None, "starting point")
         X, U = np.array(sol.X, dtype=float), np.array(sol.U, dtype=float)
         w = P.w_of(X, U)
         tl = np.where(P.fl, np.maximum(w - P.lo, 1.0), 0.0)

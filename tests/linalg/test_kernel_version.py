@@ -30,12 +30,15 @@ _RUN = textwrap.dedent("""
     import sys
     import numpy as np
     from olado.linalg import codegen, riccati_fixed as rf
+    from olado.linalg.riccati_kernels import PlainFactors, StageArrays
     codegen.KERNEL_VERSION = int(sys.argv[1])
     N = 3
-    args = (np.ones((N + 1, 1, 1)), np.zeros((N, 1, 1)), np.ones((N, 1, 1)), np.ones((N, 1, 1)), np.ones((N, 1, 1)),
-            np.zeros((N + 1, 1)), np.zeros((N, 1)), np.zeros((N, 0, 2)), np.zeros((N, 0)), np.zeros(N, np.int64), 0.0,
-            np.empty((N + 1, 1, 1)), np.empty((N, 1, 1)), np.empty((N, 1, 1)))
-    assert rf._factor_unconstrained_fixed(codegen.size_tags(1, 1), *args) == -1
+    z = np.zeros
+    st = StageArrays(Q=np.ones((N + 1, 1, 1)), S=z((N, 1, 1)), R=np.ones((N, 1, 1)), A=np.ones((N, 1, 1)),
+                     B=np.ones((N, 1, 1)), E=z((N, 0, 1)), F=z((N, 0, 1)), ne=z(N, np.int64), EN=z((0, 1)),
+                     Dx=z((N + 1, 1)), Du=z((N, 1)), Ci=z((N, 0, 2)), sig=z((N, 0)), ni=z(N, np.int64))
+    fac = PlainFactors(P=np.empty((N + 1, 1, 1)), K=np.empty((N, 1, 1)), L=np.empty((N, 1, 1)))
+    assert rf._factor_unconstrained_fixed(codegen.size_tags(1, 1), st, 0.0, fac) == -1
     stats = rf._factor_unconstrained_fixed.stats
     print(len(stats.cache_hits), len(stats.cache_misses))
 """)

@@ -74,7 +74,7 @@ from ..base import Solver, SolverOptions, option
 from .hessian import make_hessian
 from ..registry import register
 
-KKT_SOLVERS = ("riccati", "superlu-full", "superlu-reduced", "minres", "gmres")
+from ...linalg.backend import KKT_SOLVERS  # the KKT back-end names (the one table: olado.linalg.backend)
 
 
 def _apply_qp_options(qp_solver, qp_name, qp_options):
