@@ -1,4 +1,4 @@
-"""The fixed-size _kkt_map kernel (straight-line SIMD stages, olado.qp.interior_point._kkt_stage and
+"""The fixed-size _kkt_map kernel (straight-line SIMD stages, olado.qp.interior_point.kkt_map._kkt_stage and
 _kkt_boxes) against numpy formulas and the any-size (scalar-loop) kernel: random data for several
 block sizes with and without stage rows and equality rows, a prepared QP and non-finite inputs."""
 
@@ -10,7 +10,8 @@ import pytest
 from numba import typeof
 
 from olado.linalg.codegen import size_tags
-from olado.qp import interior_point as qp_ip
+from olado.qp.interior_point import kkt_map as qp_ip
+from olado.qp.interior_point.presolve import _Prepared
 from olado.qp.interior_point import MehrotraQP
 
 from fixtures.qp_problems import random_qp  # noqa: E402
@@ -125,9 +126,9 @@ def test_fixed_size_kernel_matches_the_formulas_and_the_loops(n, m, ne, nc, neN,
 
 def test_fixed_size_kernel_on_a_prepared_qp():
     """A QP with fixed variables, equal-bound rows, stage and final rows and equality rows
-    (tests/test_qp_ip.random_qp): the residuals of the compiled solver match the formulas."""
+    (tests/fixtures/qp_problems.random_qp): the residuals of the compiled solver match the formulas."""
     qp = random_qp(5, fixed=True, eq=True)
-    P = qp_ip._Prepared(qp)
+    P = _Prepared(qp)
     assert isinstance(P.sizes[0], tuple)       # the fixed-size kernel
     it = MehrotraQP()._initial_point(P)
     rng = np.random.default_rng(3)

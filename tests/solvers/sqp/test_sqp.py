@@ -414,7 +414,7 @@ def test_stalled_cold_start_qp_is_restarted_further_inside(monkeypatch):
     bounds) stalled from initial_mu = 0.1 (82 short steps, NUMERICAL_ERROR ended the SQP at
     iteration 0); its steps stay below 0.1 from iteration 12 on, so the cold start is abandoned
     after 10 such steps and solved again from initial_mu = 10, within the same max_iter."""
-    from olado.qp.interior_point import make_qp_solver
+    from olado.qp import make_qp_solver
 
     qps = []
     build = SQPSolver._build_qp
