@@ -126,8 +126,9 @@ def _factor_unconstrained_fixed(tags, st, reg, fac):
     L_xu = H_xu L^{-T}; then K_k = -L^{-T} L_xu^T and P_k = H_xx - L_xu L_xu^T (the Schur
     complement, symmetric by construction); see _eliminate_stage. Returns -1 on success, else
     the stage whose Q_uu is not positive definite."""
-    Q, S, R, A, B, E, F, ne, EN, Dx, Du, Ci, sig, ni = st
-    P, K, L = fac
+    Q, S, R, A, B = st.Q, st.S, st.R, st.A, st.B
+    Dx, Du, Ci, sig, ni = st.Dx, st.Du, st.Ci, st.sig, st.ni
+    P, K, L = fac.P, fac.K, fac.L
     nt, mt, zt = tags.n, tags.m, tags.nz
     n, m = len(nt), len(mt)
     N = A.shape[0]
@@ -178,8 +179,9 @@ def _factor_unconstrained_fixed_loops(tags, st, reg, fac):
     L_xu = H_xu L^{-T}; then K_k = -L^{-T} L_xu^T and P_k = H_xx - L_xu L_xu^T (the Schur
     complement, symmetric by construction). Returns -1 on success, else the stage whose Q_uu
     is not positive definite."""
-    Q, S, R, A, B, E, F, ne, EN, Dx, Du, Ci, sig, ni = st
-    P, K, L = fac
+    Q, S, R, A, B = st.Q, st.S, st.R, st.A, st.B
+    Dx, Du, Ci, sig, ni = st.Dx, st.Du, st.Ci, st.sig, st.ni
+    P, K, L = fac.P, fac.K, fac.L
     nt, mt, zt = tags.n, tags.m, tags.nz
     n, m, nz = len(nt), len(mt), len(zt)
     N = A.shape[0]
@@ -512,10 +514,11 @@ def _solve_unconstrained_fixed(tags, st, fac, rhs, sol):
     lam holds p and U holds k_k between the sweeps. The sweeps are straight-line SIMD code
     (_solve_back_sweep over runs of stages without stage rows, one stage at a time with them;
     _solve_forward_sweep); P_k must be symmetric (as the factorizations store it)."""
-    Q, S, R, A, B, E, F, ne, EN, Dx, Du, Ci, sig, ni = st
-    P, K, L = fac
-    q, r, c, x0, e, eN, ci = rhs
-    X, U, lam, nu = sol
+    A, B = st.A, st.B
+    Ci, sig, ni = st.Ci, st.sig, st.ni
+    P, K, L = fac.P, fac.K, fac.L
+    q, r, c, x0, ci = rhs.q, rhs.r, rhs.c, rhs.x0, rhs.ci
+    X, U, lam = sol.X, sol.U, sol.lam
     nt, mt, zt = tags.n, tags.m, tags.nz
     n, m = len(nt), len(mt)
     N = A.shape[0]

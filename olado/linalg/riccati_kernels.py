@@ -220,9 +220,12 @@ def _factor(st, reg, rank_tol, fac):
     rg x (nc[k] - rk - rg)), so for the constants they only impose the consistency
     (Pi_g^T graw)[rg:] = Zg^T g_k, checked by :func:`_solve`. The row sets G_N = E_N and G_k are
     stored in G (rows on x_k only)."""
-    Q, S, R, A, B, E, F, ne, EN, Dx, Du, Ci, sig, ni = st
+    Q, S, R, A, B, E, F, ne, EN = st.Q, st.S, st.R, st.A, st.B, st.E, st.F, st.ne, st.EN
+    Dx, Du, Ci, sig, ni = st.Dx, st.Du, st.Ci, st.sig, st.ni
     neN = EN.shape[0]
-    P, K, Quu_s, Qux_s, Lww, Qm, Rm, perm, rank, nc, Cx_s, G, ng, Wx, Dmat, pg, Zg = fac
+    P, K, Quu_s, Qux_s, Lww, Qm, Rm = fac.P, fac.K, fac.Quu, fac.Qux, fac.Lww, fac.Qm, fac.Rm
+    perm, rank, nc, Cx_s, G, ng = fac.perm, fac.rank, fac.nc, fac.Cx, fac.G, fac.ng
+    Wx, Dmat, pg, Zg = fac.Wx, fac.Dmat, fac.pg, fac.Zg
     N = A.shape[0]
     n = A.shape[1]
     m = B.shape[2]
@@ -476,11 +479,14 @@ def _solve(st, fac, rhs, sol):
     Returns the infeasibility of the equality rows (max norm): the largest of the residual
     G_0 x0 + g_0 of the rows reaching x_0 and the consistency defects of the dependent rows
     dropped at every stage (zero up to rounding for a consistent constraint set)."""
-    Q, S, R, A, B, E, F, ne, EN, Dx, Du, Ci, sig, ni = st
+    Q, S, R, A, B, ne, EN = st.Q, st.S, st.R, st.A, st.B, st.ne, st.EN
+    Dx, Du, Ci, sig, ni = st.Dx, st.Du, st.Ci, st.sig, st.ni
     neN = EN.shape[0]
-    P, K, Quu_s, Qux_s, Lww, Qm, Rm, perm, rank, nc, Cx_s, G, ng, Wx, Dmat, pg, Zg = fac
-    q, r, c, x0, e, eN, ci_rhs = rhs
-    X, U, lam, nu = sol
+    P, K, Quu_s, Qux_s, Lww, Qm, Rm = fac.P, fac.K, fac.Quu, fac.Qux, fac.Lww, fac.Qm, fac.Rm
+    perm, rank, nc, Cx_s, G, ng = fac.perm, fac.rank, fac.nc, fac.Cx, fac.G, fac.ng
+    Dmat, pg, Zg = fac.Dmat, fac.pg, fac.Zg
+    q, r, c, x0, e, eN, ci_rhs = rhs.q, rhs.r, rhs.c, rhs.x0, rhs.e, rhs.eN, rhs.ci
+    X, U, lam, nu = sol.X, sol.U, sol.lam, sol.nu
     N = A.shape[0]
     n = A.shape[1]
     m = B.shape[2]
@@ -707,8 +713,9 @@ def _solve(st, fac, rhs, sol):
 def _factor_unconstrained(st, reg, fac):
     """Backward Riccati sweep without equality rows. With Q_uu = L L^T and V = L^{-1} Q_ux:
     K_k = -L^{-T} V, P_k = Q_xx - V^T V. Returns -1 on success, else the failing stage index."""
-    Q, S, R, A, B, E, F, ne, EN, Dx, Du, Ci, sig, ni = st
-    P, K, L = fac
+    Q, S, R, A, B = st.Q, st.S, st.R, st.A, st.B
+    Dx, Du, Ci, sig, ni = st.Dx, st.Du, st.Ci, st.sig, st.ni
+    P, K, L = fac.P, fac.K, fac.L
     N = A.shape[0]
     n = A.shape[1]
     m = B.shape[2]
@@ -811,10 +818,11 @@ def _factor_unconstrained(st, reg, fac):
 def _solve_unconstrained(st, fac, rhs, sol):
     """One right-hand side without equality rows: backward vector sweep (kff_k = -Q_uu^{-1} q_u,
     p_k = q_x + K_k^T q_u), forward simulation, and lam_k from the x-stationarity rows."""
-    Q, S, R, A, B, E, F, ne, EN, Dx, Du, Ci, sig, ni = st
-    P, K, L = fac
-    q, r, c, x0, e, eN, ci = rhs
-    X, U, lam, nu = sol
+    Q, S, A, B = st.Q, st.S, st.A, st.B
+    Dx, Ci, sig, ni = st.Dx, st.Ci, st.sig, st.ni
+    P, K, L = fac.P, fac.K, fac.L
+    q, r, c, x0, ci = rhs.q, rhs.r, rhs.c, rhs.x0, rhs.ci
+    X, U, lam = sol.X, sol.U, sol.lam
     N = A.shape[0]
     n = A.shape[1]
     m = B.shape[2]

@@ -450,10 +450,8 @@ def test_kkt_map_fixed_size_kernel_agrees_with_any_size_kernel():
     it = MehrotraQP()._initial_point(P)
     out = []
     for sizes in (P.sizes, (P.n, P.m, P.n + P.m)):
-        res = _Rhs(P, np.full(P.rhs_layout[1], np.nan))
-        _kkt_map(sizes, P.H, P.QN, P.AB, P.EF, P.EFt, P.eqm, P.EN, P.C, P.Ct, P.CN, P.neg_lo, P.hi, P.fl, P.fu,
-                       it.X, it.U, it.lam, it.nu, it.tl, it.tu, it.zl, it.zu, P.q, P.r, P.c, P.x0, P.be, P.eN,
-                       res.rx, res.ru, res.dyn, res.x0r, res.rE, res.rEN, res.rl, res.rup, P.work_w, P.stats)
+        res = _Rhs(P, np.full(P.rhs_layout.size, np.nan))
+        _kkt_map(sizes, P.kkt_data, it.arrays, P.offsets, res.arrays, P.work_w, P.stats)
         out.append((res.buf.copy(), P.stats.copy()))
     assert isinstance(P.sizes[0], tuple)   # the fixed-size kernel was the first one
     assert np.all(np.isfinite(out[0][0]))

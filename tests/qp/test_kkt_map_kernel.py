@@ -11,7 +11,8 @@ from numba import typeof
 
 from olado.linalg.codegen import size_tags
 from olado.qp.interior_point import kkt_map as qp_ip
-from olado.qp.interior_point.presolve import _Prepared
+from olado.qp.interior_point.point import PointArrays, Residuals
+from olado.qp.interior_point.presolve import KKTData, _Prepared
 from olado.qp.interior_point import MehrotraQP
 
 from fixtures.qp_problems import random_qp  # noqa: E402
@@ -53,15 +54,23 @@ def outputs(N, n, m, ne, neN, nw, fill=np.nan):
                 rup=np.full(nw, fill), w=np.full(nw, fill), stats=np.full(6, fill))
 
 
-ORDER = ("H QN AB EF EFt eqm EN C Ct CN al au fl fu X U lam nu tl tu zl zu bx bu bdyn bx0 be beN "
-         "rx ru dyn x0r rE rEN rl rup w stats").split()
+def bundles(a):
+    """The bundles of _kkt_map (data, point, offsets, out) of the arrays of the dict a."""
+    offsets = Residuals(a["bx"], a["bu"], a["bdyn"], a["bx0"], a["be"], a["beN"], a["al"], a["au"])
+    return (KKTData(*(a[k] for k in KKTData._fields)), PointArrays(*(a[k] for k in PointArrays._fields)), offsets,
+            Residuals(*(a[k] for k in Residuals._fields)))
 
 
 def run(sizes, d):
     """_kkt_map on copies of the arrays of d; returns the outputs."""
     a = {k: v.copy() for k, v in d.items()}
-    qp_ip._kkt_map(sizes, *(a[k] for k in ORDER))
+    qp_ip._kkt_map(sizes, *bundles(a), a["w"], a["stats"])
     return {k: a[k] for k in OUTPUTS}
+
+
+def fixed_applies(sizes, d):
+    """Whether _kkt_map runs the fixed-size kernel on the arrays of d."""
+    return qp_ip._kkt_fixed_applies(typeof(sizes), *(typeof(b) for b in bundles(d)), typeof(d["w"]), typeof(d["stats"]))
 
 
 def reference(d):
@@ -111,7 +120,7 @@ def assert_close(out, ref, rtol=1e-12, atol=1e-12):
 def test_fixed_size_kernel_matches_the_formulas_and_the_loops(n, m, ne, nc, neN, ncN, N):
     d = random_args(1000 * n + 10 * m + N, N, n, m, ne, nc, neN, ncN)
     sizes = size_tags(n, m)
-    assert qp_ip._kkt_fixed_applies(*(typeof(a) for a in [sizes] + [d[k] for k in ORDER]))
+    assert fixed_applies(sizes, d)
     fixed = run(sizes, d)
     loops = run((n, m, n + m), d)
     ref = reference(d)
@@ -138,7 +147,7 @@ def test_fixed_size_kernel_on_a_prepared_qp():
              zl=it.zl, zu=it.zu, bx=P.q, bu=P.r, bdyn=P.c, bx0=P.x0, be=P.be, beN=P.eN)
     d.update(outputs(P.N, P.n, P.m, P.EF.shape[1], P.EN.shape[0], P.nw))
     fixed, loops = run(P.sizes, d), run((P.n, P.m, P.n + P.m), d)
-    assert qp_ip._kkt_fixed_applies(*(typeof(a) for a in [P.sizes] + [d[k] for k in ORDER]))
+    assert fixed_applies(P.sizes, d)
     assert_close(fixed, reference(d))
     assert_close(fixed, loops)
 
@@ -188,6 +197,6 @@ def test_non_contiguous_arrays_take_the_loop_kernel():
     big = np.zeros((N, 2 * (n + m), n + m))
     big[:, ::2] = d["H"]
     d2["H"] = big[:, ::2]
-    assert not qp_ip._kkt_fixed_applies(*(typeof(a) for a in [size_tags(n, m)] + [d2[k] for k in ORDER]))
+    assert not fixed_applies(size_tags(n, m), d2)
     out = run(size_tags(n, m), d2)
     assert_close(out, ref)

@@ -1,5 +1,8 @@
 """The compiled elementwise kernels of the interior-point QP (paper 001 sec. 4.2.2-4.2.3).
 
+Points and directions are passed as their PointArrays bundles (``it``, ``d``), residuals as
+Residuals bundles (``res``), the stage data as the KKTData bundle (``data``).
+
 One pass each over the flat box vectors w = (x_1..x_N, u_0..u_{N-1}, C_k z_k, C_N x_N) (indexed as
 in :mod:`.presolve`: x_k (k >= 1) at (k-1) n, u_k at N n + k m, row l of C_k z_k at
 N (n+m) + k nc + l, then C_N x_N) or the flat point vectors:
@@ -28,8 +31,10 @@ from ...linalg.codegen import REASSOC
 
 
 @nb.njit(cache=True)
-def _complementarity_residual(rho_l, rho_u, tl, tu, zl, zu, dtl, dtu, dzl, dzu, el, eu):
+def _complementarity_residual(rho_l, rho_u, it, d, el, eu):
     """el = rho_l - zl dtl - tl dzl, eu = rho_u - zu dtu - tu dzu; returns max |el, eu|."""
+    tl, tu, zl, zu = it.tl, it.tu, it.zl, it.zu
+    dtl, dtu, dzl, dzu = d.tl, d.tu, d.zl, d.zu
     big = 0.0
     for i in range(tl.shape[0]):
         a = rho_l[i] - zl[i] * dtl[i] - tl[i] * dzl[i]
@@ -41,8 +46,9 @@ def _complementarity_residual(rho_l, rho_u, tl, tu, zl, zu, dtl, dtu, dzl, dzu, 
 
 
 @nb.njit(cache=True)
-def _scaling(tl, tu, zl, zu, fl, fu, inv_tl, inv_tu, D):
+def _scaling(it, fl, fu, inv_tl, inv_tu, D):
     """1/t on the finite sides (0 elsewhere) and D = zl/tl + zu/tu."""
+    tl, tu, zl, zu = it.tl, it.tu, it.zl, it.zu
     for i in range(tl.shape[0]):
         a = 1.0 / tl[i] if fl[i] else 0.0
         b = 1.0 / tu[i] if fu[i] else 0.0
@@ -52,9 +58,11 @@ def _scaling(tl, tu, zl, zu, fl, fu, inv_tl, inv_tu, D):
 
 
 @nb.njit(cache=True)
-def _newton_rhs(rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, CN, q, r, ci):
+def _newton_rhs(res, rho_l, rho_u, it, inv_tl, inv_tu, Ds, CN, q, r, ci):
     """Eliminate (dtl, dtu, dzl, dzu): g = (rho_u - zu rup)/tu - (rho_l - zl rl)/tl enters the
     gradient (q, r; C_N^T g for final rows) and the stage-row constants ci = g / D."""
+    rx, ru, rl, rup = res.rx, res.ru, res.rl, res.rup
+    zl, zu = it.zl, it.zu
     N = ru.shape[0]
     n = rx.shape[1]
     m = ru.shape[1]
@@ -88,11 +96,15 @@ def _newton_rhs(rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, CN, q
 
 
 @nb.njit(cache=True)
-def _recover_step(dX, dU, Ct, CN, rl, rup, rho_l, rho_u, tl, tu, zl, zu, inv_tl, inv_tu, fl, fu, dtl, dtu, dzl, dzu, w):
+def _recover_step(data, res, rho_l, rho_u, it, inv_tl, inv_tu, d, w):
     """After the KKT solve: dtl = dw + rl, dtu = -dw + rup, dzl = (rho_l - zl dtl)/tl,
     dzu = (rho_u - zu dtu)/tu.  Returns (ok, ap, ad): ok False if dX or dU is not finite; ap, ad
     the largest primal (slacks) and dual (multipliers) step lengths along the direction (as
     _max_step_split, in the same pass; min(ap, ad) is _max_step's common one)."""
+    Ct, CN, fl, fu = data.Ct, data.CN, data.fl, data.fu
+    rl, rup = res.rl, res.rup
+    tl, tu, zl, zu = it.tl, it.tu, it.zl, it.zu
+    dX, dU, dtl, dtu, dzl, dzu = d.X, d.U, d.tl, d.tu, d.zl, d.zu
     N = dU.shape[0]
     n = dX.shape[1]
     m = dU.shape[1]
@@ -151,11 +163,14 @@ def _recover_step(dX, dU, Ct, CN, rl, rup, rho_l, rho_u, tl, tu, zl, zu, inv_tl,
 
 
 @nb.njit(cache=True, fastmath=REASSOC)
-def _max_step(tl, tu, zl, zu, fl, fu, dtl, dtu, dzl, dzu, ctl, ctu, czl, czu, omega):
-    """Largest alpha (capped at 1e30) keeping tl, tu, zl, zu positive along d + omega c
-    (omega = 0: along d).  Infinite sides hold t = z = 0 and zero steps (by construction of the
-    iterates and directions), so they never limit the step and need no test (fl, fu are unused:
-    the loop is branch-free and vectorizes)."""
+def _max_step(it, d, c, omega):
+    """Largest alpha (capped at 1e30) keeping tl, tu, zl, zu of the point ``it`` positive along
+    d + omega c (omega = 0: along d; it, d, c PointArrays).  Infinite sides hold t = z = 0 and
+    zero steps (by construction of the iterates and directions), so they never limit the step and
+    need no test (the loop is branch-free and vectorizes)."""
+    tl, tu, zl, zu = it.tl, it.tu, it.zl, it.zu
+    dtl, dtu, dzl, dzu = d.tl, d.tu, d.zl, d.zu
+    ctl, ctu, czl, czu = c.tl, c.tu, c.zl, c.zu
     a = 1e30
     inf = np.inf
     for i in range(tl.shape[0]):
@@ -171,9 +186,11 @@ def _max_step(tl, tu, zl, zu, fl, fu, dtl, dtu, dzl, dzu, ctl, ctu, czl, czu, om
 
 
 @nb.njit(cache=True, fastmath=REASSOC)
-def _max_step_split(tl, tu, zl, zu, fl, fu, dtl, dtu, dzl, dzu):
+def _max_step_split(it, d):
     """Largest primal (slacks) and dual (multipliers) step lengths (capped at 1e30) keeping
     tl, tu resp. zl, zu positive along d (infinite sides: see _max_step)."""
+    tl, tu, zl, zu = it.tl, it.tu, it.zl, it.zu
+    dtl, dtu, dzl, dzu = d.tl, d.tu, d.zl, d.zu
     ap = 1e30
     ad = 1e30
     inf = np.inf
@@ -199,11 +216,13 @@ def _axpy_split(x, ap, ad, y, dual):
 
 
 @nb.njit(cache=True, fastmath=REASSOC)
-def _neighbourhood_step(tl, tu, zl, zu, fl, fu, dtl, dtu, dzl, dzu, alpha, neighborhood, mu, alpha_dual=-1.0):
+def _neighbourhood_step(it, fl, fu, d, alpha, neighborhood, mu, alpha_dual=-1.0):
     """Shorten alpha by factors 0.9 (at most 60 times) until min t_i z_i >= gamma mean t_i z_i at
     it + alpha d, gamma = min(neighborhood, 1/2 min_i t_i z_i / mu) at the current iterate.
     With ``alpha_dual`` >= 0 the multipliers move by alpha_dual (shortened by the same factors) and
     the slacks by alpha; returns the (primal) alpha (the dual one is alpha_dual * alpha / alpha_in)."""
+    tl, tu, zl, zu = it.tl, it.tu, it.zl, it.zu
+    dtl, dtu, dzl, dzu = d.tl, d.tu, d.zl, d.zu
     if alpha_dual < 0.0:
         alpha_dual = alpha
     ratio = alpha_dual / alpha if alpha > 0.0 else 1.0
@@ -240,8 +259,9 @@ def _neighbourhood_step(tl, tu, zl, zu, fl, fu, dtl, dtu, dzl, dzu, alpha, neigh
 
 
 @nb.njit(cache=True)
-def _corrector_rhs(fl, fu, dtl, dtu, dzl, dzu, target, scale, rho_l, rho_u):
+def _corrector_rhs(fl, fu, d, target, scale, rho_l, rho_u):
     """Mehrotra's corrector: rho = target - scale * dt_aff dz_aff on the finite sides."""
+    dtl, dtu, dzl, dzu = d.tl, d.tu, d.zl, d.zu
     for i in range(fl.shape[0]):
         rho_l[i] = target - scale * (dtl[i] * dzl[i]) if fl[i] else 0.0
         rho_u[i] = target - scale * (dtu[i] * dzu[i]) if fu[i] else 0.0
@@ -264,18 +284,22 @@ def _implied_newton_residual(new, old, ap, ad, n_dual):
 
 
 @nb.njit(cache=True)
-def _combined_rhs(tl, tu, zl, zu, fl, fu, dtl, dtu, dzl, dzu, target, scale, rho_l, rho_u):
+def _combined_rhs(it, fl, fu, d, target, scale, rho_l, rho_u):
     """Predictor plus Mehrotra corrector in one right-hand side: rho = -t z + target
     - scale * dt_aff dz_aff on the finite sides (the direction d_aff + d_c in one solve)."""
+    tl, tu, zl, zu = it.tl, it.tu, it.zl, it.zu
+    dtl, dtu, dzl, dzu = d.tl, d.tu, d.zl, d.zu
     for i in range(fl.shape[0]):
         rho_l[i] = target - tl[i] * zl[i] - scale * (dtl[i] * dzl[i]) if fl[i] else 0.0
         rho_u[i] = target - tu[i] * zu[i] - scale * (dtu[i] * dzu[i]) if fu[i] else 0.0
 
 
 @nb.njit(cache=True)
-def _centrality_rhs(tl, tu, zl, zu, fl, fu, dtl, dtu, dzl, dzu, alpha, lo_t, hi_t, rho_l, rho_u):
+def _centrality_rhs(it, fl, fu, d, alpha, lo_t, hi_t, rho_l, rho_u):
     """Gondzio's corrector: products v at it + alpha d projected on [lo_t, hi_t], decrease capped
     at -hi_t: rho = max(clip(v) - v, -hi_t) on the finite sides."""
+    tl, tu, zl, zu = it.tl, it.tu, it.zl, it.zu
+    dtl, dtu, dzl, dzu = d.tl, d.tu, d.zl, d.zu
     for i in range(fl.shape[0]):
         if fl[i]:
             v = (tl[i] + alpha * dtl[i]) * (zl[i] + alpha * dzl[i])

@@ -139,18 +139,20 @@ def _kkt_row_boxes(i0, i1, al, au, fl, fu, tl, tu, zl, zu, rl, rup, w, pmax, com
 
 
 @nb.njit(cache=True, fastmath=REASSOC)
-def _kkt_map_loops(sizes, H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu,
-                   X, U, lam, nu, tl, tu, zl, zu, bx, bu, bdyn, bx0, be, beN,
-                   rx, ru, dyn, x0r, rE, rEN, rl, rup, w, stats):
+def _kkt_map_loops(sizes, data, point, offsets, out, w, stats):
     """_kkt_map with loops over the blocks (the any-size kernel; see _kkt_map)."""
+    H, QN, AB, EF, EFt, eqm, EN = data.H, data.QN, data.AB, data.EF, data.EFt, data.eqm, data.EN
+    C, Ct, CN, fl, fu = data.C, data.Ct, data.CN, data.fl, data.fu
+    X, U, lam, nu, tl, tu, zl, zu = point.X, point.U, point.lam, point.nu, point.tl, point.tu, point.zl, point.zu
+    bx, bu, bdyn, bx0, be, beN = offsets.rx, offsets.ru, offsets.dyn, offsets.x0r, offsets.rE, offsets.rEN
+    al, au = offsets.rl, offsets.rup
+    rx, ru, dyn, x0r, rE, rEN, rl, rup = out.rx, out.ru, out.dyn, out.x0r, out.rE, out.rEN, out.rl, out.rup
     nt, mt, zt = sizes[0], sizes[1], sizes[2]
     n, m, nz = _size(nt), _size(mt), _size(zt)
     z, hz, g, ax = _work(zt), _work(zt), _work(zt), _work(nt)
     N = AB.shape[0]
     ne = EF.shape[1]
-    neN = EN.shape[0]
     nc = C.shape[1]
-    ncN = CN.shape[0]
     ou = N * n
     os_ = ou + N * m
     osN = os_ + N * nc
@@ -553,19 +555,21 @@ def _kkt_boxes_range(tags, src, so, start, stop, al, au, fl, fu, tl, tu, zl, zu,
 
 
 @nb.njit(cache=True, fastmath=REASSOC)
-def _kkt_map_fixed(tags, H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu,
-                   X, U, lam, nu, tl, tu, zl, zu, bx, bu, bdyn, bx0, be, beN,
-                   rx, ru, dyn, x0r, rE, rEN, rl, rup, w, stats):
+def _kkt_map_fixed(tags, data, point, offsets, out, w, stats):
     """_kkt_map for the sizes of tags = size_tags(n, m) and C-contiguous arrays: the
     stages by _kkt_stage, the stage-row and equality terms, the final stage and the boxes of the
     stage and final rows by loops."""
+    H, QN, AB, EF, EFt, eqm, EN = data.H, data.QN, data.AB, data.EF, data.EFt, data.eqm, data.EN
+    C, CN, fl, fu = data.C, data.CN, data.fl, data.fu
+    X, U, lam, nu, tl, tu, zl, zu = point.X, point.U, point.lam, point.nu, point.tl, point.tu, point.zl, point.zu
+    bx, bu, bdyn, bx0, be, beN = offsets.rx, offsets.ru, offsets.dyn, offsets.x0r, offsets.rE, offsets.rEN
+    al, au = offsets.rl, offsets.rup
+    rx, ru, dyn, x0r, rE, rEN, rl, rup = out.rx, out.ru, out.dyn, out.x0r, out.rE, out.rEN, out.rl, out.rup
     nt, mt, zt = tags.n, tags.m, tags.nz
     n, m, nz = len(nt), len(mt), len(zt)
     N = AB.shape[0]
     ne = EF.shape[1]
-    neN = EN.shape[0]
     nc = C.shape[1]
-    ncN = CN.shape[0]
     ou = N * n
     os_ = ou + N * m
     osN = os_ + N * nc
@@ -618,66 +622,50 @@ def _kkt_map_fixed(tags, H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu,
     stats[5] = comp
 
 
-def _kkt_map_kernel(sizes, H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu,
-                    X, U, lam, nu, tl, tu, zl, zu, bx, bu, bdyn, bx0, be, beN,
-                    rx, ru, dyn, x0r, rE, rEN, rl, rup, w, stats):
+def _kkt_map_kernel(sizes, data, point, offsets, out, w, stats):
     """_kkt_map_fixed or _kkt_map_loops, chosen by the argument types."""
 
 
-def _kkt_fixed_applies(sizes, H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu,
-                       X, U, lam, nu, tl, tu, zl, zu, bx, bu, bdyn, bx0, be, beN,
-                       rx, ru, dyn, x0r, rE, rEN, rl, rup, w, stats):
+def _kkt_fixed_applies(sizes, data, point, offsets, out, w, stats):
     """Whether _kkt_map with arguments of these numba types runs _kkt_map_fixed: size tags of
     n, m >= 1 and C-contiguous arrays where _kkt_stage and _kkt_boxes read and write."""
     tagged = isinstance(sizes, types.BaseNamedTuple) and sizes.instance_class is SizeTags
-    return (tagged and len(sizes[0]) > 0 and len(sizes[1]) > 0
-            and all(_is_c_array(a) for a in (H, AB, X, U, lam, bx, bu, bdyn, rx, ru, dyn, al, au, tl, tu, zl, zu,
-                                              rl, rup, w))
-            and _is_c_array(fl, types.boolean, 1) and _is_c_array(fu, types.boolean, 1))
+    field = lambda bundle, name: bundle.types[bundle.fields.index(name)]  # noqa: E731
+    floats = ([field(data, f) for f in ("H", "AB")] + [field(point, f) for f in point.fields if f != "nu"]
+              + [field(b, f) for b in (offsets, out) for f in ("rx", "ru", "dyn", "rl", "rup")] + [w])
+    return (tagged and len(sizes[0]) > 0 and len(sizes[1]) > 0 and all(_is_c_array(a) for a in floats)
+            and _is_c_array(field(data, "fl"), types.boolean, 1) and _is_c_array(field(data, "fu"), types.boolean, 1))
 
 
 @overload(_kkt_map_kernel)
-def _kkt_map_kernel_overload(sizes, H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu,
-                             X, U, lam, nu, tl, tu, zl, zu, bx, bu, bdyn, bx0, be, beN,
-                             rx, ru, dyn, x0r, rE, rEN, rl, rup, w, stats):
-    fixed = _kkt_fixed_applies(sizes, H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu,
-                               X, U, lam, nu, tl, tu, zl, zu, bx, bu, bdyn, bx0, be, beN,
-                               rx, ru, dyn, x0r, rE, rEN, rl, rup, w, stats)
-    kernel = _kkt_map_fixed if fixed else _kkt_map_loops
+def _kkt_map_kernel_overload(sizes, data, point, offsets, out, w, stats):
+    kernel = _kkt_map_fixed if _kkt_fixed_applies(sizes, data, point, offsets, out, w, stats) else _kkt_map_loops
 
-    def impl(sizes, H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu,
-             X, U, lam, nu, tl, tu, zl, zu, bx, bu, bdyn, bx0, be, beN,
-             rx, ru, dyn, x0r, rE, rEN, rl, rup, w, stats):
-        kernel(sizes, H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu,
-               X, U, lam, nu, tl, tu, zl, zu, bx, bu, bdyn, bx0, be, beN,
-               rx, ru, dyn, x0r, rE, rEN, rl, rup, w, stats)
+    def impl(sizes, data, point, offsets, out, w, stats):
+        kernel(sizes, data, point, offsets, out, w, stats)
     return impl
 
 
 @nb.njit(cache=True)
-def _kkt_map(sizes, H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu,
-             X, U, lam, nu, tl, tu, zl, zu, bx, bu, bdyn, bx0, be, beN,
-             rx, ru, dyn, x0r, rE, rEN, rl, rup, w, stats):
-    """The equations of the KKT system at (X, U, lam, nu, tl, tu, zl, zu) with offsets b:
+def _kkt_map(sizes, data, point, offsets, out, w, stats):
+    """The equations of the KKT system (16)-(20) at a point with offsets b:
 
         rx, ru = H z + (A^T lam_+ - lam, B^T lam_+) + E^T nu + C^T (zu - zl) + box (zu - zl) + (bx, bu)
         dyn = A x + B u - x_+ + bdyn,  x0r = bx0 - x_0,  rE = E z + be,  rEN = E_N x_N + beN
         rl = w + al - tl,  rup = au - w - tu   (finite sides)
 
-    (the residuals of the iterate with b = (q, r, c, x0, e, eN), al = -lo, au = hi, or the
-    Newton residual of a direction with b = the right-hand side's residuals).  stats receives
-    max |primal parts|, max |rx, ru|, max |X, U|, max |H z|, 1/2 z.H z + bx.X + bu.U and the
-    complementarity sum(zl tl + zu tu).
+    The arguments are bundles: ``data`` the stage data (presolve.KKTData: H, QN, AB, EF, EFt, eqm,
+    EN, C, Ct, CN and the finite sides fl, fu of the boxes), ``point`` the point
+    (point.PointArrays: X, U, lam, nu, tl, tu, zl, zu), ``offsets`` the offsets b
+    (point.Residuals: bx, bu, bdyn, bx0, be, beN, al, au in the fields rx, ru, dyn, x0r, rE,
+    rEN, rl, rup), ``out`` the residuals (point.Residuals); ``w`` receives the box values.
+    With b = (q, r, c, x0, e, eN), al = -lo, au = hi these are the residuals of the iterate; with
+    b = the right-hand side's residuals, the Newton residual of a direction (22). stats
+    receives max |primal parts|, max |rx, ru|, max |X, U|, max |H z|, 1/2 z.H z + bx.X + bu.U and
+    the complementarity sum(zl tl + zu tu).
     H (N, n+m, n+m) and QN are symmetric (the symmetric parts of the QP's blocks), so H z is
     computed row-wise; AB = [A B] serves both A x + B u (rows) and A^T lam, B^T lam (axpy).
-    ``sizes`` = (n, m, n + m) as ints, or as size tags for a kernel compiled for those sizes
-    (_kkt_map_call chooses): _kkt_map_fixed (straight-line SIMD stages) when the arrays are
+    ``sizes`` = (n, m, n + m) as ints, or size tags (olado.linalg.codegen.SizeTags) for a kernel
+    compiled for those sizes: _kkt_map_fixed (straight-line SIMD stages) when the arrays are
     C-contiguous (as in the solver), else the loop kernel _kkt_map_loops."""
-    _kkt_map_kernel(sizes, H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN, al, au, fl, fu,
-                    X, U, lam, nu, tl, tu, zl, zu, bx, bu, bdyn, bx0, be, beN,
-                    rx, ru, dyn, x0r, rE, rEN, rl, rup, w, stats)
-
-
-def _kkt_map_call(P, *args):
-    """_kkt_map of the prepared problem P (the fixed-size kernel when its blocks are small)."""
-    _kkt_map(P.sizes, P.H, P.QN, P.AB, P.EF, P.EFt, P.eqm, P.EN, P.C, P.Ct, P.CN, *args)
+    _kkt_map_kernel(sizes, data, point, offsets, out, w, stats)

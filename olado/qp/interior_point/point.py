@@ -6,37 +6,75 @@ a residual vector has the views of the equations of the Newton system (22).
 
 from __future__ import annotations
 
+import collections
+
 import numpy as np
 
 from .kernels import _all_finite, _axpy, _axpy_split, _max_abs
 
 
-def _layout(fields):
-    """((name, start, stop, shape), ...), total size) of a flat vector holding the fields."""
-    out, o = [], 0
-    for name, shape in fields:
-        size = int(np.prod(shape))
-        out.append((name, o, o + size, shape))
-        o += size
-    return tuple(out), o
+#: the fields of a point (an iterate or a direction), and the bundle of its arrays the kernels
+#: take: states X (N+1, n), controls U (N, m), dynamics and equality multipliers lam (N+1, n),
+#: nu (N+1, n_nu), and the slacks tl, tu and multipliers zl, zu of the finite box sides (flat over
+#: the boxes, 0 on infinite sides)
+PointArrays = collections.namedtuple("PointArrays", "X U lam nu tl tu zl zu")
+#: the multiplier fields of a point (the dual step length moves them)
+DUAL_FIELDS = ("lam", "nu", "zl", "zu")
+#: the equations of the Newton system (22) / the KKT conditions (16)-(20), and the bundle of
+#: their arrays: stationarity rx (N+1, n), ru (N, m), dynamics dyn (N, n), initial state x0r (n,),
+#: equality rows rE (N, ne), rEN (neN,) and the box sides rl, rup (flat); also the bundle of
+#: offsets of the residual kernel (kkt_map._kkt_map)
+Residuals = collections.namedtuple("Residuals", "rx ru dyn x0r rE rEN rl rup")
+
+
+class _Layout:
+    """Where the fields of a bundle (a namedtuple class) lie in one flat vector: ``spans``
+    {name: (start, stop, shape)} in the bundle's field order, ``size`` the vector's length."""
+
+    __slots__ = ("bundle", "spans", "size")
+
+    def __init__(self, bundle, **shapes):
+        if tuple(shapes) != bundle._fields:
+            raise ValueError(f"layout of {bundle.__name__}: fields {tuple(shapes)}, expected {bundle._fields}")
+        self.bundle, self.spans, o = bundle, {}, 0
+        for name, shape in shapes.items():
+            size = int(np.prod(shape))
+            self.spans[name] = (o, o + size, shape)
+            o += size
+        self.size = o
+
+    def views(self, v):
+        """The bundle of the fields' views into the flat vector v (1-d fields as slices)."""
+        return self.bundle(*(v[a:b] if len(shape) == 1 else v[a:b].reshape(shape) for a, b, shape in self.spans.values()))
+
+    def span(self, first, last):
+        """The slice of the flat vector from field ``first`` to field ``last`` (inclusive)."""
+        return slice(self.spans[first][0], self.spans[last][1])
+
+    def mask(self, names):
+        """Boolean mask of the flat vector: True on the fields ``names``."""
+        out = np.zeros(self.size, dtype=np.bool_)
+        for name in names:
+            a, b, _ = self.spans[name]
+            out[a:b] = True
+        return out
 
 
 class _PointForm:
-    """The layout of the points of a prepared problem: the (slice, shape) of each field and the
-    mask of the dual fields (lam, nu, zl, zu)."""
+    """The layout of the points of a prepared problem (a _Layout of PointArrays) and the mask of
+    the dual fields (lam, nu, zl, zu)."""
 
-    __slots__ = ("slices", "dual_mask")
+    __slots__ = ("layout", "dual_mask")
 
-    def __init__(self, slices, dual_mask):
-        self.slices, self.dual_mask = slices, dual_mask
+    def __init__(self, layout):
+        self.layout, self.dual_mask = layout, layout.mask(DUAL_FIELDS)
 
 
 class _Point:
-    """An iterate, or a direction (same fields): states X, controls U, dynamics and equality
-    multipliers lam, nu, and the slacks tl, tu and multipliers zl, zu of the finite box sides
-    (flat, 0 on infinite sides) -- views into one flat vector ``v``."""
+    """An iterate, or a direction (same fields, PointArrays): views into one flat vector ``v``,
+    as attributes and as the bundle ``arrays`` the kernels take."""
 
-    __slots__ = ("v", "X", "U", "lam", "nu", "tl", "tu", "zl", "zu", "_form", "max_step", "max_split")
+    __slots__ = ("v", "arrays", "X", "U", "lam", "nu", "tl", "tu", "zl", "zu", "_form", "max_step", "max_split")
 
     def __init__(self, form, v):
         """``form``: the _PointForm of the prepared problem (not the problem itself: a point held
@@ -46,10 +84,9 @@ class _Point:
         self._form, self.v = form, v
         self.max_step = None    # cache of _StepContext.max_step for a direction
         self.max_split = None   # and of its (primal, dual) step lengths (set by _reduced_solve)
-        (sx, shx), (su, shu), (sl, shl), (sn, shn), stl, stu, szl, szu = form.slices
-        self.X = v[sx].reshape(shx); self.U = v[su].reshape(shu)
-        self.lam = v[sl].reshape(shl); self.nu = v[sn].reshape(shn)
-        self.tl = v[stl]; self.tu = v[stu]; self.zl = v[szl]; self.zu = v[szu]
+        a = self.arrays = form.layout.views(v)
+        self.X, self.U, self.lam, self.nu = a.X, a.U, a.lam, a.nu
+        self.tl, self.tu, self.zl, self.zu = a.tl, a.tu, a.zl, a.zu
 
     def plus(self, alpha, d):
         return _Point(self._form, _axpy(self.v, float(alpha), d.v))
@@ -61,23 +98,18 @@ class _Point:
     def finite(self):
         return _all_finite(self.v)
 
-    # kernel argument helpers
-    def tz(self):
-        return self.tl, self.tu, self.zl, self.zu
-
 
 class _Rhs:
-    """Residuals of the Newton system's equations (see :meth:`_StepContext.solve`), views into
-    one flat vector ``buf``: rx (N+1, n), ru (N, m), dyn (N, n), x0r (n,), rE (N, ne), rEN (neN,),
-    rl, rup (flat over the boxes)."""
+    """Residuals of the Newton system's equations (see :meth:`_StepContext.solve`; Residuals):
+    views into one flat vector ``buf``, as attributes and as the bundle ``arrays``."""
 
-    __slots__ = ("buf", "rx", "ru", "dyn", "x0r", "rE", "rEN", "rl", "rup", "_size")
+    __slots__ = ("buf", "arrays", "rx", "ru", "dyn", "x0r", "rE", "rEN", "rl", "rup", "_size")
 
     def __init__(self, P, buf):
         self.buf, self._size = buf, None
-        (sx, shx), (su, shu), (sd, shd), sx0, (se, she), seN, srl, sru = P.rhs_slices
-        self.rx = buf[sx].reshape(shx); self.ru = buf[su].reshape(shu); self.dyn = buf[sd].reshape(shd)
-        self.x0r = buf[sx0]; self.rE = buf[se].reshape(she); self.rEN = buf[seN]; self.rl = buf[srl]; self.rup = buf[sru]
+        a = self.arrays = P.rhs_layout.views(buf)
+        self.rx, self.ru, self.dyn, self.x0r, self.rE, self.rEN = a.rx, a.ru, a.dyn, a.x0r, a.rE, a.rEN
+        self.rl, self.rup = a.rl, a.rup
 
     def size(self):
         """max-norm of all residuals."""

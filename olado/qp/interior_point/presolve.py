@@ -6,15 +6,22 @@ of the compiled kernels, and the work arrays reused from iteration to iteration.
 
 from __future__ import annotations
 
+import collections
+
 import numpy as np
 
 from ...linalg.codegen import fixed_size_tags
 from ..stageqp import StageQP
 from .kernels import _max_abs, _symmetric_stage_hessians
-from .kkt_map import _kkt_map_call
-from .point import _layout, _Point, _PointForm, _Rhs
+from .kkt_map import _kkt_map
+from .point import PointArrays, Residuals, _Layout, _Point, _PointForm, _Rhs
 
 _FIX_RTOL = 1e-12
+#: the stage data of the residual kernel (kkt_map._kkt_map): the symmetric stage Hessians
+#: H (N, n+m, n+m) and QN (n, n), AB = [A B] (N, n, n+m), the equality rows EF = [E F]
+#: (N, ne, n+m), EFt its transpose and eqm (N, ne) their mask, EN (neN, n), the stage rows
+#: C (N, nc, n+m), Ct its transpose, CN (ncN, n), and the finite sides fl, fu of the boxes
+KKTData = collections.namedtuple("KKTData", "H QN AB EF EFt eqm EN C Ct CN fl fu")
 
 
 def _equal_bounds(lo, hi):
@@ -149,23 +156,21 @@ class _Prepared:
         self.be = self.e * self.eqm
         self.C = np.ascontiguousarray(self.C); self.CN = np.ascontiguousarray(self.CN); self.Ct = tr(self.C)
         self.neg_lo = -self.lo
-        self.point_layout = _layout((("X", (N + 1, n)), ("U", (N, m)), ("lam", (N + 1, n)), ("nu", (N + 1, self.n_nu)),
-                                     ("tl", (self.nw,)), ("tu", (self.nw,)), ("zl", (self.nw,)), ("zu", (self.nw,))))
-        self.rhs_layout = _layout((("rx", (N + 1, n)), ("ru", (N, m)), ("dyn", (N, n)), ("x0r", (n,)), ("rE", (N, ne)),
-                                   ("rEN", (self.neN,)), ("rl", (self.nw,)), ("rup", (self.nw,))))
-        # the fields as (slice, shape) of the 2-d ones and slices of the 1-d ones (_Point, _Rhs)
-        sls = lambda layout: tuple(slice(a, b) if len(shape) == 1 else (slice(a, b), shape)  # noqa: E731
-                                   for _, a, b, shape in layout[0])
-        self.point_slices, self.rhs_slices = sls(self.point_layout), sls(self.rhs_layout)
-        (_, x_a, _, _), (_, _, u_b, _), (_, l_a, _, _), (_, _, n_b, _), _, _, (_, zl_a, _, _), (_, _, zu_b, _) = \
-            self.point_layout[0]
-        self.part_slices = (slice(x_a, u_b), slice(l_a, n_b), slice(zl_a, zu_b))
+        nw = self.nw
+        self.point_layout = _Layout(PointArrays, X=(N + 1, n), U=(N, m), lam=(N + 1, n), nu=(N + 1, self.n_nu),
+                                    tl=(nw,), tu=(nw,), zl=(nw,), zu=(nw,))
+        self.rhs_layout = _Layout(Residuals, rx=(N + 1, n), ru=(N, m), dyn=(N, n), x0r=(n,), rE=(N, ne),
+                                  rEN=(self.neN,), rl=(nw,), rup=(nw,))
+        pl = self.point_layout
+        self.part_slices = (pl.span("X", "U"), pl.span("lam", "nu"), pl.span("zl", "zu"))
         self.qr = np.concatenate([self.q.ravel(), self.r.ravel()])   # the gradient, laid out as (X, U)
-        self.dual_mask = np.zeros(self.point_layout[1], dtype=np.bool_)
-        for name, a, b, _ in self.point_layout[0]:
-            self.dual_mask[a:b] = name in ("lam", "nu", "zl", "zu")
-        self.point_form = _PointForm(self.point_slices, self.dual_mask)
-        self.zero_res = _Rhs(self, np.zeros(self.rhs_layout[1]))
+        self.point_form = _PointForm(pl)
+        # the bundles of the residual kernel: the stage data, and the offsets of the iterate's
+        # residuals (q, r, c, x0, e, eN; -lo, hi)
+        self.kkt_data = KKTData(self.H, self.QN, self.AB, self.EF, self.EFt, self.eqm, self.EN, self.C, self.Ct, self.CN,
+                                self.fl, self.fu)
+        self.offsets = Residuals(self.q, self.r, self.c, self.x0, self.be, self.eN, self.neg_lo, self.hi)
+        self.zero_res = _Rhs(self, np.zeros(self.rhs_layout.size))
         self.zero_res._size = 0.0
         self.stats = np.empty(6)
         self.inv_tl, self.inv_tu, self.D = np.empty(self.nw), np.empty(self.nw), np.empty(self.nw)
@@ -173,7 +178,7 @@ class _Prepared:
         self.Ds = self.D[self.sl_s].reshape(N, nc)
         self.Dxb, self.Dub = self.D[self.sl_x].reshape(N, n), self.D[self.sl_u].reshape(N, m)
         self.work_q, self.work_r, self.work_ci = np.empty((N + 1, n)), np.empty((N, m)), np.empty((N, nc))
-        self.newton_res = _Rhs(self, np.empty(self.rhs_layout[1]))
+        self.newton_res = _Rhs(self, np.empty(self.rhs_layout.size))
         # objects reused from iteration to iteration (their lifetimes: InteriorPointQP.solve and
         # _direction): two residual vectors used in turn (the last one may be pending for the
         # implied Newton residual), the complementarity right-hand sides of one solve, and the
@@ -212,13 +217,13 @@ class _Prepared:
     def directions(self):
         """The reused direction objects (predictor, main, corrector, refinement), made on first use."""
         if self.dir_aff is None:
-            size = self.point_layout[1]
+            size = self.point_layout.size
             self.dir_aff, self.dir_main, self.dir_corr, self.dir_refine = (_Point(self.point_form, np.empty(size)) for _ in range(4))
 
     def residual_buffer(self):
         """A residual object not holding the last one returned (the two are used in turn)."""
         if self.res_pool is None:
-            self.res_pool = (_Rhs(self, np.empty(self.rhs_layout[1])), _Rhs(self, np.empty(self.rhs_layout[1])))
+            self.res_pool = (_Rhs(self, np.empty(self.rhs_layout.size)), _Rhs(self, np.empty(self.rhs_layout.size)))
         self.res_turn ^= 1
         res = self.res_pool[self.res_turn]
         res._size = None
@@ -253,7 +258,7 @@ class _Prepared:
     def zero_point(self):
         """A point of zeros (made on first use; never written)."""
         if self._zero_point is None:
-            self._zero_point = _Point(self.point_form, np.zeros(self.point_layout[1]))
+            self._zero_point = _Point(self.point_form, np.zeros(self.point_layout.size))
         return self._zero_point
 
     def linear_parts(self, X, U, lam, nu, zl, zu):
@@ -263,9 +268,9 @@ class _Prepared:
         E z, E_N x_N|, the box values w of z). With z = 0 the first is |constraint gradient| (the
         primal certificate); with zero multipliers it is |H z| (the dual one)."""
         e, z, st = self.newton_res, self.zero_res, self.stats
-        _kkt_map_call(self, z.rl, z.rup, self.fl, self.fu, X, U, lam, nu, z.rl, z.rup, zl, zu,
-                      z.rx, z.ru, z.dyn, z.x0r, z.rE, z.rEN,
-                      e.rx, e.ru, e.dyn, e.x0r, e.rE, e.rEN, e.rl, e.rup, self.work_w, st)
+        # the slacks of the point: zero (the zero residual's box parts)
+        _kkt_map(self.sizes, self.kkt_data, PointArrays(X, U, lam, nu, z.rl, z.rup, zl, zu), z.arrays, e.arrays,
+                 self.work_w, st)
         eqs = max(_max_abs(e.dyn.ravel()), _max_abs(e.x0r), _max_abs(e.rE.ravel()), _max_abs(e.rEN))
         return float(st[1]), eqs, self.work_w
 

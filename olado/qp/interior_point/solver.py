@@ -19,7 +19,7 @@ from ..stageqp import QPResult, StageQP, qp_kkt_residuals
 from .certificates import STALLED as _STALLED, certificates, stall_status
 from .direction import predictor_corrector
 from .kernels import _implied_newton_residual
-from .kkt_map import _kkt_map_call
+from .kkt_map import _kkt_map
 from .options import InteriorPointQPOptions
 from .polish import polish
 from .presolve import _Prepared
@@ -293,9 +293,7 @@ class InteriorPointQP:
         scales as in docs/qp-interior-point.md, "Stopping" (one pass of a compiled kernel)."""
         res = P.residual_buffer()
         st = P.stats
-        _kkt_map_call(P, P.neg_lo, P.hi, P.fl, P.fu,
-                 it.X, it.U, it.lam, it.nu, it.tl, it.tu, it.zl, it.zu, P.q, P.r, P.c, P.x0, P.be, P.eN,
-                 res.rx, res.ru, res.dyn, res.x0r, res.rE, res.rEN, res.rl, res.rup, P.work_w, st)
+        _kkt_map(P.sizes, P.kkt_data, it.arrays, P.offsets, res.arrays, P.work_w, st)
         pr, du, znorm, hnorm, obj, comp = (float(v) for v in st)
         res._size = max(pr, du)
         scales = (1.0 + max(P.p_data, znorm), 1.0 + max(P.d_data, hnorm))

@@ -17,7 +17,7 @@ import numpy as np
 from ...linalg.backend import RHS, NotPositiveDefiniteError, Solution, make_kkt_solver
 from .kernels import (_complementarity_residual, _max_abs, _max_step, _max_step_split, _neighbourhood_step,
                       _newton_rhs, _recover_step, _scaling)
-from .kkt_map import _kkt_map_call
+from .kkt_map import _kkt_map
 
 
 class _InconsistentRows(ArithmeticError):
@@ -52,7 +52,7 @@ class _StepContext:
         self.rel_prior = None   # bound on it from an earlier iteration's measurement (set by the caller)
         self.first = None       # (|rhs|, target) of the first solve
         self.inv_tl, self.inv_tu, D = P.inv_tl, P.inv_tu, P.D
-        _scaling(it.tl, it.tu, it.zl, it.zu, P.fl, P.fu, self.inv_tl, self.inv_tu, D)
+        _scaling(it.arrays, P.fl, P.fu, self.inv_tl, self.inv_tu, D)
         self.Ds = P.Ds
         if P.ncN:
             P.Q_final[-1] = P.Q[-1] + P.CN.T @ (D[P.sl_sN][:, None] * P.CN)
@@ -62,9 +62,10 @@ class _StepContext:
         # while the slacks are still large) retry with delta raised 10-fold, up to
         # max_regularization * max|H| (the inertia correction of Waechter & Biegler 2006, applied
         # per Newton step). Refinement works against the unregularized system.
-        # The Riccati back-end is factorized once per QP solve and then refactored in place with
-        # the new diagonal terms (same arrays: Q, S, R, A, B, the stage rows and the work arrays
-        # Dx, Du, D of the prepared problem, updated in place before each refactorization).
+        # The KKT back-end is factored once per QP solve and then refactored with the new diagonal
+        # terms (same arrays: Q, S, R, A, B, the stage rows and the work arrays Dx, Du, D of the
+        # prepared problem, updated in place before each refactorization; the Riccati back-end
+        # overwrites its factors in place, a sparse one assembles its matrix again).
         # The regularizations tried form a fixed ladder (rungs): base, then tenfold steps from
         # 1e-10 (1 + max|H|), at most 12, up to max_regularization * max|H|. The result is the
         # lowest rung whose factorization succeeds -- as if the ladder were climbed from the base
@@ -149,18 +150,17 @@ class _StepContext:
         P, it = self.P, self.it
         self.n_solves += 1
         q, r, ci = P.work_q, P.work_r, P.work_ci
-        _newton_rhs(res.rx, res.ru, res.rl, res.rup, rho_l, rho_u, it.zl, it.zu, self.inv_tl, self.inv_tu,
-                    self.Ds, P.CN, q, r, ci)
+        _newton_rhs(res.arrays, rho_l, rho_u, it.arrays, self.inv_tl, self.inv_tu, self.Ds, P.CN, q, r, ci)
         if out is None:
-            d = P.point(np.empty(P.point_layout[1]))
+            d = P.point(np.empty(P.point_layout.size))
         else:
             d = out
         # the work arrays were validated when the QP was prepared: the solution goes straight into
         # the direction's arrays
         defect = self.fact.solve_into(RHS(q, r, res.dyn, res.x0r, res.rE, res.rEN, ci), Solution(d.X, d.U, d.lam, d.nu))
         _check_rows(P, defect, res, "Newton step")
-        ok, ap, ad = _recover_step(d.X, d.U, P.Ct, P.CN, res.rl, res.rup, rho_l, rho_u, it.tl, it.tu, it.zl, it.zu,
-                                   self.inv_tl, self.inv_tu, P.fl, P.fu, d.tl, d.tu, d.zl, d.zu, P.work_w)
+        ok, ap, ad = _recover_step(P.kkt_data, res.arrays, rho_l, rho_u, it.arrays, self.inv_tl, self.inv_tu, d.arrays,
+                                   P.work_w)
         if not ok:
             raise FloatingPointError("non-finite Newton step")
         d.max_split = (ap, ad)
@@ -173,12 +173,9 @@ class _StepContext:
         the work arrays of the prepared problem; returns (residual, el, eu, max-norm of all)."""
         P, it = self.P, self.it
         e, st = P.newton_res, P.stats
-        _kkt_map_call(P, res.rl, res.rup, P.fl, P.fu,
-                 d.X, d.U, d.lam, d.nu, d.tl, d.tu, d.zl, d.zu, res.rx, res.ru, res.dyn, res.x0r, res.rE, res.rEN,
-                 e.rx, e.ru, e.dyn, e.x0r, e.rE, e.rEN, e.rl, e.rup, P.work_w, st)
+        _kkt_map(P.sizes, P.kkt_data, d.arrays, res.arrays, e.arrays, P.work_w, st)
         e._size = max(st[0], st[1])
-        big = _complementarity_residual(rho_l, rho_u, it.tl, it.tu, it.zl, it.zu, d.tl, d.tu, d.zl, d.zu,
-                                        P.work_el, P.work_eu)
+        big = _complementarity_residual(rho_l, rho_u, it.arrays, d.arrays, P.work_el, P.work_eu)
         return e, P.work_el, P.work_eu, max(e._size, big)
 
     def solve(self, res, rho_l, rho_u, out=None):
@@ -231,19 +228,12 @@ class _StepContext:
     def max_step(self, d, corr=None, omega=0.0):
         """Largest alpha (capped at 1e30) keeping tl, tu, zl, zu positive along d (or along
         d + omega corr)."""
-        P, it = self.P, self.it
+        it = self.it
         if corr is None:
             if d.max_step is None:
-                d.max_step = _max_step(it.tl, it.tu, it.zl, it.zu, P.fl, P.fu, d.tl, d.tu, d.zl, d.zu,
-                                       d.tl, d.tu, d.zl, d.zu, 0.0)
+                d.max_step = _max_step(it.arrays, d.arrays, d.arrays, 0.0)
             return d.max_step
-        return _max_step(it.tl, it.tu, it.zl, it.zu, P.fl, P.fu, d.tl, d.tu, d.zl, d.zu,
-                         corr.tl, corr.tu, corr.zl, corr.zu, float(omega))
-
-    def products_at(self, d, alpha):
-        """Complementarity products (lower, upper; flat) at the trial point it + alpha d."""
-        it = self.it
-        return (it.tl + alpha * d.tl) * (it.zl + alpha * d.zl), (it.tu + alpha * d.tu) * (it.zu + alpha * d.zu)
+        return _max_step(it.arrays, d.arrays, corr.arrays, float(omega))
 
     def step_length(self, d):
         """(alpha, alpha_dual): alpha = min(1, step_to_boundary * alpha_max) -- with
@@ -263,11 +253,10 @@ class _StepContext:
             alpha_dual = alpha
         else:
             if d.max_split is None:
-                d.max_split = _max_step_split(it.tl, it.tu, it.zl, it.zu, P.fl, P.fu, d.tl, d.tu, d.zl, d.zu)
+                d.max_split = _max_step_split(it.arrays, d.arrays)
             ap, ad = d.max_split
             alpha, alpha_dual = min(1.0, opts.step_to_boundary * ap), min(1.0, opts.step_to_boundary * ad)
         if P.n_comp == 0:
             return alpha, alpha_dual
-        a = _neighbourhood_step(it.tl, it.tu, it.zl, it.zu, P.fl, P.fu, d.tl, d.tu, d.zl, d.zu, alpha,
-                                opts.neighborhood, self.mu, alpha_dual)
+        a = _neighbourhood_step(it.arrays, P.fl, P.fu, d.arrays, alpha, opts.neighborhood, self.mu, alpha_dual)
         return a, alpha_dual * (a / alpha) if alpha > 0 else alpha_dual
