@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -67,6 +67,7 @@ class LQSolution:
     x0_residual: float
 
 
+@runtime_checkable
 class KKTBackend(Protocol):
     """A factorization of the LQ-DOCP KKT matrix (see :mod:`olado.linalg.kkt` for the system and
     the multiplier signs). Constructed by ``cls(Q, S, R, A, B, **stage_kw, **options)`` (which
