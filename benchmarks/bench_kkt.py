@@ -14,7 +14,9 @@ independently of the solvers. The repeats of the back-ends are interleaved (one 
 the order rotating from repeat to repeat), so that a slow spell of the shared machine, or fresh
 memory to fault in after a large back-end, hits all of them alike. ``--before REV`` adds the
 Riccati solver of olado/linalg/riccati.py as of git revision REV (loaded from ``git show``) as
-the back-end "riccati@REV", for a before/after comparison in the same run.
+the back-end "riccati@REV", for a before/after comparison in the same run; this works for
+revisions whose riccati.py is self-contained (before its kernels moved to riccati_kernels.py and
+riccati_fixed.py), for later ones run the script in two checkouts, alternately.
 
     python benchmarks/bench_kkt.py                     # print the table
     python benchmarks/bench_kkt.py --before d6b9965~1 --write   # and replace its section in benchmarks/RESULTS.md
@@ -36,7 +38,7 @@ import numpy as np
 import scipy
 from _common import HERE, RESULTS, machine, write_section
 
-from olado.linalg.kkt import make_kkt_solver  # noqa: E402
+from olado.linalg.backend import make_kkt_solver  # noqa: E402
 
 SECTION = "KKT solve scaling (Riccati vs SuperLU)"
 
@@ -80,6 +82,9 @@ def load_riccati_revision(rev):
     """olado/linalg/riccati.py as of git revision ``rev``, imported as olado.linalg._riccati_<rev>."""
     src = subprocess.run(["git", "show", f"{rev}:olado/linalg/riccati.py"], cwd=HERE.parent, check=True,
                          capture_output=True, text=True).stdout
+    if "from .riccati_kernels import" in src or "from .codegen import" in src:
+        raise SystemExit(f"--before {rev}: olado/linalg/riccati.py of {rev} imports its kernels from sibling modules, "
+                         "which would be this checkout's; run the script in a checkout of that revision instead")
     tag = "".join(ch if ch.isalnum() else "_" for ch in rev)
     path = Path(_TMP.name) / f"_riccati_{tag}.py"
     path.write_text(src, encoding="utf-8")

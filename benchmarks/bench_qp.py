@@ -17,27 +17,24 @@ Side by side in one run, on the same QP:
 each solve timed as the best of several repeats after a warm-up solve (numba compilation,
 imports). Every result's KKT residuals come from olado.qp.stageqp.qp_kkt_residuals
 (max-norms of stationarity, primal infeasibility, complementarity), so the accuracy is measured
-the same way for all solvers. ``--before REV`` also times the interior-point methods of
-olado/qp/interior_point.py as of git revision REV (loaded from ``git show``), for a before/after
-per-iteration table.
+the same way for all solvers. For a before/after comparison run the script in two checkouts,
+alternately (the interior-point QP is a package: one file of an old revision cannot be loaded
+next to the current one).
 
     python benchmarks/bench_qp.py                          # N = 1200, 12000; print the tables
-    python benchmarks/bench_qp.py --before 3bef525 --write # and replace the RESULTS.md section
+    python benchmarks/bench_qp.py --write                  # and replace the RESULTS.md section
 """
 
 from __future__ import annotations
 
 import argparse
 import datetime
-import importlib.util
-import subprocess
-import sys
 import time
 
 import numpy as np
-from _common import HERE, RESULTS, machine, write_section
+from _common import RESULTS, machine, write_section
 
-from olado.qp import interior_point as qp_ip  # noqa: E402
+from olado.qp.interior_point import GondzioQP, MehrotraQP  # noqa: E402
 from olado.qp.external import ExternalQP, available_qp_backends  # noqa: E402
 
 SECTION = "QP subproblem: interior-point Riccati QP vs OSQP and Clarabel"
@@ -49,23 +46,6 @@ def zambezi_qp(N, shift=1e-4):
     from olado.solvers.sqp.solver import convex_step_qp
 
     return convex_step_qp(zambezi_problem("zambezi12" if N <= 252 else "zambezi", N=N, extend="cyclic"), shift=shift)
-
-
-def load_revision(rev):
-    """olado/qp/interior_point.py as of git revision ``rev``, imported as a sibling module."""
-    src = subprocess.run(["git", "show", f"{rev}:olado/qp/interior_point.py"], cwd=HERE.parent, check=True,
-                         capture_output=True, text=True).stdout
-    path = HERE / f".qp_ip_{rev}.py"
-    path.write_text(src, encoding="utf-8")
-    try:
-        name = f"olado.solvers._qp_ip_{rev}"
-        spec = importlib.util.spec_from_file_location(name, path)
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod
-        spec.loader.exec_module(mod)
-    finally:
-        path.unlink()
-    return mod
 
 
 def timed(solver, qp, repeats, budget=30.0):
@@ -87,18 +67,16 @@ def main(argv=None):
     ap.add_argument("--N", type=int, nargs="+", default=[1200, 12000], help="horizons of the solver comparison")
     ap.add_argument("--iteration-N", type=int, nargs="+", default=[252, 1200, 12000],
                     help="horizons of the per-iteration table")
-    ap.add_argument("--before", metavar="REV", help="also time qp_ip.py of this git revision (per-iteration table)")
     ap.add_argument("--repeats", type=int, default=5, help="timed repeats per solver at N <= 2000 (3 above; fewer "
                     "for a solver whose solves would take more than 30 s)")
     ap.add_argument("--write", action="store_true", help=f"replace the section in {RESULTS.name}")
     args = ap.parse_args(argv)
 
     backends = [b for b in ("osqp", "clarabel") if b in available_qp_backends()]
-    ip = {"Mehrotra (Riccati)": qp_ip.MehrotraQP(), "Gondzio (Riccati)": qp_ip.GondzioQP()}
+    ip = {"Mehrotra (Riccati)": MehrotraQP(), "Gondzio (Riccati)": GondzioQP()}
     ext = {"OSQP": ExternalQP("osqp", eps_abs=1e-7, eps_rel=1e-7, polish=True),
            "Clarabel": ExternalQP("clarabel", tol_gap_abs=1e-8, tol_gap_rel=1e-8, tol_feas=1e-8)}
     ext = {k: v for k, v in ext.items() if v.backend in backends}
-    old = load_revision(args.before) if args.before else None
 
     qps = {N: zambezi_qp(N) for N in sorted(set(args.N) | set(args.iteration_N))}
     reps = lambda N: args.repeats if N <= 2000 else 3  # noqa: E731
@@ -127,21 +105,14 @@ def main(argv=None):
     table = "\n".join(lines)
 
     # ---- per-iteration cost of the interior-point methods
-    it_lines = ["| N | method | iterations | ms per iteration | µs per stage and iteration |"
-                + (f" before ({args.before}): ms per iteration | before: µs per stage and iteration | speed-up |"
-                   if old else ""),
-                "|---:|:--|---:|---:|---:|" + ("---:|---:|---:|" if old else "")]
+    it_lines = ["| N | method | iterations | ms per iteration | µs per stage and iteration |",
+                "|---:|:--|---:|---:|---:|"]
     for N in args.iteration_N:
         qp = qps[N]
-        for name, cls in (("Mehrotra", "MehrotraQP"), ("Gondzio", "GondzioQP")):
-            t, res = timed(getattr(qp_ip, cls)(), qp, reps(N))
+        for name, cls in (("Mehrotra", MehrotraQP), ("Gondzio", GondzioQP)):
+            t, res = timed(cls(), qp, reps(N))
             per = t / res.iterations
-            line = f"| {N} | {name} | {res.iterations} | {per * 1e3:.3f} | {per / N * 1e6:.2f} |"
-            if old:
-                t0, res0 = timed(getattr(old, cls)(), qp, reps(N) if N <= 2000 else 1)
-                per0 = t0 / res0.iterations
-                line += f" {per0 * 1e3:.3f} | {per0 / N * 1e6:.2f} | {per0 / per:.1f}x |"
-            it_lines.append(line)
+            it_lines.append(f"| {N} | {name} | {res.iterations} | {per * 1e3:.3f} | {per / N * 1e6:.2f} |")
             print(it_lines[-1], flush=True)
     it_table = "\n".join(it_lines)
     print(table)
@@ -159,7 +130,7 @@ def main(argv=None):
             versions += f", OSQP {osqp.__version__}, Clarabel {clarabel.__version__} (through qpsolvers)"
         except ImportError:
             pass
-        cmd = "python benchmarks/bench_qp.py" + (f" --before {args.before}" if args.before else "") + " --write"
+        cmd = "python benchmarks/bench_qp.py --write"
         text = f"""## {SECTION}
 
 Command: `{cmd}`  
@@ -181,7 +152,7 @@ include qpsolvers' conversion of the sparse form to their own (for Clarabel at N
 {table}
 
 Per interior-point iteration (time of a whole solve divided by its iterations, so the set-up,
-starting point and result assembly are included){'; "before" is qp_ip.py at ' + args.before + ', timed in the same run' if old else ''}:
+starting point and result assembly are included):
 
 {it_table}
 """

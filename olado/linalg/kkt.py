@@ -7,10 +7,13 @@ One factory picks the back-end by name::
     solver = make_kkt_solver("superlu-reduced", Q, S, R, A, B, Dx=Dx, Du=Du, Ci=Ci, sigma=sigma)
     sol = solver.solve(q, r, c, x0, ci=ci)        # -> LQSolution, as RiccatiFactorization.solve
 
-``make_kkt_solver`` takes the keyword arguments of :class:`RiccatiFactorization` (E, F, n_eq, EN,
-Dx, Du, Ci, sigma, n_ineq, regularization) plus the options of the chosen back-end. Every
-back-end factors (or preconditions) once in the constructor; ``solve`` may be called for any
-number of right-hand sides and returns the same multipliers as the Riccati solver.
+``make_kkt_solver`` (:mod:`olado.linalg.backend`, the table of back-ends ``KKT_BACKENDS``) takes
+the keyword arguments of :class:`~olado.linalg.backend.StageData` (E, F, n_eq, EN, Dx, Du, Ci,
+sigma, n_ineq, regularization) plus the options of the chosen back-end. Every back-end
+implements :class:`~olado.linalg.backend.KKTBackend`: it factors (or preconditions) in the
+constructor and again in ``refactor`` (new diagonal terms: the matrix is assembled again);
+``solve`` may be called for any number of right-hand sides and returns the same multipliers as
+the Riccati solver.
 
 Variables, Lagrangian and multiplier signs (as in :mod:`olado.linalg.riccati`):
 
@@ -69,12 +72,10 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import ConfigError, OladoError
-from .riccati import LQSolution, RiccatiFactorization, StageData
+from .backend import KKT_SOLVERS, RHS, LQSolution, Solution, StageData, make_kkt_solver
 
 __all__ = ["KKT_SOLVERS", "KKTSolveError", "make_kkt_solver", "SuperLUReducedKKT", "SuperLUFullKKT",
            "MinresKKT", "GmresKKT"]
-
-KKT_SOLVERS = ("riccati", "superlu-full", "superlu-reduced", "minres", "gmres")
 
 
 class KKTSolveError(OladoError, np.linalg.LinAlgError):
@@ -104,8 +105,21 @@ class _SparseKKT:
     full = False            # True: system (24), inequality and bound rows kept
 
     def __init__(self, Q, S, R, A, B, *, bounds_as_rows=True, **stage_kw):
-        d = self.data = StageData(Q, S, R, A, B, **stage_kw)
+        self.data = StageData(Q, S, R, A, B, **stage_kw)
         self.bounds_as_rows = bool(bounds_as_rows) and self.full
+        self._assemble()
+
+    def refactor(self, Dx=None, Du=None, sigma=None, regularization=None):
+        """New diagonal terms (arguments as :meth:`~olado.linalg.backend.StageData.set_diagonal`):
+        the matrix is assembled again from the stage arrays (its layout depends on which
+        diagonal terms are zero; arrays the caller updated in place are seen) and factored."""
+        self.data.set_diagonal(Dx=Dx, Du=Du, sigma=sigma, regularization=regularization)
+        self._assemble()
+        return self
+
+    def _assemble(self):
+        """The sparse KKT matrix of the stage arrays ``data`` (layout, K), then its factorization."""
+        d = self.data
         N, n, m, ne, ni, neN = d.N, d.n, d.m, d.ne_max, d.ni_max, d.neN
         nz = n + m
         # ---- padded layout: stage block (lam n | x n | u m | nu ne | w ni | vx n | vu m)
@@ -234,6 +248,18 @@ class _SparseKKT:
         y = self._solve_vector(b)
         return self._solution(y, b)
 
+    def solve_into(self, rhs: RHS, out: Solution) -> float:
+        """:meth:`solve`, the solution copied into ``out`` (the KKTBackend fast path: no faster
+        here); returns ``LQSolution.x0_residual``."""
+        sol = self.solve(*rhs)
+        out.X[...] = sol.X
+        out.U[...] = sol.U
+        out.lam[...] = sol.lam
+        k = min(out.nu.shape[1], sol.nu.shape[1])
+        out.nu[:, :k] = sol.nu[:, :k]
+        out.nu[:, k:] = 0.0
+        return sol.x0_residual
+
     def _factorize(self):
         raise NotImplementedError
 
@@ -289,8 +315,12 @@ class _IterativeKKT(_SparseKKT):
         self.max_restarts = int(max_restarts)
         self.iterations = 0          # Krylov iterations of the last solve
         self.residual = 0.0          # its relative residual ||K y - b|| / ||b||
+        self._maxiter = maxiter
         super().__init__(Q, S, R, A, B, **kw)
-        self.maxiter = int(maxiter) if maxiter is not None else max(10 * self.size, 100)
+
+    def _assemble(self):
+        super()._assemble()
+        self.maxiter = int(self._maxiter) if self._maxiter is not None else max(10 * self.size, 100)
 
     def _solve_vector(self, b):
         """Run the Krylov method, then refine: while the true relative residual ||K y - b|| / ||b||
@@ -426,21 +456,3 @@ class GmresKKT(_IterativeKKT):
         y, info = spla.gmres(self.K, b, M=self.M, rtol=self.rtol, atol=0.0, restart=self.restart,
                              maxiter=cycles, callback=cb, callback_type="pr_norm")
         return y, info, count[0]
-
-
-_BACKENDS = {"riccati": RiccatiFactorization, "superlu-full": SuperLUFullKKT,
-             "superlu-reduced": SuperLUReducedKKT, "minres": MinresKKT, "gmres": GmresKKT}
-
-
-def make_kkt_solver(name, Q, S, R, A, B, **kwargs):
-    """Factor (or precondition) the LQ-DOCP KKT system with the back-end ``name`` (one of
-    :data:`KKT_SOLVERS`); the result's ``solve(q, r, c, x0, e=None, eN=None, ci=None)`` returns an
-    :class:`~olado.linalg.riccati.LQSolution` with the multiplier conventions of the Riccati solver.
-
-    ``kwargs`` are those of :class:`RiccatiFactorization` (E, F, n_eq, EN, Dx, Du, Ci, sigma,
-    n_ineq, regularization) plus the back-end's options (see the module docstring)."""
-    try:
-        cls = _BACKENDS[name]
-    except (KeyError, TypeError):
-        raise ConfigError(f"unknown KKT solver {name!r}", key="kkt_solver", allowed=", ".join(KKT_SOLVERS)) from None
-    return cls(Q, S, R, A, B, **kwargs)

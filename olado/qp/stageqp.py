@@ -7,7 +7,7 @@
          x_lower_k <= x_k <= x_upper_k (k <= N),       u_lower_k <= u_k <= u_upper_k (k < N)
 
 with z_k = (x_k, u_k). Inequalities are two-sided (+-inf where absent; equal bounds fix a
-variable). Stage data lives in stacked arrays (docs/architecture.md, "The matrix side"); the
+variable). Stage data lives in stacked arrays (docs/architecture.md, "The linalg and qp layers"); the
 variable order of the sparse form is the NLP view's y = (x_0, u_0, ..., x_{N-1}, u_{N-1}, x_N).
 """
 

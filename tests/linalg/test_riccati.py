@@ -247,10 +247,10 @@ def stationarity_residuals(d, sol, Ci=None, sig=None, ci=None, reg=0.0):
 @given(N=st.integers(1, 6), n=st.integers(1, 5), m=st.integers(1, 4), seed=st.integers(0, 10_000),
        with_bounds=st.booleans(), ni=st.integers(0, 2), reg=st.sampled_from([0.0, 0.5]))
 def test_fixed_size_and_any_size_plain_kernels_agree(N, n, m, seed, with_bounds, ni, reg):
-    """The plain recursion compiled for the sizes (n + m <= _FIXED_SIZE_MAX) and with run-time sizes
+    """The plain recursion compiled for the sizes (n + m <= FIXED_SIZE_MAX) and with run-time sizes
     give the same factorization and solution (up to rounding), and the multipliers lam_k = P_k x_k + p_k
     satisfy the KKT rows, with the stage inequality terms and the regularization."""
-    import olado.linalg.riccati as ric
+    import olado.linalg.codegen as codegen
 
     rng = np.random.default_rng(seed)
     d = random_problem(rng, N, n, m)
@@ -263,9 +263,9 @@ def test_fixed_size_and_any_size_plain_kernels_agree(N, n, m, seed, with_bounds,
         kw["sigma"][0, 0] = 0.0   # a zero weight
         rhs["ci"] = rng.standard_normal((N, ni))
     results = []
-    for fixed_max in (ric._FIXED_SIZE_MAX, 0):
+    for fixed_max in (codegen.FIXED_SIZE_MAX, 0):
         with pytest.MonkeyPatch.context() as mp:
-            mp.setattr(ric, "_FIXED_SIZE_MAX", fixed_max)
+            mp.setattr(codegen, "FIXED_SIZE_MAX", fixed_max)
             fac = RiccatiFactorization(d["Q"], d["S"], d["R"], d["A"], d["B"], **kw)
             assert fac.unconstrained and (fac._size_tags is None) == (fixed_max == 0)
             results.append((fac, fac.solve(d["q"], d["r"], d["c"], d["x0"], **rhs)))
@@ -281,10 +281,10 @@ def test_fixed_size_and_any_size_plain_kernels_agree(N, n, m, seed, with_bounds,
 def test_indefinite_stage_hessian_on_both_plain_kernels(monkeypatch, fixed):
     """The failing stage is reported by the fixed-size and the any-size kernels alike, also when
     Q_uu is indefinite only through a stage inequality term, or is NaN."""
-    import olado.linalg.riccati as ric
+    import olado.linalg.codegen as codegen
 
     if not fixed:
-        monkeypatch.setattr(ric, "_FIXED_SIZE_MAX", 0)
+        monkeypatch.setattr(codegen, "FIXED_SIZE_MAX", 0)
     rng = np.random.default_rng(7)
     d = random_problem(rng, 6, 3, 2)
     d["R"][4] = np.diag([1.0, -100.0])

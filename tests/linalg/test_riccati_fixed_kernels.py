@@ -4,7 +4,8 @@ kernel kept for large n) against the any-size kernels and a dense KKT solve."""
 import numpy as np
 import pytest
 
-from olado.linalg import riccati as rc
+from olado.linalg import riccati as rc, riccati_fixed as rf, riccati_kernels as rk
+from olado.linalg.codegen import size_tags
 
 
 def _stage_data(N, n, m, ni=2, cond=1e2, seed=0):
@@ -24,19 +25,26 @@ def _stage_data(N, n, m, ni=2, cond=1e2, seed=0):
 def _factor(kernel, d, tags=None, reg=0.0):
     N, n, m = d["A"].shape[0], d["A"].shape[1], d["B"].shape[2]
     P = np.full((N + 1, n, n), np.nan); K = np.full((N, m, n), np.nan); L = np.full((N, m, m), np.nan)
-    args = (d["Q"], d["S"], d["R"], d["A"], d["B"], d["Dx"], d["Du"], d["Ci"], d["sig"], d["ni"], reg, P, K, L)
+    args = (stage_arrays(d), reg, rk.PlainFactors(P, K, L))
     code = kernel(*args) if tags is None else kernel(tags, *args)
     return code, P, K, L
+
+
+def stage_arrays(d):
+    """The kernels' StageArrays of the plain recursion's data d (no equality rows)."""
+    N, n, m = d["B"].shape
+    return rk.StageArrays(d["Q"], d["S"], d["R"], d["A"], d["B"], np.zeros((N, 0, n)), np.zeros((N, 0, m)),
+                          np.zeros(N, np.int64), np.zeros((0, n)), d["Dx"], d["Du"], d["Ci"], d["sig"], d["ni"])
 
 
 @pytest.mark.parametrize("n,m", [(1, 1), (2, 3), (6, 7), (4, 12), (12, 3), (14, 4)])
 def test_fixed_factor_matches_any_size_kernel(n, m):
     N = 40
     d = _stage_data(N, n, m, seed=10 * n + m)
-    tags = rc._size_tags(n, m, n + m)
-    c0, P0, K0, L0 = _factor(rc._factor_unconstrained, d)
-    kernels = [rc._factor_unconstrained_fixed] if n <= rc._STRAIGHT_N_MAX else []
-    for kernel in kernels + [rc._factor_unconstrained_fixed_loops]:
+    tags = size_tags(n, m)
+    c0, P0, K0, L0 = _factor(rk._factor_unconstrained, d)
+    kernels = [rf._factor_unconstrained_fixed] if n <= rf._STRAIGHT_N_MAX else []
+    for kernel in kernels + [rf._factor_unconstrained_fixed_loops]:
         c, P, K, L = _factor(kernel, d, tags)
         assert c == c0 == -1
         np.testing.assert_allclose(P, P0, rtol=1e-11, atol=1e-11 * np.abs(P0).max())
@@ -101,7 +109,7 @@ def test_fixed_factor_and_solve_against_dense_kkt():
 def test_fixed_factor_reports_failing_stage(kernel):
     N, n, m = 30, 6, 7
     kernel = getattr(rc, kernel)
-    tags = rc._size_tags(n, m, n + m)
+    tags = size_tags(n, m)
     d = _stage_data(N, n, m, seed=3)
     d["R"][17] -= 50.0 * np.eye(m)                      # Q_uu indefinite at stage 17
     assert _factor(kernel, d, tags)[0] == 17
@@ -110,7 +118,7 @@ def test_fixed_factor_reports_failing_stage(kernel):
     assert _factor(kernel, d, tags)[0] == 11
     d = _stage_data(N, n, m, seed=3)
     d["A"][20, 1, 3] = np.inf                             # P_20 not finite -> NaN pivots at stage 19
-    assert _factor(kernel, d, tags)[0] == _factor(rc._factor_unconstrained, d)[0] == 19
+    assert _factor(kernel, d, tags)[0] == _factor(rk._factor_unconstrained, d)[0] == 19
     d = _stage_data(N, n, m, seed=3)
     d["R"][5] = 0.0; d["S"][5] = 0.0; d["Du"][5] = 0.0; d["B"][5] = 0.0   # Q_uu = 0: zero pivot
     assert _factor(kernel, d, tags)[0] == 5

@@ -4,7 +4,9 @@ the any-size kernel _solve_unconstrained and a dense KKT solve."""
 import numpy as np
 import pytest
 
-from olado.linalg import riccati as rc
+from olado.linalg import riccati as rc, riccati_fixed as rf, riccati_kernels as rk
+from olado.linalg.backend import RHS, Solution
+from olado.linalg.codegen import size_tags
 
 
 def _problem(N, n, m, ni, seed):
@@ -28,28 +30,37 @@ def _problem(N, n, m, ni, seed):
 
 def _factor(d, n, m):
     N = d["A"].shape[0]
-    tags = rc._size_tags(n, m, n + m)
+    tags = size_tags(n, m)
     P = np.empty((N + 1, n, n)); K = np.empty((N, m, n)); L = np.empty((N, m, m))
-    args = (d["Q"], d["S"], d["R"], d["A"], d["B"], d["Dx"], d["Du"], d["Ci"], d["sig"], d["ni"], 0.0, P, K, L)
-    kernel = rc._factor_unconstrained_fixed if n <= rc._STRAIGHT_N_MAX else rc._factor_unconstrained_fixed_loops
-    assert kernel(tags, *args) == -1
+    kernel = rf._factor_unconstrained_fixed if n <= rf._STRAIGHT_N_MAX else rf._factor_unconstrained_fixed_loops
+    assert kernel(tags, stage_arrays(d), 0.0, rk.PlainFactors(P, K, L)) == -1
     return tags, P, K, L
+
+
+def stage_arrays(d):
+    """The kernels' StageArrays of the plain recursion's data d (no equality rows)."""
+    N, n, m = d["B"].shape
+    return rk.StageArrays(d["Q"], d["S"], d["R"], d["A"], d["B"], np.zeros((N, 0, n)), np.zeros((N, 0, m)),
+                          np.zeros(N, np.int64), np.zeros((0, n)), d["Dx"], d["Du"], d["Ci"], d["sig"], d["ni"])
+
+
+def rhs_of(d, rhs):
+    N, n, m = d["B"].shape
+    return RHS(rhs["q"], rhs["r"], rhs["c"], rhs["x0"], np.zeros((N, 0)), np.zeros(0), rhs["ci"])
 
 
 def _solve_fixed(d, rhs, tags, P, K, L):
     N, n, m = d["B"].shape
     X = np.empty((N + 1, n)); U = np.empty((N, m)); lam = np.empty((N + 1, n))
-    rc._solve_unconstrained_fixed(tags, d["A"], d["B"], d["Ci"], d["sig"], d["ni"], P, K, L, rhs["q"], rhs["r"],
-                                  rhs["c"], rhs["x0"], rhs["ci"], X, U, lam)
+    rf._solve_unconstrained_fixed(tags, stage_arrays(d), rk.PlainFactors(P, K, L), rhs_of(d, rhs),
+                                  Solution(X, U, lam, np.zeros((N + 1, 0))))
     return X, U, lam
 
 
 def _solve_any(d, rhs, P, K, L):
     N, n, m = d["B"].shape
     X = np.empty((N + 1, n)); U = np.empty((N, m)); lam = np.empty((N + 1, n))
-    rc._solve_unconstrained(d["Q"], d["S"], d["A"], d["B"], d["Dx"], d["Ci"], d["sig"], d["ni"], P, K, L,
-                            rhs["q"], rhs["r"], rhs["c"], rhs["x0"], rhs["ci"], X, U, lam,
-                            np.empty((N, m)), np.empty((N + 1, n)))
+    rk._solve_unconstrained(stage_arrays(d), rk.PlainFactors(P, K, L), rhs_of(d, rhs), Solution(X, U, lam, np.zeros((N + 1, 0))))
     return X, U, lam
 
 

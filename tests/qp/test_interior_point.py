@@ -1,18 +1,22 @@
 """Interior-point QP methods (olado.qp.interior_point) against Clarabel, each other and known statuses."""
 
-import dataclasses
-
 import numpy as np
 import pytest
 import scipy.sparse as sp
 
+from fixtures.qp_problems import random_qp, replace, zambezi_qp
 from olado.errors import ConfigError
 from olado.linalg import RiccatiFactorization
+from olado.linalg.backend import KKT_SOLVERS
+from olado.qp import make_qp_solver
+from olado.qp.interior_point import GondzioQP, MehrotraQP, WeightedCorrectorQP
+from olado.qp.interior_point.kernels import _implied_newton_residual
+from olado.qp.interior_point.kkt_map import _kkt_map
+from olado.qp.interior_point.point import _Rhs
+from olado.qp.interior_point.presolve import _Prepared
+from olado.qp.interior_point.step import _StepContext
 from olado.qp.stageqp import StageQP, qp_kkt_residuals
-
-from fixtures.qp_problems import random_qp, replace, zambezi_qp
 from olado.result import Status
-from olado.qp.interior_point import (KKT_BACKENDS, GondzioQP, MehrotraQP, WeightedCorrectorQP, make_qp_solver)
 
 METHODS = (MehrotraQP, GondzioQP, WeightedCorrectorQP)
 
@@ -134,7 +138,7 @@ def test_x0_outside_its_bounds_and_crossed_bounds_are_infeasible():
 @pytest.mark.parametrize("cls", METHODS, ids=lambda c: c.name)
 def test_all_kkt_backends_give_the_same_iterates(cls):
     qp = random_qp(5, fixed=True, eq=True)
-    runs = {kkt: cls(kkt=kkt, tol=1e-10).solve(qp) for kkt in KKT_BACKENDS}
+    runs = {kkt: cls(kkt=kkt, tol=1e-10).solve(qp) for kkt in KKT_SOLVERS}
     ref = runs["riccati"]
     assert ref.status is Status.SUCCESS
     for kkt, res in runs.items():
@@ -173,7 +177,7 @@ def test_weighted_corrector_weights_lie_in_their_interval():
 
 def test_make_qp_solver_and_options():
     assert isinstance(make_qp_solver("gondzio", max_correctors=2), GondzioQP)
-    with pytest.raises(ValueError):
+    with pytest.raises(ConfigError):         # a ValueError
         make_qp_solver("simplex")
     with pytest.raises(ConfigError):
         MehrotraQP(step_to_boundary=0.5)
@@ -301,8 +305,6 @@ def test_zambezi_warm_start(zambezi):
 
 # ============================================================================= compiled kernels
 def test_compiled_residuals_match_the_numpy_formulas():
-    from olado.qp.interior_point import _Prepared
-
     qp = random_qp(5, fixed=True, eq=True)
     P = _Prepared(qp)
     solver = MehrotraQP()
@@ -442,17 +444,14 @@ def test_nonconvex_shift_mode_solves_the_shifted_qp(cls):
 def test_kkt_map_fixed_size_kernel_agrees_with_any_size_kernel():
     """_kkt_map compiled for the block sizes (size tags) and for run-time sizes: same residuals
     and measures (up to rounding), on a QP with stage rows, final rows and equalities."""
-    from olado.qp import interior_point as qp_ip
 
     qp = random_qp(3, nc=2, ncN=1)
-    P = qp_ip._Prepared(qp)
+    P = _Prepared(qp)
     it = MehrotraQP()._initial_point(P)
     out = []
     for sizes in (P.sizes, (P.n, P.m, P.n + P.m)):
-        res = qp_ip._Rhs(P, np.full(P.rhs_layout[1], np.nan))
-        qp_ip._kkt_map(sizes, P.H, P.QN, P.AB, P.EF, P.EFt, P.eqm, P.EN, P.C, P.Ct, P.CN, P.neg_lo, P.hi, P.fl, P.fu,
-                       it.X, it.U, it.lam, it.nu, it.tl, it.tu, it.zl, it.zu, P.q, P.r, P.c, P.x0, P.be, P.eN,
-                       res.rx, res.ru, res.dyn, res.x0r, res.rE, res.rEN, res.rl, res.rup, P.work_w, P.stats)
+        res = _Rhs(P, np.full(P.rhs_layout.size, np.nan))
+        _kkt_map(sizes, P.kkt_data, it.arrays, P.offsets, res.arrays, P.work_w, P.stats)
         out.append((res.buf.copy(), P.stats.copy()))
     assert isinstance(P.sizes[0], tuple)   # the fixed-size kernel was the first one
     assert np.all(np.isfinite(out[0][0]))
@@ -464,10 +463,9 @@ def test_kkt_map_fixed_size_kernel_agrees_with_any_size_kernel():
 def test_cold_start_is_centred_at_initial_mu(mu0):
     """The cold start has t_i z_i = initial_mu on every finite side, slacks >= 1, and zero slack
     and multiplier on infinite sides; both settings solve the QP to the same objective."""
-    from olado.qp import interior_point as qp_ip
 
     qp = random_qp(1, nc=2, ncN=1)
-    P = qp_ip._Prepared(qp)
+    P = _Prepared(qp)
     solver = MehrotraQP(initial_mu=mu0)
     it = solver._initial_point(P)
     for t, z, f in ((it.tl, it.zl, P.fl), (it.tu, it.zu, P.fu)):
@@ -481,14 +479,13 @@ def test_implied_newton_residual_matches_the_measured_one(split):
     """The Newton residual of the linear rows implied by the residuals before and after a step
     (what lets iterations skip the explicit kkt_map measurement) equals the one measured directly
     (_StepContext._newton_residual), for a common and for separate primal/dual step lengths."""
-    from olado.qp import interior_point as qp_ip
 
     qp = random_qp(5, nc=2, ncN=1)
     solver = MehrotraQP()
-    P = qp_ip._Prepared(qp)
+    P = _Prepared(qp)
     it = solver._initial_point(P)
     res, *_ = solver._residuals(P, it)
-    ctx = qp_ip._StepContext(solver, P, it, res, 1.0)
+    ctx = _StepContext(solver, P, it, res, 1.0)
     rho_l, rho_u = -it.zl * it.tl, -it.zu * it.tu
     d = ctx._reduced_solve(res, rho_l, rho_u)
     d.X[...] += 1e-3 * np.sin(np.arange(d.X.size)).reshape(d.X.shape)   # a deliberately inexact direction
@@ -499,7 +496,7 @@ def test_implied_newton_residual_matches_the_measured_one(split):
     new = it.plus_split(ap, ad, d)
     res_new, *_ = solver._residuals(P, new)
     n_dual = (P.N + 1) * P.n + P.N * P.m
-    implied = qp_ip._implied_newton_residual(res_new.buf, res.buf, ap, ad, n_dual)
+    implied = _implied_newton_residual(res_new.buf, res.buf, ap, ad, n_dual)
     direct = np.max(np.abs(e_buf[n_dual:])) if split else np.max(np.abs(e_buf))
     assert direct > 1e-4
     assert implied == pytest.approx(direct, rel=1e-8)

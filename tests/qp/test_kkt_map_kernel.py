@@ -1,4 +1,4 @@
-"""The fixed-size _kkt_map kernel (straight-line SIMD stages, olado.qp.interior_point._kkt_stage and
+"""The fixed-size _kkt_map kernel (straight-line SIMD stages, olado.qp.interior_point.kkt_map._kkt_stage and
 _kkt_boxes) against numpy formulas and the any-size (scalar-loop) kernel: random data for several
 block sizes with and without stage rows and equality rows, a prepared QP and non-finite inputs."""
 
@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 from numba import typeof
 
-from olado.linalg.riccati import _size_tags
-from olado.qp import interior_point as qp_ip
+from olado.linalg.codegen import size_tags
+from olado.qp.interior_point import kkt_map as qp_ip
+from olado.qp.interior_point.point import PointArrays, Residuals
+from olado.qp.interior_point.presolve import KKTData, _Prepared
 from olado.qp.interior_point import MehrotraQP
 
 from fixtures.qp_problems import random_qp  # noqa: E402
@@ -52,15 +54,23 @@ def outputs(N, n, m, ne, neN, nw, fill=np.nan):
                 rup=np.full(nw, fill), w=np.full(nw, fill), stats=np.full(6, fill))
 
 
-ORDER = ("H QN AB EF EFt eqm EN C Ct CN al au fl fu X U lam nu tl tu zl zu bx bu bdyn bx0 be beN "
-         "rx ru dyn x0r rE rEN rl rup w stats").split()
+def bundles(a):
+    """The bundles of _kkt_map (data, point, offsets, out) of the arrays of the dict a."""
+    offsets = Residuals(a["bx"], a["bu"], a["bdyn"], a["bx0"], a["be"], a["beN"], a["al"], a["au"])
+    return (KKTData(*(a[k] for k in KKTData._fields)), PointArrays(*(a[k] for k in PointArrays._fields)), offsets,
+            Residuals(*(a[k] for k in Residuals._fields)))
 
 
 def run(sizes, d):
     """_kkt_map on copies of the arrays of d; returns the outputs."""
     a = {k: v.copy() for k, v in d.items()}
-    qp_ip._kkt_map(sizes, *(a[k] for k in ORDER))
+    qp_ip._kkt_map(sizes, *bundles(a), a["w"], a["stats"])
     return {k: a[k] for k in OUTPUTS}
+
+
+def fixed_applies(sizes, d):
+    """Whether _kkt_map runs the fixed-size kernel on the arrays of d."""
+    return qp_ip._kkt_fixed_applies(typeof(sizes), *(typeof(b) for b in bundles(d)), typeof(d["w"]), typeof(d["stats"]))
 
 
 def reference(d):
@@ -109,8 +119,8 @@ def assert_close(out, ref, rtol=1e-12, atol=1e-12):
 @pytest.mark.parametrize("N", [1, 2, 7])
 def test_fixed_size_kernel_matches_the_formulas_and_the_loops(n, m, ne, nc, neN, ncN, N):
     d = random_args(1000 * n + 10 * m + N, N, n, m, ne, nc, neN, ncN)
-    sizes = _size_tags(n, m, n + m)
-    assert qp_ip._kkt_fixed_applies(*(typeof(a) for a in [sizes] + [d[k] for k in ORDER]))
+    sizes = size_tags(n, m)
+    assert fixed_applies(sizes, d)
     fixed = run(sizes, d)
     loops = run((n, m, n + m), d)
     ref = reference(d)
@@ -125,9 +135,9 @@ def test_fixed_size_kernel_matches_the_formulas_and_the_loops(n, m, ne, nc, neN,
 
 def test_fixed_size_kernel_on_a_prepared_qp():
     """A QP with fixed variables, equal-bound rows, stage and final rows and equality rows
-    (tests/test_qp_ip.random_qp): the residuals of the compiled solver match the formulas."""
+    (tests/fixtures/qp_problems.random_qp): the residuals of the compiled solver match the formulas."""
     qp = random_qp(5, fixed=True, eq=True)
-    P = qp_ip._Prepared(qp)
+    P = _Prepared(qp)
     assert isinstance(P.sizes[0], tuple)       # the fixed-size kernel
     it = MehrotraQP()._initial_point(P)
     rng = np.random.default_rng(3)
@@ -137,7 +147,7 @@ def test_fixed_size_kernel_on_a_prepared_qp():
              zl=it.zl, zu=it.zu, bx=P.q, bu=P.r, bdyn=P.c, bx0=P.x0, be=P.be, beN=P.eN)
     d.update(outputs(P.N, P.n, P.m, P.EF.shape[1], P.EN.shape[0], P.nw))
     fixed, loops = run(P.sizes, d), run((P.n, P.m, P.n + P.m), d)
-    assert qp_ip._kkt_fixed_applies(*(typeof(a) for a in [P.sizes] + [d[k] for k in ORDER]))
+    assert fixed_applies(P.sizes, d)
     assert_close(fixed, reference(d))
     assert_close(fixed, loops)
 
@@ -163,7 +173,7 @@ def test_non_finite_inputs_propagate_as_in_the_loops(n, m, ne, nc):
         else:
             d["X"][...] = np.nan
             d["H"][1, 0, 0] = np.inf
-        fixed = run(_size_tags(n, m, n + m), d)
+        fixed = run(size_tags(n, m), d)
         loops = run((n, m, n + m), d)
         for k in OUTPUTS:
             a, b = fixed[k], loops[k]
@@ -181,12 +191,12 @@ def test_non_contiguous_arrays_take_the_loop_kernel():
     """Arrays that are not C-contiguous are accepted (the loop kernel), with the same results."""
     n, m, N = 3, 2, 5
     d = random_args(11, N, n, m, 1, 1, 1, 1)
-    ref = run(_size_tags(n, m, n + m), d)
+    ref = run(size_tags(n, m), d)
     d2 = dict(d)
     d2["X"] = np.asfortranarray(d["X"])
     big = np.zeros((N, 2 * (n + m), n + m))
     big[:, ::2] = d["H"]
     d2["H"] = big[:, ::2]
-    assert not qp_ip._kkt_fixed_applies(*(typeof(a) for a in [_size_tags(n, m, n + m)] + [d2[k] for k in ORDER]))
-    out = run(_size_tags(n, m, n + m), d2)
+    assert not fixed_applies(size_tags(n, m), d2)
+    out = run(size_tags(n, m), d2)
     assert_close(out, ref)

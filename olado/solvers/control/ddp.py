@@ -83,7 +83,7 @@ import numpy as np
 
 from ...errors import NonFiniteEvaluationError
 from .ddp_state import Accepted, DPState, ShiftSchedule, Sweeps
-from ...linalg.riccati import _chol_inplace, _chol_solve_vec
+from ...linalg.riccati_kernels import chol_inplace as _chol_inplace, chol_solve_vec as _chol_solve_vec
 from ...result import Result, Status
 from ...options import option
 from ..base import Solver, SolverOptions

@@ -91,7 +91,7 @@ from ...options import option
 from ..base import Solver, SolverOptions
 from .hessian import make_hessian
 
-KKT_SOLVERS = ("riccati", "superlu-full", "superlu-reduced", "minres", "gmres")
+from ...linalg.backend import KKT_SOLVERS  # the KKT back-end names (the one table: olado.linalg.backend)
 
 
 def _apply_qp_options(qp_solver, qp_name, qp_options):

@@ -1,0 +1,58 @@
+"""The search direction of the interior-point QP methods (paper 001 (22), one factorization per
+iteration): Mehrotra's predictor-corrector (Mehrotra 1992) with the safeguard of Salahi, Peng
+and Terlaky (2007); the methods of :mod:`.methods` add centrality correctors and corrector
+weights through the solver's hooks.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .kernels import _combined_rhs, _corrector_rhs
+
+
+def predictor_corrector(solver, ctx, combined):
+    """Mehrotra's predictor-corrector direction with the Salahi-Peng-Terlaky safeguard (see
+    :class:`~olado.qp.interior_point.MehrotraQP`), then the solver's centrality correctors
+    (``solver._centrality_correctors``), each corrector weighted by ``solver._corrector_weight``.
+    ``combined``: the correctors are unweighted (predictor and corrector are then solved as one
+    right-hand side). Returns (direction, info)."""
+    P, it, mu = ctx.P, ctx.it, ctx.mu
+    opts = solver.options
+    P.directions()
+    # predictor (affine scaling, sigma = 0); the right-hand sides of every solve are written
+    # into P.rho_l, P.rho_u (each solve is done with them before the next one is formed)
+    rho_l, rho_u = P.rho_l, P.rho_u
+    np.multiply(np.negative(it.zl, out=rho_l), it.tl, out=rho_l)
+    np.multiply(np.negative(it.zu, out=rho_u), it.tu, out=rho_u)
+    d_aff = ctx.solve(ctx.res, rho_l, rho_u, P.dir_aff)
+    a_aff = min(1.0, ctx.max_step(d_aff))
+    if P.n_comp == 0:
+        return d_aff, {"alpha_aff": a_aff, "sigma": 0.0, "safeguard": False, "correctors": 0, "omega": 1.0}
+    # Mehrotra's second-order term: the products dt_aff * dz_aff
+    fl, fu = P.fl, P.fu
+    safeguard = a_aff < opts.safeguard_step
+    omega = 1.0
+    # unweighted correctors (Mehrotra, Gondzio; ``combined``): d_aff + d_c in one solve with the
+    # combined right-hand side (the same direction up to rounding, one vector pass less)
+    if not safeguard:
+        sigma = (1.0 - a_aff) ** 3
+        if combined:
+            _combined_rhs(it.arrays, fl, fu, d_aff.arrays, sigma * mu, 1.0, rho_l, rho_u)
+            d = ctx.solve(ctx.res, rho_l, rho_u, P.dir_main)
+        else:
+            _corrector_rhs(fl, fu, d_aff.arrays, sigma * mu, 1.0, rho_l, rho_u)
+            d_c = ctx.solve(ctx.zero_res, rho_l, rho_u, P.dir_corr)
+            omega = solver._corrector_weight(ctx, d_aff, d_c, a_aff)
+            d = d_aff.plus(omega, d_c)
+        safeguard = min(1.0, ctx.max_step(d)) < opts.safeguard_step
+    if safeguard:
+        gam = opts.safeguard_gamma
+        sigma = gam / (1.0 - gam)
+        _corrector_rhs(fl, fu, d_aff.arrays, sigma * mu, a_aff, rho_l, rho_u)
+        d_c = ctx.solve(ctx.zero_res, rho_l, rho_u, P.dir_corr)
+        omega = solver._corrector_weight(ctx, d_aff, d_c, a_aff)
+        d = d_aff.plus(omega, d_c)
+    d, ncorr = solver._centrality_correctors(ctx, d, sigma * mu)
+    return d, {"alpha_aff": a_aff, "sigma": sigma, "safeguard": bool(safeguard), "correctors": ncorr,
+               "omega": omega}

@@ -1,0 +1,87 @@
+"""Starting points of the interior-point QP (paper 001 sec. 4.2.2: a point with positive slacks
+w and multipliers lambda, (18)-(19)): the centred cold start and the warm start from an earlier
+result.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...linalg.backend import make_kkt_solver
+from ..stageqp import QPResult
+from .step import _check_rows
+
+
+def initial_point(P, options, mu0=None):
+    """Cold start: (X, U) minimizes f + 1/2 |w - w_ref|^2 (+ 1/2 |z|^2 on unbounded
+    components) subject to the equality constraints -- one factorization -- with w_ref the
+    middle of two-sided boxes and 0 clipped into one-sided ones; its lam, nu are kept; slacks
+    t = max(w - lo, 1) (resp. max(hi - w, 1)) and multipliers z = mu0 / t on every finite side
+    (a perfectly centred start, mu = mu0, by default ``initial_mu``)."""
+    N, n, m, nc = P.N, P.n, P.m, P.nc
+    two = P.fl & P.fu
+    ref = np.where(two, 0.5 * (P.lo + P.hi),
+                   np.clip(np.zeros(P.nw), np.where(P.fl, P.lo, -np.inf), np.where(P.fu, P.hi, np.inf)))
+    Dx = np.ones((N + 1, n)); Du = np.ones((N, m))
+    q = P.q.copy(); r = P.r.copy()
+    q[1:] -= ref[P.sl_x].reshape(N, n)
+    r -= ref[P.sl_u].reshape(N, m)
+    kw, rhs = dict(Dx=Dx, Du=Du), {}
+    if nc:
+        kw.update(Ci=P.C, sigma=np.ones((N, nc)))
+        rhs["ci"] = -ref[P.sl_s].reshape(N, nc)
+    Q = P.Q
+    if P.ncN:
+        Q = P.Q.copy(); Q[-1] = Q[-1] + P.CN.T @ P.CN
+        q[-1] -= P.CN.T @ ref[P.sl_sN]
+    if P.has_eq:
+        kw.update(E=P.E, F=P.F, n_eq=P.n_eq, EN=P.EN)
+        rhs.update(e=P.e, eN=P.eN)
+    kw.update(options.kkt_options)
+    sol = make_kkt_solver(options.kkt, Q, P.S, P.R, P.A, P.B, **kw).solve(q, r, P.c, P.x0, **rhs)
+    _check_rows(P, float(sol.x0_residual), None, "starting point")
+    X, U = np.array(sol.X, dtype=float), np.array(sol.U, dtype=float)
+    w = P.w_of(X, U)
+    tl = np.where(P.fl, np.maximum(w - P.lo, 1.0), 0.0)
+    tu = np.where(P.fu, np.maximum(P.hi - w, 1.0), 0.0)
+    nu = np.zeros((N + 1, P.n_nu))
+    if P.n_nu:
+        k = min(P.n_nu, sol.nu.shape[1])
+        nu[:, :k] = sol.nu[:, :k]
+    mu0 = options.initial_mu if mu0 is None else mu0
+    zl = np.where(P.fl, mu0 / np.where(P.fl, tl, 1.0), 0.0)
+    zu = np.where(P.fu, mu0 / np.where(P.fu, tu, 1.0), 0.0)
+    return P.point_from(X, U, np.array(sol.lam, dtype=float), nu, tl, tu, zl, zu)
+
+def warm_point(P, options, ws: QPResult):
+    """Warm start from a previous result: X, U, lam, nu and the box multipliers are taken over
+    (multipliers of eliminated or equality-row entries mapped as in
+    :meth:`InteriorPointQP._finish`); slacks
+    t = max(w - lo, theta) and multipliers z = max(z_ws, theta) on finite sides with
+    theta = ``warm_start_push`` * (1 + max |z_ws|)."""
+    N, n, m = P.N, P.n, P.m
+    X = np.array(ws.X, dtype=float).reshape(N + 1, n).copy()
+    U = np.array(ws.U, dtype=float).reshape(N, m).copy()
+    U[P.ufix] = 0.0   # eliminated controls are 0 in the reduced problem
+    lam = np.array(ws.lam, dtype=float).reshape(N + 1, n).copy()
+    nu = np.zeros((N + 1, P.n_nu))
+    wnu = np.asarray(ws.nu, dtype=float)
+    if wnu.ndim == 2 and wnu.shape[0] == N + 1:
+        a, b = min(P.ne0, wnu.shape[1]), min(P.neN0, wnu.shape[1])
+        nu[:N, :a] = wnu[:N, :a]
+        nu[N, :b] = wnu[N, :b]
+    for k, row, kind, i in P.eq_map:
+        nu[k, row] = (ws.zx_upper[k, i] - ws.zx_lower[k, i]) if kind == "x" else (ws.yc_upper[k, i] - ws.yc_lower[k, i])
+    for row, kind, i in P.eqN_map:
+        nu[N, row] = (ws.zx_upper[N, i] - ws.zx_lower[N, i]) if kind == "x" else (ws.yN_upper[i] - ws.yN_lower[i])
+    flat = lambda *a: np.concatenate([np.asarray(v, dtype=float).ravel() for v in a])  # noqa: E731
+    zl = flat(np.asarray(ws.zx_lower)[1:], ws.zu_lower, ws.yc_lower, ws.yN_lower)
+    zu = flat(np.asarray(ws.zx_upper)[1:], ws.zu_upper, ws.yc_upper, ws.yN_upper)
+    zl, zu = np.nan_to_num(zl), np.nan_to_num(zu)
+    theta = options.warm_start_push * (1.0 + float(np.max(np.abs(np.concatenate([zl, zu])), initial=0.0)))
+    w = P.w_of(X, U)
+    tl = np.where(P.fl, np.maximum(w - P.lo, theta), 0.0)
+    tu = np.where(P.fu, np.maximum(P.hi - w, theta), 0.0)
+    zl = np.where(P.fl, np.maximum(zl, theta), 0.0)
+    zu = np.where(P.fu, np.maximum(zu, theta), 0.0)
+    return P.point_from(X, U, lam, nu, tl, tu, zl, zu)
