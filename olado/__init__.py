@@ -30,6 +30,7 @@ _LAZY = {
     "ProblemDefinitionError": "olado.errors",
     "SolverError": "olado.errors",
     "SolverNotAvailableError": "olado.errors",
+    "NonFiniteEvaluationError": "olado.errors",
 }
 _SUBMODULES = ("errors", "result", "config", "options", "api", "problems", "solvers", "linalg", "qp", "cli")
 
