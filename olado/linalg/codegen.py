@@ -35,6 +35,7 @@ import numba as nb
 from llvmlite import ir as llir
 from numba import types
 from numba.core import cgutils
+from numba.core.imputils import impl_ret_borrowed
 from numba.extending import intrinsic
 
 #: numba fastmath flags of the kernels: multiply-adds may be contracted to FMAs (CONTRACT), and
@@ -48,8 +49,8 @@ FIXED_SIZE_MAX = 24
 #: use it are not loaded again (see the module docstring)
 KERNEL_VERSION = 1
 
-#: the size tags of a kernel compiled for stage blocks of n states and m controls: tuples of
-#: zeros of the lengths n, m, n + m and KERNEL_VERSION (see size_tags)
+#: the fields of the size tags of a kernel compiled for stage blocks of n states and m controls:
+#: tuples of zeros of the lengths n, m, n + m and KERNEL_VERSION (see size_tags, as_bundle)
 SizeTags = collections.namedtuple("SizeTags", "n m nz version")
 
 
@@ -81,10 +82,27 @@ def stack_vector(rows):
 
 
 def size_tags(n, m):
-    """The size tags of the kernels compiled for stage blocks of n states and m controls: for
-    each of n, m, n + m a tuple of zeros of that length (numba specializes on the lengths, which
-    are compile-time constants in the kernel), and the version tag of length KERNEL_VERSION."""
-    return SizeTags((0,) * n, (0,) * m, (0,) * (n + m), (0,) * KERNEL_VERSION)
+    """The size tags of the kernels compiled for stage blocks of n states and m controls, a
+    plain tuple with the fields of SizeTags: for each of n, m, n + m a tuple of zeros of that
+    length (numba specializes on the lengths, which are compile-time constants in the kernel),
+    and the version tag of length KERNEL_VERSION."""
+    return tuple(SizeTags((0,) * n, (0,) * m, (0,) * (n + m), (0,) * KERNEL_VERSION))
+
+
+@intrinsic
+def as_bundle(typingctx, tup, cls):
+    """The tuple ``tup`` as an instance of the namedtuple class ``cls`` (same members, no copy):
+    kernels take their bundles of arrays as plain tuples -- numba's dispatcher types a plain
+    tuple about as fast as the arrays one by one, a namedtuple several microseconds slower per
+    call -- and read them by the field names of the bundle's class, declared once."""
+    if not (isinstance(tup, types.BaseTuple) and isinstance(cls, types.NamedTupleClass)
+            and len(tup) == len(cls.instance_class._fields)):
+        return None
+    bundle = types.BaseTuple.from_types(list(tup), cls.instance_class)
+
+    def codegen(context, builder, signature, args):
+        return impl_ret_borrowed(context, builder, signature.return_type, args[0])
+    return bundle(tup, cls), codegen
 
 
 def fixed_size_tags(n, m):

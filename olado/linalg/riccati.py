@@ -32,8 +32,10 @@ from .backend import RHS, LQSolution, NotPositiveDefiniteError, Solution, StageD
 from .codegen import fixed_size_tags
 from .riccati_fixed import (_STRAIGHT_N_MAX, _factor_unconstrained_fixed, _factor_unconstrained_fixed_loops,
                             _solve_unconstrained_fixed)
-from .riccati_kernels import (GeneralFactors, PlainFactors, StageArrays, _factor, _factor_unconstrained, _solve,
-                              _solve_unconstrained)
+from .riccati_kernels import (Costs, Dynamics, EqualityRows, GeneralFactors, IPTerms, PlainFactors, _factor,
+                              _factor_unconstrained, _solve, _solve_unconstrained)
+
+_NU = Solution._fields.index("nu")
 
 __all__ = ["RiccatiFactorization", "solve_lq_docp", "LQSolution", "StageData", "NotPositiveDefiniteError",
            "RiccatiStatusError"]
@@ -60,13 +62,18 @@ class RiccatiFactorization:
                                   n_ineq=n_ineq, regularization=regularization)
         N, n, m = self.N, self.n, self.m = d.N, d.n, d.m
         self.rank_tol = float(rank_tol)
+        # the stage arrays as the kernels take them (plain tuples, codegen.as_bundle), by role
+        self._costs = tuple(Costs(Q=d.Q, S=d.S, R=d.R))
+        self._dyn = tuple(Dynamics(A=d.A, B=d.B))
+        self._eq = tuple(EqualityRows(E=d.E, F=d.F, ne=d.ne, EN=d.EN))
+        self._ipt = None
         # fast path: no equality rows anywhere -> plain Riccati recursion, none of the constraint
         # workspaces (QR factors, propagated rows) are allocated
         self.unconstrained = not d.has_equality_rows
         if self.unconstrained:
             self.ncmax = 0
             self.P = np.empty((N + 1, n, n)); self.K = np.empty((N, m, n)); self.Lww = np.empty((N, m, m))
-            self._factors = PlainFactors(self.P, self.K, self.Lww)
+            self._factors = tuple(PlainFactors(P=self.P, K=self.K, L=self.Lww))
             # small blocks: the kernels compiled for these sizes (olado.linalg.codegen.FIXED_SIZE_MAX)
             self._size_tags = fixed_size_tags(n, m)
         else:
@@ -82,9 +89,9 @@ class RiccatiFactorization:
             self.Wx = np.zeros((N, ncmax, n)); self.Dmat = np.zeros((N, ncmax, ncmax))
             # compression of the passed-back rows: row permutation, dropped rows in terms of the kept
             self.pg = np.zeros((N, ncmax), dtype=np.int64); self.Zg = np.zeros((N, max(n, 1), ncmax))
-            self._factors = GeneralFactors(self.P, self.K, self.Quu, self.Qux, self.Lww, self.Qm, self.Rm, self.perm,
-                                           self.rank, self.nc, self.Cx, self.G, self.ng, self.Wx, self.Dmat, self.pg,
-                                           self.Zg)
+            self._factors = tuple(GeneralFactors(P=self.P, K=self.K, Quu=self.Quu, Qux=self.Qux, Lww=self.Lww, Qm=self.Qm,
+                                                 Rm=self.Rm, perm=self.perm, rank=self.rank, nc=self.nc, Cx=self.Cx, G=self.G,
+                                                 ng=self.ng, Wx=self.Wx, Dmat=self.Dmat, pg=self.pg, Zg=self.Zg))
         self._factorize()
 
     def refactor(self, Dx=None, Du=None, sigma=None, regularization=None):
@@ -99,26 +106,34 @@ class RiccatiFactorization:
         self._factorize()
         return self
 
-    def _stage_arrays(self):
-        d = self.data
-        return StageArrays(d.Q, d.S, d.R, d.A, d.B, d.E, d.F, d.ne, d.EN, d.Dx, d.Du, d.Ci, d.sig, d.ni)
+    def _ip_terms(self):
+        """The kernels' IPTerms bundle of ``data`` (a plain tuple: codegen.as_bundle), rebuilt
+        only when a refactor replaced one of its arrays; the other roles (Costs, Dynamics,
+        EqualityRows) are built once, in the constructor."""
+        d, ipt = self.data, self._ipt
+        if ipt is None or not all(a is b for a, b in zip(ipt, (d.Dx, d.Du, d.Ci, d.sig, d.ni))):
+            ipt = self._ipt = tuple(IPTerms(Dx=d.Dx, Du=d.Du, Ci=d.Ci, sig=d.sig, ni=d.ni))
+        return ipt
 
     def _factorize(self):
-        st, reg = self._stage_arrays(), self.data.regularization
+        # the interior-point terms as the kernels take them, for the factorization and its
+        # solves (a refactor may have replaced their arrays)
+        ipt = self._ip_terms()
+        reg, costs, dyn = self.data.regularization, self._costs, self._dyn
         if self.unconstrained:
             if self._size_tags is None:
-                code = _factor_unconstrained(st, reg, self._factors)
+                code = _factor_unconstrained(costs, dyn, ipt, reg, self._factors)
             elif self.n <= _STRAIGHT_N_MAX:
-                code = _factor_unconstrained_fixed(self._size_tags, st, reg, self._factors)
+                code = _factor_unconstrained_fixed(self._size_tags, costs, dyn, ipt, reg, self._factors)
             else:
-                code = _factor_unconstrained_fixed_loops(self._size_tags, st, reg, self._factors)
+                code = _factor_unconstrained_fixed_loops(self._size_tags, costs, dyn, ipt, reg, self._factors)
             if code >= 0:
                 raise NotPositiveDefiniteError(code)
             return
         for w in (self.Lww, self.Rm, self.perm, self.rank, self.nc, self.Cx, self.G, self.ng, self.Wx, self.Dmat,
                   self.pg, self.Zg):
             w.fill(0)   # the general kernel expects zeroed padding (a refactor reuses the arrays)
-        code = _factor(st, reg, self.rank_tol, self._factors)
+        code = _factor(costs, dyn, self._eq, ipt, reg, self.rank_tol, self._factors)
         if code >= 0:
             raise NotPositiveDefiniteError(code)
         if code <= -1000:
@@ -150,14 +165,14 @@ class RiccatiFactorization:
         already C-contiguous float64 of the right shapes (the interior-point QP's work arrays,
         validated once when the QP is prepared): writes the solution into ``out`` (nu zero where
         no row counts) and returns ``LQSolution.x0_residual``."""
-        st = self._stage_arrays()
-        out.nu.fill(0.0)
+        out[_NU].fill(0.0)
+        rhs, out = tuple(rhs), tuple(out)       # the kernels take plain tuples (codegen.as_bundle)
         if not self.unconstrained:
-            return float(_solve(st, self._factors, rhs, out))
+            return float(_solve(self._costs, self._dyn, self._eq, self._ipt, self._factors, rhs, out))
         if self._size_tags is None:
-            _solve_unconstrained(st, self._factors, rhs, out)
+            _solve_unconstrained(self._costs, self._dyn, self._ipt, self._factors, rhs, out)
         else:
-            _solve_unconstrained_fixed(self._size_tags, st, self._factors, rhs, out)
+            _solve_unconstrained_fixed(self._size_tags, self._dyn, self._ipt, self._factors, rhs, out)
         return 0.0
 
 

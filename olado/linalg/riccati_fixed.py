@@ -27,8 +27,10 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from .codegen import (CONTRACT, F64, I32, I64, REASSOC, ContractRowCode, RowCode, as_i64, c_arrays,
+from .backend import RHS, Solution
+from .codegen import (CONTRACT, F64, I32, I64, REASSOC, ContractRowCode, RowCode, SizeTags, as_bundle, as_i64, c_arrays,
                       carry_slots, pieces, stack_matrix, stack_vector, stage_pointers)
+from .riccati_kernels import Costs, Dynamics, IPTerms, PlainFactors
 
 _STRAIGHT_N_MAX = 12     # larger n: _factor_unconstrained_fixed_loops
 
@@ -116,7 +118,7 @@ def _eliminate_stage(typingctx, tags, Hs, Pn, Ak, Bk, Pk, Kk, Lk):
 
 
 @nb.njit(cache=True, fastmath=CONTRACT)
-def _factor_unconstrained_fixed(tags, st, reg, fac):
+def _factor_unconstrained_fixed(tags, costs, dyn, ipt, reg, fac):
     """_factor_unconstrained compiled for the sizes of tags = size_tags(n, m).
 
     Stage k assembles the upper triangle of its Hessian in [u; x] order,
@@ -126,9 +128,15 @@ def _factor_unconstrained_fixed(tags, st, reg, fac):
     L_xu = H_xu L^{-T}; then K_k = -L^{-T} L_xu^T and P_k = H_xx - L_xu L_xu^T (the Schur
     complement, symmetric by construction); see _eliminate_stage. Returns -1 on success, else
     the stage whose Q_uu is not positive definite."""
-    Q, S, R, A, B = st.Q, st.S, st.R, st.A, st.B
-    Dx, Du, Ci, sig, ni = st.Dx, st.Du, st.Ci, st.sig, st.ni
+    costs = as_bundle(costs, Costs)
+    Q, S, R = costs.Q, costs.S, costs.R
+    dyn = as_bundle(dyn, Dynamics)
+    A, B = dyn.A, dyn.B
+    ipt = as_bundle(ipt, IPTerms)
+    Dx, Du, Ci, sig, ni = ipt.Dx, ipt.Du, ipt.Ci, ipt.sig, ipt.ni
+    fac = as_bundle(fac, PlainFactors)
     P, K, L = fac.P, fac.K, fac.L
+    tags = as_bundle(tags, SizeTags)
     nt, mt, zt = tags.n, tags.m, tags.nz
     n, m = len(nt), len(mt)
     N = A.shape[0]
@@ -168,7 +176,7 @@ def _factor_unconstrained_fixed(tags, st, reg, fac):
 
 
 @nb.njit(cache=True, fastmath=CONTRACT)
-def _factor_unconstrained_fixed_loops(tags, st, reg, fac):
+def _factor_unconstrained_fixed_loops(tags, costs, dyn, ipt, reg, fac):
     """_factor_unconstrained_fixed in scalar loops, for n > _STRAIGHT_N_MAX (where the
     straight-line code of _eliminate_stage runs out of registers and is slower).
 
@@ -179,9 +187,15 @@ def _factor_unconstrained_fixed_loops(tags, st, reg, fac):
     L_xu = H_xu L^{-T}; then K_k = -L^{-T} L_xu^T and P_k = H_xx - L_xu L_xu^T (the Schur
     complement, symmetric by construction). Returns -1 on success, else the stage whose Q_uu
     is not positive definite."""
-    Q, S, R, A, B = st.Q, st.S, st.R, st.A, st.B
-    Dx, Du, Ci, sig, ni = st.Dx, st.Du, st.Ci, st.sig, st.ni
+    costs = as_bundle(costs, Costs)
+    Q, S, R = costs.Q, costs.S, costs.R
+    dyn = as_bundle(dyn, Dynamics)
+    A, B = dyn.A, dyn.B
+    ipt = as_bundle(ipt, IPTerms)
+    Dx, Du, Ci, sig, ni = ipt.Dx, ipt.Du, ipt.Ci, ipt.sig, ipt.ni
+    fac = as_bundle(fac, PlainFactors)
     P, K, L = fac.P, fac.K, fac.L
+    tags = as_bundle(tags, SizeTags)
     nt, mt, zt = tags.n, tags.m, tags.nz
     n, m, nz = len(nt), len(mt), len(zt)
     N = A.shape[0]
@@ -502,7 +516,7 @@ def _solve_forward_sweep(typingctx, tags, X, K, U, P, lam, A, B, c):
 
 
 @nb.njit(cache=True, fastmath=REASSOC)
-def _solve_unconstrained_fixed(tags, st, fac, rhs, sol):
+def _solve_unconstrained_fixed(tags, dyn, ipt, fac, rhs, sol):
     """One right-hand side without equality rows, compiled for the sizes of tags (as
     _factor_unconstrained_fixed).
 
@@ -514,11 +528,17 @@ def _solve_unconstrained_fixed(tags, st, fac, rhs, sol):
     lam holds p and U holds k_k between the sweeps. The sweeps are straight-line SIMD code
     (_solve_back_sweep over runs of stages without stage rows, one stage at a time with them;
     _solve_forward_sweep); P_k must be symmetric (as the factorizations store it)."""
-    A, B = st.A, st.B
-    Ci, sig, ni = st.Ci, st.sig, st.ni
+    dyn = as_bundle(dyn, Dynamics)
+    A, B = dyn.A, dyn.B
+    ipt = as_bundle(ipt, IPTerms)
+    Ci, sig, ni = ipt.Ci, ipt.sig, ipt.ni
+    fac = as_bundle(fac, PlainFactors)
     P, K, L = fac.P, fac.K, fac.L
+    rhs = as_bundle(rhs, RHS)
     q, r, c, x0, ci = rhs.q, rhs.r, rhs.c, rhs.x0, rhs.ci
+    sol = as_bundle(sol, Solution)
     X, U, lam = sol.X, sol.U, sol.lam
+    tags = as_bundle(tags, SizeTags)
     nt, mt, zt = tags.n, tags.m, tags.nz
     n, m = len(nt), len(mt)
     N = A.shape[0]

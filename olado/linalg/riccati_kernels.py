@@ -34,13 +34,23 @@ import collections
 import numba as nb
 import numpy as np
 
+from .backend import RHS, Solution
+from .codegen import as_bundle
+
 # ---------------------------------------------------------------- the kernels' argument bundles
-#: the stage arrays of an LQ-DOCP KKT system: Hessian blocks Q (N+1, n, n), S (N, n, m),
-#: R (N, m, m), dynamics A (N, n, n), B (N, n, m), stage equality rows E (N, ne_max, n),
-#: F (N, ne_max, m) of which the first ne[k] count at stage k, final rows EN (neN, n), the
-#: diagonal terms Dx (N+1, n), Du (N, m) and the stage inequality terms C_k^T diag(sig_k) C_k,
-#: Ci (N, ni_max, n+m) and sig (N, ni_max), of which the first ni[k] count
-StageArrays = collections.namedtuple("StageArrays", "Q S R A B E F ne EN Dx Du Ci sig ni")
+# (the kernels take them as plain tuples and read them by name through codegen.as_bundle)
+#: the stage arrays of an LQ-DOCP KKT system, by role (a kernel takes the roles it reads):
+#: the cost blocks Q (N+1, n, n), S (N, n, m), R (N, m, m) ...
+Costs = collections.namedtuple("Costs", "Q S R")
+#: ... the dynamics A (N, n, n), B (N, n, m) ...
+Dynamics = collections.namedtuple("Dynamics", "A B")
+#: ... the stage equality rows E (N, ne_max, n), F (N, ne_max, m), of which the first ne[k] count
+#: at stage k, and the final rows EN (neN, n) ...
+EqualityRows = collections.namedtuple("EqualityRows", "E F ne EN")
+#: ... and the interior-point terms: the diagonal terms Dx (N+1, n), Du (N, m) and the stage
+#: inequality terms C_k^T diag(sig_k) C_k, Ci (N, ni_max, n+m) and sig (N, ni_max), of which the
+#: first ni[k] count
+IPTerms = collections.namedtuple("IPTerms", "Dx Du Ci sig ni")
 #: the factors of the general recursion (see _factor)
 GeneralFactors = collections.namedtuple("GeneralFactors", "P K Quu Qux Lww Qm Rm perm rank nc Cx G ng Wx Dmat pg Zg")
 #: the factors of the plain recursion: P_k (N+1, n, n), K_k (N, m, n) and the Cholesky factor L_k
@@ -199,7 +209,7 @@ def _closed_loop(A, B, c, K, kff, X, U):
 
 
 @nb.njit(cache=True)
-def _factor(st, reg, rank_tol, fac):
+def _factor(costs, dyn, eq, ipt, reg, rank_tol, fac):
     """Backward factorization sweep (paper 001 sec. 4.2.3, Arnold's elimination in the
     constraint-propagating form). Returns -1 on success, the stage index of a failure
     (non-positive-definite reduced Hessian), or -(1000 + k) when more rows than the buffers hold
@@ -220,9 +230,16 @@ def _factor(st, reg, rank_tol, fac):
     rg x (nc[k] - rk - rg)), so for the constants they only impose the consistency
     (Pi_g^T graw)[rg:] = Zg^T g_k, checked by :func:`_solve`. The row sets G_N = E_N and G_k are
     stored in G (rows on x_k only)."""
-    Q, S, R, A, B, E, F, ne, EN = st.Q, st.S, st.R, st.A, st.B, st.E, st.F, st.ne, st.EN
-    Dx, Du, Ci, sig, ni = st.Dx, st.Du, st.Ci, st.sig, st.ni
+    costs = as_bundle(costs, Costs)
+    Q, S, R = costs.Q, costs.S, costs.R
+    dyn = as_bundle(dyn, Dynamics)
+    A, B = dyn.A, dyn.B
+    eq = as_bundle(eq, EqualityRows)
+    E, F, ne, EN = eq.E, eq.F, eq.ne, eq.EN
+    ipt = as_bundle(ipt, IPTerms)
+    Dx, Du, Ci, sig, ni = ipt.Dx, ipt.Du, ipt.Ci, ipt.sig, ipt.ni
     neN = EN.shape[0]
+    fac = as_bundle(fac, GeneralFactors)
     P, K, Quu_s, Qux_s, Lww, Qm, Rm = fac.P, fac.K, fac.Quu, fac.Qux, fac.Lww, fac.Qm, fac.Rm
     perm, rank, nc, Cx_s, G, ng = fac.perm, fac.rank, fac.nc, fac.Cx, fac.G, fac.ng
     Wx, Dmat, pg, Zg = fac.Wx, fac.Dmat, fac.pg, fac.Zg
@@ -464,7 +481,7 @@ def _factor(st, reg, rank_tol, fac):
 
 
 @nb.njit(cache=True)
-def _solve(st, fac, rhs, sol):
+def _solve(costs, dyn, eq, ipt, fac, rhs, sol):
     """One right-hand side (paper 001 sec. 4.2.3): backward vector sweep, forward simulation,
     multiplier sweeps, with the factors of :func:`_factor`.
 
@@ -479,13 +496,22 @@ def _solve(st, fac, rhs, sol):
     Returns the infeasibility of the equality rows (max norm): the largest of the residual
     G_0 x0 + g_0 of the rows reaching x_0 and the consistency defects of the dependent rows
     dropped at every stage (zero up to rounding for a consistent constraint set)."""
-    Q, S, R, A, B, ne, EN = st.Q, st.S, st.R, st.A, st.B, st.ne, st.EN
-    Dx, Du, Ci, sig, ni = st.Dx, st.Du, st.Ci, st.sig, st.ni
+    costs = as_bundle(costs, Costs)
+    Q, S, R = costs.Q, costs.S, costs.R
+    dyn = as_bundle(dyn, Dynamics)
+    A, B = dyn.A, dyn.B
+    eq = as_bundle(eq, EqualityRows)
+    ne, EN = eq.ne, eq.EN
+    ipt = as_bundle(ipt, IPTerms)
+    Dx, Du, Ci, sig, ni = ipt.Dx, ipt.Du, ipt.Ci, ipt.sig, ipt.ni
     neN = EN.shape[0]
+    fac = as_bundle(fac, GeneralFactors)
     P, K, Quu_s, Qux_s, Lww, Qm, Rm = fac.P, fac.K, fac.Quu, fac.Qux, fac.Lww, fac.Qm, fac.Rm
     perm, rank, nc, Cx_s, G, ng = fac.perm, fac.rank, fac.nc, fac.Cx, fac.G, fac.ng
     Dmat, pg, Zg = fac.Dmat, fac.pg, fac.Zg
+    rhs = as_bundle(rhs, RHS)
     q, r, c, x0, e, eN, ci_rhs = rhs.q, rhs.r, rhs.c, rhs.x0, rhs.e, rhs.eN, rhs.ci
+    sol = as_bundle(sol, Solution)
     X, U, lam, nu = sol.X, sol.U, sol.lam, sol.nu
     N = A.shape[0]
     n = A.shape[1]
@@ -710,11 +736,16 @@ def _solve(st, fac, rhs, sol):
 # gets its own kernels (about 2x fewer flops, 4x less memory than the general path).
 
 @nb.njit(cache=True)
-def _factor_unconstrained(st, reg, fac):
+def _factor_unconstrained(costs, dyn, ipt, reg, fac):
     """Backward Riccati sweep without equality rows. With Q_uu = L L^T and V = L^{-1} Q_ux:
     K_k = -L^{-T} V, P_k = Q_xx - V^T V. Returns -1 on success, else the failing stage index."""
-    Q, S, R, A, B = st.Q, st.S, st.R, st.A, st.B
-    Dx, Du, Ci, sig, ni = st.Dx, st.Du, st.Ci, st.sig, st.ni
+    costs = as_bundle(costs, Costs)
+    Q, S, R = costs.Q, costs.S, costs.R
+    dyn = as_bundle(dyn, Dynamics)
+    A, B = dyn.A, dyn.B
+    ipt = as_bundle(ipt, IPTerms)
+    Dx, Du, Ci, sig, ni = ipt.Dx, ipt.Du, ipt.Ci, ipt.sig, ipt.ni
+    fac = as_bundle(fac, PlainFactors)
     P, K, L = fac.P, fac.K, fac.L
     N = A.shape[0]
     n = A.shape[1]
@@ -815,13 +846,20 @@ def _factor_unconstrained(st, reg, fac):
 
 
 @nb.njit(cache=True)
-def _solve_unconstrained(st, fac, rhs, sol):
+def _solve_unconstrained(costs, dyn, ipt, fac, rhs, sol):
     """One right-hand side without equality rows: backward vector sweep (kff_k = -Q_uu^{-1} q_u,
     p_k = q_x + K_k^T q_u), forward simulation, and lam_k from the x-stationarity rows."""
-    Q, S, A, B = st.Q, st.S, st.A, st.B
-    Dx, Ci, sig, ni = st.Dx, st.Ci, st.sig, st.ni
+    costs = as_bundle(costs, Costs)
+    Q, S = costs.Q, costs.S
+    dyn = as_bundle(dyn, Dynamics)
+    A, B = dyn.A, dyn.B
+    ipt = as_bundle(ipt, IPTerms)
+    Dx, Ci, sig, ni = ipt.Dx, ipt.Ci, ipt.sig, ipt.ni
+    fac = as_bundle(fac, PlainFactors)
     P, K, L = fac.P, fac.K, fac.L
+    rhs = as_bundle(rhs, RHS)
     q, r, c, x0, ci = rhs.q, rhs.r, rhs.c, rhs.x0, rhs.ci
+    sol = as_bundle(sol, Solution)
     X, U, lam = sol.X, sol.U, sol.lam
     N = A.shape[0]
     n = A.shape[1]

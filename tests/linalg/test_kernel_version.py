@@ -21,7 +21,7 @@ def test_the_version_is_part_of_the_size_tags_type(monkeypatch):
     monkeypatch.setattr(codegen, "KERNEL_VERSION", codegen.KERNEL_VERSION + 1)
     newer = codegen.size_tags(2, 3)
     assert numba.typeof(newer) != numba.typeof(tags)
-    assert numba.typeof(newer).instance_class is codegen.SizeTags
+    assert len(tags) == len(codegen.SizeTags._fields)
 
 
 # one run: factorize a 1 x 1 block problem with the given kernel version, print the cache
@@ -30,15 +30,15 @@ _RUN = textwrap.dedent("""
     import sys
     import numpy as np
     from olado.linalg import codegen, riccati_fixed as rf
-    from olado.linalg.riccati_kernels import PlainFactors, StageArrays
+    from olado.linalg.riccati_kernels import Costs, Dynamics, IPTerms, PlainFactors
     codegen.KERNEL_VERSION = int(sys.argv[1])
     N = 3
     z = np.zeros
-    st = StageArrays(Q=np.ones((N + 1, 1, 1)), S=z((N, 1, 1)), R=np.ones((N, 1, 1)), A=np.ones((N, 1, 1)),
-                     B=np.ones((N, 1, 1)), E=z((N, 0, 1)), F=z((N, 0, 1)), ne=z(N, np.int64), EN=z((0, 1)),
-                     Dx=z((N + 1, 1)), Du=z((N, 1)), Ci=z((N, 0, 2)), sig=z((N, 0)), ni=z(N, np.int64))
-    fac = PlainFactors(P=np.empty((N + 1, 1, 1)), K=np.empty((N, 1, 1)), L=np.empty((N, 1, 1)))
-    assert rf._factor_unconstrained_fixed(codegen.size_tags(1, 1), st, 0.0, fac) == -1
+    costs = tuple(Costs(Q=np.ones((N + 1, 1, 1)), S=z((N, 1, 1)), R=np.ones((N, 1, 1))))
+    dyn = tuple(Dynamics(A=np.ones((N, 1, 1)), B=np.ones((N, 1, 1))))
+    ipt = tuple(IPTerms(Dx=z((N + 1, 1)), Du=z((N, 1)), Ci=z((N, 0, 2)), sig=z((N, 0)), ni=z(N, np.int64)))
+    fac = tuple(PlainFactors(P=np.empty((N + 1, 1, 1)), K=np.empty((N, 1, 1)), L=np.empty((N, 1, 1))))
+    assert rf._factor_unconstrained_fixed(codegen.size_tags(1, 1), costs, dyn, ipt, 0.0, fac) == -1
     stats = rf._factor_unconstrained_fixed.stats
     print(len(stats.cache_hits), len(stats.cache_misses))
 """)

@@ -25,16 +25,15 @@ def _stage_data(N, n, m, ni=2, cond=1e2, seed=0):
 def _factor(kernel, d, tags=None, reg=0.0):
     N, n, m = d["A"].shape[0], d["A"].shape[1], d["B"].shape[2]
     P = np.full((N + 1, n, n), np.nan); K = np.full((N, m, n), np.nan); L = np.full((N, m, m), np.nan)
-    args = (stage_arrays(d), reg, rk.PlainFactors(P, K, L))
+    args = (*stage_arrays(d), reg, tuple(rk.PlainFactors(P, K, L)))
     code = kernel(*args) if tags is None else kernel(tags, *args)
     return code, P, K, L
 
 
 def stage_arrays(d):
-    """The kernels' StageArrays of the plain recursion's data d (no equality rows)."""
-    N, n, m = d["B"].shape
-    return rk.StageArrays(d["Q"], d["S"], d["R"], d["A"], d["B"], np.zeros((N, 0, n)), np.zeros((N, 0, m)),
-                          np.zeros(N, np.int64), np.zeros((0, n)), d["Dx"], d["Du"], d["Ci"], d["sig"], d["ni"])
+    """The kernels' stage bundles (Costs, Dynamics, IPTerms) of the plain recursion's data d."""
+    return (tuple(rk.Costs(d["Q"], d["S"], d["R"])), tuple(rk.Dynamics(d["A"], d["B"])),
+            tuple(rk.IPTerms(d["Dx"], d["Du"], d["Ci"], d["sig"], d["ni"])))
 
 
 @pytest.mark.parametrize("n,m", [(1, 1), (2, 3), (6, 7), (4, 12), (12, 3), (14, 4)])

@@ -33,34 +33,34 @@ def _factor(d, n, m):
     tags = size_tags(n, m)
     P = np.empty((N + 1, n, n)); K = np.empty((N, m, n)); L = np.empty((N, m, m))
     kernel = rf._factor_unconstrained_fixed if n <= rf._STRAIGHT_N_MAX else rf._factor_unconstrained_fixed_loops
-    assert kernel(tags, stage_arrays(d), 0.0, rk.PlainFactors(P, K, L)) == -1
+    assert kernel(tags, *stage_arrays(d), 0.0, tuple(rk.PlainFactors(P, K, L))) == -1
     return tags, P, K, L
 
 
 def stage_arrays(d):
-    """The kernels' StageArrays of the plain recursion's data d (no equality rows)."""
-    N, n, m = d["B"].shape
-    return rk.StageArrays(d["Q"], d["S"], d["R"], d["A"], d["B"], np.zeros((N, 0, n)), np.zeros((N, 0, m)),
-                          np.zeros(N, np.int64), np.zeros((0, n)), d["Dx"], d["Du"], d["Ci"], d["sig"], d["ni"])
+    """The kernels' stage bundles (Costs, Dynamics, IPTerms) of the plain recursion's data d."""
+    return (tuple(rk.Costs(d["Q"], d["S"], d["R"])), tuple(rk.Dynamics(d["A"], d["B"])),
+            tuple(rk.IPTerms(d["Dx"], d["Du"], d["Ci"], d["sig"], d["ni"])))
 
 
 def rhs_of(d, rhs):
     N, n, m = d["B"].shape
-    return RHS(rhs["q"], rhs["r"], rhs["c"], rhs["x0"], np.zeros((N, 0)), np.zeros(0), rhs["ci"])
+    return tuple(RHS(rhs["q"], rhs["r"], rhs["c"], rhs["x0"], np.zeros((N, 0)), np.zeros(0), rhs["ci"]))
 
 
 def _solve_fixed(d, rhs, tags, P, K, L):
     N, n, m = d["B"].shape
     X = np.empty((N + 1, n)); U = np.empty((N, m)); lam = np.empty((N + 1, n))
-    rf._solve_unconstrained_fixed(tags, stage_arrays(d), rk.PlainFactors(P, K, L), rhs_of(d, rhs),
-                                  Solution(X, U, lam, np.zeros((N + 1, 0))))
+    rf._solve_unconstrained_fixed(tags, *stage_arrays(d)[1:], tuple(rk.PlainFactors(P, K, L)), rhs_of(d, rhs),
+                                  tuple(Solution(X, U, lam, np.zeros((N + 1, 0)))))
     return X, U, lam
 
 
 def _solve_any(d, rhs, P, K, L):
     N, n, m = d["B"].shape
     X = np.empty((N + 1, n)); U = np.empty((N, m)); lam = np.empty((N + 1, n))
-    rk._solve_unconstrained(stage_arrays(d), rk.PlainFactors(P, K, L), rhs_of(d, rhs), Solution(X, U, lam, np.zeros((N + 1, 0))))
+    rk._solve_unconstrained(*stage_arrays(d), tuple(rk.PlainFactors(P, K, L)), rhs_of(d, rhs),
+                            tuple(Solution(X, U, lam, np.zeros((N + 1, 0)))))
     return X, U, lam
 
 

@@ -11,8 +11,8 @@ from numba import typeof
 
 from olado.linalg.codegen import size_tags
 from olado.qp.interior_point import kkt_map as qp_ip
-from olado.qp.interior_point.point import PointArrays, Residuals
-from olado.qp.interior_point.presolve import KKTData, _Prepared
+from olado.qp.interior_point.bundles import KKTData, PointArrays, Residuals
+from olado.qp.interior_point.presolve import _Prepared
 from olado.qp.interior_point import MehrotraQP
 
 from fixtures.qp_problems import random_qp  # noqa: E402
@@ -57,8 +57,9 @@ def outputs(N, n, m, ne, neN, nw, fill=np.nan):
 def bundles(a):
     """The bundles of _kkt_map (data, point, offsets, out) of the arrays of the dict a."""
     offsets = Residuals(a["bx"], a["bu"], a["bdyn"], a["bx0"], a["be"], a["beN"], a["al"], a["au"])
-    return (KKTData(*(a[k] for k in KKTData._fields)), PointArrays(*(a[k] for k in PointArrays._fields)), offsets,
-            Residuals(*(a[k] for k in Residuals._fields)))
+    return tuple(tuple(b) for b in (KKTData(*(a[k] for k in KKTData._fields)),
+                                    PointArrays(*(a[k] for k in PointArrays._fields)), offsets,
+                                    Residuals(*(a[k] for k in Residuals._fields))))
 
 
 def run(sizes, d):

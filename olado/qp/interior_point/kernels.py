@@ -1,8 +1,5 @@
 """The compiled elementwise kernels of the interior-point QP (paper 001 sec. 4.2.2-4.2.3).
 
-Points and directions are passed as their PointArrays bundles (``it``, ``d``), residuals as
-Residuals bundles (``res``), the stage data as the KKTData bundle (``data``).
-
 One pass each over the flat box vectors w = (x_1..x_N, u_0..u_{N-1}, C_k z_k, C_N x_N) (indexed as
 in :mod:`.presolve`: x_k (k >= 1) at (k-1) n, u_k at N n + k m, row l of C_k z_k at
 N (n+m) + k nc + l, then C_N x_N) or the flat point vectors:
@@ -19,7 +16,9 @@ N (n+m) + k nc + l, then C_N x_N) or the flat point vectors:
 
 Reductions (sums, maxima) may be reassociated and multiply-adds contracted where the flags say
 so (REASSOC; no NaN/inf assumptions, so non-finite values still propagate): results agree with
-plain loops up to rounding.
+plain loops up to rounding. Points and directions are passed as their Slacks bundles
+(``it``, ``d``: their complementarity pairs), residuals as Residuals bundles (``res``), the stage
+data as the KKTData bundle (``data``): plain tuples with the fields of :mod:`.bundles`.
 """
 
 from __future__ import annotations
@@ -27,13 +26,16 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ...linalg.codegen import REASSOC
+from ...linalg.codegen import REASSOC, as_bundle
+from .bundles import Slacks
 
 
 @nb.njit(cache=True)
 def _complementarity_residual(rho_l, rho_u, it, d, el, eu):
     """el = rho_l - zl dtl - tl dzl, eu = rho_u - zu dtu - tu dzu; returns max |el, eu|."""
+    it = as_bundle(it, Slacks)
     tl, tu, zl, zu = it.tl, it.tu, it.zl, it.zu
+    d = as_bundle(d, Slacks)
     dtl, dtu, dzl, dzu = d.tl, d.tu, d.zl, d.zu
     big = 0.0
     for i in range(tl.shape[0]):
@@ -48,6 +50,7 @@ def _complementarity_residual(rho_l, rho_u, it, d, el, eu):
 @nb.njit(cache=True)
 def _scaling(it, fl, fu, inv_tl, inv_tu, D):
     """1/t on the finite sides (0 elsewhere) and D = zl/tl + zu/tu."""
+    it = as_bundle(it, Slacks)
     tl, tu, zl, zu = it.tl, it.tu, it.zl, it.zu
     for i in range(tl.shape[0]):
         a = 1.0 / tl[i] if fl[i] else 0.0
@@ -58,10 +61,10 @@ def _scaling(it, fl, fu, inv_tl, inv_tu, D):
 
 
 @nb.njit(cache=True)
-def _newton_rhs(res, rho_l, rho_u, it, inv_tl, inv_tu, Ds, CN, q, r, ci):
+def _newton_rhs(rx, ru, rl, rup, rho_l, rho_u, it, inv_tl, inv_tu, Ds, CN, q, r, ci):
     """Eliminate (dtl, dtu, dzl, dzu): g = (rho_u - zu rup)/tu - (rho_l - zl rl)/tl enters the
     gradient (q, r; C_N^T g for final rows) and the stage-row constants ci = g / D."""
-    rx, ru, rl, rup = res.rx, res.ru, res.rl, res.rup
+    it = as_bundle(it, Slacks)
     zl, zu = it.zl, it.zu
     N = ru.shape[0]
     n = rx.shape[1]
@@ -96,15 +99,16 @@ def _newton_rhs(res, rho_l, rho_u, it, inv_tl, inv_tu, Ds, CN, q, r, ci):
 
 
 @nb.njit(cache=True)
-def _recover_step(data, res, rho_l, rho_u, it, inv_tl, inv_tu, d, w):
+def _recover_step(dX, dU, Ct, CN, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, w):
     """After the KKT solve: dtl = dw + rl, dtu = -dw + rup, dzl = (rho_l - zl dtl)/tl,
     dzu = (rho_u - zu dtu)/tu.  Returns (ok, ap, ad): ok False if dX or dU is not finite; ap, ad
     the largest primal (slacks) and dual (multipliers) step lengths along the direction (as
-    _max_step_split, in the same pass; min(ap, ad) is _max_step's common one)."""
-    Ct, CN, fl, fu = data.Ct, data.CN, data.fl, data.fu
-    rl, rup = res.rl, res.rup
+    _max_step_split, in the same pass; min(ap, ad) is _max_step's common one); it, d: the
+    Slacks of the iterate and of the direction."""
+    it = as_bundle(it, Slacks)
     tl, tu, zl, zu = it.tl, it.tu, it.zl, it.zu
-    dX, dU, dtl, dtu, dzl, dzu = d.X, d.U, d.tl, d.tu, d.zl, d.zu
+    d = as_bundle(d, Slacks)
+    dtl, dtu, dzl, dzu = d.tl, d.tu, d.zl, d.zu
     N = dU.shape[0]
     n = dX.shape[1]
     m = dU.shape[1]
@@ -168,8 +172,11 @@ def _max_step(it, d, c, omega):
     d + omega c (omega = 0: along d; it, d, c PointArrays).  Infinite sides hold t = z = 0 and
     zero steps (by construction of the iterates and directions), so they never limit the step and
     need no test (the loop is branch-free and vectorizes)."""
+    it = as_bundle(it, Slacks)
     tl, tu, zl, zu = it.tl, it.tu, it.zl, it.zu
+    d = as_bundle(d, Slacks)
     dtl, dtu, dzl, dzu = d.tl, d.tu, d.zl, d.zu
+    c = as_bundle(c, Slacks)
     ctl, ctu, czl, czu = c.tl, c.tu, c.zl, c.zu
     a = 1e30
     inf = np.inf
@@ -189,7 +196,9 @@ def _max_step(it, d, c, omega):
 def _max_step_split(it, d):
     """Largest primal (slacks) and dual (multipliers) step lengths (capped at 1e30) keeping
     tl, tu resp. zl, zu positive along d (infinite sides: see _max_step)."""
+    it = as_bundle(it, Slacks)
     tl, tu, zl, zu = it.tl, it.tu, it.zl, it.zu
+    d = as_bundle(d, Slacks)
     dtl, dtu, dzl, dzu = d.tl, d.tu, d.zl, d.zu
     ap = 1e30
     ad = 1e30
@@ -221,7 +230,9 @@ def _neighbourhood_step(it, fl, fu, d, alpha, neighborhood, mu, alpha_dual=-1.0)
     it + alpha d, gamma = min(neighborhood, 1/2 min_i t_i z_i / mu) at the current iterate.
     With ``alpha_dual`` >= 0 the multipliers move by alpha_dual (shortened by the same factors) and
     the slacks by alpha; returns the (primal) alpha (the dual one is alpha_dual * alpha / alpha_in)."""
+    it = as_bundle(it, Slacks)
     tl, tu, zl, zu = it.tl, it.tu, it.zl, it.zu
+    d = as_bundle(d, Slacks)
     dtl, dtu, dzl, dzu = d.tl, d.tu, d.zl, d.zu
     if alpha_dual < 0.0:
         alpha_dual = alpha
@@ -261,6 +272,7 @@ def _neighbourhood_step(it, fl, fu, d, alpha, neighborhood, mu, alpha_dual=-1.0)
 @nb.njit(cache=True)
 def _corrector_rhs(fl, fu, d, target, scale, rho_l, rho_u):
     """Mehrotra's corrector: rho = target - scale * dt_aff dz_aff on the finite sides."""
+    d = as_bundle(d, Slacks)
     dtl, dtu, dzl, dzu = d.tl, d.tu, d.zl, d.zu
     for i in range(fl.shape[0]):
         rho_l[i] = target - scale * (dtl[i] * dzl[i]) if fl[i] else 0.0
@@ -287,7 +299,9 @@ def _implied_newton_residual(new, old, ap, ad, n_dual):
 def _combined_rhs(it, fl, fu, d, target, scale, rho_l, rho_u):
     """Predictor plus Mehrotra corrector in one right-hand side: rho = -t z + target
     - scale * dt_aff dz_aff on the finite sides (the direction d_aff + d_c in one solve)."""
+    it = as_bundle(it, Slacks)
     tl, tu, zl, zu = it.tl, it.tu, it.zl, it.zu
+    d = as_bundle(d, Slacks)
     dtl, dtu, dzl, dzu = d.tl, d.tu, d.zl, d.zu
     for i in range(fl.shape[0]):
         rho_l[i] = target - tl[i] * zl[i] - scale * (dtl[i] * dzl[i]) if fl[i] else 0.0
@@ -298,7 +312,9 @@ def _combined_rhs(it, fl, fu, d, target, scale, rho_l, rho_u):
 def _centrality_rhs(it, fl, fu, d, alpha, lo_t, hi_t, rho_l, rho_u):
     """Gondzio's corrector: products v at it + alpha d projected on [lo_t, hi_t], decrease capped
     at -hi_t: rho = max(clip(v) - v, -hi_t) on the finite sides."""
+    it = as_bundle(it, Slacks)
     tl, tu, zl, zu = it.tl, it.tu, it.zl, it.zu
+    d = as_bundle(d, Slacks)
     dtl, dtu, dzl, dzu = d.tl, d.tu, d.zl, d.zu
     for i in range(fl.shape[0]):
         if fl[i]:

@@ -19,7 +19,8 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic, overload
 
-from ...linalg.codegen import F64, I32, I64, REASSOC, ContractRowCode, SizeTags, pieces, stack_vector
+from ...linalg.codegen import F64, I32, I64, REASSOC, ContractRowCode, SizeTags, as_bundle, pieces, stack_vector
+from .bundles import KKTData, PointArrays, Residuals
 
 
 
@@ -141,11 +142,15 @@ def _kkt_row_boxes(i0, i1, al, au, fl, fu, tl, tu, zl, zu, rl, rup, w, pmax, com
 @nb.njit(cache=True, fastmath=REASSOC)
 def _kkt_map_loops(sizes, data, point, offsets, out, w, stats):
     """_kkt_map with loops over the blocks (the any-size kernel; see _kkt_map)."""
+    data = as_bundle(data, KKTData)
     H, QN, AB, EF, EFt, eqm, EN = data.H, data.QN, data.AB, data.EF, data.EFt, data.eqm, data.EN
     C, Ct, CN, fl, fu = data.C, data.Ct, data.CN, data.fl, data.fu
+    point = as_bundle(point, PointArrays)
     X, U, lam, nu, tl, tu, zl, zu = point.X, point.U, point.lam, point.nu, point.tl, point.tu, point.zl, point.zu
+    offsets = as_bundle(offsets, Residuals)
     bx, bu, bdyn, bx0, be, beN = offsets.rx, offsets.ru, offsets.dyn, offsets.x0r, offsets.rE, offsets.rEN
     al, au = offsets.rl, offsets.rup
+    out = as_bundle(out, Residuals)
     rx, ru, dyn, x0r, rE, rEN, rl, rup = out.rx, out.ru, out.dyn, out.x0r, out.rE, out.rEN, out.rl, out.rup
     nt, mt, zt = sizes[0], sizes[1], sizes[2]
     n, m, nz = _size(nt), _size(mt), _size(zt)
@@ -559,12 +564,17 @@ def _kkt_map_fixed(tags, data, point, offsets, out, w, stats):
     """_kkt_map for the sizes of tags = size_tags(n, m) and C-contiguous arrays: the
     stages by _kkt_stage, the stage-row and equality terms, the final stage and the boxes of the
     stage and final rows by loops."""
+    data = as_bundle(data, KKTData)
     H, QN, AB, EF, EFt, eqm, EN = data.H, data.QN, data.AB, data.EF, data.EFt, data.eqm, data.EN
     C, CN, fl, fu = data.C, data.CN, data.fl, data.fu
+    point = as_bundle(point, PointArrays)
     X, U, lam, nu, tl, tu, zl, zu = point.X, point.U, point.lam, point.nu, point.tl, point.tu, point.zl, point.zu
+    offsets = as_bundle(offsets, Residuals)
     bx, bu, bdyn, bx0, be, beN = offsets.rx, offsets.ru, offsets.dyn, offsets.x0r, offsets.rE, offsets.rEN
     al, au = offsets.rl, offsets.rup
+    out = as_bundle(out, Residuals)
     rx, ru, dyn, x0r, rE, rEN, rl, rup = out.rx, out.ru, out.dyn, out.x0r, out.rE, out.rEN, out.rl, out.rup
+    tags = as_bundle(tags, SizeTags)
     nt, mt, zt = tags.n, tags.m, tags.nz
     n, m, nz = len(nt), len(mt), len(zt)
     N = AB.shape[0]
@@ -629,12 +639,17 @@ def _kkt_map_kernel(sizes, data, point, offsets, out, w, stats):
 def _kkt_fixed_applies(sizes, data, point, offsets, out, w, stats):
     """Whether _kkt_map with arguments of these numba types runs _kkt_map_fixed: size tags of
     n, m >= 1 and C-contiguous arrays where _kkt_stage and _kkt_boxes read and write."""
-    tagged = isinstance(sizes, types.BaseNamedTuple) and sizes.instance_class is SizeTags
-    field = lambda bundle, name: bundle.types[bundle.fields.index(name)]  # noqa: E731
-    floats = ([field(data, f) for f in ("H", "AB")] + [field(point, f) for f in point.fields if f != "nu"]
-              + [field(b, f) for b in (offsets, out) for f in ("rx", "ru", "dyn", "rl", "rup")] + [w])
+    tagged = (isinstance(sizes, types.BaseTuple) and len(sizes) == len(SizeTags._fields)
+              and all(isinstance(t, types.BaseTuple) for t in sizes))
+
+    def field(bundle, cls, name):
+        return bundle.types[cls._fields.index(name)]
+    floats = ([field(data, KKTData, f) for f in ("H", "AB")]
+              + [field(point, PointArrays, f) for f in PointArrays._fields if f != "nu"]
+              + [field(b, Residuals, f) for b in (offsets, out) for f in ("rx", "ru", "dyn", "rl", "rup")] + [w])
     return (tagged and len(sizes[0]) > 0 and len(sizes[1]) > 0 and all(_is_c_array(a) for a in floats)
-            and _is_c_array(field(data, "fl"), types.boolean, 1) and _is_c_array(field(data, "fu"), types.boolean, 1))
+            and _is_c_array(field(data, KKTData, "fl"), types.boolean, 1)
+            and _is_c_array(field(data, KKTData, "fu"), types.boolean, 1))
 
 
 @overload(_kkt_map_kernel)
@@ -654,18 +669,18 @@ def _kkt_map(sizes, data, point, offsets, out, w, stats):
         dyn = A x + B u - x_+ + bdyn,  x0r = bx0 - x_0,  rE = E z + be,  rEN = E_N x_N + beN
         rl = w + al - tl,  rup = au - w - tu   (finite sides)
 
-    The arguments are bundles: ``data`` the stage data (presolve.KKTData: H, QN, AB, EF, EFt, eqm,
-    EN, C, Ct, CN and the finite sides fl, fu of the boxes), ``point`` the point
-    (point.PointArrays: X, U, lam, nu, tl, tu, zl, zu), ``offsets`` the offsets b
-    (point.Residuals: bx, bu, bdyn, bx0, be, beN, al, au in the fields rx, ru, dyn, x0r, rE,
-    rEN, rl, rup), ``out`` the residuals (point.Residuals); ``w`` receives the box values.
+    The arguments are bundles (plain tuples with the fields of bundles.py): ``data`` the stage
+    data (KKTData: H, QN, AB, EF, EFt, eqm, EN, C, Ct, CN and the finite sides fl, fu of the
+    boxes), ``point`` the point (PointArrays: X, U, lam, nu, tl, tu, zl, zu), ``offsets`` the
+    offsets b (Residuals: bx, bu, bdyn, bx0, be, beN, al, au in the fields rx, ru, dyn, x0r, rE,
+    rEN, rl, rup), ``out`` the residuals (Residuals); ``w`` receives the box values.
     With b = (q, r, c, x0, e, eN), al = -lo, au = hi these are the residuals of the iterate; with
     b = the right-hand side's residuals, the Newton residual of a direction (22). stats
     receives max |primal parts|, max |rx, ru|, max |X, U|, max |H z|, 1/2 z.H z + bx.X + bu.U and
     the complementarity sum(zl tl + zu tu).
     H (N, n+m, n+m) and QN are symmetric (the symmetric parts of the QP's blocks), so H z is
     computed row-wise; AB = [A B] serves both A x + B u (rows) and A^T lam, B^T lam (axpy).
-    ``sizes`` = (n, m, n + m) as ints, or size tags (olado.linalg.codegen.SizeTags) for a kernel
+    ``sizes`` = (n, m, n + m) as ints, or size tags (olado.linalg.codegen.size_tags) for a kernel
     compiled for those sizes: _kkt_map_fixed (straight-line SIMD stages) when the arrays are
     C-contiguous (as in the solver), else the loop kernel _kkt_map_loops."""
     _kkt_map_kernel(sizes, data, point, offsets, out, w, stats)

@@ -66,7 +66,7 @@ class GondzioQP(InteriorPointQP):
             a_asp = min(1.0, alpha + opts.aspiration_step)
             it = ctx.it
             rl, ru = P.rho_l, P.rho_u
-            _centrality_rhs(it.arrays, P.fl, P.fu, d.arrays, a_asp, lo_t, hi_t, rl, ru)
+            _centrality_rhs(it.slacks, P.fl, P.fu, d.slacks, a_asp, lo_t, hi_t, rl, ru)
             dc = ctx.solve(ctx.zero_res, rl, ru, P.dir_corr)
             omega = self._corrector_weight(ctx, d, dc, alpha)
             d_new = d.plus(omega, dc)

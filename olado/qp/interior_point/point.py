@@ -6,32 +6,19 @@ a residual vector has the views of the equations of the Newton system (22).
 
 from __future__ import annotations
 
-import collections
-
 import numpy as np
 
+from ...linalg.backend import RHS, Solution
+from .bundles import DUAL_FIELDS, PointArrays, Residuals, Slacks
 from .kernels import _all_finite, _axpy, _axpy_split, _max_abs
 
 
-#: the fields of a point (an iterate or a direction), and the bundle of its arrays the kernels
-#: take: states X (N+1, n), controls U (N, m), dynamics and equality multipliers lam (N+1, n),
-#: nu (N+1, n_nu), and the slacks tl, tu and multipliers zl, zu of the finite box sides (flat over
-#: the boxes, 0 on infinite sides)
-PointArrays = collections.namedtuple("PointArrays", "X U lam nu tl tu zl zu")
-#: the multiplier fields of a point (the dual step length moves them)
-DUAL_FIELDS = ("lam", "nu", "zl", "zu")
-#: the equations of the Newton system (22) / the KKT conditions (16)-(20), and the bundle of
-#: their arrays: stationarity rx (N+1, n), ru (N, m), dynamics dyn (N, n), initial state x0r (n,),
-#: equality rows rE (N, ne), rEN (neN,) and the box sides rl, rup (flat); also the bundle of
-#: offsets of the residual kernel (kkt_map._kkt_map)
-Residuals = collections.namedtuple("Residuals", "rx ru dyn x0r rE rEN rl rup")
-
-
 class _Layout:
-    """Where the fields of a bundle (a namedtuple class) lie in one flat vector: ``spans``
-    {name: (start, stop, shape)} in the bundle's field order, ``size`` the vector's length."""
+    """Where the fields of a bundle (a namedtuple class of bundles.py) lie in one flat vector:
+    ``spans`` {name: (start, stop, shape)} in the bundle's field order, ``size`` the vector's
+    length."""
 
-    __slots__ = ("bundle", "spans", "size")
+    __slots__ = ("bundle", "spans", "size", "_cuts")
 
     def __init__(self, bundle, **shapes):
         if tuple(shapes) != bundle._fields:
@@ -42,10 +29,12 @@ class _Layout:
             self.spans[name] = (o, o + size, shape)
             o += size
         self.size = o
+        self._cuts = tuple((slice(a, b), None if len(shape) == 1 else shape) for a, b, shape in self.spans.values())
 
     def views(self, v):
-        """The bundle of the fields' views into the flat vector v (1-d fields as slices)."""
-        return self.bundle(*(v[a:b] if len(shape) == 1 else v[a:b].reshape(shape) for a, b, shape in self.spans.values()))
+        """The fields' views into the flat vector v (1-d fields as slices), a plain tuple in the
+        bundle's field order (what the kernels take)."""
+        return tuple([v[sl] if shape is None else v[sl].reshape(shape) for sl, shape in self._cuts])
 
     def span(self, first, last):
         """The slice of the flat vector from field ``first`` to field ``last`` (inclusive)."""
@@ -60,6 +49,25 @@ class _Layout:
         return out
 
 
+# the complementarity pairs are the fields tl..zu of a point, in the order of bundles.Slacks, and
+# the arrays of a KKT solution its first fields X..nu, in the order of backend.Solution
+_SLACKS = slice(PointArrays._fields.index(Slacks._fields[0]), PointArrays._fields.index(Slacks._fields[-1]) + 1)
+_SOLUTION = slice(PointArrays._fields.index(Solution._fields[0]), PointArrays._fields.index(Solution._fields[-1]) + 1)
+assert PointArrays._fields[_SLACKS] == Slacks._fields and PointArrays._fields[_SOLUTION] == Solution._fields
+
+
+def _setter(fields):
+    """A function (obj, values) that sets the attributes ``fields`` of obj to values in one
+    tuple assignment (generated from the bundle's field list: one statement, as fast as writing
+    the fields out, which _Point does for every new point)."""
+    namespace = {}
+    exec(f"def set_fields(obj, values):\n    {', '.join('obj.' + f for f in fields)}, = values\n", namespace)
+    return namespace["set_fields"]
+
+
+_set_point_fields, _set_rhs_fields = _setter(PointArrays._fields), _setter(Residuals._fields)
+
+
 class _PointForm:
     """The layout of the points of a prepared problem (a _Layout of PointArrays) and the mask of
     the dual fields (lam, nu, zl, zu)."""
@@ -71,10 +79,12 @@ class _PointForm:
 
 
 class _Point:
-    """An iterate, or a direction (same fields, PointArrays): views into one flat vector ``v``,
-    as attributes and as the bundle ``arrays`` the kernels take."""
+    """An iterate, or a direction (the fields of bundles.PointArrays): views into one flat vector
+    ``v``, as attributes and as the bundles the kernels take (plain tuples): ``arrays`` (all
+    fields), ``slacks`` (the complementarity pairs, bundles.Slacks) and ``solution`` (the
+    arrays a KKT back-end solves into, olado.linalg.backend.Solution)."""
 
-    __slots__ = ("v", "arrays", "X", "U", "lam", "nu", "tl", "tu", "zl", "zu", "_form", "max_step", "max_split")
+    __slots__ = ("v", "arrays", "slacks", "solution", *PointArrays._fields, "_form", "max_step", "max_split")
 
     def __init__(self, form, v):
         """``form``: the _PointForm of the prepared problem (not the problem itself: a point held
@@ -85,8 +95,9 @@ class _Point:
         self.max_step = None    # cache of _StepContext.max_step for a direction
         self.max_split = None   # and of its (primal, dual) step lengths (set by _reduced_solve)
         a = self.arrays = form.layout.views(v)
-        self.X, self.U, self.lam, self.nu = a.X, a.U, a.lam, a.nu
-        self.tl, self.tu, self.zl, self.zu = a.tl, a.tu, a.zl, a.zu
+        _set_point_fields(self, a)
+        self.slacks = a[_SLACKS]
+        self.solution = a[_SOLUTION]
 
     def plus(self, alpha, d):
         return _Point(self._form, _axpy(self.v, float(alpha), d.v))
@@ -100,16 +111,20 @@ class _Point:
 
 
 class _Rhs:
-    """Residuals of the Newton system's equations (see :meth:`_StepContext.solve`; Residuals):
-    views into one flat vector ``buf``, as attributes and as the bundle ``arrays``."""
+    """Residuals of the Newton system's equations (see :meth:`_StepContext.solve`; the fields of
+    bundles.Residuals): views into one flat vector ``buf``, as attributes and as the bundle
+    ``arrays`` (a plain tuple), and ``kkt_rhs``, the KKT back-end's right-hand side of a solve for
+    them (olado.linalg.backend.RHS)."""
 
-    __slots__ = ("buf", "arrays", "rx", "ru", "dyn", "x0r", "rE", "rEN", "rl", "rup", "_size")
+    __slots__ = ("buf", "arrays", "kkt_rhs", *Residuals._fields, "_size")
 
     def __init__(self, P, buf):
         self.buf, self._size = buf, None
-        a = self.arrays = P.rhs_layout.views(buf)
-        self.rx, self.ru, self.dyn, self.x0r, self.rE, self.rEN = a.rx, a.ru, a.dyn, a.x0r, a.rE, a.rEN
-        self.rl, self.rup = a.rl, a.rup
+        self.arrays = P.rhs_layout.views(buf)
+        _set_rhs_fields(self, self.arrays)
+        # the right-hand side of the reduced system (25) for these residuals: the gradient and
+        # stage-row terms go into the work arrays of P (step._newton_rhs), the rest are these rows
+        self.kkt_rhs = tuple(RHS(q=P.work_q, r=P.work_r, c=self.dyn, x0=self.x0r, e=self.rE, eN=self.rEN, ci=P.work_ci))
 
     def size(self):
         """max-norm of all residuals."""

@@ -6,22 +6,16 @@ of the compiled kernels, and the work arrays reused from iteration to iteration.
 
 from __future__ import annotations
 
-import collections
-
 import numpy as np
 
 from ...linalg.codegen import fixed_size_tags
 from ..stageqp import StageQP
 from .kernels import _max_abs, _symmetric_stage_hessians
 from .kkt_map import _kkt_map
-from .point import PointArrays, Residuals, _Layout, _Point, _PointForm, _Rhs
+from .bundles import KKTData, PointArrays, Residuals
+from .point import _Layout, _Point, _PointForm, _Rhs
 
 _FIX_RTOL = 1e-12
-#: the stage data of the residual kernel (kkt_map._kkt_map): the symmetric stage Hessians
-#: H (N, n+m, n+m) and QN (n, n), AB = [A B] (N, n, n+m), the equality rows EF = [E F]
-#: (N, ne, n+m), EFt its transpose and eqm (N, ne) their mask, EN (neN, n), the stage rows
-#: C (N, nc, n+m), Ct its transpose, CN (ncN, n), and the finite sides fl, fu of the boxes
-KKTData = collections.namedtuple("KKTData", "H QN AB EF EFt eqm EN C Ct CN fl fu")
 
 
 def _equal_bounds(lo, hi):
@@ -167,9 +161,12 @@ class _Prepared:
         self.point_form = _PointForm(pl)
         # the bundles of the residual kernel: the stage data, and the offsets of the iterate's
         # residuals (q, r, c, x0, e, eN; -lo, hi)
-        self.kkt_data = KKTData(self.H, self.QN, self.AB, self.EF, self.EFt, self.eqm, self.EN, self.C, self.Ct, self.CN,
-                                self.fl, self.fu)
-        self.offsets = Residuals(self.q, self.r, self.c, self.x0, self.be, self.eN, self.neg_lo, self.hi)
+        self.kkt_data = tuple(KKTData(H=self.H, QN=self.QN, AB=self.AB, EF=self.EF, EFt=self.EFt, eqm=self.eqm, EN=self.EN,
+                                      C=self.C, Ct=self.Ct, CN=self.CN, fl=self.fl, fu=self.fu))
+        self.offsets = tuple(Residuals(rx=self.q, ru=self.r, dyn=self.c, x0r=self.x0, rE=self.be, rEN=self.eN,
+                                       rl=self.neg_lo, rup=self.hi))
+        # work arrays of the Newton right-hand side (what _Rhs.kkt_rhs refers to)
+        self.work_q, self.work_r, self.work_ci = np.empty((N + 1, n)), np.empty((N, m)), np.empty((N, nc))
         self.zero_res = _Rhs(self, np.zeros(self.rhs_layout.size))
         self.zero_res._size = 0.0
         self.stats = np.empty(6)
@@ -177,7 +174,6 @@ class _Prepared:
         # views of D: the stage-row weights and the diagonal terms of the bounds on x_1..x_N, u
         self.Ds = self.D[self.sl_s].reshape(N, nc)
         self.Dxb, self.Dub = self.D[self.sl_x].reshape(N, n), self.D[self.sl_u].reshape(N, m)
-        self.work_q, self.work_r, self.work_ci = np.empty((N + 1, n)), np.empty((N, m)), np.empty((N, nc))
         self.newton_res = _Rhs(self, np.empty(self.rhs_layout.size))
         # objects reused from iteration to iteration (their lifetimes: InteriorPointQP.solve and
         # _direction): two residual vectors used in turn (the last one may be pending for the
@@ -269,8 +265,8 @@ class _Prepared:
         primal certificate); with zero multipliers it is |H z| (the dual one)."""
         e, z, st = self.newton_res, self.zero_res, self.stats
         # the slacks of the point: zero (the zero residual's box parts)
-        _kkt_map(self.sizes, self.kkt_data, PointArrays(X, U, lam, nu, z.rl, z.rup, zl, zu), z.arrays, e.arrays,
-                 self.work_w, st)
+        point = tuple(PointArrays(X=X, U=U, lam=lam, nu=nu, tl=z.rl, tu=z.rup, zl=zl, zu=zu))
+        _kkt_map(self.sizes, self.kkt_data, point, z.arrays, e.arrays, self.work_w, st)
         eqs = max(_max_abs(e.dyn.ravel()), _max_abs(e.x0r), _max_abs(e.rE.ravel()), _max_abs(e.rEN))
         return float(st[1]), eqs, self.work_w
 
