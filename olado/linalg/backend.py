@@ -88,8 +88,9 @@ class KKTBackend(Protocol):
 
     def solve_into(self, rhs: RHS, out: Solution) -> float:
         """Solve for ``rhs`` and write the solution into ``out`` (every entry of its arrays),
-        without checks: all arrays C-contiguous float64 of the right shapes. Returns the
-        infeasibility of the equality rows (``LQSolution.x0_residual``)."""
+        without checks: all arrays C-contiguous float64 of the right shapes; ``rhs`` and ``out``
+        an RHS and a Solution or plain tuples of their fields. Returns the infeasibility of the
+        equality rows (``LQSolution.x0_residual``)."""
 
 
 def make_kkt_solver(name, Q, S, R, A, B, **kwargs) -> KKTBackend:

@@ -252,6 +252,7 @@ class _SparseKKT:
         """:meth:`solve`, the solution copied into ``out`` (the KKTBackend fast path: no faster
         here); returns ``LQSolution.x0_residual``."""
         sol = self.solve(*rhs)
+        out = Solution._make(out)       # a Solution or a plain tuple of its fields
         out.X[...] = sol.X
         out.U[...] = sol.U
         out.lam[...] = sol.lam

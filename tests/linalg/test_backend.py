@@ -53,6 +53,11 @@ def test_refactor_is_a_fresh_factorization_and_solve_into_is_solve(name, ne, ni)
     assert isinstance(defect, float) and defect == a.x0_residual
     for field in ("X", "U", "lam", "nu"):
         np.testing.assert_array_equal(getattr(out, field), getattr(a, field), err_msg=field)
+    plain = tuple(np.full_like(x, 7.0) for x in out)         # plain tuples, as the interior-point QP passes
+    assert solver.solve_into(tuple(d.rhs_arrays(rhs["q"], rhs["r"], rhs["c"], rhs["x0"], rhs.get("e"), rhs.get("eN"),
+                                                rhs.get("ci"))), plain) == defect
+    for x, y in zip(plain, out):
+        np.testing.assert_array_equal(x, y)
     assert isinstance(d.rhs_arrays(rhs["q"], rhs["r"], rhs["c"], rhs["x0"], None, None, None), RHS)
 
 
