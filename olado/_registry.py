@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import sys
 import importlib.util
 from collections.abc import Mapping
 
@@ -102,3 +103,25 @@ class LazyRegistry(Mapping):
 
 def _as_entry(entry: str | Entry) -> Entry:
     return entry if isinstance(entry, Entry) else Entry(entry)
+
+
+def lazy_attributes(module_name: str, names: dict[str, str], submodules=()):
+    """``(__getattr__, __dir__)`` for a package whose public names load on first access (PEP 562):
+    ``names`` maps each name to the module that defines it, ``submodules`` lists the package's
+    submodules reachable as attributes. A loaded value is stored on the package, so each name
+    is imported once."""
+
+    def __getattr__(name):
+        if name in names:
+            value = getattr(importlib.import_module(names[name]), name)
+        elif name in submodules:
+            value = importlib.import_module(f"{module_name}.{name}")
+        else:
+            raise AttributeError(f"module {module_name!r} has no attribute {name!r}")
+        setattr(sys.modules[module_name], name, value)
+        return value
+
+    def __dir__():
+        return sorted(set(vars(sys.modules[module_name])) | set(names) | set(submodules))
+
+    return __getattr__, __dir__

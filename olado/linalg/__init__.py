@@ -9,7 +9,7 @@ so listing the KKT back-ends does not import numba.
 
 from __future__ import annotations
 
-import importlib
+from .._registry import lazy_attributes
 
 # public name -> module that defines it
 _LAZY = {
@@ -29,9 +29,4 @@ _LAZY = {
 __all__ = list(_LAZY)
 
 
-def __getattr__(name):
-    if name in _LAZY:
-        value = getattr(importlib.import_module(_LAZY[name]), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module 'olado.linalg' has no attribute {name!r}")
+__getattr__, __dir__ = lazy_attributes(__name__, _LAZY)

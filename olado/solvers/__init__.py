@@ -6,7 +6,7 @@ package imports none of them (names below load on first access, PEP 562).
 
 from __future__ import annotations
 
-import importlib
+from .._registry import lazy_attributes
 
 #: public name -> module that defines it
 _LAZY = {
@@ -21,13 +21,4 @@ _LAZY = {
 __all__ = list(_LAZY)
 
 
-def __getattr__(name):
-    if name in _LAZY:
-        value = getattr(importlib.import_module(_LAZY[name]), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module 'olado.solvers' has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_attributes(__name__, _LAZY)

@@ -183,15 +183,8 @@ def complementarity_residual(nlp, y, c, lam, zl, zu) -> float:
     variables have no complementarity condition."""
     lb, ub = (np.asarray(a, dtype=float) for a in nlp.variable_bounds())
     cl, cu = (np.asarray(a, dtype=float) for a in nlp.constraint_bounds())
-    free = lb < ub
-    parts = [0.0]
+    parts = [0.0, *bound_complementarity(y, lb, ub, zl, zu)]
     with np.errstate(invalid="ignore"):
-        for z, gap in ((zl, y - lb), (zu, ub - y)):
-            mask = free & np.isfinite(gap)
-            if mask.any():
-                parts.append(float(np.max(np.abs(z[mask] * gap[mask]))))
-            if z[free].size:
-                parts.append(float(np.max(np.maximum(-z[free], 0.0))))
         ineq = cl < cu
         lo = ineq & np.isfinite(cl) & ~np.isfinite(cu)
         hi = ineq & ~np.isfinite(cl) & np.isfinite(cu)
@@ -204,6 +197,22 @@ def complementarity_residual(nlp, y, c, lam, zl, zu) -> float:
             gap = np.where(lam[two] <= 0, c[two] - cl[two], cu[two] - c[two])
             parts.append(float(np.max(np.abs(lam[two] * gap))))
     return max(parts)
+
+
+def bound_complementarity(y, lb, ub, zl, zu) -> list:
+    """The bound terms of the complementarity residual: |z_L (y - lb)| and |z_U (ub - y)| on the
+    free variables (lb < ub) with a finite bound, and the negative parts of z_L, z_U there (as
+    max-norms, a list of floats). Any array shape; fixed variables have no condition."""
+    free = lb < ub
+    parts = []
+    with np.errstate(invalid="ignore"):
+        for z, gap in ((zl, y - lb), (zu, ub - y)):
+            mask = free & np.isfinite(gap)
+            if mask.any():
+                parts.append(float(np.max(np.abs(z[mask] * gap[mask]))))
+            if z[free].size:
+                parts.append(float(np.max(np.maximum(-z[free], 0.0))))
+    return parts
 
 
 def bound_multipliers_from_residual(r, y, lb, ub, *, tol, only=None):

@@ -27,7 +27,7 @@ import numpy as np
 
 from ...problems.nlp import nlp_counts
 from ...result import Result
-from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION
+from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION, bound_complementarity
 from .state import BoundMultipliers
 
 
@@ -92,19 +92,6 @@ def _fill_fixed(r, lo, hi, zl, zu):
     return np.where(fixed, np.maximum(r, 0.0), zl), np.where(fixed, np.maximum(-r, 0.0), zu)
 
 
-def _bound_complementarity(y, lo, hi, zl, zu, parts):
-    """|z_L (y - lb)|, |z_U (ub - y)| on free variables with a finite bound, and the negative
-    parts of z_L, z_U on free variables."""
-    free = lo < hi
-    with np.errstate(invalid="ignore"):
-        for z, gap in ((zl, y - lo), (zu, hi - y)):
-            mask = free & np.isfinite(gap)
-            if mask.any():
-                parts.append(float(np.max(np.abs(z[mask] * gap[mask]))))
-            if z[free].size:
-                parts.append(float(np.max(np.maximum(-z[free], 0.0))))
-
-
 def _violation(c_parts, y_parts):
     """Max-norm violation of cl <= c <= cu (``c_parts``: (c, cu) pairs, cl = 0) and of the
     variable bounds (``y_parts``: (y, lb, ub))."""
@@ -126,8 +113,7 @@ def stage_kkt(p, pt, mult, bounds) -> StageKKT:
     zl_u, zu_u = _fill_fixed(ru, ul, uu, bounds.zl_u, bounds.zu_u)
     stat = max(float(np.max(np.abs(rx - zl_x + zu_x), initial=0.0)), float(np.max(np.abs(ru - zl_u + zu_u), initial=0.0)))
     parts = [0.0]
-    _bound_complementarity(pt.X, xl, xu, zl_x, zu_x, parts)
-    _bound_complementarity(pt.U, ul, uu, zl_u, zu_u, parts)
+    parts += bound_complementarity(pt.X, xl, xu, zl_x, zu_x) + bound_complementarity(pt.U, ul, uu, zl_u, zu_u)
     ineq, ineqN = ~p.stage_equality_mask, ~p.final_equality_mask
     for lam, g in ((mult.Lg[:, ineq], pt.g[:, ineq]), (mult.LgN[ineqN], pt.gN[ineqN])):
         if lam.size:      # rows g >= 0: |lam g| and the positive part of lam (it must be <= 0)
