@@ -31,8 +31,9 @@ _LAZY = {
     "SolverError": "olado.errors",
     "SolverNotAvailableError": "olado.errors",
     "NonFiniteEvaluationError": "olado.errors",
+    "ProblemInUseError": "olado.errors",
 }
-_SUBMODULES = ("errors", "result", "config", "options", "api", "problems", "solvers", "linalg", "qp", "cli")
+_SUBMODULES = ("errors", "interrupts", "result", "config", "options", "api", "problems", "solvers", "linalg", "qp", "cli")
 
 __all__ = ["__version__", "errors", *_LAZY]
 

@@ -11,7 +11,11 @@ config's ``[problem]`` section, else the problem's defaults.
 
 Exit codes: 0 the solver converged (status success or acceptable); 1 it did not; 2 bad input (an
 unknown problem, a bad option or config file, a missing back-end): the message is printed to
-stderr without a traceback.
+stderr without a traceback; 130 after SIGINT (Ctrl-C), 143 after SIGTERM (128 + the signal
+number, as a shell reports a process ended by that signal). ``solve`` stops at the next safe
+point on the first SIGINT or SIGTERM and still prints and saves (``--save``) the result, with
+the status ``interrupted`` and the last accepted iterate; a second signal aborts at once and
+saves nothing (docs/interrupts.md).
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ import argparse
 import gc
 import inspect
 import re
+import signal
 import sys
 
 EXIT_SUCCESS, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
@@ -222,7 +227,14 @@ def main(argv=None) -> int:
         return EXIT_BAD_INPUT
     try:
         if args.command == "solve":
-            return _cmd_solve(args)
+            from .interrupts import InterruptGuard
+
+            # the first SIGINT / SIGTERM stops the solve at a safe point (the result is still
+            # printed and saved); the command then ends with 128 + the signal number
+            with InterruptGuard((signal.SIGINT, signal.SIGTERM)) as guard:
+                code = _cmd_solve(args)
+                received = guard.received
+            return 128 + received if received else code
         return _cmd_list(args)
     except OladoError as exc:
         print(f"olado: error: {exc}", file=sys.stderr)
@@ -236,9 +248,10 @@ def main(argv=None) -> int:
     except OSError as exc:  # e.g. --save/--plot into a folder that cannot be written
         print(f"olado: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print("olado: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:   # before the solve's handler, or a second signal (AbortSolve)
+        signum = getattr(exc, "signum", signal.SIGINT)
+        print("olado: aborted" if hasattr(exc, "signum") else "olado: interrupted", file=sys.stderr)
+        return 128 + int(signum)
 
 
 def run():

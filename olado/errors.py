@@ -68,3 +68,10 @@ class SolverError(OladoError, RuntimeError):
 
 class SolverNotAvailableError(SolverError, ImportError):
     """An optional solver backend is not installed; the message says how to install it."""
+
+
+class ProblemInUseError(SolverError):
+    """A solve was started on a problem instance that another solve is working on (another
+    thread, or a callback of that solve). A problem instance carries per-solve state -- its
+    evaluation counters (``problem.counters``), which each solve resets and reports -- so it
+    belongs to one solve at a time: give each concurrent solve its own instance."""

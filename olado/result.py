@@ -32,6 +32,7 @@ class Status(enum.Enum):
     UNBOUNDED = "unbounded"
     NUMERICAL_ERROR = "numerical_error"
     USER_STOP = "user_stop"
+    INTERRUPTED = "interrupted"
     INVALID_PROBLEM = "invalid_problem"
     FAILED = "failed"
 
@@ -53,6 +54,8 @@ _SENTENCES = {
     Status.UNBOUNDED: "The problem appears to be unbounded below.",
     Status.NUMERICAL_ERROR: "The solver stopped on a numerical difficulty (failed line search, singular system or non-finite values).",
     Status.USER_STOP: "A user callback asked the solver to stop.",
+    Status.INTERRUPTED: ("The solve was interrupted (Ctrl-C / SIGINT, SIGTERM or a KeyboardInterrupt) and stopped at "
+                         "the next safe point; the result holds the last accepted iterate."),
     Status.INVALID_PROBLEM: "The problem could not be evaluated at the points the solver needed.",
     Status.FAILED: "The solver failed for another reason; see the message.",
 }

@@ -12,7 +12,7 @@ from fixtures import REPO
 PACKAGE = REPO / "olado"
 MAX_LINES = 1000
 #: the leaf modules every layer may import
-LEAVES = {"olado.errors", "olado.options", "olado._registry"}
+LEAVES = {"olado.errors", "olado.options", "olado._registry", "olado.interrupts"}
 #: layer -> the olado layers it may import at module level (besides itself and the leaves)
 ALLOWED = {
     "olado.linalg": set(),

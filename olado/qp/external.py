@@ -373,11 +373,16 @@ class ExternalQP:
     def __repr__(self):
         return f"ExternalQP(backend={self.backend!r})"
 
-    def solve(self, qp: StageQP, warm_start: QPResult | None = None) -> QPResult:
+    def solve(self, qp: StageQP, warm_start: QPResult | None = None, limits=None) -> QPResult:
         """Solve ``qp``; ``warm_start`` (a previous QPResult of the same size) seeds the primal
         iterate of backends that accept one, and for OSQP also the multipliers. Returns a :class:`QPResult` (never raises on
-        non-convergence: the backend's failure is the status and message)."""
+        non-convergence: the backend's failure is the status and message). ``limits``
+        (:class:`olado.interrupts.Limits`) is checked before the backend starts: a backend runs
+        in compiled code that cannot be stopped midway."""
         import qpsolvers
+
+        if limits is not None:
+            limits.check()
 
         o = self.options
         backend = self.backend

@@ -5,6 +5,12 @@ A solver owns one typed options dataclass (``Solver.Options``, a subclass of
 (:mod:`olado.config`). ``solve(problem, guess)`` always returns a :class:`olado.result.Result`;
 non-convergence is a status, never an exception.
 
+``solve`` runs the solve under :class:`olado.interrupts.InterruptGuard` (in the main thread,
+Ctrl-C then stops the solve at its next safe point with the status INTERRUPTED and the last
+accepted iterate; a second Ctrl-C raises KeyboardInterrupt) and holds the problem instance for
+the solve: a second solve of the same instance while the first runs (another thread, a callback)
+raises :class:`~olado.errors.ProblemInUseError` (docs/interrupts.md).
+
 Options are declared with :func:`olado.options.option`, whose metadata (help text, allowed
 choices, numeric range) drives validation and the error messages; the option helpers are
 re-exported here for compatibility, new code imports them from :mod:`olado.options`.
@@ -12,13 +18,19 @@ re-exported here for compatibility, new code imports them from :mod:`olado.optio
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
+import threading
 import time
 from typing import Any
 
+import numpy as np
+
+from ..errors import ProblemInUseError
+from ..interrupts import AbortSolve, InterruptGuard, StopRequested, interrupt_age, interrupt_source
 from ..options import make_options, option, option_fields, validate_value  # noqa: F401 - re-exported
-from ..result import Result
+from ..result import Result, Status
 
 
 @dataclasses.dataclass
@@ -66,10 +78,21 @@ class Solver:
     def solve(self, problem, guess=None) -> Result:
         """Solve ``problem`` from ``guess`` (U (N,m), (X, U), a Result, or None for the
         problem's own initial guess) and return a :class:`Result`."""
-        X0, U0 = self.initial_point(problem, guess)
-        t0 = time.perf_counter()
-        problem.reset_counters()
-        result = self._solve(problem, X0, U0)
+        with InterruptGuard(), _exclusive(problem):
+            X0 = U0 = None
+            t0 = time.perf_counter()
+            try:
+                X0, U0 = self.initial_point(problem, guess)
+                t0 = time.perf_counter()
+                problem.reset_counters()
+                result = self._solve(problem, X0, U0)
+            except (StopRequested, KeyboardInterrupt) as exc:
+                if isinstance(exc, AbortSolve):
+                    raise
+                result = _stopped_before_first_iterate(problem, exc, X0, U0)
+            age = interrupt_age()
+            if result.status is Status.INTERRUPTED and age is not None:
+                result.info["interrupt_latency_s"] = age     # from the signal to the solver's stop
         result.time_s = time.perf_counter() - t0 if not result.time_s else result.time_s
         result.problem = result.problem or getattr(problem, "name", type(problem).__name__)
         result.N = problem.N
@@ -120,3 +143,46 @@ class Solver:
         if cb is None:
             return False
         return bool(cb(info))
+
+
+# ---------------------------------------------------------------------------- one solve per problem
+_IN_USE_LOCK = threading.Lock()
+_IN_USE: dict = {}      # id(problem) -> thread ident of the solve that holds it
+
+
+@contextlib.contextmanager
+def _exclusive(problem):
+    """Hold ``problem`` for one solve; a second solve of the same instance meanwhile raises
+    ProblemInUseError (the instance's counters are per solve: reset at its start, reported in
+    its Result)."""
+    key = id(problem)
+    with _IN_USE_LOCK:
+        holder = _IN_USE.get(key)
+        if holder is not None:
+            who = ("another thread" if holder != threading.get_ident()
+                   else "the solve this one was started from (a callback)")
+            raise ProblemInUseError(
+                f"problem {getattr(problem, 'name', type(problem).__name__)!r} (this instance) is being solved by "
+                f"{who}; a problem instance belongs to one solve at a time (its evaluation counters, "
+                "problem.counters, are per solve): give each concurrent solve its own instance, e.g. "
+                "copy.deepcopy(problem)")
+        _IN_USE[key] = threading.get_ident()
+    try:
+        yield
+    finally:
+        with _IN_USE_LOCK:
+            _IN_USE.pop(key, None)
+
+
+def _stopped_before_first_iterate(problem, exc, X0, U0) -> Result:
+    """The Result of a solve stopped (time limit, interrupt) before its loop held an iterate:
+    the initial guess, not evaluated (a solver's own loop returns its last accepted iterate)."""
+    reason = exc.reason if isinstance(exc, StopRequested) else Status.INTERRUPTED.value
+    status = Status(reason)
+    N, n, m = problem.N, problem.n, problem.m
+    X = np.asarray(X0, dtype=float) if X0 is not None else np.full((N + 1, n), np.nan)
+    U = np.asarray(U0, dtype=float) if U0 is not None else np.full((N, m), np.nan)
+    what = ("time limit reached" if status is Status.MAX_TIME
+            else f"interrupted ({interrupt_source() or 'KeyboardInterrupt'})")
+    return Result(status=status, message=f"{what} before the first iterate was complete; the result holds the "
+                  "initial guess", objective=float("nan"), x=X, u=U)

@@ -27,13 +27,13 @@ multiplier of stage k is the costate p^{k+1} of the discrete maximum principle w
 
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
 
 from ..errors import ProblemDefinitionError
-from ..result import Result
+from ..interrupts import MAX_TIME, Limits
+from ..result import Result, Status
 
 #: the evaluation kinds a back-end may ask for, in the order they are reported
 EVALUATION_KINDS = ("objective", "gradient", "constraints", "jacobian", "hessian")
@@ -53,10 +53,13 @@ class TimedNLP:
     """Counts and times the evaluations of a StructuredNLP.
 
     ``counts[kind]`` is the number of calls of each kind in :data:`EVALUATION_KINDS`;
-    ``time_s`` the wall time spent inside them (olado's Python side of the solve)."""
+    ``time_s`` the wall time spent inside them (olado's Python side of the solve). With
+    ``limits`` (:class:`olado.interrupts.Limits`) every evaluation is followed by its check: a
+    solve stops within one evaluation of its time limit or an interrupt."""
 
-    def __init__(self, nlp):
+    def __init__(self, nlp, limits=None):
         self.nlp = nlp
+        self.limits = limits
         self.counts = {k: 0 for k in EVALUATION_KINDS}
         self.time_s = 0.0
         self._jac_structure = None
@@ -66,10 +69,13 @@ class TimedNLP:
     def _timed(self, kind, fn, *args):
         t0 = time.perf_counter()
         try:
-            return fn(*args)
+            value = fn(*args)
         finally:
             self.time_s += time.perf_counter() - t0
             self.counts[kind] += 1
+        if self.limits is not None:
+            self.limits.check()
+        return value
 
     def objective(self, y):
         return float(self._timed("objective", self.nlp.objective, y))
@@ -329,15 +335,17 @@ def build_result(*, nlp, y, lam, zl, zu, status, message, iterations, history, t
     )
 
 
-class Deadline:
-    """Wall-clock limit helper: ``expired()`` after ``max_time`` seconds from construction."""
+# ---------------------------------------------------------------------------- stops from outside
+#: the former name of :class:`olado.interrupts.Limits` (a wall-clock limit only, then)
+Deadline = Limits
 
-    def __init__(self, max_time):
-        self.t0 = time.perf_counter()
-        self.max_time = float(max_time)
 
-    def elapsed(self):
-        return time.perf_counter() - self.t0
-
-    def expired(self):
-        return math.isfinite(self.max_time) and self.elapsed() >= self.max_time
+def stop_outcome(reason, limits, after="") -> tuple:
+    """(Status, message) of a solve ended from outside, ``reason`` "max_time" or "interrupted"
+    (:meth:`Limits.reason`, the ``reason`` of its catch block): MAX_TIME, or INTERRUPTED naming
+    the signal. ``after`` says how far the solve got, e.g. "after 12 SQP iterations"."""
+    where = f" {after}" if after else ""
+    if reason == MAX_TIME:
+        return Status.MAX_TIME, f"time limit of {limits.max_time:g} s reached{where}"
+    source = limits.source() or "interrupt"
+    return Status.INTERRUPTED, f"interrupted ({source}){where}; the result holds the last accepted iterate"

@@ -48,9 +48,11 @@ class InteriorPointQP:
         self.options = make_options(self.Options, options, **overrides)
 
     # ------------------------------------------------------------------ public entry
-    def solve(self, qp: StageQP, warm_start: QPResult | None = None) -> QPResult:
+    def solve(self, qp: StageQP, warm_start: QPResult | None = None, limits=None) -> QPResult:
         """Solve ``qp``; ``warm_start`` is a previous :class:`QPResult` of a QP of the same shape
         (its primal and dual values are used, slacks and multipliers pushed into the interior).
+        ``limits`` (:class:`olado.interrupts.Limits` of the solve the QP belongs to) is checked
+        at every iteration: a time limit or an interrupt ends the QP there (StopRequested).
 
         A cold start whose iterates stall or crawl (10 successive steps shorter than 0.1) without
         any regularization of the Newton systems (i.e. not a nonconvex QP, whose regularized steps
@@ -64,7 +66,7 @@ class InteriorPointQP:
         159, from 1 000 30."""
         opts = self.options
         restartable = warm_start is None and opts.stall_restart_mu > 1.0
-        res = self._solve(qp, warm_start, opts.max_iter, crawl_exit=restartable)
+        res = self._solve(qp, warm_start, opts.max_iter, crawl_exit=restartable, limits=limits)
         mu = opts.initial_mu
         for attempt in range(_MAX_RESTARTS):
             if not (restartable and res.status is Status.NUMERICAL_ERROR and res.iterations < opts.max_iter
@@ -74,7 +76,7 @@ class InteriorPointQP:
             mu *= opts.stall_restart_mu
             why = "stalled" if _STALLED in res.message else "crawling"
             again = self._solve(qp, None, opts.max_iter - res.iterations, crawl_exit=attempt + 1 < _MAX_RESTARTS,
-                                initial_mu=mu)
+                                initial_mu=mu, limits=limits)
             again.iterations += res.iterations
             again.time_s += res.time_s
             again.history = list(res.history) + list(again.history)
@@ -84,7 +86,7 @@ class InteriorPointQP:
         return res
 
     def _solve(self, qp: StageQP, warm_start: QPResult | None, max_iter: int, crawl_exit: bool = False,
-               initial_mu: float | None = None) -> QPResult:
+               initial_mu: float | None = None, limits=None) -> QPResult:
         t0 = time.perf_counter()
         opts = self.options
         P = _Prepared(qp)
@@ -176,6 +178,8 @@ class InteriorPointQP:
                 break
             if k >= max_iter:
                 break
+            if limits is not None:
+                limits.check()
             try:
                 ctx = _StepContext(self, P, it, res, mu)
                 # separate primal and dual step lengths only until the primal residual meets its

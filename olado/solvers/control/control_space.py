@@ -100,10 +100,14 @@ def unsupported_features(problem, control_bounds=False) -> list:
 
 
 class ReducedProblem:
-    """J(u) of a DOCP with the states eliminated; caches the last point's derivatives."""
+    """J(u) of a DOCP with the states eliminated; caches the last point's derivatives. With
+    ``limits`` (:class:`olado.interrupts.Limits`) every evaluation is followed by its check: the
+    solve stops within one evaluation of its time limit or an interrupt (line searches and the
+    Newton-CG products included)."""
 
-    def __init__(self, problem):
+    def __init__(self, problem, limits=None):
         self.problem = problem
+        self.limits = limits
         self.N, self.n, self.m = problem.N, problem.n, problem.m
         self._key = None
         self.n_value = self.n_gradient = self.n_hessvec = 0
@@ -116,7 +120,13 @@ class ReducedProblem:
         """J(u) and the simulated states."""
         X = self.problem.simulate(U)
         self.n_value += 1
-        return self.problem.objective(X, U), X
+        J = self.problem.objective(X, U)
+        self._check()
+        return J, X
+
+    def _check(self):
+        if self.limits is not None:
+            self.limits.check()
 
     # ------------------------------------------------------------------ first order
     def gradient(self, U, X=None):
@@ -136,6 +146,7 @@ class ReducedProblem:
         self.n_gradient += 1
         self._key = (U.tobytes(), X, A, B, costate)
         self._hess = None
+        self._check()
         return J, g, X, costate
 
     # ------------------------------------------------------------------ second order
@@ -158,6 +169,7 @@ class ReducedProblem:
         _second_order_adjoint(np.ascontiguousarray(A), np.ascontiguousarray(B), Hxx, Hxu, Huu, HN,
                               np.ascontiguousarray(V, dtype=float), dx, dp, out)
         self.n_hessvec += 1
+        self._check()
         return out
 
     def stage_derivatives(self, U):

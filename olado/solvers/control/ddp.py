@@ -82,11 +82,13 @@ import numba as nb
 import numpy as np
 
 from ...errors import NonFiniteEvaluationError
+from ...interrupts import Limits
 from .ddp_state import Accepted, DPState, ShiftSchedule, Sweeps
 from ...linalg.riccati_kernels import chol_inplace as _chol_inplace, chol_solve_vec as _chol_solve_vec
 from ...result import Result, Status
 from ...options import option
 from ..base import Solver, SolverOptions
+from ..common import stop_outcome
 from .control_space import _adjoint, unsupported_features
 
 __all__ = ["DDPSolver", "StagewiseNewtonSolver", "DDPOptions", "StagewiseNewtonOptions",
@@ -431,13 +433,17 @@ class _DynamicProgrammingSolver(Solver):
                                    "(general constraints and state bounds), or 'sqp' / 'ipopt'."),
                           objective=float("nan"), x=np.array(X0, dtype=float), u=np.array(U0, dtype=float),
                           info={"method": self.method, "unsupported": bad})
+        limits = Limits(o.max_time)
         U = np.array(U0, dtype=float)
         X = p.simulate(U)
         J = p.objective(X, U)
         st = DPState(X=X, U=U, J=J, d=_Derivatives(p, X, U), shift=ShiftSchedule(o), sweeps=Sweeps(p.N, p.n, p.m),
-                      message=f"maximum number of iterations ({o.max_iter}) reached")
-        while not self._iterate(p, st, t_start):
-            pass
+                      limits=limits, message=f"maximum number of iterations ({o.max_iter}) reached")
+        with limits.catch() as stop:    # a time limit or an interrupt: the last accepted iterate
+            while not self._iterate(p, st):
+                pass
+        if stop.reason:
+            st.stop(*stop_outcome(stop.reason, limits, f"after {st.it} iterations"))
         elapsed = time.perf_counter() - t_start
         return Result(
             status=st.status, message=st.message, objective=float(st.J), x=st.X, u=st.U,
@@ -451,15 +457,16 @@ class _DynamicProgrammingSolver(Solver):
                                        "(= NLP stationarity with the costates as dynamics multipliers)"},
         )
 
-    def _iterate(self, p, st, t_start):
+    def _iterate(self, p, st):
         """One iteration; True when the solve stops."""
         o = self.options
-        if self._stopped(st, t_start):
+        if self._stopped(st):
             return True
         try:
             H = _second_derivatives(p, st.d, self.method, bool(getattr(o, "second_order_dynamics", True)))
         except NonFiniteEvaluationError as exc:
             return st.stop(Status.NUMERICAL_ERROR, f"non-finite second derivatives at iteration {st.it}: {exc}")
+        st.limits.check()
         accepted, passes, shift_used = self._step(p, st, H)
         st.n_backward += passes
         if accepted is None:
@@ -469,8 +476,9 @@ class _DynamicProgrammingSolver(Solver):
         st.shift.decrease()
         return self._advance(p, st, accepted, passes, shift_used)
 
-    def _stopped(self, st, t_start):
-        """Converged (reduced gradient <= tol), after the last step, or out of iterations / time."""
+    def _stopped(self, st):
+        """Converged (reduced gradient <= tol), after the last step, or out of iterations; the
+        time limit and interrupts raise (olado.interrupts)."""
         o = self.options
         if st.d.gnorm <= o.tol:
             return st.stop(Status.SUCCESS, (f"converged in {st.it} iterations: reduced gradient norm "
@@ -480,8 +488,7 @@ class _DynamicProgrammingSolver(Solver):
                                                f"decrease_tol (reduced gradient norm {st.d.gnorm:.2e})"))
         if st.it >= o.max_iter:
             return True
-        if math.isfinite(o.max_time) and time.perf_counter() - t_start >= o.max_time:
-            return st.stop(Status.MAX_TIME, f"time limit of {o.max_time:g} s reached after {st.it} iterations")
+        st.limits.check()
         return False
 
     def _step(self, p, st, H):
@@ -493,6 +500,7 @@ class _DynamicProgrammingSolver(Solver):
         shift_used = st.shift.start()
         passes = 0
         while True:
+            st.limits.check()
             mu = st.shift.mu
             fail, d1, d2 = _backward_pass(d.lx, d.lu, d.A, d.B, Hxx, Hxu, Huu, Txx, Txu, Tuu, use_t, d.pN, HN,
                                           mu, o.regularization == "state", w.kff, w.Kfb, w.Vx, w.Vxx)
@@ -530,6 +538,7 @@ class _DynamicProgrammingSolver(Solver):
                 Jn = p.objective(st.trial_X, st.trial_U)
             except NonFiniteEvaluationError:
                 Jn = math.inf
+            st.limits.check()
             dV = alpha * d1 + 0.5 * alpha * alpha * d2
             if st.last_step or (math.isfinite(Jn) and Jn - st.J <= o.armijo * dV):
                 return Accepted(alpha, st.trial_X, st.trial_U, Jn, dV)
@@ -541,16 +550,15 @@ class _DynamicProgrammingSolver(Solver):
         raised the gradient, or when the derivatives there are not finite); record, log, callback."""
         o = self.options
         step_norm = float(np.max(np.abs(acc.U - st.U), initial=0.0))
-        J_old, d_old = st.J, st.d
-        st.X, st.U, st.J = acc.X, acc.U, acc.J
+        J_old = st.J
         try:
-            st.d = _Derivatives(p, st.X, st.U)
+            d_new = _Derivatives(p, acc.X, acc.U)
         except NonFiniteEvaluationError as exc:
-            st.X, st.U, st.J, st.d = d_old.X, d_old.U, J_old, d_old
             return st.stop(Status.NUMERICAL_ERROR, f"non-finite derivatives after iteration {st.it + 1}: {exc}")
-        if st.last_step and st.d.gnorm > d_old.gnorm and st.d.gnorm > o.tol:
-            # the unchecked last step did not help: keep the previous point
-            st.X, st.U, st.J, st.d = d_old.X, d_old.U, J_old, d_old
+        # the new point and its derivatives in one step (an interrupt never finds them apart),
+        # unless the unchecked last step did not help: then the previous point is kept
+        if not (st.last_step and d_new.gnorm > st.d.gnorm and d_new.gnorm > o.tol):
+            st.X, st.U, st.J, st.d = acc.X, acc.U, acc.J, d_new
         st.it += 1
         rec = {"iter": st.it, "objective": st.J, "grad_norm": st.d.gnorm, "shift": shift_used, "step": acc.alpha,
                "expected_decrease": -acc.dV, "actual_decrease": J_old - st.J, "step_norm": step_norm,

@@ -84,6 +84,7 @@ class DPState:
     shift: ShiftSchedule
     sweeps: Sweeps
     message: str
+    limits: Any = None          # the solve's olado.interrupts.Limits
     status: Status = Status.MAX_ITERATIONS
     it: int = 0
     n_backward: int = 0

@@ -63,7 +63,8 @@ import numpy as np
 from ...result import Result, Status
 from ...errors import NonFiniteEvaluationError
 from .pdmin_steps import Arc, Direction, Evaluations, Point, State, dot, refine, secant, two_loop
-from ..common import MULTIPLIER_CONVENTION
+from ..common import MULTIPLIER_CONVENTION, stop_outcome
+from ...interrupts import Limits
 from ...options import option
 from ..base import Solver, SolverOptions
 from .control_space import ReducedProblem, unsupported_features
@@ -132,7 +133,8 @@ class PDMINSolver(Solver):
         if why:
             X = p.simulate(U)
             return self._result(p, Status.INVALID_PROBLEM, why, X, U, None, None, float("nan"), 0, [], None, t_start)
-        evals = Evaluations(ReducedProblem(p))
+        limits = Limits(self.options.max_time)
+        evals = Evaluations(ReducedProblem(p, limits))
         try:
             J, g, X, costate = evals.gradient(U)
         except NonFiniteEvaluationError as exc:
@@ -140,24 +142,28 @@ class PDMINSolver(Solver):
             return self._result(p, Status.INVALID_PROBLEM, f"the problem cannot be evaluated at the initial "
                                 f"controls (clipped into their bounds): {exc}", X, U, None, None, float("nan"),
                                 0, [], evals.rp, t_start, eval_time=evals.time_s)
-        st = State(cur=Point(U, J, g, X, costate), evals=evals, t_start=t_start,
+        st = State(cur=Point(U, J, g, X, costate), evals=evals, t_start=t_start, limits=limits,
                     message=f"maximum number of PDMIN iterations ({self.options.max_iter}) reached")
-        while True:
-            active, pgn = self._measure(p, st)
-            if self._stop(st, pgn, active):
-                break
-            direction = self._direction(st, active)
-            trial = self._search(p, st, direction)
-            st.n_ls_total += st.n_trials
-            if trial is None:
-                st.status, st.message = Status.NUMERICAL_ERROR, (
-                    f"line search failed at iteration {st.it}: no sufficient decrease along the projection arc "
-                    f"after {st.n_trials} trial steps (projected gradient {pgn:.2e}, tol {self.options.tol:.1e})")
-                if pgn <= math.sqrt(self.options.tol):
-                    st.status = Status.ACCEPTABLE
-                    st.message += "; the point is kept as acceptable"
-                break
-            self._update(st, direction, trial, active)
+        pgn = float("nan")
+        with limits.catch() as stop:    # a time limit or an interrupt: the last accepted iterate
+            while True:
+                active, pgn = self._measure(p, st)
+                if self._stop(st, pgn, active):
+                    break
+                direction = self._direction(st, active)
+                trial = self._search(p, st, direction)
+                st.n_ls_total += st.n_trials
+                if trial is None:
+                    st.status, st.message = Status.NUMERICAL_ERROR, (
+                        f"line search failed at iteration {st.it}: no sufficient decrease along the projection arc "
+                        f"after {st.n_trials} trial steps (projected gradient {pgn:.2e}, tol {self.options.tol:.1e})")
+                    if pgn <= math.sqrt(self.options.tol):
+                        st.status = Status.ACCEPTABLE
+                        st.message += "; the point is kept as acceptable"
+                    break
+                self._update(st, direction, trial, active)
+        if stop.reason:
+            st.status, st.message = stop_outcome(stop.reason, limits, f"after {st.it} iterations")
         c = st.cur
         return self._result(p, st.status, st.message, c.X, c.U, c.g, c.costate, pgn, st.it, st.history, evals.rp,
                             t_start, extra={"line_search_trials": st.n_ls_total}, eval_time=evals.time_s)
@@ -196,9 +202,7 @@ class PDMINSolver(Solver):
             return True
         if st.it >= o.max_iter:
             return True
-        if time.perf_counter() - st.t_start > o.max_time:
-            st.status, st.message = Status.MAX_TIME, f"time limit of {o.max_time:g} s reached after {st.it} iterations"
-            return True
+        st.limits.check()       # the time limit, an interrupt: raise (olado.interrupts)
         return False
 
     def _direction(self, st, active):

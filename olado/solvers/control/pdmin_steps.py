@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -103,6 +103,7 @@ class State:
     evals: Evaluations
     t_start: float
     message: str
+    limits: Any = None              # the solve's olado.interrupts.Limits
     memory: Memory = dataclasses.field(default_factory=Memory)
     status: Status = Status.MAX_ITERATIONS
     it: int = 0

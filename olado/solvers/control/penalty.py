@@ -53,10 +53,12 @@ from collections import Counter
 import numpy as np
 
 from ...errors import NonFiniteEvaluationError, ProblemDefinitionError, SolverNotAvailableError
+from ...interrupts import Limits
 from ...problems.docp import DOCP
 from ...result import Result, Status
 from ...options import option
 from ..base import Solver, SolverOptions
+from ..common import stop_outcome
 from .control_space import ReducedProblem
 from ..registry import SOLVERS
 
@@ -328,30 +330,26 @@ class PenalizedProblem(DOCP):
 
 
 # ============================================================================ inner method: L-BFGS-B
-class _Stop(Exception):
-    """Raised inside the L-BFGS-B objective to stop it at the deadline (module level: a class
-    made per call is a reference cycle)."""
-
-
-def solve_lbfgsb(problem, U0, *, tol, max_iter, memory=20, ftol=1e-15, max_restarts=50, deadline=None):
+def solve_lbfgsb(problem, U0, *, tol, max_iter, memory=20, ftol=1e-15, max_restarts=50, limits=None):
     """Built-in inner method: SciPy's L-BFGS-B on the reduced problem J(u) of ``problem``
     (values and adjoint gradients of :class:`~olado.solvers.control.control_space.ReducedProblem`),
     with the problem's control bounds as bounds. Stops when the projected gradient max-norm is
     <= ``tol`` (``gtol``), when restarts no longer decrease J (converged to rounding level), or
-    after ``max_iter`` iterations in all.
+    after ``max_iter`` iterations in all. ``limits`` (:class:`olado.interrupts.Limits`) is
+    checked after every evaluation: a time limit or an interrupt returns L-BFGS-B's last
+    iterate (the caller's own check then ends its solve).
 
     Returns (U, converged, iterations, message, evaluations)."""
     from scipy.optimize import Bounds, minimize
 
-    rp = ReducedProblem(problem)
+    limits = limits if limits is not None else Limits()
+    rp = ReducedProblem(problem, limits)
     N, m = problem.N, problem.m
     lo, hi = problem.u_lower.ravel(), problem.u_upper.ravel()
     bounded = bool(np.isfinite(lo).any() or np.isfinite(hi).any())
     u0 = np.clip(np.asarray(U0, dtype=float).ravel(), lo, hi)
 
     def fg(u):
-        if deadline is not None and deadline():
-            raise _Stop
         try:
             J, g, _, _ = rp.gradient(u.reshape(N, m))
         except NonFiniteEvaluationError:
@@ -371,13 +369,13 @@ def solve_lbfgsb(problem, U0, *, tol, max_iter, memory=20, ftol=1e-15, max_resta
     total, restarts, f_prev = 0, 0, math.inf
     converged = False
     while True:
-        try:
+        with limits.catch() as stop:
             res = minimize(fg, u, jac=True, method="L-BFGS-B", bounds=Bounds(lo, hi) if bounded else None,
                            callback=remember,
                            options={"maxiter": max(int(max_iter) - total, 1), "gtol": float(tol), "ftol": float(ftol),
                                     "maxcor": int(memory), "maxfun": max(15000, 20 * int(max_iter)), "maxls": 40})
-        except _Stop:
-            return best["u"].reshape(N, m), False, total, "time limit", rp.n_gradient
+        if stop.reason:
+            return best["u"].reshape(N, m), False, total, stop.reason.replace("_", " "), rp.n_gradient
         total += int(res.nit)
         u = res.x
         best["u"] = u
@@ -437,6 +435,21 @@ def _inner_solver_class(name):
                                       f"imported ({exc}); use inner = lbfgsb") from None
 
 
+@dataclasses.dataclass
+class _Outer:
+    """One penalty solve's state: the last recorded point (X, U) and its violation, the outer
+    and inner iteration counts, the history, the status."""
+
+    X: np.ndarray
+    U: np.ndarray
+    viol: float
+    iters: int = 0
+    inner_total: int = 0
+    history: list = dataclasses.field(default_factory=list)
+    status: Status = Status.MAX_ITERATIONS
+    message: str = ""
+
+
 class PenaltySolver(Solver):
     """Quadratic penalty / augmented Lagrangian method (paper 001 sec. 2.2); see the module
     docstring. Result: history per outer iteration (rho, violation, inner iterations and status,
@@ -448,97 +461,102 @@ class PenaltySolver(Solver):
 
     def _solve(self, problem, X0, U0) -> Result:
         o = self.options
-        t0 = time.perf_counter()
         keep_u = o.inner in BOUND_INNER_METHODS
         inner_cls = None if o.inner == "lbfgsb" else _inner_solver_class(o.inner)
         pen = PenalizedProblem(problem, o.rho_init, keep_control_bounds=keep_u)
-        deadline = (lambda: time.perf_counter() - t0 >= o.max_time) if math.isfinite(o.max_time) else None
-
+        limits = Limits(o.max_time)
         U = np.asarray(U0, dtype=float).copy()
         if keep_u:
             U = np.clip(U, problem.u_lower, problem.u_upper)
         X = problem.simulate(U)
-        viol, parts = pen.violations(X, U)
-        rho = o.rho_init
-        history = []
-        inner_total = 0
-        status, message = Status.MAX_ITERATIONS, ""
-        inner_ok = False
-        iters = 0
-        stall, viol_at_growth = 0, math.inf
+        out = _Outer(X=X, U=U, viol=pen.violations(X, U)[0])
         self._log(2, f"{'iter':>4} {'rho':>9} {'violation':>10} {'objective':>16} {'inner':>6}  inner status")
-        try:
-            for it in range(1, o.max_iter + 1):
-                pen.set_penalty(rho)
-                if inner_cls is None:
-                    U, inner_ok, nit, imsg, _ = solve_lbfgsb(pen, U, tol=o.tol, max_iter=o.inner_max_iter,
-                                                             memory=o.inner_memory, deadline=deadline)
-                else:
-                    opts = dict(o.inner_options)
-                    opts.setdefault("tol", o.tol)
-                    opts.setdefault("max_iter", o.inner_max_iter)
-                    if math.isfinite(o.max_time):
-                        opts.setdefault("max_time", max(o.max_time - (time.perf_counter() - t0), 1e-3))
-                    res = inner_cls(**opts).solve(pen, guess=U)
-                    U = res.u
-                    inner_ok, nit, imsg = res.status.success, res.iterations, res.status.value
-                    if res.status in (Status.NUMERICAL_ERROR, Status.INVALID_PROBLEM) and not np.all(np.isfinite(U)):
-                        status, message = res.status, f"inner solver {o.inner}: {res.message}"
-                        break
-                iters = it
-                inner_total += max(nit, 0)
-                X = problem.simulate(U)
-                J = problem.objective(X, U)
-                viol, parts = pen.violations(X, U)
-                row = {"iter": it, "rho": rho, "violation": viol, "objective": J,
-                       "penalized_objective": pen.objective(X, U), "inner_iterations": nit,
-                       "inner_converged": bool(inner_ok), "inner_message": imsg,
-                       "time_s": time.perf_counter() - t0}
-                row.update({f"violation_{k}": v for k, v in parts.items()})
-                history.append(row)
-                self._log(2, f"{it:4d} {rho:9.2e} {viol:10.3e} {J:16.9e} {nit:6d}  {imsg}")
-                if self._call_callback(dict(row, x=X, u=U)):
-                    status, message = Status.USER_STOP, "stopped by the callback"
-                    break
-                if viol <= o.constr_viol_tol:
-                    if inner_ok:
-                        status, message = Status.SUCCESS, (f"violation {viol:.2e} <= {o.constr_viol_tol:g} after "
-                                                           f"{it} penalty iterations (rho = {rho:.3g})")
-                    else:
-                        status, message = Status.ACCEPTABLE, (f"violation {viol:.2e} <= {o.constr_viol_tol:g} but the "
-                                                              f"last inner solve did not converge: {imsg}")
-                    break
-                if deadline is not None and deadline():
-                    status, message = Status.MAX_TIME, f"time limit {o.max_time:g} s reached (violation {viol:.2e})"
-                    break
-                if it == o.max_iter:
-                    break
-                # ---- update multipliers / rho
-                grow = True
-                if o.augmented_lagrangian:
-                    pen.set_penalty(rho, pen.first_order_multipliers(X, U))
-                    prev = history[-2]["violation"] if len(history) > 1 else math.inf
-                    grow = viol > o.al_decrease * prev
-                if grow:
-                    stall = stall + 1 if viol > 0.9 * viol_at_growth else 0
-                    viol_at_growth = viol
-                    if stall >= o.infeasible_stall:
-                        status, message = Status.INFEASIBLE, (
-                            f"the violation stays at {viol:.2e} while rho grows ({stall} increases to {rho:.3g} "
-                            f"reduced it by less than 10% each): locally infeasible")
-                        break
-                    if rho * o.rho_factor > o.rho_max:
-                        status, message = Status.FAILED, (f"penalty parameter would exceed rho_max = {o.rho_max:g} "
-                                                          f"with violation {viol:.2e} > {o.constr_viol_tol:g}")
-                        break
-                    rho *= o.rho_factor
-            if status is Status.MAX_ITERATIONS:
-                message = (f"{o.max_iter} penalty iterations without reaching violation <= {o.constr_viol_tol:g} "
-                           f"(violation {viol:.2e}, rho = {rho:.3g})")
-        except NonFiniteEvaluationError as exc:
-            status, message = Status.NUMERICAL_ERROR, f"non-finite values: {exc}"
+        with limits.catch() as stop:    # a time limit or an interrupt: the last recorded iterate
+            try:
+                self._loop(problem, pen, inner_cls, limits, out)
+            except NonFiniteEvaluationError as exc:
+                out.status, out.message = Status.NUMERICAL_ERROR, f"non-finite values: {exc}"
+        if stop.reason:
+            out.status, out.message = stop_outcome(stop.reason, limits, f"after {out.iters} penalty iterations")
+        return self._result(problem, pen, out.X, out.U, out.status, out.message, out.iters, out.inner_total,
+                            out.history, out.viol)
 
-        return self._result(problem, pen, X, U, status, message, iters, inner_total, history, viol)
+    def _loop(self, problem, pen, inner_cls, limits, out):
+        """The outer iterations over the solve's state ``out`` (updated in place). The time limit
+        and interrupts raise from ``limits.check()`` after an iteration's record (an inner solve
+        stopped by them returns its last iterate first), so ``out`` holds the point recorded."""
+        o = self.options
+        t0 = limits.t0
+        rho = o.rho_init
+        stall, viol_at_growth = 0, math.inf
+        history = out.history
+        for it in range(1, o.max_iter + 1):
+            pen.set_penalty(rho)
+            if inner_cls is None:
+                U, inner_ok, nit, imsg, _ = solve_lbfgsb(pen, out.U, tol=o.tol, max_iter=o.inner_max_iter,
+                                                         memory=o.inner_memory, limits=limits)
+            else:
+                opts = dict(o.inner_options)
+                opts.setdefault("tol", o.tol)
+                opts.setdefault("max_iter", o.inner_max_iter)
+                if math.isfinite(o.max_time):
+                    opts.setdefault("max_time", max(o.max_time - (time.perf_counter() - t0), 1e-3))
+                res = inner_cls(**opts).solve(pen, guess=out.U)
+                U = res.u
+                inner_ok, nit, imsg = res.status.success, res.iterations, res.status.value
+                if res.status is Status.INTERRUPTED:    # e.g. a KeyboardInterrupt seen by the inner solve
+                    limits.interrupt()
+                if res.status in (Status.NUMERICAL_ERROR, Status.INVALID_PROBLEM) and not np.all(np.isfinite(U)):
+                    out.status, out.message = res.status, f"inner solver {o.inner}: {res.message}"
+                    return
+            X = problem.simulate(U)
+            J = problem.objective(X, U)
+            viol, parts = pen.violations(X, U)
+            out.X, out.U, out.viol, out.iters = X, U, viol, it
+            out.inner_total += max(nit, 0)
+            row = {"iter": it, "rho": rho, "violation": viol, "objective": J,
+                   "penalized_objective": pen.objective(X, U), "inner_iterations": nit,
+                   "inner_converged": bool(inner_ok), "inner_message": imsg,
+                   "time_s": time.perf_counter() - t0}
+            row.update({f"violation_{k}": v for k, v in parts.items()})
+            history.append(row)
+            self._log(2, f"{it:4d} {rho:9.2e} {viol:10.3e} {J:16.9e} {nit:6d}  {imsg}")
+            if self._call_callback(dict(row, x=X, u=U)):
+                out.status, out.message = Status.USER_STOP, "stopped by the callback"
+                return
+            if viol <= o.constr_viol_tol:
+                if inner_ok:
+                    out.status, out.message = Status.SUCCESS, (f"violation {viol:.2e} <= {o.constr_viol_tol:g} after "
+                                                               f"{it} penalty iterations (rho = {rho:.3g})")
+                else:
+                    out.status, out.message = Status.ACCEPTABLE, (f"violation {viol:.2e} <= {o.constr_viol_tol:g} but "
+                                                                  f"the last inner solve did not converge: {imsg}")
+                return
+            limits.check()
+            if it == o.max_iter:
+                break
+            # ---- update multipliers / rho
+            grow = True
+            if o.augmented_lagrangian:
+                pen.set_penalty(rho, pen.first_order_multipliers(X, U))
+                prev = history[-2]["violation"] if len(history) > 1 else math.inf
+                grow = viol > o.al_decrease * prev
+            if grow:
+                stall = stall + 1 if viol > 0.9 * viol_at_growth else 0
+                viol_at_growth = viol
+                if stall >= o.infeasible_stall:
+                    out.status, out.message = Status.INFEASIBLE, (
+                        f"the violation stays at {viol:.2e} while rho grows ({stall} increases to {rho:.3g} "
+                        f"reduced it by less than 10% each): locally infeasible")
+                    return
+                if rho * o.rho_factor > o.rho_max:
+                    out.status, out.message = Status.FAILED, (f"penalty parameter would exceed rho_max = "
+                                                              f"{o.rho_max:g} with violation {out.viol:.2e} > "
+                                                              f"{o.constr_viol_tol:g}")
+                    return
+                rho *= o.rho_factor
+        out.message = (f"{o.max_iter} penalty iterations without reaching violation <= {o.constr_viol_tol:g} "
+                       f"(violation {out.viol:.2e}, rho = {rho:.3g})")
 
     # ------------------------------------------------------------------ result
     def _result(self, problem, pen, X, U, status, message, iterations, inner_total, history, viol):

@@ -59,8 +59,9 @@ import time
 import numpy as np
 
 from ...errors import NonFiniteEvaluationError
+from ...interrupts import Limits
 from ...result import Result, Status
-from ..common import Deadline
+from ..common import stop_outcome
 from ...options import option
 from ..base import Solver, SolverOptions
 from .control_space import ReducedProblem, unsupported_features
@@ -98,8 +99,31 @@ class _Iterate:
         self.U, self.X, self.J, self.g, self.costate = U, X, J, g, costate
 
 
+@dataclasses.dataclass
+class _Loop:
+    """The mutable state of one solve's loop: the iterate, the tolerances, the time limit and
+    interrupts, the accepted steps, (J, slope, alpha) of the last step (the next first trial
+    step), the stop."""
+
+    cur: _Iterate
+    tol: float
+    acc_tol: float
+    limits: Limits
+    it: int = 0
+    prev: tuple = (None, None, None)
+    status: Status | None = None
+    message: str = ""
+
+    def stop(self, status, message):
+        self.status, self.message = status, message
+        return True
+
+
 class ReducedGradientSolver(Solver):
-    """Common iteration of the control-space methods: subclasses give the search direction."""
+    """Common iteration of the control-space methods: subclasses give the search direction.
+
+    The method's memory (CG's last direction, the BFGS pairs) belongs to one solve: ``_start``
+    returns it and the other hooks get it, so one solver instance can run several solves at once."""
 
     name = "reduced-gradient"
     Options = ReducedGradientOptions
@@ -107,31 +131,32 @@ class ReducedGradientSolver(Solver):
     unit_step = False
 
     # -- to implement ---------------------------------------------------------------------
-    def _start(self, rp, it0):
-        """Reset the method's memory at the initial point."""
+    def _start(self, rp, cur):
+        """The method's memory at the initial point (None: the method keeps none)."""
+        return None
 
-    def _direction(self, rp, cur):
+    def _direction(self, rp, cur, mem):
         """(d, info dict) at the current iterate."""
         raise NotImplementedError
 
-    def _accepted(self, rp, old, new, s, y):
+    def _accepted(self, mem, old, new, s, y):
         """Update the method's memory after the step s = u+ - u with y = g+ - g."""
 
-    def _restart(self):
+    def _restart(self, mem):
         """Forget the memory (the next direction is -g)."""
 
     # -- the loop ---------------------------------------------------------------------------
     def _solve(self, problem, X0, U0):
         o = self.options
         t_start = time.perf_counter()
-        deadline = Deadline(o.max_time)
+        limits = Limits(o.max_time)
         missing = unsupported_features(problem)
         if missing:
             msg = (f"the {self.name} solver minimizes J(u) without bounds or constraints, but the problem has "
                    f"{', '.join(missing)}; use 'pdmin' (control bounds only) or 'penalty' (constraints) instead")
             return Result(status=Status.INVALID_PROBLEM, message=msg, objective=float("nan"),
                           x=np.asarray(X0, dtype=float), u=np.asarray(U0, dtype=float), info={"unsupported": missing})
-        rp = ReducedProblem(problem)
+        rp = ReducedProblem(problem, limits)
         history = []
         U = np.array(U0, dtype=float)
         try:
@@ -146,77 +171,19 @@ class ReducedGradientSolver(Solver):
         gnorm = float(np.max(np.abs(g)))
         scale = max(1.0, gnorm) if o.relative_tol else 1.0
         tol, acc_tol = o.tol * scale, o.acceptable_tol * scale
-        self._start(rp, cur)
+        mem = self._start(rp, cur)
         rec = self._record(0, cur, rp, alpha=0.0, step_norm=0.0)
         history.append(rec)
         self._log(2, self._log_line(rec, header=True))
-        prev_J, prev_slope, prev_alpha = None, None, None
-        status = message = None
-        it = 0
-        while True:
-            gnorm = float(np.max(np.abs(cur.g)))
-            if gnorm <= tol:
-                status, message = Status.SUCCESS, (f"converged in {it} iterations: |dJ/du|_inf = {gnorm:.2e} <= "
-                                                   f"{tol:.1e}")
-                break
-            if it >= o.max_iter:
-                status, message = Status.MAX_ITERATIONS, (f"maximum number of iterations ({o.max_iter}) reached; "
-                                                          f"|dJ/du|_inf = {gnorm:.2e}")
-                break
-            if deadline.expired():
-                status, message = Status.MAX_TIME, (f"time limit of {o.max_time:g} s reached after {it} iterations; "
-                                                    f"|dJ/du|_inf = {gnorm:.2e}")
-                break
-            it += 1
-            d, dinfo = self._direction(rp, cur)
-            slope = float(np.vdot(cur.g, d))
-            if not (slope < 0.0 and math.isfinite(slope)):
-                self._restart()
-                d, dinfo = -cur.g, dict(dinfo, restart=True, steepest=True)
-                slope = -float(np.vdot(cur.g, cur.g))
-            alpha0 = self._initial_step(cur, d, slope, prev_J, prev_slope, prev_alpha, dinfo.get("steepest", False))
-            ls, new = self._line_search(rp, cur, d, slope, alpha0)
-            if not ls.decrease and not dinfo.get("restart") and not dinfo.get("steepest"):
-                # the method's direction failed: one retry along -g with the memory dropped
-                self._restart()
-                d, dinfo = -cur.g, dict(dinfo, restart=True, steepest=True)
-                slope = -float(np.vdot(cur.g, cur.g))
-                ls, new = self._line_search(rp, cur, d, slope, self._initial_step(cur, d, slope, prev_J, prev_slope,
-                                                                           prev_alpha, True))
-            if not ls.decrease:
-                if gnorm <= acc_tol:
-                    status = Status.ACCEPTABLE
-                    message = (f"no further decrease of J at iteration {it} (rounding level); |dJ/du|_inf = "
-                               f"{gnorm:.2e} <= acceptable_tol {acc_tol:.1e} but > tol {tol:.1e}")
-                else:
-                    status = Status.NUMERICAL_ERROR
-                    message = f"{ls.message} at iteration {it}; |dJ/du|_inf = {gnorm:.2e}"
-                it -= 1
-                break
-            s = new.U - cur.U
-            y = new.g - cur.g
-            self._accepted(rp, cur, new, s, y)
-            prev_J, prev_slope, prev_alpha = cur.J, slope, ls.alpha
-            old = cur
-            cur = new
-            step_norm = float(np.max(np.abs(s)))
-            rec = self._record(it, cur, rp, alpha=ls.alpha, step_norm=step_norm, ls_evaluations=ls.n_value,
-                               wolfe=ls.success, **dinfo)
-            history.append(rec)
-            self._log(2, self._log_line(rec))
-            if self.options.callback is not None:
-                info = dict(rec, x=cur.X, u=cur.U, gradient=cur.g, solver=self.name)
-                if self._call_callback(info):
-                    status, message = Status.USER_STOP, f"stopped by the callback after iteration {it}"
-                    break
-            if o.step_tol > 0 and step_norm <= o.step_tol * (1.0 + float(np.max(np.abs(cur.U)))):
-                status, message = Status.ACCEPTABLE, (f"step {step_norm:.2e} below step_tol at iteration {it}; "
-                                                      f"|dJ/du|_inf = {rec['grad_norm']:.2e}")
-                break
-            if o.f_tol > 0 and abs(old.J - cur.J) <= o.f_tol * max(1.0, abs(cur.J)):
-                status, message = Status.ACCEPTABLE, (f"decrease of J {old.J - cur.J:.2e} below f_tol at iteration "
-                                                      f"{it}; |dJ/du|_inf = {rec['grad_norm']:.2e}")
-                break
+        loop = _Loop(cur=cur, tol=tol, acc_tol=acc_tol, limits=limits)
+        with limits.catch() as stop:        # a time limit or an interrupt: the last accepted iterate
+            while not self._iterate(rp, loop, mem, history):
+                pass
+        cur, it = loop.cur, loop.it
+        status, message = loop.status, loop.message
+        if stop.reason:
+            status, message = stop_outcome(stop.reason, limits, f"after {it} iterations; |dJ/du|_inf = "
+                                                         f"{float(np.max(np.abs(cur.g))):.2e}")
         gnorm = float(np.max(np.abs(cur.g)))
         return Result(
             status=status, message=message, objective=float(cur.J), x=cur.X, u=cur.U,
@@ -230,6 +197,62 @@ class ReducedGradientSolver(Solver):
                                            "(IPOPT's sign convention, as the NLP solvers)",
                   "method": self.method_description()},
         )
+
+    def _iterate(self, rp, loop, mem, history):
+        """One iteration: stopping tests, direction, line search, the step; True to stop
+        (``loop.status`` set). ``loop.it`` counts the accepted steps only."""
+        o, cur = self.options, loop.cur
+        gnorm = float(np.max(np.abs(cur.g)))
+        if gnorm <= loop.tol:
+            return loop.stop(Status.SUCCESS, f"converged in {loop.it} iterations: |dJ/du|_inf = {gnorm:.2e} <= "
+                                             f"{loop.tol:.1e}")
+        if loop.it >= o.max_iter:
+            return loop.stop(Status.MAX_ITERATIONS, f"maximum number of iterations ({o.max_iter}) reached; "
+                                                    f"|dJ/du|_inf = {gnorm:.2e}")
+        loop.limits.check()
+        it = loop.it + 1
+        d, dinfo = self._direction(rp, cur, mem)
+        slope = float(np.vdot(cur.g, d))
+        if not (slope < 0.0 and math.isfinite(slope)):
+            self._restart(mem)
+            d, dinfo = -cur.g, dict(dinfo, restart=True, steepest=True)
+            slope = -float(np.vdot(cur.g, cur.g))
+        prev = loop.prev
+        alpha0 = self._initial_step(cur, d, slope, *prev, dinfo.get("steepest", False))
+        ls, new = self._line_search(rp, cur, d, slope, alpha0)
+        if not ls.decrease and not dinfo.get("restart") and not dinfo.get("steepest"):
+            # the method's direction failed: one retry along -g with the memory dropped
+            self._restart(mem)
+            d, dinfo = -cur.g, dict(dinfo, restart=True, steepest=True)
+            slope = -float(np.vdot(cur.g, cur.g))
+            ls, new = self._line_search(rp, cur, d, slope, self._initial_step(cur, d, slope, *prev, True))
+        if not ls.decrease:
+            if gnorm <= loop.acc_tol:
+                return loop.stop(Status.ACCEPTABLE, (f"no further decrease of J at iteration {it} (rounding level); "
+                                                     f"|dJ/du|_inf = {gnorm:.2e} <= acceptable_tol {loop.acc_tol:.1e} "
+                                                     f"but > tol {loop.tol:.1e}"))
+            return loop.stop(Status.NUMERICAL_ERROR, f"{ls.message} at iteration {it}; |dJ/du|_inf = {gnorm:.2e}")
+        s = new.U - cur.U
+        y = new.g - cur.g
+        self._accepted(mem, cur, new, s, y)
+        loop.prev = (cur.J, slope, ls.alpha)
+        loop.cur, loop.it = new, it
+        step_norm = float(np.max(np.abs(s)))
+        rec = self._record(it, new, rp, alpha=ls.alpha, step_norm=step_norm, ls_evaluations=ls.n_value,
+                           wolfe=ls.success, **dinfo)
+        history.append(rec)
+        self._log(2, self._log_line(rec))
+        if self.options.callback is not None:
+            info = dict(rec, x=new.X, u=new.U, gradient=new.g, solver=self.name)
+            if self._call_callback(info):
+                return loop.stop(Status.USER_STOP, f"stopped by the callback after iteration {it}")
+        if o.step_tol > 0 and step_norm <= o.step_tol * (1.0 + float(np.max(np.abs(new.U)))):
+            return loop.stop(Status.ACCEPTABLE, (f"step {step_norm:.2e} below step_tol at iteration {it}; "
+                                                 f"|dJ/du|_inf = {rec['grad_norm']:.2e}"))
+        if o.f_tol > 0 and abs(cur.J - new.J) <= o.f_tol * max(1.0, abs(new.J)):
+            return loop.stop(Status.ACCEPTABLE, (f"decrease of J {cur.J - new.J:.2e} below f_tol at iteration "
+                                                 f"{it}; |dJ/du|_inf = {rec['grad_norm']:.2e}"))
+        return False
 
     # -- pieces -----------------------------------------------------------------------------
     def method_description(self) -> str:
@@ -303,7 +326,7 @@ class GradientSolver(ReducedGradientSolver):
 
     name = "gradient"
 
-    def _direction(self, rp, cur):
+    def _direction(self, rp, cur, mem):
         return -cur.g, {"steepest": True}
 
 
@@ -332,33 +355,30 @@ class ConjugateGradientSolver(ReducedGradientSolver):
         return f"{self.summary()}; beta = {self.options.formula}"
 
     def _start(self, rp, cur):
-        self._d = None
-        self._since_restart = 0
-        self._n_restart = self.options.n_restart or rp.N * rp.m
-        self._beta_next = None
+        return _CGMemory(n_restart=self.options.n_restart or rp.N * rp.m)
 
-    def _restart(self):
-        self._d = None
+    def _restart(self, mem):
+        mem.d = None
 
-    def _direction(self, rp, cur):
-        if self._d is None or self._beta_next is None or self._since_restart >= self._n_restart:
-            self._since_restart = 0
+    def _direction(self, rp, cur, mem):
+        if mem.d is None or mem.beta_next is None or mem.since_restart >= mem.n_restart:
+            mem.since_restart = 0
             d = -cur.g
             info = {"restart": True, "steepest": True, "beta": 0.0}
         else:
-            beta = self._beta_next
-            d = -cur.g + beta * self._d
+            beta = mem.beta_next
+            d = -cur.g + beta * mem.d
             info = {"restart": False, "beta": float(beta)}
             # a direction that is not a clear descent direction restarts (Powell 1977)
             if float(np.vdot(cur.g, d)) > -1e-12 * float(np.vdot(cur.g, cur.g)):
-                self._since_restart = 0
+                mem.since_restart = 0
                 d = -cur.g
                 info = {"restart": True, "steepest": True, "beta": 0.0}
-        self._d = d
-        self._since_restart += 1
+        mem.d = d
+        mem.since_restart += 1
         return d, info
 
-    def _accepted(self, rp, old, new, s, y):
+    def _accepted(self, mem, old, new, s, y):
         g, gp = old.g, new.g
         gg = float(np.vdot(g, g))
         f = self.options.formula
@@ -366,12 +386,23 @@ class ConjugateGradientSolver(ReducedGradientSolver):
             beta = float(np.vdot(gp, gp)) / gg
         elif f == "polak-ribiere":
             beta = max(0.0, float(np.vdot(gp, y)) / gg)
-        elif self._d is None:   # just restarted: no previous direction to be conjugate to
+        elif mem.d is None:   # just restarted: no previous direction to be conjugate to
             beta = None
         else:
-            dy = float(np.vdot(self._d, y))
+            dy = float(np.vdot(mem.d, y))
             beta = float(np.vdot(gp, y)) / dy if dy != 0.0 else None
-        self._beta_next = beta if beta is not None and math.isfinite(beta) else None
+        mem.beta_next = beta if beta is not None and math.isfinite(beta) else None
+
+
+@dataclasses.dataclass
+class _CGMemory:
+    """One CG solve's memory: the last direction, iterations since the last restart, the
+    restart period, the next beta (None: restart)."""
+
+    n_restart: int
+    d: np.ndarray | None = None
+    since_restart: int = 0
+    beta_next: float | None = None
 
 
 # ============================================================================== variable metric
@@ -407,55 +438,63 @@ class VariableMetricSolver(ReducedGradientSolver):
         return super()._solve(problem, X0, U0)
 
     def _start(self, rp, cur):
-        self._pairs = []          # (s, y, 1/s.y), oldest first
-        self._H = None            # dense inverse Hessian (variant = dense)
-        self._gamma = None        # initial scaling s.y / y.y of the last pair
-        self._skipped = 0
+        return _BFGSMemory()
 
-    def _restart(self):
-        self._pairs = []
-        self._H = None
-        self._gamma = None
+    def _restart(self, mem):
+        mem.pairs = []
+        mem.H = None
+        mem.gamma = None
 
-    def _direction(self, rp, cur):
+    def _direction(self, rp, cur, mem):
         g = cur.g.ravel()
         if self.options.variant == "dense":
-            if self._H is None:
+            if mem.H is None:
                 return -cur.g, {"steepest": True}
-            return (-(self._H @ g)).reshape(cur.g.shape), {}
-        if not self._pairs:
+            return (-(mem.H @ g)).reshape(cur.g.shape), {}
+        if not mem.pairs:
             return -cur.g, {"steepest": True}
         q = g.copy()
         alphas = []
-        for s, y, rho in reversed(self._pairs):
+        for s, y, rho in reversed(mem.pairs):
             a = rho * float(s @ q)
             alphas.append(a)
             q -= a * y
-        r = self._gamma * q
-        for (s, y, rho), a in zip(self._pairs, reversed(alphas)):
+        r = mem.gamma * q
+        for (s, y, rho), a in zip(mem.pairs, reversed(alphas)):
             b = rho * float(y @ r)
             r += (a - b) * s
         return (-r).reshape(cur.g.shape), {}
 
-    def _accepted(self, rp, old, new, s, y):
+    def _accepted(self, mem, old, new, s, y):
         s, y = s.ravel(), y.ravel()
         sy = float(s @ y)
         if not (sy > 1e-12 * math.sqrt(float(s @ s) * float(y @ y))):
-            self._skipped += 1            # curvature condition fails: keep the old metric
+            mem.skipped += 1            # curvature condition fails: keep the old metric
             return
         rho = 1.0 / sy
-        self._gamma = sy / float(y @ y)
+        mem.gamma = sy / float(y @ y)
         if self.options.variant == "dense":
             n = s.size
-            if self._H is None:
-                self._H = self._gamma * np.eye(n)
-            Hy = self._H @ y
+            if mem.H is None:
+                mem.H = mem.gamma * np.eye(n)
+            Hy = mem.H @ y
             # H+ = (I - rho s y') H (I - rho y s') + rho s s'  (N&W eq. (6.17)) expanded
-            self._H += (rho * rho * float(y @ Hy) + rho) * np.outer(s, s) - rho * (np.outer(Hy, s) + np.outer(s, Hy))
+            mem.H += (rho * rho * float(y @ Hy) + rho) * np.outer(s, s) - rho * (np.outer(Hy, s) + np.outer(s, Hy))
         else:
-            self._pairs.append((s.copy(), y.copy(), rho))
-            if len(self._pairs) > self.options.memory:
-                self._pairs.pop(0)
+            mem.pairs.append((s.copy(), y.copy(), rho))
+            if len(mem.pairs) > self.options.memory:
+                mem.pairs.pop(0)
+
+
+@dataclasses.dataclass
+class _BFGSMemory:
+    """One BFGS solve's memory: the (s, y, 1/s.y) pairs, oldest first (limited memory), or the
+    dense inverse Hessian; the initial scaling s.y / y.y of the last pair; skipped updates."""
+
+    pairs: list = dataclasses.field(default_factory=list)
+    H: np.ndarray | None = None
+    gamma: float | None = None
+    skipped: int = 0
 
 
 # ============================================================================== Newton
@@ -477,7 +516,7 @@ class NewtonSolver(ReducedGradientSolver):
     Options = NewtonOptions
     unit_step = True
 
-    def _direction(self, rp, cur):
+    def _direction(self, rp, cur, mem):
         g = cur.g
         gn = math.sqrt(float(np.vdot(g, g)))
         eta = min(0.5, gn) if self.options.forcing == "quadratic" else min(0.5, math.sqrt(gn))

@@ -20,6 +20,7 @@ import time
 import numpy as np
 
 from ...errors import ConfigError, NonFiniteEvaluationError, SolverNotAvailableError
+from ...interrupts import INTERRUPTED, MAX_TIME, Limits
 from ...result import Status
 from .. import common
 from ...options import option
@@ -195,8 +196,10 @@ class IpoptSolver(Solver):
 
         code = int(info["status"])
         status, message = map_ipopt_status(code, info.get("status_msg", ""))
-        if adapter.stop_reason == "max_time" and status is Status.USER_STOP:
-            status, message = Status.MAX_TIME, message + " (olado: time limit reached)"
+        if adapter.stop_reason in (INTERRUPTED, MAX_TIME) and not status.success:
+            status, why = common.stop_outcome(adapter.stop_reason, adapter.limits,
+                                              f"after {adapter.iterations} IPOPT iterations")
+            message = f"{why} (IPOPT status {code}, {IPOPT_STATUS.get(code, (None, 'Unknown_Status'))[1]})"
         elif adapter.stop_reason == "callback" and status is Status.USER_STOP:
             message += " (olado: the user callback returned True)"
         if adapter.evaluation_error is not None and status in (Status.INVALID_PROBLEM, Status.NUMERICAL_ERROR,
@@ -223,7 +226,15 @@ class IpoptSolver(Solver):
 
 class _IpoptAdapter:
     """The object cyipopt calls: evaluations from the NLP view (timed, counted), iteration
-    history, user callback and the time limit."""
+    history, user callback, the time limit and interrupts.
+
+    A time limit or an interrupt (olado.interrupts) stops IPOPT at once: the intermediate
+    callback returns False (User_Requested_Stop), and every evaluation asked for after it is
+    refused as an evaluation error without being computed -- in a line search IPOPT then cuts
+    the step back to its current iterate, elsewhere it stops (Invalid_Number_Detected) -- so
+    IPOPT returns its current iterate within a fraction of an iteration. A KeyboardInterrupt
+    from the user's functions or callback is such an interrupt (cyipopt would otherwise hold it
+    until IPOPT ends and raise it, losing the iterate)."""
 
     def __init__(self, solver: IpoptSolver, nlp, timed):
         self.solver, self.nlp, self.timed = solver, nlp, timed
@@ -232,17 +243,26 @@ class _IpoptAdapter:
         self.iterations = 0
         self.stop_reason = None
         self.evaluation_error = None
-        self.deadline = common.Deadline(solver.options.max_time)
+        self.limits = Limits(solver.options.max_time)
         self._cyipopt_error = import_cyipopt().CyIpoptEvaluationError
 
     def _guard(self, fn, *args):
         """Turn a non-finite evaluation into an IPOPT evaluation error (IPOPT then cuts the
-        step, or stops with Invalid_Number_Detected); definition bugs propagate."""
+        step, or stops with Invalid_Number_Detected); definition bugs propagate. After a time
+        limit or an interrupt nothing is evaluated (class docstring)."""
+        reason = self.limits.reason()
+        if reason is not None:
+            self.stop_reason = reason
+            raise self._cyipopt_error(f"olado: solve stopped ({reason})")
         try:
             return fn(*args)
         except NonFiniteEvaluationError as exc:
             self.evaluation_error = str(exc)
             raise self._cyipopt_error(str(exc)) from exc
+        except KeyboardInterrupt as exc:
+            self.limits.interrupt(exc)          # a second signal (AbortSolve) propagates
+            self.stop_reason = INTERRUPTED
+            raise self._cyipopt_error("olado: interrupted") from None
 
     def objective(self, y):
         return self._guard(self.timed.objective, y)
@@ -274,7 +294,7 @@ class _IpoptAdapter:
             "inf_du": float(inf_du), "mu": float(mu), "d_norm": float(d_norm),
             "regularization": float(regularization_size), "alpha_pr": float(alpha_pr),
             "alpha_du": float(alpha_du), "ls_trials": int(ls_trials),
-            "restoration": bool(alg_mod == 1), "time_s": self.deadline.elapsed(),
+            "restoration": bool(alg_mod == 1), "time_s": self.limits.elapsed(),
         }
         self.history.append(row)
         opts = self.solver.options
@@ -293,10 +313,14 @@ class _IpoptAdapter:
                     info["x"], info["u"] = self.nlp.unpack(np.asarray(it["x"]))
             except Exception:  # pragma: no cover - older IPOPT without GetIpoptCurrentIterate
                 pass
-            if self.solver._call_callback(info):
-                self.stop_reason = "callback"
-                return False
-        if self.deadline.expired():
-            self.stop_reason = "max_time"
+            try:
+                if self.solver._call_callback(info):
+                    self.stop_reason = "callback"
+                    return False
+            except KeyboardInterrupt as exc:
+                self.limits.interrupt(exc)      # a second signal (AbortSolve) propagates
+        reason = self.limits.reason()
+        if reason is not None:
+            self.stop_reason = reason
             return False
         return True

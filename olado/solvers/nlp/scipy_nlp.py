@@ -25,22 +25,24 @@ import warnings
 import numpy as np
 from scipy import optimize
 
+from ...interrupts import Limits
 from ...result import Status
 from .. import common
 from ...options import option
 from ..base import Solver, SolverOptions
 
 
-class _StopSolve(Exception):
-    """Raised inside SciPy callbacks' wrappers; carries why the solve was stopped."""
-
-
 class _SciPyNLPSolver(Solver):
-    """Common driver: NLP view, fixed-variable removal, callbacks, time limit, Result."""
+    """Common driver: NLP view, fixed-variable removal, callbacks, time limit, Result.
 
-    def _setup(self, problem, X0, U0):
+    The time limit and interrupts (olado.interrupts) are checked after every evaluation (the
+    solve's TimedNLP) and in the iteration callback; SciPy's minimize runs in the limits' catch
+    block, and a stopped solve returns the last iterate SciPy reported to the callback
+    (``state["z"]``; the initial point before the first)."""
+
+    def _setup(self, problem, X0, U0, limits):
         nlp = common.make_nlp(problem)
-        timed = common.TimedNLP(nlp)
+        timed = common.TimedNLP(nlp, limits)
         free = common.FreeVariableNLP(timed)
         y0 = np.asarray(nlp.pack(X0, U0), dtype=float)
         z0 = free.reduce(y0)
@@ -55,17 +57,20 @@ class _SciPyNLPSolver(Solver):
             return None
         return optimize.Bounds(lbz, ubz)
 
-    def _make_callback(self, nlp, free, history, deadline, state, extra=lambda r: {}):
-        """A SciPy ``callback(intermediate_result)`` that records history, calls the user's
-        callback and enforces the time limit (StopIteration stops SciPy)."""
+    def _make_callback(self, nlp, free, history, limits, state, extra=lambda r: {}):
+        """A SciPy ``callback(intermediate_result)`` that records history and the iterate
+        (``state["z"]``, ``state["v"]``: trust-constr's multipliers), calls the user's callback
+        (StopIteration stops SciPy) and checks the time limit and interrupts (raise)."""
         opts = self.options
 
         def callback(intermediate_result):
             it = len(history) + 1
-            z = np.asarray(intermediate_result.x, dtype=float)
+            z = np.array(intermediate_result.x, dtype=float)
+            state["z"] = z
+            state["v"] = getattr(intermediate_result, "v", None)
             row = {"iter": it, "objective": float(intermediate_result.fun)}
             row.update(extra(intermediate_result))
-            row["time_s"] = deadline.elapsed()
+            row["time_s"] = limits.elapsed()
             history.append(row)
             if opts.verbose == 2:
                 print("  ".join(f"{k} {v:.6e}" if isinstance(v, float) else f"{k} {v}"
@@ -75,19 +80,23 @@ class _SciPyNLPSolver(Solver):
                 if self._call_callback(dict(row, x=X, u=U, solver=self.name)):
                     state["stop"] = "callback"
                     raise StopIteration
-            if deadline.expired():
-                state["stop"] = "max_time"
-                raise StopIteration
+            limits.check()
 
         return callback
 
     @staticmethod
-    def _stopped(state):
+    def _stopped(state, stop, limits):
+        """(status, why) of a solve stopped by the callback, the time limit or an interrupt; None."""
+        if stop.reason:
+            return common.stop_outcome(stop.reason, limits, f"after {state.get('iterations', 0)} iterations")
         if state.get("stop") == "callback":
             return Status.USER_STOP, "the user callback returned True"
-        if state.get("stop") == "max_time":
-            return Status.MAX_TIME, "the time limit (max_time) was reached"
         return None
+
+    @staticmethod
+    def _stopped_iterate(free, state, z0):
+        """The last iterate SciPy reported (the initial point before the first)."""
+        return np.asarray(state.get("z", z0), dtype=float)
 
 
 # ============================================================================ SLSQP
@@ -129,7 +138,8 @@ class SLSQPSolver(_SciPyNLPSolver):
 
     def _solve(self, problem, X0, U0):
         opts = self.options
-        nlp, timed, free, z0 = self._setup(problem, X0, U0)
+        limits = Limits(opts.max_time)
+        nlp, timed, free, z0 = self._setup(problem, X0, U0, limits)
         cl, cu = free.cl, free.cu
         eq = cl == cu
         lo = ~eq & np.isfinite(cl)
@@ -161,10 +171,10 @@ class SLSQPSolver(_SciPyNLPSolver):
                                 "jac": lambda z: np.vstack([jac(z)[lo], -jac(z)[hi]])})
 
         history, state = [], {}
-        deadline = common.Deadline(opts.max_time)
-        callback = self._make_callback(nlp, free, history, deadline, state)
+        callback = self._make_callback(nlp, free, history, limits, state)
         t0 = time.perf_counter()
-        with warnings.catch_warnings():
+        res = None
+        with warnings.catch_warnings(), limits.catch() as stop:
             warnings.simplefilter("ignore", optimize.OptimizeWarning)
             res = optimize.minimize(
                 free.objective, z0, jac=free.gradient, method="SLSQP",
@@ -173,6 +183,10 @@ class SLSQPSolver(_SciPyNLPSolver):
                          "ftol": float(opts.ftol or max(opts.tol ** 2, 1e-12)), "disp": opts.verbose >= 3,
                          "iprint": 2 if opts.verbose >= 3 else 0})
         solve_time = time.perf_counter() - t0
+        state["iterations"] = len(history)
+        if res is None:     # stopped inside SciPy: its last reported iterate, no multipliers
+            res = optimize.OptimizeResult(x=self._stopped_iterate(free, state, z0), status=-1, nit=len(history),
+                                          message="stopped", multipliers=np.zeros(0))
 
         # multipliers: SLSQP's L = f - mu . (constraints as given), equalities first
         mu = np.asarray(getattr(res, "multipliers", np.zeros(0)), dtype=float)
@@ -185,7 +199,7 @@ class SLSQPSolver(_SciPyNLPSolver):
         y = free.full(np.asarray(res.x, dtype=float))
         zl, zu = self._bound_multipliers(nlp, free, y, lam)
 
-        stopped = self._stopped(state)
+        stopped = self._stopped(state, stop, limits)
         code = int(res.status)
         if stopped is not None:
             status, why = stopped
@@ -247,7 +261,8 @@ class TrustConstrSolver(_SciPyNLPSolver):
 
     def _solve(self, problem, X0, U0):
         opts = self.options
-        nlp, timed, free, z0 = self._setup(problem, X0, U0)
+        limits = Limits(opts.max_time)
+        nlp, timed, free, z0 = self._setup(problem, X0, U0, limits)
         n_cons = nlp.n_cons
         zeros_m = np.zeros(n_cons)
 
@@ -270,8 +285,7 @@ class TrustConstrSolver(_SciPyNLPSolver):
                    {"cg_niter": int(getattr(r, "cg_niter", 0))}
 
         history, state = [], {}
-        deadline = common.Deadline(opts.max_time)
-        callback = self._make_callback(nlp, free, history, deadline, state, extra)
+        callback = self._make_callback(nlp, free, history, limits, state, extra)
         scipy_opts = {"maxiter": max(int(opts.max_iter), 1), "gtol": float(opts.tol),
                       "xtol": float(opts.xtol), "barrier_tol": float(opts.tol),
                       "initial_tr_radius": float(opts.initial_tr_radius),
@@ -284,11 +298,19 @@ class TrustConstrSolver(_SciPyNLPSolver):
         t0 = time.perf_counter()
         restarts, nit, cg_niter = 0, 0, 0
         while True:
-            with warnings.catch_warnings():
+            res = None
+            with warnings.catch_warnings(), limits.catch() as stop:
                 warnings.simplefilter("ignore", UserWarning)  # "delta_grad == 0.0" etc.
                 res = optimize.minimize(free.objective, z0, jac=free.gradient, hess=obj_hess,
                                         method="trust-constr", bounds=self._scipy_bounds(free),
                                         constraints=constraints, callback=callback, options=scipy_opts)
+            if res is None:     # stopped inside SciPy: its last reported iterate and multipliers
+                v = state.get("v")
+                res = optimize.OptimizeResult(x=self._stopped_iterate(free, state, z0), status=-1, message="stopped",
+                                              nit=len(history) - nit, cg_niter=0, v=v if v is not None else [],
+                                              constr_violation=float("nan"), optimality=float("nan"))
+                nit += int(res.nit)
+                break
             nit += int(res.nit)
             cg_niter += int(res.cg_niter)
             # trust-constr's barrier branch may stop ("gtol satisfied") while the barrier
@@ -317,7 +339,8 @@ class TrustConstrSolver(_SciPyNLPSolver):
             zu[free.free] = np.maximum(vb, 0.0)
 
         code = int(res.status)
-        stopped = self._stopped(state)
+        state["iterations"] = nit
+        stopped = self._stopped(state, stop, limits)
         if stopped is not None:
             status, why = stopped
             message = f"trust-constr stopped: {why}"

@@ -96,8 +96,9 @@ def iterate(setup, st: SQPState) -> bool:
 
 # ---------------------------------------------------------------------------- 1. limits, test
 def limits_reached(setup, st):
-    if setup.deadline.expired():
-        return st.stop(Status.MAX_TIME, f"time limit of {setup.options.max_time:g} s reached after {st.it} SQP iterations")
+    """The iteration limit; the time limit and interrupts raise (olado.interrupts: the solver's
+    loop ends with the last accepted iterate)."""
+    setup.limits.check()
     return st.it >= setup.options.max_iter
 
 

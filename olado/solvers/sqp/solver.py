@@ -86,7 +86,8 @@ from .merit import Merit
 from .phases import initial_state, iterate
 from .residuals import finish
 from .state import Clock, ConstraintMasks, SQPSetup
-from ..common import Deadline
+from ..common import stop_outcome
+from ...interrupts import Limits
 from ...options import option
 from ..base import Solver, SolverOptions
 from .hessian import make_hessian
@@ -243,7 +244,7 @@ def make_setup(options, problem, callback):
     in effect."""
     o = options
     t_start = time.perf_counter()
-    deadline = Deadline(o.max_time)
+    limits = Limits(o.max_time)
     qp_solver = make_qp_solver(o.qp, kkt=o.kkt, tol=o.qp_tol, max_iter=o.qp_max_iter)
     interior = o.qp in INTERIOR_POINT_METHODS
     if interior:
@@ -260,7 +261,7 @@ def make_setup(options, problem, callback):
     masks = ConstraintMasks.of(problem)
     setup = SQPSetup(options=o, problem=problem, qp_solver=qp_solver, interior=interior, convexify=convexify,
                      inertia=hess.needs_exact and convexify == "inertia", masks=masks,
-                     merit=Merit(problem, masks), callback=callback, deadline=deadline, t_start=t_start)
+                     merit=Merit(problem, masks), callback=callback, limits=limits, t_start=t_start)
     return setup, hess
 
 
@@ -272,9 +273,12 @@ class SQPSolver(Solver):
 
     def _solve(self, problem, X0, U0):
         setup, hess = make_setup(self.options, problem, self._call_callback)
-        st = initial_state(setup, X0, U0, hess, Clock())
-        while not iterate(setup, st):
-            pass
+        st = initial_state(setup, X0, U0, hess, Clock(setup.limits))
+        with setup.limits.catch() as stop:      # a time limit or an interrupt: the last accepted iterate
+            while not iterate(setup, st):
+                pass
+        if stop.reason:
+            st.stop(*stop_outcome(stop.reason, setup.limits, f"after {st.it} SQP iterations"))
         return finish(setup, st, {"qp": self.options.qp, "kkt": self.options.kkt, "hessian": self.options.hessian,
                                   "convexify": setup.convexify, "hessian_updates": hess.updates,
                                   "hessian_skipped": hess.skipped})

@@ -18,21 +18,27 @@ from typing import Any, Callable, NamedTuple
 import numpy as np
 
 from ...result import Status
-from ..common import EVALUATION_KINDS, Deadline
+from ...interrupts import Limits
+from ..common import EVALUATION_KINDS
 
 
 class Clock:
     """Counts and times the problem evaluations of the SQP (the share of solve time spent in
-    olado's evaluation code is reported as info["callback_share"], as for the NLP solvers)."""
+    olado's evaluation code is reported as info["callback_share"], as for the NLP solvers).
+    Every evaluation batch it records is followed by the check of the solve's ``limits``: a
+    time limit or an interrupt stops the solve within one batch (olado.interrupts)."""
 
-    def __init__(self):
+    def __init__(self, limits=None):
         self.counts = {k: 0 for k in EVALUATION_KINDS}
         self.time_s = 0.0
+        self.limits = limits
 
     def add(self, kinds, t0):
         self.time_s += time.perf_counter() - t0
         for k in kinds:
             self.counts[k] += 1
+        if self.limits is not None:
+            self.limits.check()
 
 
 class Point:
@@ -152,7 +158,7 @@ class SQPSetup:
     masks: ConstraintMasks
     merit: Any                  # the merit function (olado.solvers.sqp.merit.Merit)
     callback: Callable[[dict], bool]
-    deadline: Deadline
+    limits: Limits              # time limit and interrupts (olado.interrupts)
     t_start: float
 
 

@@ -181,7 +181,7 @@ def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=
         if zero_gradient:
             qp.q[:] = 0.0
             qp.r[:] = 0.0
-        qres = qp_solver.solve(qp, warm_start=warm)
+        qres = qp_solver.solve(qp, warm_start=warm, limits=setup.limits)
         iterations += int(qres.iterations)
         if inertia and o.curvature_tol > 0 and qres.success:
             sHs, ss = curvature(Bd, BNd, qres.X, qres.U)
