@@ -175,8 +175,10 @@ def _exclusive(problem):
 
 
 def _stopped_before_first_iterate(problem, exc, X0, U0) -> Result:
-    """The Result of a solve stopped (time limit, interrupt) before its loop held an iterate:
-    the initial guess, not evaluated (a solver's own loop returns its last accepted iterate)."""
+    """The Result of a solve stopped (time limit, interrupt) outside its solver's loop -- in its
+    setup, its first evaluation, or the assembly of its result (a KeyboardInterrupt raised by
+    the user's code there): the initial guess, not evaluated. (Inside the loop every solver
+    returns its last accepted iterate itself.)"""
     reason = exc.reason if isinstance(exc, StopRequested) else Status.INTERRUPTED.value
     status = Status(reason)
     N, n, m = problem.N, problem.n, problem.m
@@ -184,5 +186,6 @@ def _stopped_before_first_iterate(problem, exc, X0, U0) -> Result:
     U = np.asarray(U0, dtype=float) if U0 is not None else np.full((N, m), np.nan)
     what = ("time limit reached" if status is Status.MAX_TIME
             else f"interrupted ({interrupt_source() or 'KeyboardInterrupt'})")
-    return Result(status=status, message=f"{what} before the first iterate was complete; the result holds the "
-                  "initial guess", objective=float("nan"), x=X, u=U)
+    return Result(status=status, message=f"{what} outside the solver's iterations (its setup or the assembly of its "
+                  "result): the result holds the initial guess, not the solver's iterate",
+                  objective=float("nan"), x=X, u=U)

@@ -478,8 +478,7 @@ class PenaltySolver(Solver):
                 out.status, out.message = Status.NUMERICAL_ERROR, f"non-finite values: {exc}"
         if stop.reason:
             out.status, out.message = stop_outcome(stop.reason, limits, f"after {out.iters} penalty iterations")
-        return self._result(problem, pen, out.X, out.U, out.status, out.message, out.iters, out.inner_total,
-                            out.history, out.viol)
+        return self._result(problem, pen, out, out.status, out.message)
 
     def _loop(self, problem, pen, inner_cls, limits, out):
         """The outer iterations over the solve's state ``out`` (updated in place). The time limit
@@ -559,7 +558,8 @@ class PenaltySolver(Solver):
                        f"(violation {out.viol:.2e}, rho = {rho:.3g})")
 
     # ------------------------------------------------------------------ result
-    def _result(self, problem, pen, X, U, status, message, iterations, inner_total, history, viol):
+    def _result(self, problem, pen, out, status, message):
+        X, U, iterations, inner_total, history, viol = out.X, out.U, out.iters, out.inner_total, out.history, out.viol
         saved = Counter(problem.counters)
         multipliers, kkt = {}, None
         try:
@@ -568,7 +568,10 @@ class PenaltySolver(Solver):
             stat = compl = None
         problem.counters.clear()
         problem.counters.update(saved)
-        J = problem.objective(X, U) if np.all(np.isfinite(U)) and np.all(np.isfinite(X)) else math.nan
+        if history and out.iters:       # the recorded point: its J is known
+            J = history[-1]["objective"]
+        else:
+            J = problem.objective(X, U) if np.all(np.isfinite(U)) and np.all(np.isfinite(X)) else math.nan
         problem.counters.clear()
         problem.counters.update(saved)
         return Result(status=status, message=message or status.sentence, objective=float(J), x=X, u=U,

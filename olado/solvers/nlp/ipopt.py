@@ -196,7 +196,10 @@ class IpoptSolver(Solver):
 
         code = int(info["status"])
         status, message = map_ipopt_status(code, info.get("status_msg", ""))
+        objective, constraints = info.get("obj_val"), info.get("g")
         if adapter.stop_reason in (INTERRUPTED, MAX_TIME) and not status.success:
+            objective, constraints = adapter.stopped_values(y, info)
+            adapter.iterations = adapter.stopped_iterations(y)
             status, why = common.stop_outcome(adapter.stop_reason, adapter.limits,
                                               f"after {adapter.iterations} IPOPT iterations")
             message = f"{why} (IPOPT status {code}, {IPOPT_STATUS.get(code, (None, 'Unknown_Status'))[1]})"
@@ -219,7 +222,7 @@ class IpoptSolver(Solver):
             nlp=nlp, y=y, lam=info["mult_g"], zl=info["mult_x_L"], zu=info["mult_x_U"],
             status=status, message=message,
             iterations=adapter.iterations, history=adapter.history, timed=timed,
-            solve_time_s=solve_time, objective=info.get("obj_val"), constraints=info.get("g"),
+            solve_time_s=solve_time, objective=objective, constraints=constraints,
             info=extra,
         )
 
@@ -244,6 +247,9 @@ class _IpoptAdapter:
         self.stop_reason = None
         self.evaluation_error = None
         self.limits = Limits(solver.options.max_time)
+        self.refused = None             # the first evaluation refused after a stop (its kind)
+        self.gradient_y = None          # where the last gradient was evaluated: IPOPT's current iterate
+        self.objective_at = (None, None)    # (y, J) of the last objective evaluation
         self._cyipopt_error = import_cyipopt().CyIpoptEvaluationError
 
     def _guard(self, fn, *args):
@@ -253,16 +259,40 @@ class _IpoptAdapter:
         reason = self.limits.reason()
         if reason is not None:
             self.stop_reason = reason
+            self.refused = self.refused or fn.__name__
             raise self._cyipopt_error(f"olado: solve stopped ({reason})")
         try:
-            return fn(*args)
+            value = fn(*args)
         except NonFiniteEvaluationError as exc:
             self.evaluation_error = str(exc)
             raise self._cyipopt_error(str(exc)) from exc
         except KeyboardInterrupt as exc:
             self.limits.interrupt(exc)          # a second signal (AbortSolve) propagates
             self.stop_reason = INTERRUPTED
+            self.refused = self.refused or fn.__name__
             raise self._cyipopt_error("olado: interrupted") from None
+        if fn.__name__ == "gradient":
+            self.gradient_y = args[0]
+        elif fn.__name__ == "objective":
+            self.objective_at = (args[0], value)
+        return value
+
+    def stopped_iterations(self, y):
+        """The iterations behind IPOPT's point ``y`` after a stop: IPOPT evaluates the gradient
+        once per accepted iterate, before reporting it, so a returned point other than the last
+        gradient's is the iterate its line search had just accepted (one more than reported)."""
+        moved = self.refused is not None and self.gradient_y is not None and not np.array_equal(y, self.gradient_y)
+        return self.iterations + int(moved)
+
+    def stopped_values(self, y, info):
+        """(objective, constraints) at IPOPT's point ``y`` for the Result: IPOPT's own after a
+        stop in the intermediate callback; after a refused evaluation IPOPT does not set them
+        (Invalid_Number_Detected), so J is the last evaluation's at y (None: evaluate) and c is
+        evaluated again."""
+        if self.refused is None:
+            return info.get("obj_val"), info.get("g")
+        at, value = self.objective_at
+        return (value if at is not None and np.array_equal(at, y) else None), None
 
     def objective(self, y):
         return self._guard(self.timed.objective, y)

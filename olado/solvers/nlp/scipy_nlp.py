@@ -68,6 +68,7 @@ class _SciPyNLPSolver(Solver):
             z = np.array(intermediate_result.x, dtype=float)
             state["z"] = z
             state["v"] = getattr(intermediate_result, "v", None)
+            state["fun"] = float(intermediate_result.fun)
             row = {"iter": it, "objective": float(intermediate_result.fun)}
             row.update(extra(intermediate_result))
             row["time_s"] = limits.elapsed()
@@ -97,6 +98,12 @@ class _SciPyNLPSolver(Solver):
     def _stopped_iterate(free, state, z0):
         """The last iterate SciPy reported (the initial point before the first)."""
         return np.asarray(state.get("z", z0), dtype=float)
+
+    @staticmethod
+    def _known_objective(stopped, state):
+        """J at the returned point when SciPy was stopped at a reported iterate (None:
+        build_result evaluates it) -- a stopped solve evaluates no more than it must."""
+        return state.get("fun") if stopped is not None and "z" in state else None
 
 
 # ============================================================================ SLSQP
@@ -212,6 +219,7 @@ class SLSQPSolver(_SciPyNLPSolver):
         return common.build_result(
             nlp=nlp, y=y, lam=lam, zl=zl, zu=zu, status=status, message=message,
             iterations=int(res.nit), history=history, timed=timed, solve_time_s=solve_time,
+            objective=self._known_objective(stopped, state),
             info={"scipy_status": code, "scipy_message": str(res.message),
                   "bound_multipliers": "recovered from stationarity on the active bounds"},
         )
@@ -355,6 +363,7 @@ class TrustConstrSolver(_SciPyNLPSolver):
         result = common.build_result(
             nlp=nlp, y=y, lam=lam, zl=zl, zu=zu, status=status, message=message,
             iterations=nit, history=history, timed=timed, solve_time_s=solve_time,
+            objective=self._known_objective(stopped, state),
             info={"scipy_status": code, "scipy_message": str(res.message),
                   "scipy_method": getattr(res, "method", ""), "cg_iterations": cg_niter,
                   "scipy_optimality": float(res.optimality), "barrier_restarts": restarts,
