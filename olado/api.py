@@ -71,6 +71,12 @@ def solve(problem, config=None, solver=None, guess=None, **options):
 
     Non-convergence is reported in ``result.status``, never raised. A bad option raises
     :class:`~olado.errors.ConfigError`; a missing back-end :class:`SolverNotAvailableError`.
+
+    Ctrl-C (in the main thread), ``max_time`` or a KeyboardInterrupt raised by the callback or
+    the problem's functions end the solve at the next safe point with the status INTERRUPTED or
+    MAX_TIME and the last accepted iterate, not an exception; a second Ctrl-C raises
+    KeyboardInterrupt at once. A problem instance is solved by one solve at a time
+    (:class:`~olado.errors.ProblemInUseError`). See docs/interrupts.md.
     """
     if isinstance(problem, str):
         raise ConfigError(f"problem must be a DOCP instance, not the name {problem!r}; build one "
