@@ -46,6 +46,13 @@ def command(out, config_args, problem="zambezi", N=N):
     return [sys.executable, "-m", "olado", "solve", problem, "--N", str(N), "--save", str(out), *config_args]
 
 
+def default_signals():
+    """In the child before exec: SIGINT and SIGTERM back to their defaults (a background job of a
+    non-interactive shell starts with SIGINT ignored, and the child would inherit that)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
 def run_once(folder, config_args, delay=None, signum=None, problem="zambezi", N=N):
     """One ``olado solve`` run, signalled ``delay`` seconds after its start (None: never).
     Returns a dict: exit code, times, and the outcome of checking what it left in ``folder``."""
@@ -53,7 +60,7 @@ def run_once(folder, config_args, delay=None, signum=None, problem="zambezi", N=
     env = dict(os.environ, PYTHONPATH=str(REPO))
     t0 = time.perf_counter()
     proc = subprocess.Popen(command(out, config_args, problem, N), cwd=REPO, env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True, preexec_fn=default_signals)
     sent = None
     if delay is not None:
         try:

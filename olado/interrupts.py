@@ -31,8 +31,8 @@ import signal
 import threading
 import time
 
-__all__ = ["AbortSolve", "InterruptGuard", "Limits", "StopRequested", "interrupt_age", "interrupt_requested",
-           "interrupt_source", "request_interrupt"]
+__all__ = ["AbortSolve", "InterruptGuard", "Limits", "StopRequested", "clear_interrupt", "interrupt_age",
+           "interrupt_requested", "interrupt_source", "request_interrupt"]
 
 #: why a solve was stopped from outside: the value of the matching olado.result.Status
 INTERRUPTED, MAX_TIME = "interrupted", "max_time"
@@ -89,7 +89,9 @@ def interrupt_source() -> str:
 
 
 def request_interrupt(signum=None, source=None):
-    """Set the flag as the handler does (signal ``signum``); for tests and embedding code."""
+    """Set the flag as the handler does (signal ``signum``), e.g. from a GUI's stop button in
+    another thread: every running solve stops at its next safe point. The flag stays set until
+    the outermost guard of the main thread ends, or :func:`clear_interrupt`."""
     _FLAG.signum = signum
     _FLAG.source = source or (_signal_name(signum) if signum is not None else "interrupt")
     _FLAG.time = time.monotonic()
@@ -100,8 +102,10 @@ def interrupt_age():
     return None if _FLAG.time is None else time.monotonic() - _FLAG.time
 
 
-def _clear():
+def clear_interrupt():
+    """Clear the flag (the outermost guard does this when it starts and ends)."""
     _FLAG.signum = _FLAG.source = _FLAG.time = None
+
 
 
 def _handler(signum, frame):
@@ -141,7 +145,7 @@ class InterruptGuard:
             return self
         self.active = True
         if _FLAG.depth == 0:
-            _clear()
+            clear_interrupt()
         _FLAG.depth += 1
         for signum in self.signals:
             current = signal.getsignal(signum)
@@ -163,7 +167,7 @@ class InterruptGuard:
         self.installed = {}
         _FLAG.depth -= 1
         if _FLAG.depth == 0:
-            _clear()
+            clear_interrupt()
         self.active = False
         return False
 

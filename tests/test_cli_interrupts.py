@@ -17,13 +17,21 @@ from olado.result import Result, Status
 from fixtures import CONFIGS, REPO
 
 
+def default_signals():
+    """SIGINT and SIGTERM at their defaults in the child (a test run started as a background job
+    of a non-interactive shell has SIGINT ignored, and ignored signals are inherited)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
 def start(tmp_path, *options):
     """``olado solve zambezi12 --N 2400 --save out.json`` started; returns when the solve begins
     (the CLI prints the solver line, flushed, just before it)."""
     env = dict(os.environ, PYTHONPATH=str(REPO))
     proc = subprocess.Popen([sys.executable, "-m", "olado", "solve", "zambezi12", "--N", "2400",
                              "--save", str(tmp_path / "out.json"), *options],
-                            cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=default_signals)
     lines = []
     while True:
         line = proc.stdout.readline()

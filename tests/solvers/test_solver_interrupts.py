@@ -24,6 +24,15 @@ from fixtures.pdmin_problems import BoundedPendulum
 from fixtures.reduced_gradient_problems import VanDerPol
 from fixtures.toy_problems import Pendulum
 
+
+@pytest.fixture(autouse=True)
+def python_default_sigint():
+    """Python's own SIGINT handler, whatever the test run started with (a background job of a
+    non-interactive shell has SIGINT ignored: olado then leaves it ignored, by design)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
 #: solver -> a problem it solves in several iterations (constraints, none, control bounds)
 CASES = {
     "sqp": lambda: Pendulum(N=20), "ipopt": lambda: Pendulum(N=20), "slsqp": lambda: Pendulum(N=20),
@@ -223,3 +232,29 @@ def test_one_problem_instance_in_two_solves_is_refused():
     olado.solve(problem, solver="sqp", callback=again)
     assert "a callback" in nested["error"]
     assert olado.solve(problem, solver="sqp").status is Status.SUCCESS       # released afterwards
+
+
+def test_request_interrupt_from_another_thread():
+    """Embedding code (a GUI's stop button) calls request_interrupt() while a solve runs in a
+    worker thread: the solve stops at its next safe point with the last accepted iterate."""
+    from olado.interrupts import clear_interrupt, request_interrupt
+
+    started = threading.Event()
+
+    def callback(info):
+        started.set()
+        time.sleep(0.005)
+
+    out = {}
+    worker = threading.Thread(target=lambda: out.setdefault(
+        "r", olado.solve(VanDerPol(), solver="gradient", callback=callback)))
+    worker.start()
+    try:
+        assert started.wait(60)
+        request_interrupt(source="stop button")
+        worker.join(60)
+    finally:
+        clear_interrupt()
+    interrupted(out["r"], "stop button")
+    assert 0 < out["r"].iterations < 1000
+    same_iterate(out["r"], "gradient")

@@ -95,15 +95,16 @@ class _SciPyNLPSolver(Solver):
         return None
 
     @staticmethod
-    def _stopped_iterate(free, state, z0):
+    def _stopped_iterate(state, z0):
         """The last iterate SciPy reported (the initial point before the first)."""
         return np.asarray(state.get("z", z0), dtype=float)
 
     @staticmethod
-    def _known_objective(stopped, state):
-        """J at the returned point when SciPy was stopped at a reported iterate (None:
-        build_result evaluates it) -- a stopped solve evaluates no more than it must."""
-        return state.get("fun") if stopped is not None and "z" in state else None
+    def _known_objective(stop, state):
+        """J at the returned point when a time limit or an interrupt stopped SciPy at a
+        reported iterate (None: build_result evaluates it) -- such a solve evaluates no more
+        than it must."""
+        return state.get("fun") if stop.reason and "z" in state else None
 
 
 # ============================================================================ SLSQP
@@ -192,7 +193,7 @@ class SLSQPSolver(_SciPyNLPSolver):
         solve_time = time.perf_counter() - t0
         state["iterations"] = len(history)
         if res is None:     # stopped inside SciPy: its last reported iterate, no multipliers
-            res = optimize.OptimizeResult(x=self._stopped_iterate(free, state, z0), status=-1, nit=len(history),
+            res = optimize.OptimizeResult(x=self._stopped_iterate(state, z0), status=-1, nit=len(history),
                                           message="stopped", multipliers=np.zeros(0))
 
         # multipliers: SLSQP's L = f - mu . (constraints as given), equalities first
@@ -219,7 +220,7 @@ class SLSQPSolver(_SciPyNLPSolver):
         return common.build_result(
             nlp=nlp, y=y, lam=lam, zl=zl, zu=zu, status=status, message=message,
             iterations=int(res.nit), history=history, timed=timed, solve_time_s=solve_time,
-            objective=self._known_objective(stopped, state),
+            objective=self._known_objective(stop, state),
             info={"scipy_status": code, "scipy_message": str(res.message),
                   "bound_multipliers": "recovered from stationarity on the active bounds"},
         )
@@ -314,7 +315,7 @@ class TrustConstrSolver(_SciPyNLPSolver):
                                         constraints=constraints, callback=callback, options=scipy_opts)
             if res is None:     # stopped inside SciPy: its last reported iterate and multipliers
                 v = state.get("v")
-                res = optimize.OptimizeResult(x=self._stopped_iterate(free, state, z0), status=-1, message="stopped",
+                res = optimize.OptimizeResult(x=self._stopped_iterate(state, z0), status=-1, message="stopped",
                                               nit=len(history) - nit, cg_niter=0, v=v if v is not None else [],
                                               constr_violation=float("nan"), optimality=float("nan"))
                 nit += int(res.nit)
@@ -363,7 +364,7 @@ class TrustConstrSolver(_SciPyNLPSolver):
         result = common.build_result(
             nlp=nlp, y=y, lam=lam, zl=zl, zu=zu, status=status, message=message,
             iterations=nit, history=history, timed=timed, solve_time_s=solve_time,
-            objective=self._known_objective(stopped, state),
+            objective=self._known_objective(stop, state),
             info={"scipy_status": code, "scipy_message": str(res.message),
                   "scipy_method": getattr(res, "method", ""), "cg_iterations": cg_niter,
                   "scipy_optimality": float(res.optimality), "barrier_restarts": restarts,
