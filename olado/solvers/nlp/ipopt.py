@@ -158,12 +158,12 @@ class IpoptSolver(Solver):
         try:
             nlp_solver.add_option(key, value)
             return
-        except TypeError:
+        except (TypeError, OverflowError):  # OverflowError: an int beyond IPOPT's C int
             if isinstance(value, int):
                 try:
                     nlp_solver.add_option(key, float(value))
                     return
-                except TypeError:
+                except (TypeError, OverflowError):
                     pass
         raise ConfigError(f"IPOPT rejected the option value {value!r} (unknown option, wrong type "
                           "or out of range; see IPOPT's options reference)", section="ipopt.raw", key=key)
