@@ -11,7 +11,7 @@ config's ``[problem]`` section, else the problem's defaults.
 
 Exit codes: 0 the solver converged (status success or acceptable); 1 it did not; 2 bad input (an
 unknown problem, a bad option or config file, a missing back-end): the message is printed to
-stderr without a traceback.
+stderr without a traceback (docs/errors.md lists every case).
 """
 
 from __future__ import annotations

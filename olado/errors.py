@@ -1,4 +1,5 @@
-"""The small error hierarchy of olado (docs/architecture.md, "Conventions").
+"""The small error hierarchy of olado (docs/architecture.md, "Errors"; which error or status
+answers which situation: docs/errors.md).
 
 Non-convergence is never an exception: it is a :class:`olado.result.Status`. Exceptions are for
 input that cannot be used (a bad config value, a problem function returning a wrong shape) and
