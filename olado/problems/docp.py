@@ -76,6 +76,7 @@ CALL_ARGUMENTS = {
     "initial_state_guess": ("U",),
 }
 
+
 def stage_floats(n, m, r=0):
     """Lower estimate of the float64 numbers every solver keeps per stage: x, u and their bounds,
     the dynamics Jacobians (A, B), the Hessian blocks, the constraint Jacobians, the multipliers."""
@@ -221,6 +222,9 @@ def check_problem(problem, entry="olado.solve"):
         raise ProblemDefinitionError(f"{type(problem).__name__}.__init__ did not call DOCP.__init__ "
                                      f"(super().__init__(n, m, N, x0, ...)): attribute '{missing[0]}' is "
                                      "missing", function=entry)
+    if not isinstance(problem.name, str):
+        raise ProblemDefinitionError(f"{type(problem).__name__}.name must be a string (it names the problem "
+                                     f"in results), got {_describe(problem.name)}", function=entry)
     problem.check_functions()
     return problem
 

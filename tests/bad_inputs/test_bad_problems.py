@@ -27,6 +27,7 @@ ARGUMENT_CASES = [
     ("list", [1, 2], ["argument 'problem'", "list"]),
     ("class-not-instance", Walk, ["argument 'problem'", "the class Walk", "Walk(...)"]),
     ("no-super-init", NoSuperInit(), ["NoSuperInit.__init__ did not call DOCP.__init__", "super().__init__"]),
+    ("name-not-text", type("Named", (Walk,), {"name": 5})(), ["Named.name must be a string", "int 5"]),
 ]
 
 
