@@ -81,6 +81,6 @@ def solve(problem, config=None, solver=None, guess=None, **options):
                           "with olado.problems.PROBLEMS[name](N=...)")
     from .problems.docp import check_problem
 
+    instance = resolve_solver(config, solver, **options)   # the solver's errors first, then the problem's
     check_problem(problem, entry="olado.solve")
-    instance = resolve_solver(config, solver, **options)
     return instance.solve(problem, guess=guess)
