@@ -292,6 +292,8 @@ FORMAT_VERSION = 1
 
 
 def _json_path(path) -> Path:
+    if not isinstance(path, (str, os.PathLike)):
+        raise ResultFileError(f"expected a file path (str or pathlib.Path), got {type(path).__name__} {path!r:.40}")
     path = Path(path)
     return path if path.suffix.lower() == ".json" else path.with_suffix(".json")
 

@@ -70,6 +70,11 @@ def test_missing_config_file(tmp_path):
     expect(ConfigError, [str(tmp_path / "none.ini"), "not found"], load_config, tmp_path / "none.ini")
 
 
+@pytest.mark.parametrize("path", [42, ["a.ini"]], ids=["int", "list"])
+def test_config_path_of_the_wrong_type(path):
+    expect(ConfigError, ["expected a file path", type(path).__name__], load_config, path)
+
+
 def test_config_path_is_a_folder(tmp_path):
     expect(ConfigError, [str(tmp_path), "directory"], load_config, tmp_path)
 

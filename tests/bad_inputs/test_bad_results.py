@@ -107,6 +107,12 @@ def test_missing_result_file_is_also_a_file_not_found_error(tmp_path):
     assert isinstance(err, FileNotFoundError)
 
 
+@pytest.mark.parametrize("path", [42, None, ["res.json"]], ids=["int", "none", "list"])
+def test_result_path_of_the_wrong_type(path):
+    expect(ResultFileError, ["expected a file path", type(path).__name__], Result.load, path)
+    expect(ResultFileError, ["expected a file path"], good_result().save, path)
+
+
 def test_result_path_is_a_folder(tmp_path):
     folder = tmp_path / "res.json"
     folder.mkdir()
