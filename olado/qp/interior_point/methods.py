@@ -123,6 +123,16 @@ class _FrankeState:
         self.alphabar, self.rhomin, self.alpha, self.hot, self.calls, self.gap1 = 1.0, rhomin, 1.0, hot, 0, None
 
 
+def watch_hot_start(st, gap):
+    """Count the iteration; in a hot start remember the gap after its first iteration and raise
+    _HotStartFailed when a later gap exceeds it (Franke's test for a bad hot start)."""
+    st.calls += 1
+    if st.hot and st.calls == 2:
+        st.gap1 = gap
+    elif st.hot and st.calls > 2 and gap > st.gap1:
+        raise _HotStartFailed(st.calls - 1, gap, st.gap1)
+
+
 class FrankeQP(InteriorPointQP):
     """Franke's interior-point method (paper 001 sec. 4.2.2: "Mehrotra's algorithm modified by R.
     Franke (Franke, 1994)", "derived from several interior-point algorithms known from the
@@ -199,11 +209,7 @@ class FrankeQP(InteriorPointQP):
         P, it, st = ctx.P, ctx.it, ctx.P.franke
         m = P.n_comp
         gap = ctx.mu * m
-        st.calls += 1
-        if st.hot and st.calls == 2:
-            st.gap1 = gap
-        elif st.hot and st.calls > 2 and gap > st.gap1:
-            raise _HotStartFailed(st.calls - 1, gap, st.gap1)
+        watch_hot_start(st, gap)
         if m == 0:
             tau = 0.0
         elif gap * st.rhomin > 1.0 or st.alpha < 1.0:
