@@ -135,6 +135,31 @@ class Constraints:
             e[:] = sign * self.CNn[i]
         return k, e, f
 
+    def rows(self, ids):
+        """:meth:`row` of many inequality sides at once: (stages (len,), E rows (len, n), F rows
+        (len, m))."""
+        n, m, N, nw, o = self.n, self.m, self.N, self.nw, self.offsets
+        side, j = np.divmod(np.asarray(ids, dtype=np.int64), nw)
+        sign = 1.0 - 2.0 * side
+        k = np.empty(j.size, dtype=np.int64)
+        E, F = np.zeros((j.size, n)), np.zeros((j.size, m))
+        r = np.arange(j.size)
+        x, u, c, cN = j < o[1], (j >= o[1]) & (j < o[2]), (j >= o[2]) & (j < o[3]), j >= o[3]
+        k[x] = j[x] // n + 1
+        E[r[x], j[x] % n] = sign[x]
+        ju = j[u] - o[1]
+        k[u] = ju // m
+        F[r[u], ju % m] = sign[u]
+        if self.nc:
+            kc, ic = np.divmod(j[c] - o[2], self.nc)
+            k[c] = kc
+            E[c] = sign[c, None] * self.Cn[kc, ic, :n]
+            F[c] = sign[c, None] * self.Cn[kc, ic, n:]
+        k[cN] = N
+        if self.ncN:
+            E[cN] = sign[cN, None] * self.CNn[j[cN] - o[3]]
+        return k, E, F
+
     def stage(self, cid):
         """The stage of the constraint ``cid`` (N: a row on x_N)."""
         if cid >= self.own_base:

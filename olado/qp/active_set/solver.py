@@ -36,7 +36,7 @@ import time
 
 import numpy as np
 
-from ...linalg.backend import NotPositiveDefiniteError
+from ...linalg.backend import RHS, NotPositiveDefiniteError, Solution
 from ...linalg.riccati import RiccatiStatusError
 from ...options import make_options
 from ...result import Status
@@ -59,11 +59,11 @@ class _Point:
 
     __slots__ = ("X", "U", "lam", "nu_stage", "nu_final", "mult", "defect", "exact")
 
-    def __init__(self, sol, mult, ne0, neN0):
+    def __init__(self, sol, mult, ne0, neN0, defect):
         self.X, self.U, self.lam, self.mult = sol.X, sol.U, sol.lam, mult
         self.nu_stage = sol.nu[:-1, :ne0].copy()
         self.nu_final = sol.nu[-1, :neN0].copy()
-        self.defect = float(sol.x0_residual)
+        self.defect = float(defect)
         self.exact = True
 
     def step(self, t, d):
@@ -114,6 +114,8 @@ class _Solve:
         self._zq, self._zr = np.zeros((N + 1, n)), np.zeros((N, m))
         self._zc, self._zx0 = np.zeros((N, n)), np.zeros(n)
         self._zoff = np.zeros(self.cons.n_ids + 1)
+        self.sizes = (N, n, m)
+        self._e0, self._eN0, self._ci0 = np.zeros((N, 0)), np.zeros(0), np.zeros((N, 0))
 
     # ------------------------------------------------------------------ entry
     def run(self, warm):
@@ -144,14 +146,18 @@ class _Solve:
     # ------------------------------------------------------------------ EQP solves
     def _solve(self, f, q, r, c, x0, off):
         """Solve the EQP of the factorization f for the gradient (q, r), dynamics offsets c, x0
-        and the row offsets ``off`` (per id): a _Point."""
-        cons = self.cons
-        if f.fact.unconstrained:
-            sol = f.fact.solve(q, r, c, x0)
-            return _Point(sol, np.zeros(cons.n_ids), cons.ne0, cons.neN0)
-        e, eN = f.offsets(off)
-        sol = f.fact.solve(q, r, c, x0, e=e, eN=eN)
-        return _Point(sol, f.multipliers(sol.nu, cons.n_ids), cons.ne0, cons.neN0)
+        and the row offsets ``off`` (per id): a _Point. (The arrays are C-contiguous float64 of
+        the right shapes by construction: the back-end's unchecked ``solve_into``.)"""
+        cons, fact, (N, n, m) = self.cons, f.fact, self.sizes
+        if fact.unconstrained:
+            e, eN = self._e0, self._eN0
+        else:
+            e, eN = f.offsets(off)
+        sol = Solution(np.empty((N + 1, n)), np.empty((N, m)), np.empty((N + 1, n)),
+                       np.empty((N + 1, max(fact.data.ne_max, fact.data.neN))))
+        defect = fact.solve_into(RHS(q, r, c, x0, e, eN, self._ci0), sol)
+        mult = np.zeros(cons.n_ids) if fact.unconstrained else f.multipliers(sol.nu, cons.n_ids)
+        return _Point(sol, mult, cons.ne0, cons.neN0, defect)
 
     def eqp(self, f, p=None, u_p=0.0):
         """The minimizer of the EQP of the factorization f (gradient g - u_p n_p)."""
@@ -237,8 +243,7 @@ class _Solve:
         base_drops, f, pt = None, None, None
         for i, ids in enumerate(candidates):
             last = i == len(candidates) - 1
-            for c in ids:
-                ws.add(int(c))
+            ids = ws.add_many(ids)
             try:
                 f = ws.factorize()
             except NotPositiveDefiniteError:
@@ -247,11 +252,9 @@ class _Solve:
                 f = None
             if f is not None and ids.size and f.drops > 0:
                 if base_drops is None:          # rows the QP's own equalities drop: not the candidates' fault
-                    for c in ids:
-                        ws.remove(int(c))
+                    ws.reset()
                     base_drops = ws.factorize().drops
-                    for c in ids:
-                        ws.add(int(c))
+                    ws.add_many(ids)
                     f = ws.factorize()
                 if f.drops > base_drops:
                     f = None
@@ -259,8 +262,7 @@ class _Solve:
                 pt = self.eqp(f)
                 if last or pt.defect <= deftol:
                     break
-            for c in ids:
-                ws.remove(int(c))
+            ws.reset()
         if pt.defect > deftol:
             raise _Infeasible(f"the equality constraints (dynamics, equality rows, fixed entries and x_0) are "
                               f"inconsistent: a combination of them is violated by {pt.defect:.3g} at every point")

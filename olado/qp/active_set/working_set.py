@@ -97,6 +97,7 @@ class WorkingSet:
         self.Q, self.S, self.R = (np.ascontiguousarray(a, dtype=float) for a in (qp.Q, qp.S, qp.R))
         self.A, self.B = qp.A, qp.B
         self.fact = None            # the Riccati object, refactored in place
+        self._EN, self._EN_ids = None, None   # the final rows (rebuilt when they change)
         self.factorizations = 0
 
     # ------------------------------------------------------------------ membership
@@ -112,6 +113,40 @@ class WorkingSet:
             self.F[k, s] = f
             self.counts[k] = s + 1
         self.members.add(cid)
+
+    def add_many(self, ids):
+        """Put the inequality sides ``ids`` into the working set at once (an initial working set);
+        sides beyond a stage's capacity (cap - 1 rows: more cannot be linearly independent) are
+        left out. Returns the ids added."""
+        ids = np.asarray([c for c in np.asarray(ids, dtype=np.int64) if int(c) not in self.members], dtype=np.int64)
+        if not ids.size:
+            return ids
+        N = self.N
+        k, E, F = self.cons.rows(ids)
+        stage = k < N
+        order = np.argsort(k[stage], kind="stable")
+        ks, idk = k[stage][order], ids[stage][order]
+        Ek, Fk = E[stage][order], F[stage][order]
+        slot = self.counts[ks] + np.arange(ks.size) - np.searchsorted(ks, ks, side="left")
+        fit = slot < self.cap - 1
+        ks, idk, Ek, Fk, slot = ks[fit], idk[fit], Ek[fit], Fk[fit], slot[fit]
+        self.slots[ks, slot] = idk
+        self.E[ks, slot] = Ek
+        self.F[ks, slot] = Fk
+        self.counts += np.bincount(ks, minlength=N)
+        fin = ids[~stage]
+        self.final.extend(int(c) for c in fin)
+        added = np.concatenate([idk, fin])
+        self.members.update(int(c) for c in added)
+        self._ineq[added] = True
+        if added.size:
+            self.dirty = max(self.dirty, int(np.max(np.concatenate([ks, np.full(fin.size, N)]))))
+        return added
+
+    def reset(self):
+        """Back to the base rows only."""
+        for c in self.inequalities():
+            self.remove(int(c))
 
     def add(self, cid):
         """Put the constraint ``cid`` into the working set."""
@@ -157,7 +192,10 @@ class WorkingSet:
         factorization is then a full one). The previous Factor's solves are invalid after this."""
         cons, N = self.cons, self.N
         final = np.array(self.final, dtype=np.int64)
-        EN = np.array([cons.row(c)[1] for c in self.final]).reshape(len(self.final), self.qp.n)
+        if self._EN_ids != self.final:
+            self._EN = np.array([cons.row(c)[1] for c in self.final]).reshape(len(self.final), self.qp.n)
+            self._EN_ids = list(self.final)
+        EN = self._EN
         rows = bool(self.counts.any()) or final.size > 0
         fact = self.fact
         fits = (fact is not None and fact.data.neN == final.size
@@ -166,7 +204,8 @@ class WorkingSet:
         if fits:
             if rows:
                 fact.data.ne[:] = self.counts
-                fact.data.EN[:] = EN
+                if fact.data.EN is not EN:
+                    fact.data.EN[:] = EN
             fact.refactor(from_stage=dirty if dirty < N else None)
         elif rows:
             self.fact = None
