@@ -102,16 +102,22 @@ class RiccatiFactorization:
         self._kernels = kernel_set(_KERNELS, None if self._size_tags is None else (n, m))
         self._factorize()
 
-    def refactor(self, Dx=None, Du=None, sigma=None, regularization=None):
+    def refactor(self, Dx=None, Du=None, sigma=None, regularization=None, from_stage=None):
         """Factorize again after a change of the diagonal terms only -- the interior-point
         Newton matrix of the next iteration (arguments as
         :meth:`~olado.linalg.backend.StageData.set_diagonal`); Q, S, R, A, B and the equality
         rows stay.  The factors are overwritten in place (no new allocation: on large N the first
         touch of fresh factor arrays costs as much as the kernel).  Raises
         NotPositiveDefiniteError like the constructor (the object must then be refactored before
-        the next solve)."""
+        the next solve).
+
+        ``from_stage`` k (general recursion only; the plain one always factors every stage):
+        only the stages <= k are factored again, for a caller that changed the stage data of
+        those stages only -- in place, e.g. equality rows written into E, F and their counts into
+        ``data.ne`` (the active-set QP's working-set changes) -- and whose last factorization
+        of this object succeeded; the backward sweep's factors of the later stages are kept."""
         self.data.set_diagonal(Dx=Dx, Du=Du, sigma=sigma, regularization=regularization)
-        self._factorize()
+        self._factorize(self.N - 1 if from_stage is None else max(-1, min(int(from_stage), self.N - 1)))
         return self
 
     def _ip_terms(self):
@@ -123,9 +129,10 @@ class RiccatiFactorization:
             ipt = self._ipt = tuple(IPTerms(Dx=d.Dx, Du=d.Du, Ci=d.Ci, sig=d.sig, ni=d.ni))
         return ipt
 
-    def _factorize(self):
+    def _factorize(self, k_start=None):
         # the interior-point terms as the kernels take them, for the factorization and its
-        # solves (a refactor may have replaced their arrays)
+        # solves (a refactor may have replaced their arrays); the general recursion factors the
+        # stages <= k_start (default: all)
         ipt = self._ip_terms()
         reg, costs, dyn, k = self.data.regularization, self._costs, self._dyn, self._kernels
         if self.unconstrained:
@@ -138,10 +145,11 @@ class RiccatiFactorization:
             if code >= 0:
                 raise NotPositiveDefiniteError(code)
             return
+        k_start = self.N - 1 if k_start is None else k_start
         for w in (self.Lww, self.Rm, self.perm, self.rank, self.nc, self.Cx, self.G, self.ng, self.Wx, self.Dmat,
                   self.pg, self.Zg):
-            w.fill(0)   # the general kernel expects zeroed padding (a refactor reuses the arrays)
-        code = k.factor(costs, dyn, self._eq, ipt, reg, self.rank_tol, self._factors)
+            w[:k_start + 1].fill(0)   # the general kernel expects zeroed padding (a refactor reuses the arrays)
+        code = k.factor(costs, dyn, self._eq, ipt, reg, self.rank_tol, self._factors, k_start)
         if code >= 0:
             raise NotPositiveDefiniteError(code)
         if code <= -1000:
