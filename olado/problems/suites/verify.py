@@ -11,9 +11,9 @@ with the sign convention grad J + Jc^T lam - z_L + z_U = 0 (lam <= 0 on rows g >
 * the KKT residual: multipliers for the equality rows and fixed variables (free sign), and for
   the inequality rows and bounds within ``active_tol`` of their bound ("near": lam <= 0 on a row
   g >= 0, z_L, z_U >= 0), all others zero, that minimize the stationarity residual in the least-
-  squares sense (a regularized sparse solve of the augmented system); near ones whose multiplier
-  comes out with the wrong sign are dropped and the solve repeated until every sign is right
-  (an active-set loop as in NNLS, dropping instead of exchanging: an upper bound on the least
+  squares sense (a regularized sparse solve of the augmented system); the near one whose
+  multiplier comes out with the most wrong sign is dropped and the solve repeated until every
+  sign is right (an active-set loop as in NNLS that only drops: an upper bound on the least
   residual). The KKT residual is the larger of the max norm of the stationarity residual and of
   the complementarity products |multiplier x distance to its bound| -- so a bound counted
   "near" while it is not active shows up there. It is reported absolute and divided by
@@ -64,19 +64,21 @@ def _least_squares(A, g, reg=1e-12):
     return spla.splu(K).solve(rhs)[n:]
 
 
-def _signed_least_squares(A, g, sign, max_rounds=50):
-    """Least-squares multipliers with sign[j] in {0 (free), -1 (<= 0), +1 (>= 0)}; columns with the
-    wrong sign are dropped until none is left (see the module docstring)."""
+def _signed_least_squares(A, g, sign, max_rounds=2000):
+    """Least-squares multipliers with sign[j] in {0 (free), -1 (<= 0), +1 (>= 0)}: the column with
+    the most wrong sign is dropped and the solve repeated until every sign is right (see the
+    module docstring)."""
     keep = np.ones(A.shape[1], dtype=bool)
     mu = np.zeros(A.shape[1])
     for _ in range(max_rounds):
         idx = np.flatnonzero(keep)
         mu[:] = 0.0
         mu[idx] = _least_squares(A[:, idx], g)
-        wrong = (sign * mu < 0) & keep
-        if not wrong.any():
+        wrong = np.where(keep, sign * mu, 0.0)
+        j = int(np.argmin(wrong))
+        if wrong[j] >= 0:
             break
-        keep &= ~wrong
+        keep[j] = False
     mu[~keep] = 0.0
     return mu
 
