@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import multiprocessing as mp
+import os
 import subprocess
 import time
 import traceback
@@ -32,7 +33,11 @@ KKT_TOL = 1e-3
 
 
 def olado_commit() -> str:
-    """The checkout's commit (short), with ' (dirty)' when tracked files under olado/ changed."""
+    """The checkout's commit (short), with ' (dirty)' when tracked files under olado/ changed;
+    the environment variable OLADO_COMMIT overrides it (a copy made by ``git archive``, which has
+    no .git, runs the benchmark while the checkout itself changes)."""
+    if os.environ.get("OLADO_COMMIT"):
+        return os.environ["OLADO_COMMIT"]
     try:
         rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
                              check=True).stdout.strip()
@@ -83,30 +88,31 @@ def solve_entry(entry_name, config_name, time_limit) -> dict:
     return out
 
 
-def _worker(conn):
-    from olado.problems.suites import load_suite  # noqa: F401 - imports before the first task
-
+def _worker(conn, target):
     while True:
         task = conn.recv()
         if task is None:
             return
-        conn.send(solve_entry(*task))
+        conn.send(target(*task))
 
 
 # ---------------------------------------------------------------------------- the parent side
 class IsolatedPool:
     """``jobs`` worker processes; :meth:`run` yields one answer per task (entry, config), in
-    completion order, with timeouts and crashes recorded instead of raised."""
+    completion order, with timeouts and crashes recorded instead of raised. A worker answers
+    a task by ``target(entry, config, time_limit)`` (default :func:`solve_entry`; a module-level
+    function, as the spawned worker imports it by name)."""
 
-    def __init__(self, jobs=1, time_limit=60.0):
+    def __init__(self, jobs=1, time_limit=60.0, target=solve_entry):
         self.jobs = max(1, int(jobs))
         self.time_limit = float(time_limit)
+        self.target = target
         self._ctx = mp.get_context("spawn")
         self._workers = []
 
     def _start(self):
         parent, child = self._ctx.Pipe()
-        proc = self._ctx.Process(target=_worker, args=(child,), daemon=True)
+        proc = self._ctx.Process(target=_worker, args=(child, self.target), daemon=True)
         proc.start()
         child.close()
         return {"proc": proc, "conn": parent, "task": None, "t0": 0.0}
