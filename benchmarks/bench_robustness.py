@@ -31,6 +31,7 @@ import argparse
 import datetime
 import json
 import math
+import signal
 import statistics
 import sys
 from collections import Counter
@@ -162,6 +163,8 @@ def main(argv=None):
     ap.add_argument("--table-only", action="store_true", help="no solves: write the table from the stored runs")
     ap.add_argument("--no-write", action="store_true", help="do not touch RESULTS.md")
     args = ap.parse_args(argv)
+    # a SIGTERM unwinds like Ctrl-C, so that the pool's clean-up stops its workers
+    signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(128 + signum))
     configs = args.configs or default_configs()
     missing = [c for c in configs if not (CONFIGS / f"{c}.ini").exists()]
     if missing:
