@@ -103,9 +103,10 @@ class IsolatedPool:
     a task by ``target(entry, config, time_limit)`` (default :func:`solve_entry`; a module-level
     function, as the spawned worker imports it by name)."""
 
-    def __init__(self, jobs=1, time_limit=60.0, target=solve_entry):
+    def __init__(self, jobs=1, time_limit=60.0, target=solve_entry, grace=GRACE):
         self.jobs = max(1, int(jobs))
         self.time_limit = float(time_limit)
+        self.grace = float(grace)
         self.target = target
         self._ctx = mp.get_context("spawn")
         self._workers = []
@@ -167,9 +168,10 @@ class IsolatedPool:
         if not w["proc"].is_alive():
             return {"entry": entry, "config": config, "status": "crash", "_restart": True, "wall_s": elapsed,
                     "message": f"the worker process died (exit code {w['proc'].exitcode})"}
-        if elapsed > self.time_limit + GRACE:
+        if elapsed > self.time_limit + self.grace:
             return {"entry": entry, "config": config, "status": "timeout", "_restart": True, "wall_s": elapsed,
-                    "message": f"no answer after {elapsed:.0f} s (time limit {self.time_limit:g} s + {GRACE:g} s grace)"}
+                    "message": f"no answer after {elapsed:.0f} s (time limit {self.time_limit:g} s + "
+                               f"{self.grace:g} s grace)"}
         return None
 
 

@@ -81,11 +81,12 @@ def docs_table(entries, refs) -> str:
         c = nlp_counts(p)
         ref = refs.get(e.name, {})
         ipopt = f"{_fmt(ref.get('objective'), 9)} ({ref.get('status', 'not run')})"
-        pub = _fmt(e.published) if e.published is not None else e.published_note
+        pub = _fmt(e.published, 10) if e.published is not None else e.published_note
         rel = ref.get("published_rel_diff")
-        lines.append(f"| {e.name} | {e.source} | {discretization(p)} | {p.n}, {p.m}, {p.N} | "
-                     f"{c['variables']} / {c['equalities']} / {c['inequalities']} | {pub} | {ipopt} | "
-                     f"{'-' if rel is None else f'{rel:+.2e}'} |")
+        cells = [e.name, e.source, discretization(p), f"{p.n}, {p.m}, {p.N}",
+                 f"{c['variables']} / {c['equalities']} / {c['inequalities']}", pub, ipopt,
+                 "-" if rel is None else f"{rel:+.2e}"]
+        lines.append("| " + " | ".join(cell.replace("|", "\\|") for cell in cells) + " |")
     perturbed = [e for e in entries if e.start == "perturbed"]
     if perturbed:
         lines += ["", "Perturbed Zambezi starts (IPOPT objective, status):", ""]
