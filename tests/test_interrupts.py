@@ -109,11 +109,13 @@ def test_guard_in_another_thread_is_a_no_op():
     assert out == {"active": False, "handler": signal.default_int_handler}
 
 
-def test_interior_point_qp_checks_the_limits_every_iteration():
-    """An interrupt requested before the QP starts: the QP raises at its first iteration inside
-    the solve's catch block; outside one it solves to the end (e.g. after the solver stopped)."""
+@pytest.mark.parametrize("method", ["mehrotra", "franke", "active-set"])
+def test_olado_qp_methods_check_the_limits_every_iteration(method):
+    """An interrupt requested before the QP starts: the QP raises at its first iteration (or
+    working-set change) inside the solve's catch block; outside one it solves to the end (e.g.
+    after the solver stopped)."""
     qp = random_qp(seed=3, N=8)
-    solver = make_qp_solver("mehrotra")
+    solver = make_qp_solver(method)
     ref = solver.solve(qp)
     assert ref.success and ref.iterations > 2
     with InterruptGuard():
@@ -123,6 +125,10 @@ def test_interior_point_qp_checks_the_limits_every_iteration():
             solver.solve(qp, limits=limits)
         assert stop.reason == "interrupted"
         again = solver.solve(qp, limits=limits)       # not armed: the QP runs to the end
+        warm = solver.solve(qp, warm_start=ref, limits=limits)
+        with limits.catch() as stop:
+            solver.solve(qp, warm_start=ref, limits=limits)
+        assert stop.reason == "interrupted" or warm.iterations == 0
     np.testing.assert_array_equal(again.X, ref.X)
     limits = Limits(max_time=math.inf)
     with limits.catch() as stop:
