@@ -225,6 +225,35 @@ class SQPOptions(SolverOptions):
     second_order_correction: bool = option(False, "when a full step along a descent direction fails the Armijo test, "
                                            "try the second-order correction step once (Fletcher 1982; Nocedal & Wright "
                                            "sec. 18.3): the QP again with the constraint values c(y + s) - J s")
+    untrusted_growth: float = option(10.0, "a full QP step along which the merit function grows by more than this "
+                                     "times (|phi| + |D|) is never taken as a relaxed or watchdog step: with the exact "
+                                     "Hessian and convexify = 'inertia' it switches on WORHP's Hessian regularization "
+                                     "(tau_*) and the QP is solved again (inf: off)", min=0.0, min_exclusive=True)
+    tau_init: float = option(1e-3, "WORHP's Hessian regularization H + tau (|sigma_k| + max|H|) I: tau after the first "
+                             "untrusted step or failed QP (see untrusted_growth)", min=0.0, max=1.0, min_exclusive=True)
+    tau_increase: float = option(10.0, "WORHP's Hessian regularization: theta, the factor by which tau grows after a "
+                                 "poor model prediction and shrinks (at least) after a good one", min=1.0,
+                                 min_exclusive=True)
+    tau_min: float = option(1e-10, "WORHP's Hessian regularization: tau below this is set to 0 (regularization off)",
+                            min=0.0)
+    elastic: bool = option(True, "a QP found infeasible (inconsistent linearized constraints) is replaced by its "
+                           "relaxed (elastic) form, every constraint but the dynamics relaxed by slacks charged at the "
+                           "penalty eta (WORHP's relaxed QP, docs/structure-exploiting-sqp.md); off: the SQP ends "
+                           "INFEASIBLE at such a QP")
+    elastic_penalty: float = option(10.0, "relaxed QP: first penalty eta, times (1 + |grad J|), and at least the "
+                                    "merit function's largest weight", min=0.0, min_exclusive=True)
+    elastic_penalty_max: float = option(1e8, "relaxed QP: largest penalty eta, times (1 + |grad J|)", min=0.0,
+                                        min_exclusive=True)
+    elastic_progress: float = option(0.1, "relaxed QP: eta grows tenfold while the step removes less than this "
+                                     "fraction of the l1 violation of the linearized constraints", min=0.0, max=1.0,
+                                     min_exclusive=True)
+    restoration: bool = option(True, "feasibility restoration (WORHP's feasibility mode): when the line search fails "
+                               "at an infeasible point, minimize the l1 constraint violation by feasibility QPs until "
+                               "it has fallen below restoration_reduction times its value and the QP is consistent, "
+                               "or end INFEASIBLE at a stationary point of the violation; off: NUMERICAL_ERROR there")
+    restoration_reduction: float = option(0.9, "feasibility restoration: the optimality phase resumes once the l1 "
+                                          "constraint violation is below this times its value at the start",
+                                          min=0.0, max=1.0, min_exclusive=True)
     qp_options: dict = option({}, "extra options of the QP solver, in an ini file the [sqp.raw] section: options of "
                               "olado's interior-point methods (InteriorPointQPOptions, e.g. initial_mu) or of "
                               "ExternalQPOptions (eps_abs, tol_feas, ...); for an external backend any other key "
