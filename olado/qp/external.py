@@ -16,6 +16,9 @@ backend's multipliers back to the :class:`olado.qp.stageqp.QPResult` convention:
 * general inequalities h_lower <= G y <= h_upper: one row G y <= h_upper per finite upper side
   (multiplier -> y_upper) and one row -G y <= -h_lower per finite lower side (-> y_lower);
   infinite sides produce no row;
+* dense-only backends (quadprog, qpsolvers' ``dense_solvers`` that are not in its
+  ``sparse_solvers``) get the matrices as dense arrays (stage QPs of a few thousand variables
+  at most are sensible for them);
 * variable bounds: passed as qpsolvers' lb/ub to backends that accept +-inf there (OSQP,
   PIQP), whose box multiplier z_box (< 0 at an active lower bound) splits by sign into
   zx/zu lower and upper; for every other backend the finite bounds become rows of G (with
@@ -237,7 +240,13 @@ def _build_rows(qp: StageQP, backend: str) -> _Rows:
         lbq, ubq = lb.copy(), ub.copy()
     else:
         lbq = ubq = None
-    problem = qpsolvers.Problem(d["P"], d["q"], Gq, h, A, b, lbq, ubq)
+    if backend not in qpsolvers.sparse_solvers:
+        # dense-only backends (quadprog, ...) refuse sparse matrices ("problem has sparse matrices")
+        P, A = d["P"].toarray(), A.toarray()
+        Gq = None if Gq is None else Gq.toarray()
+    else:
+        P = d["P"]
+    problem = qpsolvers.Problem(P, d["q"], Gq, h, A, b, lbq, ubq)
     return _Rows(problem, d["A_eq"].shape[0], eq_g, eq_fix, g_up, g_lo, b_up, b_lo,
                  lbq is not None, G.shape[0])
 
@@ -408,6 +417,13 @@ class ExternalQP:
                                                   verbose=bool(o.verbose), **kwargs)
         except (qpsolvers.QPError, ValueError, ArithmeticError) as exc:
             return _nan_result(qp, Status.FAILED, f"{backend} raised {type(exc).__name__}: {exc}", backend,
+                               time.perf_counter() - t0)
+        except Exception as exc:   # noqa: BLE001 - a backend's own exception type (OSQPException ...)
+            if type(exc).__module__.split(".")[0] not in (backend, "qpsolvers"):
+                raise
+            # OSQP raises at setup when its KKT factorization fails: "the problem seems to be non-convex"
+            return _nan_result(qp, Status.NUMERICAL_ERROR, f"{backend} raised {type(exc).__name__} {exc} (a "
+                               "failed factorization: the QP is nonconvex or singular)", backend,
                                time.perf_counter() - t0)
         elapsed = time.perf_counter() - t0
         raw = _status_text(sol)

@@ -31,7 +31,7 @@ from .line_search import Direction, SearchResult, line_search
 from .merit import descent_tolerance, directional_derivative, powell_weights, watch_target, zero_weights
 from .residuals import kkt_residual
 from .state import BoundMultipliers, Multipliers, Point, SQPState, Watch
-from . import regularization, relaxation, restoration
+from . import recession, regularization, relaxation, restoration
 from . import step as qp_step
 from .step import ShiftRule, hessian_scale, qp_multipliers, qp_tolerance, soc_offsets
 
@@ -92,6 +92,8 @@ def iterate(setup, st: SQPState) -> bool:
     accept(setup, st, step)
     if report(setup, st, step):
         return STOP
+    if st.unbounded is not None:
+        return st.stop(Status.UNBOUNDED, st.unbounded)
     end_expired_watch(setup, st, step)
     return NEXT
 
@@ -214,6 +216,11 @@ def qp_failed(setup, st, qres):
         st.retries = 0
         st.local = False
         return NEXT
+    if (qres.status == Status.UNBOUNDED and st.decreased
+            and recession.feasible(setup, st.pt, setup.merit.max_violation(st.pt))):
+        return st.stop(Status.UNBOUNDED, (f"the problem appears unbounded below: the last step decreased the "
+                                          f"objective to {st.pt.J:.6g}, and the QP subproblem of SQP iteration "
+                                          f"{st.it} at this feasible iterate is unbounded ({qres.message})"))
     if qres.status == Status.INFEASIBLE:
         return st.stop(Status.INFEASIBLE, (f"the QP subproblem of SQP iteration {st.it} is infeasible: the "
                                            f"linearized constraints are inconsistent ({qres.message})"))
@@ -433,6 +440,8 @@ def accept(setup, st, step):
         st.hess.update(s_blocks, new_pt.X[-1] - pt.X[-1], g_new - g_old, gN_new - gN_old)
     if st.tau > 0.0:
         tau_update(setup, st, step, new_pt)
+    st.unbounded = recession.count(setup, st, step, new_pt.J)
+    st.decreased = new_pt.J < st.pt.J
     st.pt = new_pt
     st.mult = step.mult_new
     st.Bk = None

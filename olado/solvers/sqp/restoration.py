@@ -15,9 +15,10 @@ SQP used to end with NUMERICAL_ERROR). After each restoration step, once theta i
 ``restoration_reduction`` times its value at the start (or below constr_viol_tol) and the QP of
 the optimality phase is consistent again, the optimality phase resumes from the new point. The
 phase ends the solve with status INFEASIBLE when no step reduces the linearized violation (a
-stationary point of theta: the point is locally infeasible, or its constraints are degenerate)
-or when no step along the feasibility QP's step reduces theta; the sentence names the largest
-violation left.
+stationary point of theta: the point is locally infeasible, or its constraints are degenerate),
+the sentence naming the largest violation left; with NUMERICAL_ERROR when the line search along
+the feasibility step fails (the linearization promised a reduction, so this proves nothing
+about feasibility).
 """
 
 from __future__ import annotations
@@ -78,8 +79,10 @@ def restoration_step(setup, st, delta, complete):
     res = fs.result
     found = line_search(o, p, Direction(st.pt, res.X, res.U, theta0, D), th, None, relaxed_ok=False,
                         complete=complete)
-    if found.point is None:
-        return infeasible(setup, st, "no step along the feasibility QP's step reduces the l1 constraint violation")
+    if found.point is None:   # not a proof of infeasibility (the linearization promised a reduction)
+        return st.stop(Status.NUMERICAL_ERROR, (f"line search failed in the restoration phase at SQP iteration "
+                                                f"{st.it}: no step down to {o.min_step:g} along the feasibility QP's "
+                                                f"step reduces the l1 constraint violation {theta0:.3g}"))
     step_norm = max(float(np.max(np.abs(res.X))), float(np.max(np.abs(res.U))))
     st.pt = found.point
     st.Bk = None

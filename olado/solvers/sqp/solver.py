@@ -236,6 +236,12 @@ class SQPOptions(SolverOptions):
                                  min_exclusive=True)
     tau_min: float = option(1e-10, "WORHP's Hessian regularization: tau below this is set to 0 (regularization off)",
                             min=0.0)
+    unbounded_steps: int = option(5, "end with status UNBOUNDED after this many consecutive accepted steps from "
+                                  "feasible iterates that decreased the objective along directions of recession of the "
+                                  "QP model (docs/structure-exploiting-sqp.md)", min=1)
+    recession_tol: float = option(1e-6, "a step direction d is one of recession of the QP model when |H d|, the "
+                                  "linearized constraint residuals and the bound violations along d are at most this "
+                                  "times the objective's slope |g.d|", min=0.0)
     elastic: bool = option(True, "a QP found infeasible (inconsistent linearized constraints) is replaced by its "
                            "relaxed (elastic) form, every constraint but the dynamics relaxed by slacks charged at the "
                            "penalty eta (WORHP's relaxed QP, docs/structure-exploiting-sqp.md); off: the SQP ends "

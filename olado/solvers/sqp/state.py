@@ -209,6 +209,9 @@ class SQPState:
     qp_local: bool = False          # the local flag the current iteration's QPs were built with
     eta: float = 0.0                # penalty of the last relaxed (elastic) QP (olado.solvers.sqp.relaxation)
     tau: float = 0.0                # WORHP's regularization parameter (olado.solvers.sqp.regularization)
+    recession_steps: int = 0        # consecutive accepted steps along directions of recession (olado.solvers.sqp.recession)
+    unbounded: str | None = None    # the sentence of an UNBOUNDED end
+    decreased: bool = False         # the last accepted step decreased the objective
     restoring: bool = False         # in the feasibility restoration phase (olado.solvers.sqp.restoration)
     restoration_theta: float = 0.0  # l1 violation where the restoration phase started
     restoration_steps: int = 0      # restoration steps since then
