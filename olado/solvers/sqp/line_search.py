@@ -36,11 +36,12 @@ class Direction(NamedTuple):
     D: float
 
 
-def line_search(options, problem, direction, merit: Callable[[Point], float], watch, *, relaxed_ok=True,
+def line_search(options, problem, direction, merit: Callable[[Point, float], float], watch, *, relaxed_ok=True,
                 soc: Callable[[Point], Any] | None = None, d_tol=0.0, backtrack_uphill=True,
                 complete: Callable[[Point], None] | None = None,
                 untrusted: Callable[[float], bool] | None = None, stop_untrusted=False) -> SearchResult:
-    """Armijo backtracking on the merit function ``merit`` along ``direction``. With the
+    """Armijo backtracking on the merit function ``merit(point, alpha)`` along ``direction`` (alpha:
+    the step length that reached the point; the augmented Lagrangian's multipliers move with it). With the
     watchdog enabled, no watch active and ``relaxed_ok``, a full step that fails the Armijo test
     is still taken ("relaxed"); while a watch is active (and not expired) so is the full step
     ("watchdog"). Along a direction that is no descent direction (D >= 0) only the full step is
@@ -80,7 +81,7 @@ def line_search(options, problem, direction, merit: Callable[[Point], float], wa
         U = pt.U + alpha * dU
         try:
             cand = Point(problem, X, U, derivatives=False, clock=pt.clock)
-            phi = merit(cand)
+            phi = merit(cand, alpha)
         except NonFiniteEvaluationError:  # non-finite values at the trial point: shorten the step
             phi = math.inf
             cand = None
@@ -95,7 +96,7 @@ def line_search(options, problem, direction, merit: Callable[[Point], float], wa
                 trials += 1
                 try:
                     ccand = Point(problem, pt.X + corr[0], pt.U + corr[1], derivatives=False, clock=pt.clock)
-                    if merit(ccand) <= phi0 + o.armijo * D + noise:
+                    if merit(ccand, 1.0) <= phi0 + o.armijo * D + noise:
                         found = done(ccand, "soc")
                         if found is not None:
                             return found

@@ -28,7 +28,7 @@ import numpy as np
 
 from ...result import Status
 from .line_search import Direction, SearchResult, line_search
-from .merit import descent_tolerance, directional_derivative, powell_weights, watch_target, zero_weights
+from .merit import descent_tolerance, watch_target
 from .residuals import kkt_residual
 from .state import BoundMultipliers, Multipliers, Point, SQPState, Watch
 from . import recession, regularization, relaxation, restoration
@@ -51,6 +51,7 @@ class Step:
     hscale: float               # max|H|
     warm: bool                  # the QP was warm-started
     slacks: Any = None          # the relaxed QP's slacks (linearized violations at the step), or None
+    bounds: Any = None          # its bound multipliers (BoundMultipliers)
     viol: float = float("nan")          # constraint violation at the iterate
     step_norm: float = float("nan")
     rho_new: tuple = ()                 # Powell's penalty weights for this step
@@ -72,7 +73,7 @@ def initial_state(setup, X0, U0, hess, clock):
     X[0] = p.x0
     pt = Point(p, X, U, clock=clock)
     return SQPState(pt=pt, mult=Multipliers.zeros(N, n, r, rN), bounds=BoundMultipliers.zeros(N, n, m),
-                    rho=zero_weights(N, n, r, rN, m), hess=hess, clock=clock, shift=np.zeros(N + 1),
+                    rho=setup.merit.initial_weights(), hess=hess, clock=clock, shift=np.zeros(N + 1),
                     ascent_relaxed=o.max_ascent_steps,
                     message=f"maximum number of SQP iterations ({o.max_iter}) reached")
 
@@ -188,7 +189,7 @@ def qp_phase(setup, st, hscale):
         return qp_failed(setup, st, qres)
     mult_new, st.bounds = qp_multipliers(qres, setup.masks, p.N, p.r, p.rN)
     return Step(qres=qres, delta=qs.delta, dX=qres.X, dU=qres.U, mult_new=mult_new, hscale=hscale,
-                warm=warm is not None, slacks=qs.slacks)
+                warm=warm is not None, slacks=qs.slacks, bounds=st.bounds)
 
 
 def restoration_iteration(setup, st, delta):
@@ -201,9 +202,11 @@ def restoration_iteration(setup, st, delta):
 
 
 def qp_failed(setup, st, qres):
-    """A QP that failed even after the inertia correction. Reached by relaxed (watchdog) steps:
-    back to the watched point with WORHP's regularization switched on (tau, olado.solvers.sqp.
-    regularization) and no more relaxed steps (NEXT). Otherwise the solve ends (STOP)."""
+    """A QP that failed even after the inertia correction (and its relaxed form). Reached by
+    relaxed (watchdog) steps: back to the watched point with WORHP's regularization switched on
+    (tau, olado.solvers.sqp.regularization) and no more relaxed steps (NEXT). At an infeasible
+    point: the restoration phase (NEXT). At a feasible point after a step that decreased the
+    objective, a QP that is unbounded ends the solve UNBOUNDED; otherwise the solve ends (STOP)."""
     w = st.watch
     if w is not None and setup.inertia:
         st.watch = None
@@ -221,6 +224,10 @@ def qp_failed(setup, st, qres):
         return st.stop(Status.UNBOUNDED, (f"the problem appears unbounded below: the last step decreased the "
                                           f"objective to {st.pt.J:.6g}, and the QP subproblem of SQP iteration "
                                           f"{st.it} at this feasible iterate is unbounded ({qres.message})"))
+    if (setup.options.restoration and not st.restoring
+            and setup.merit.max_violation(st.pt) > setup.options.constr_viol_tol):
+        restoration.start(setup, st)    # WORHP's recovery from a failed QP at an infeasible point
+        return NEXT
     if qres.status == Status.INFEASIBLE:
         return st.stop(Status.INFEASIBLE, (f"the QP subproblem of SQP iteration {st.it} is infeasible: the "
                                            f"linearized constraints are inconsistent ({qres.message})"))
@@ -286,11 +293,10 @@ def merit_phase(setup, st, step):
     """Powell's penalty update, D along the step, and whether the step may be a relaxed one;
     then the decision to solve the QP again at the same point instead of searching along it."""
     o, merit, pt = setup.options, setup.merit, st.pt
-    step.rho_new = powell_weights(st.rho, step.mult_new, st.bounds, o.penalty_min)
+    step.rho_new = merit.update(st.rho, step, st.bounds, o, st.it,
+                                lambda: regularization.step_curvature(st.Bk, st.BN, step.delta, step.dX, step.dU))
     step.phi0 = merit.value(pt, step.rho_new)
-    step.D = directional_derivative(merit, pt, step.dX, step.dU, step.rho_new)
-    if step.slacks is not None:     # a relaxed QP's step: the linearized violation it leaves
-        step.D += relaxation.linearized_penalty(step.slacks, setup, step.rho_new)
+    step.D = merit.derivative(pt, step, step.rho_new)
     step.d_tol = descent_tolerance(step.phi0, o.tol, st.grad_scale, step.dX, step.dU)
     step.descent = step.D <= step.d_tol
     # no relaxed step right after a watchdog return: from the point the return reached (often
@@ -330,8 +336,8 @@ def shift_and_resolve(setup, st, step):
 
 # ---------------------------------------------------------------------------- 6. line search
 def merit_of(setup, st):
-    """phi with the current penalty weights, as a function of a point."""
-    return lambda q: setup.merit.value(q, st.rho)
+    """phi with the current penalty weights, as a function of a point (and a step length, unused)."""
+    return lambda q, alpha=1.0: setup.merit.value(q, st.rho)
 
 
 def second_order_correction(setup, st, step):
@@ -378,7 +384,8 @@ def search_phase(setup, st, step):
     o, merit = setup.options, merit_of(setup, st)
     soc = second_order_correction(setup, st, step) if o.second_order_correction else None
     direction = Direction(st.pt, step.dX, step.dU, step.phi0, step.D)
-    found = line_search(o, setup.problem, direction, merit, st.watch, relaxed_ok=step.relaxed_ok, soc=soc,
+    found = line_search(o, setup.problem, direction, setup.merit.along(st.rho, step), st.watch,
+                        relaxed_ok=step.relaxed_ok, soc=soc,
                         d_tol=step.d_tol, backtrack_uphill=not setup.inertia,
                         complete=completion(setup, st, step.mult_new),
                         untrusted=lambda phi: regularization.untrusted(phi, step.phi0, step.D, o),
@@ -415,7 +422,7 @@ def search_phase(setup, st, step):
             return NEXT
         st.mult = step.mult_new
         return st.stop(Status.NUMERICAL_ERROR, (f"line search failed at SQP iteration {st.it}: no step down to "
-                                                f"{o.min_step:g} decreases the L1 merit function (D={step.D:.2e})"))
+                                                f"{o.min_step:g} decreases the merit function (D={step.D:.2e})"))
     step.search = found
     return None
 
@@ -440,6 +447,7 @@ def accept(setup, st, step):
         st.hess.update(s_blocks, new_pt.X[-1] - pt.X[-1], g_new - g_old, gN_new - gN_old)
     if st.tau > 0.0:
         tau_update(setup, st, step, new_pt)
+    st.rho = setup.merit.accepted(st.rho, step, step.search.alpha)
     st.unbounded = recession.count(setup, st, step, new_pt.J)
     st.decreased = new_pt.J < st.pt.J
     st.pt = new_pt
@@ -457,7 +465,7 @@ def tau_update(setup, st, step, new_pt):
     """WORHP's update of tau (olado.solvers.sqp.regularization, [12]-[14]) after the step to
     new_pt: actual against predicted merit reduction, and the rate of the KKT residual."""
     alpha = step.search.alpha
-    actual = step.phi0 - setup.merit.value(new_pt, step.rho_new)
+    actual = step.phi0 - setup.merit.along(step.rho_new, step)(new_pt, alpha)
     sHs = regularization.step_curvature(st.Bk, st.BN, step.delta, step.dX, step.dU)
     ratio = st.kkt_res / st.tau_kkt if st.tau_kkt > 0 else 1.0
     st.tau = regularization.update_tau(st.tau, setup.options, actual, alpha, step.D, sHs, ratio)
@@ -487,7 +495,7 @@ def report(setup, st, step):
     rho, found = st.rho, step.search
     return log_iteration(setup, st, {
         "step": found.alpha, "step_norm": step.step_norm, "merit": setup.merit.value(st.pt, rho),
-        "penalty": float(max(w.max(initial=0) for w in (rho[0], rho[1], rho[3], rho[4]))),
+        "penalty": setup.merit.largest_weight(rho),
         "qp_iterations": int(step.qres.iterations), "ls_trials": found.trials, "mode": found.mode,
         "shift": float(np.max(step.delta)), "D": step.D, "warm": step.warm})
 

@@ -30,7 +30,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ...qp.elastic import Slacks
 from . import step as qp_step
 
 
@@ -73,7 +72,7 @@ def start_penalty(setup, st):
     """eta of the first relaxed QP at this iterate: elastic_penalty (1 + |grad J|), the last eta
     used, and at least the largest exact-penalty weight."""
     o = setup.options
-    rho_max = max(float(np.max(w, initial=0.0)) for w in st.rho)
+    rho_max = setup.merit.largest_weight(st.rho)
     return max(o.elastic_penalty * (1.0 + gradient_norm(st.pt)), st.eta, rho_max)
 
 
@@ -81,12 +80,12 @@ def largest_penalty(setup, st):
     return max(start_penalty(setup, st), setup.options.elastic_penalty_max * (1.0 + gradient_norm(st.pt)))
 
 
-def feasibility_qp(setup, st, Bk, BN, delta):
-    """The feasibility QP: the relaxed QP without the objective's gradient at the largest
-    penalty, min eta sum(slacks) + 1/2 s.H s: the step that removes the most linearized
+def feasibility_qp(setup, st, Bk, BN, delta, eta=None, inertia=None):
+    """The feasibility QP: the relaxed QP without the objective's gradient, min eta sum(slacks) +
+    1/2 s.H s; at the largest penalty (default) the step that removes the most linearized
     violation (the shortest such step in the Hessian's norm)."""
-    return qp_step.solve_qp(setup, st, st.pt, Bk, BN, delta, inertia=setup.inertia,
-                            eta=largest_penalty(setup, st), zero_gradient=True)
+    return qp_step.solve_qp(setup, st, st.pt, Bk, BN, delta, inertia=setup.inertia if inertia is None else inertia,
+                            eta=largest_penalty(setup, st) if eta is None else eta, zero_gradient=True)
 
 
 def solve_relaxed(setup, st, Bk, BN, delta):
@@ -119,27 +118,3 @@ def solve_relaxed(setup, st, Bk, BN, delta):
                 return Relaxed(qs._replace(iterations=iterations), eta, v0, progress, best)
         eta = min(10.0 * eta, eta_max)
         delta = qs.delta
-
-
-def slack_arrays(slacks: Slacks, masks, N, n, m, r, rN):
-    """The slacks as the merit's violation arrays (|h|, g, gN, x bounds, u bounds): the
-    linearized violation of each constraint at the step (0 for the exact rows)."""
-    eq, ineq, eqN, ineqN = masks
-    vg = np.zeros((N, r))
-    if r:
-        vg[:, eq] = slacks.e
-        vg[:, ineq] = slacks.c
-    vgN = np.zeros(rN)
-    if rN:
-        vgN[eqN] = slacks.eN
-        vgN[ineqN] = slacks.cN
-    vbx = slacks.x.copy()
-    vbx[0] = 0.0
-    return np.zeros((N, n)), vg, vgN, vbx, np.zeros((N, m))
-
-
-def linearized_penalty(slacks, setup, weights):
-    """sum rho v(c + J s): the penalty of the linearized violation left at the step."""
-    p = setup.problem
-    arrays = slack_arrays(slacks, setup.masks, p.N, p.n, p.m, p.r, p.rN)
-    return sum(float(np.sum(w * v)) for w, v in zip(weights, arrays))

@@ -82,6 +82,7 @@ import numpy as np
 
 from ...qp import INTERIOR_POINT_METHODS, QP_METHODS, make_qp_solver
 from ...qp.stageqp import StageQP
+from .augmented import AugmentedLagrangian
 from .merit import Merit
 from .phases import initial_state, iterate
 from .residuals import finish
@@ -159,6 +160,10 @@ class SQPOptions(SolverOptions):
                            "tol_gap_abs / tol_gap_rel for Clarabel)", min=0.0, min_exclusive=True)
     qp_max_iter: int = option(200, "iteration limit of olado's interior-point QP methods (OSQP: 100 times this, at "
                               "least 50 000; the other external backends keep their own)", min=1)
+    merit: str = option("l1", "merit function of the line search: 'l1', the exact penalty function with Powell's "
+                        "weights (paper 001 sec. 4.2.1), or 'augmented-lagrangian', Schittkowski's (1983) augmented "
+                        "Lagrangian on primal and dual variables with his penalty update (docs/structure-exploiting-"
+                        "sqp.md)", choices=("l1", "augmented-lagrangian"))
     watchdog: bool = option(True, "use the watchdog technique (Chamberlain et al. 1982)")
     watchdog_steps: int = option(2, "relaxed iterations allowed before returning to the last good point", min=1)
     armijo: float = option(1e-4, "sufficient-decrease constant of the line search", min=0.0, max=0.5, min_exclusive=True)
@@ -272,6 +277,10 @@ class SQPOptions(SolverOptions):
                                     "the term stalls the SQP)", min=0.0)
 
 
+#: the merit functions of the line search (option ``merit``)
+MERITS = {"l1": Merit, "augmented-lagrangian": AugmentedLagrangian}
+
+
 def make_setup(options, problem, callback):
     """The per-solve setup of an SQP solve: the QP solver with its options, the Hessian
     approximation (returned with the setup; it changes during the solve) and the convexification
@@ -295,7 +304,7 @@ def make_setup(options, problem, callback):
     masks = ConstraintMasks.of(problem)
     setup = SQPSetup(options=o, problem=problem, qp_solver=qp_solver, interior=interior, convexify=convexify,
                      inertia=hess.needs_exact and convexify == "inertia", masks=masks,
-                     merit=Merit(problem, masks), callback=callback, deadline=deadline, t_start=t_start)
+                     merit=MERITS[o.merit](problem, masks), callback=callback, deadline=deadline, t_start=t_start)
     return setup, hess
 
 
