@@ -497,7 +497,8 @@ def report(setup, st, step):
         "step": found.alpha, "step_norm": step.step_norm, "merit": setup.merit.value(st.pt, rho),
         "penalty": setup.merit.largest_weight(rho),
         "qp_iterations": int(step.qres.iterations), "ls_trials": found.trials, "mode": found.mode,
-        "shift": float(np.max(step.delta)), "D": step.D, "warm": step.warm})
+        "shift": float(np.max(step.delta)), "D": step.D, "warm": step.warm,
+        "eta": st.eta if step.slacks is not None else float("nan"), "tau": st.tau})
 
 
 def log_iteration(setup, st, fields):

@@ -253,8 +253,9 @@ class SQPOptions(SolverOptions):
                            "INFEASIBLE at such a QP")
     elastic_penalty: float = option(10.0, "relaxed QP: first penalty eta, times (1 + |grad J|), and at least the "
                                     "merit function's largest weight", min=0.0, min_exclusive=True)
-    elastic_penalty_max: float = option(1e8, "relaxed QP: largest penalty eta, times (1 + |grad J|)", min=0.0,
-                                        min_exclusive=True)
+    elastic_penalty_max: float = option(1e4, "relaxed QP: largest penalty eta, times (1 + |grad J|) (olado's "
+                                        "interior-point QPs stall on relaxed QPs with eta ~ 1e6 times their Hessian's "
+                                        "scale: see docs)", min=0.0, min_exclusive=True)
     elastic_progress: float = option(0.1, "relaxed QP: eta grows tenfold while the step removes less than this "
                                      "fraction of the l1 violation of the linearized constraints", min=0.0, max=1.0,
                                      min_exclusive=True)
