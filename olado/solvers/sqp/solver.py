@@ -296,9 +296,10 @@ def make_setup(options, problem, callback):
     _apply_qp_options(qp_solver, o.qp, o.qp_options)
     convexify = o.convexify
     if o.hessian == "exact" and convexify == "inertia" and not interior:
-        # external QP solvers need a convex QP and do not report a failed factorization:
-        # shift every block to positive definiteness instead
-        convexify = "levenberg"
+        # external QP solvers need a convex QP: the exact Hessian is passed with P + rho A_eq^T A_eq
+        # (the same solution where the reduced Hessian is positive definite), and a QP whose reduced
+        # Hessian is not is reported as failed, so that the inertia correction shifts it
+        qp_solver.options.convexify = "augmented"
     hess = make_hessian(o.hessian, convexify=convexify, initial_scale=o.initial_hessian_scale,
                         min_eig=o.min_eigenvalue, max_condition=o.max_condition)
     hess.initial(problem.N, problem.n, problem.m)
