@@ -69,9 +69,14 @@ Code layout (one solve's state is an object of its own, the solver holds only op
 * ``step.py``    -- the QP (8)-(10) in stage form, its solution with the inertia correction of the
   Hessian shift, the QP multipliers, the second-order correction's constraint values;
 * ``merit.py``   -- the L1 merit function, Powell's weights, the directional derivative;
+* ``augmented.py`` -- Schittkowski's augmented-Lagrangian merit function (``merit`` option);
 * ``line_search.py`` -- Armijo backtracking with the watchdog and the second-order correction;
 * ``residuals.py``   -- the KKT residuals stage by stage and the Result;
-* ``hessian.py``     -- the block-diagonal Hessian approximations (12), (13).
+* ``hessian.py``     -- the block-diagonal Hessian approximations (12), (13);
+* the safeguards of WORHP (seed 000; docs/structure-exploiting-sqp.md, "Safeguards"):
+  ``regularization.py`` (Hessian regularization after untrusted steps), ``relaxation.py`` (the
+  relaxed QP for inconsistent linearizations), ``restoration.py`` (feasibility restoration and
+  local infeasibility), ``recession.py`` (UNBOUNDED).
 """
 from __future__ import annotations
 
