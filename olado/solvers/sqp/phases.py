@@ -21,11 +21,11 @@ the iteration go on.
 from __future__ import annotations
 
 import dataclasses
-import time
 from typing import Any
 
 import numpy as np
 
+from ...errors import NonFiniteEvaluationError
 from ...result import Status
 from .line_search import Direction, SearchResult, line_search
 from .merit import descent_tolerance, watch_target
@@ -268,10 +268,13 @@ def feasibility_step(setup, st, step):
     fres = fs.result
     if not fres.success:
         return None
-    cand = Point(p, st.pt.X + fres.X, st.pt.U + fres.U, derivatives=False, clock=st.clock)
-    if not setup.merit.max_violation(cand) < step.viol:
+    try:
+        cand = Point(p, st.pt.X + fres.X, st.pt.U + fres.U, derivatives=False, clock=st.clock)
+        if not setup.merit.max_violation(cand) < step.viol:
+            return None
+        completion(setup, st, step.mult_new)(cand)
+    except NonFiniteEvaluationError:     # non-finite values or derivatives there: no correction step
         return None
-    cand.add_derivatives(p)
     st.pt = cand
     st.mult = step.mult_new
     st.Bk = None

@@ -8,20 +8,23 @@ infeasible from one linearization.
 Penalty update (A-6.1: "if delta >= min(1, delta_max) increase eta_r = rho_r eta_r and solve the
 QP again"): with one slack per row the relaxation is measured by
 
-    delta = (l1 violation of the linearized constraints at the step) / (l1 violation at s = 0),
+    delta = (l1 violation of the linearized constraints at the step) / (l1 violation at s = 0)
 
-delta = 1 meaning that the step does not reduce the linearized violation at all; while delta >
-1 - ``elastic_progress``, eta grows tenfold and the relaxed QP is solved again, up to
-``elastic_penalty_max``. eta starts from ``elastic_penalty`` (1 + |grad J|), and never below the
-current exact-penalty weights of the merit function: then Powell's update gives weights rho <= eta,
+(the dynamics counted, exact at the step), delta = 1 meaning that the step does not reduce the
+linearized violation at all. eta starts from ``elastic_penalty`` (1 + |grad J|), the last eta
+used, and never below the current merit weights: then Powell's update gives weights rho <= eta,
 rho = eta on every row with a positive slack, and the step is a descent direction of the L1 merit
-function whose directional derivative now counts the linearized violation left at the step,
+function whose directional derivative counts the linearized violation left at the step,
 
-    D = grad J . s - sum rho v(c) + sum rho v(c + J s)      (v: the violation of a row),
+    D = grad J . s - sum rho v(c) + sum rho v(c + J s)      (v: the violation of a row)
 
 (Fletcher's Sl1QP; for a consistent QP the last sum is zero and D is (18.29) of Nocedal & Wright).
-A relaxed QP that still reduces the violation by less than ``elastic_progress`` at the largest
-penalty starts the feasibility restoration (olado.solvers.sqp.restoration).
+eta grows tenfold while the step removes less than ``elastic_progress`` of the linearized
+violation -- or, when that is more than any step can remove, of what the feasibility QP (no
+gradient, the largest penalty ``elastic_penalty_max`` (1 + |grad J|)) removes: the steering rule
+of Byrd, Nocedal & Waltz (2008) in the place of delta_max. When not even the feasibility QP
+reduces the linearized violation, the iterate is a stationary point of the l1 violation and the
+SQP ends INFEASIBLE (olado.solvers.sqp.restoration.infeasible).
 """
 
 from __future__ import annotations
@@ -62,10 +65,10 @@ def gradient_norm(pt):
 
 
 def linearized_violation0(violations):
-    """The l1 violation of the relaxed rows at s = 0 (the merit's violation arrays without the
-    dynamics and the control bounds, which the relaxed QP keeps exact)."""
-    _, vg, vgN, vbx, _ = violations
-    return float(np.sum(vg) + np.sum(vgN) + np.sum(vbx))
+    """The l1 violation at s = 0 of the constraints the relaxed QP linearizes: all of them (the
+    merit's violation arrays); its dynamics rows and control bounds are exact, so the reduction
+    a step achieves is this minus the sum of its slacks."""
+    return float(sum(np.sum(v) for v in violations))
 
 
 def start_penalty(setup, st):
