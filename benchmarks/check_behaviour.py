@@ -3,8 +3,8 @@ show that a change that should not change the algorithms (a restructuring, a spe
 
 Suites: ``testset`` (the 244-problem Zambezi testing set of paper 001 sec. 6, which contains
 Table 1, zambezi12 N = 12..252), ``large`` (zambezi N = 1 200 and 12 000, balance start) and
-``builtin`` (every built-in non-Zambezi problem at its default size, with every preset in
-configs/ that accepts it). Run it on two commits and compare:
+``builtin`` (every built-in problem of olado.problems.testproblems at its default size, with every
+preset in configs/ that accepts it). Run it on two commits and compare:
 
     python benchmarks/check_behaviour.py --out old.json                # on the old commit
     python benchmarks/check_behaviour.py --out new.json                # on the new commit
@@ -26,7 +26,7 @@ import time
 from _common import HERE
 
 from olado.config import load_config, make_solver
-from olado.problems import get_problems
+from olado.problems.testproblems import PROBLEMS as TEST_PROBLEMS
 from olado.problems.zambezi import zambezi_problem
 
 TESTSET = {"zambezi": range(12, 421, 12), "zambezi8": range(12, 217, 12), "zambezi9": range(12, 73, 12),
@@ -74,7 +74,9 @@ def run(suites, configs_filter):
             out[key] = _record(lambda: solver("sqp-ip").solve(zambezi_problem("zambezi", N=N)))
             print(key, out[key], flush=True)
     if "builtin" in suites:
-        problems = {k: f for k, f in get_problems().items() if not k.startswith("zambezi")}
+        # olado's original built-ins (testproblems): the literature problems of the robustness set
+        # (olado.problems.catalog) are benchmarked by bench_robustness.py, not fingerprinted here
+        problems = dict(TEST_PROBLEMS)
         for c in presets:
             if configs_filter and c not in configs_filter:
                 continue

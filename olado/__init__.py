@@ -31,6 +31,7 @@ _LAZY = {
     "SolverError": "olado.errors",
     "SolverNotAvailableError": "olado.errors",
     "NonFiniteEvaluationError": "olado.errors",
+    "ResultFileError": "olado.errors",
 }
 _SUBMODULES = ("errors", "result", "config", "options", "api", "problems", "solvers", "linalg", "qp", "cli")
 

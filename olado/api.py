@@ -70,10 +70,17 @@ def solve(problem, config=None, solver=None, guess=None, **options):
         Options of the chosen solver (``tol=1e-6``, ``max_iter=200``, ``verbose=1`` ...).
 
     Non-convergence is reported in ``result.status``, never raised. A bad option raises
-    :class:`~olado.errors.ConfigError`; a missing back-end :class:`SolverNotAvailableError`.
+    :class:`~olado.errors.ConfigError`; a problem that is not a usable DOCP, a bad guess or a user
+    function returning something that is not an array of real numbers of the right shape
+    :class:`~olado.errors.ProblemDefinitionError`; a missing back-end
+    :class:`SolverNotAvailableError` (docs/errors.md). Exceptions raised inside the user's own
+    functions pass through unchanged.
     """
     if isinstance(problem, str):
         raise ConfigError(f"problem must be a DOCP instance, not the name {problem!r}; build one "
                           "with olado.problems.PROBLEMS[name](N=...)")
-    instance = resolve_solver(config, solver, **options)
+    from .problems.docp import check_problem
+
+    instance = resolve_solver(config, solver, **options)   # the solver's errors first, then the problem's
+    check_problem(problem, entry="olado.solve")
     return instance.solve(problem, guess=guess)

@@ -11,7 +11,7 @@ config's ``[problem]`` section, else the problem's defaults.
 
 Exit codes: 0 the solver converged (status success or acceptable); 1 it did not; 2 bad input (an
 unknown problem, a bad option or config file, a missing back-end): the message is printed to
-stderr without a traceback.
+stderr without a traceback (docs/errors.md lists every case).
 """
 
 from __future__ import annotations
@@ -94,16 +94,11 @@ def _build_problem(name, settings):
         raise ConfigError(f"unknown problem {name!r}", allowed=", ".join(sorted(registry)) or "none")
     factory = registry[name]
     kwargs = {k: v for k, v in settings.items() if v is not None}
-    try:
-        params = inspect.signature(factory).parameters
-    except (TypeError, ValueError):
-        params = None
-    if params is not None and not any(p.kind is p.VAR_KEYWORD for p in params.values()):
-        unknown = [k for k in kwargs if k not in params]
-        if unknown:
-            raise ConfigError(f"problem {name!r} takes no setting {unknown[0]!r}", key=unknown[0],
-                              allowed=", ".join(k for k, p in params.items()
-                                                if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)))
+    named = _named_settings(factory)
+    unknown = [k for k in kwargs if k not in named]
+    if unknown:  # a setting the factory would only pass on through **kwargs is not one it takes
+        raise ConfigError(f"problem {name!r} takes no setting {unknown[0]!r}", key=unknown[0],
+                          allowed=", ".join(named) or "none")
     try:
         return factory(**kwargs)
     except ValueError as exc:  # a factory rejecting a bad N, start or year
@@ -112,6 +107,53 @@ def _build_problem(name, settings):
         if isinstance(exc, OladoError):
             raise
         raise ConfigError(f"problem {name!r}: {exc}") from None
+
+
+def _named_settings(factory) -> list[str]:
+    """The command line's problem settings (``--N``, ``--start``, ``--year``) that ``factory``
+    names as parameters."""
+    from .config import PROBLEM_KEYS
+
+    try:
+        params = inspect.signature(factory).parameters
+    except (TypeError, ValueError):
+        return [k for k in PROBLEM_KEYS if k != "name"]
+    return [k for k, p in params.items() if k in PROBLEM_KEYS and k != "name"
+            and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+
+
+def _plot_formats() -> list[str]:
+    """The file formats matplotlib writes (``--plot out.svg`` ...)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    return sorted(Figure().canvas.get_supported_filetypes())
+
+
+def _check_output(path, option, formats=None) -> None:
+    """Before the solve: ``path`` (of ``--save`` or ``--plot``) can be written -- its nearest
+    existing folder is a writable folder, and its suffix one of ``formats`` -- so that a solve's
+    work is not lost to a typo; ConfigError naming the option otherwise."""
+    import os
+    from pathlib import Path
+
+    from .errors import ConfigError
+
+    if path is None:
+        return
+    target = Path(path)
+    if formats is not None and target.suffix.lstrip(".").lower() not in formats:
+        raise ConfigError(f"cannot write a {target.suffix or 'suffix-less'} file {path!r}",
+                          key=option, allowed=", ".join(f".{f}" for f in formats))
+    if target.is_dir():
+        raise ConfigError(f"{path!r} is a folder; give a file name", key=option)
+    folder = target.parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
+        raise ConfigError(f"cannot write {path!r}: {str(folder)!r} is not a writable folder", key=option)
 
 
 def _counts_line(problem) -> str:
@@ -149,6 +191,8 @@ def _cmd_solve(args) -> int:
             settings[key] = value
     if "N" in settings and settings["N"] < 1:
         raise ConfigError(f"N must be >= 1, got {settings['N']}", key="N", allowed=">= 1")
+    _check_output(args.save, "--save")
+    _check_output(args.plot, "--plot", formats=_plot_formats() if args.plot else None)
     problem = _build_problem(name, settings)
     solver = make_solver(config)
     verbose = getattr(solver.options, "verbose", 0)

@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import configparser
 import dataclasses
+import os
 from pathlib import Path
 from typing import Any
 
@@ -202,6 +203,8 @@ def _file_layers(path) -> tuple[Layers, str]:
     """The values of the ini file ``path`` (None: no file) and the config's source name."""
     if path is None:
         return {}, "<defaults>"
+    if not isinstance(path, (str, os.PathLike)):
+        raise ConfigError(f"expected a file path (str or pathlib.Path) or None, got {type(path).__name__} {path!r:.40}")
     source = str(Path(path))
     layers = {section: {k: (v, source) for k, v in items.items()}
               for section, items in _read_ini(Path(path)).items()}

@@ -1,4 +1,5 @@
-"""The small error hierarchy of olado (docs/architecture.md, "Conventions").
+"""The small error hierarchy of olado (docs/architecture.md, "Errors"; which error or status
+answers which situation: docs/errors.md).
 
 Non-convergence is never an exception: it is a :class:`olado.result.Status`. Exceptions are for
 input that cannot be used (a bad config value, a problem function returning a wrong shape) and
@@ -68,3 +69,22 @@ class SolverError(OladoError, RuntimeError):
 
 class SolverNotAvailableError(SolverError, ImportError):
     """An optional solver backend is not installed; the message says how to install it."""
+
+
+class ResultFileError(OladoError, ValueError):
+    """A saved result (the JSON written by :meth:`olado.result.Result.save`, or the ``.npz``
+    beside it) cannot be read: not valid JSON, a newer format version, a missing field or one of
+    the wrong type. The message names the file and the field."""
+
+    def __init__(self, message, file=None, field=None):
+        self.file, self.field = file, field
+        where = []
+        if file is not None:
+            where.append(f"file {file!s}")
+        if field is not None:
+            where.append(f"field '{field}'")
+        super().__init__(", ".join(where) + ": " + message if where else message)
+
+
+class ResultFileNotFoundError(ResultFileError, FileNotFoundError):
+    """The result file does not exist (also a :class:`FileNotFoundError`)."""

@@ -9,9 +9,10 @@ text, allowed choices, numeric range, whether an ini file may set it)::
         method: str = option("a", "which variant", choices=("a", "b"))
         limit: float | None = option(None, "None: no limit")
 
-The declared type says how a value is read and checked: ``bool``, ``int``, ``float``, ``str``,
-``dict`` (or ``dict[...]``), each optionally ``| None``; any other type is passed through
-unchecked. :func:`validate_value` checks (and coerces) a typed value, e.g. a keyword argument;
+The declared type says how a value is read and checked: ``bool``, ``int`` (within the range of
+a 32-bit C int, :data:`INT_LIMIT`), ``float``, ``str``, ``dict`` (or ``dict[...]``),
+``Callable`` (anything callable; never from a file), each optionally ``| None``; any other type
+is passed through unchecked. :func:`validate_value` checks (and coerces) a typed value, e.g. a keyword argument;
 :func:`read_value` first parses an ini string (:func:`parse_value`) and then validates it, so a
 value from a file and the same value given in code end up identical. Every error is a
 :class:`~olado.errors.ConfigError` naming where the value came from and what is allowed.
@@ -21,6 +22,7 @@ This module is a leaf: it imports nothing of olado but :mod:`olado.errors`.
 
 from __future__ import annotations
 
+import collections.abc
 import dataclasses
 import math
 import sys
@@ -29,8 +31,11 @@ from typing import Any
 
 from .errors import ConfigError
 
-__all__ = ["option", "option_fields", "OptionSpec", "option_specs", "split_optional", "is_dict_type",
+__all__ = ["option", "option_fields", "OptionSpec", "option_specs", "split_optional", "is_dict_type", "is_callable_type",
            "parse_value", "parse_scalar", "validate_value", "read_value", "make_options", "raw_options_field"]
+
+#: every integer option is a C int somewhere (IPOPT's and the QP back-ends' iteration limits)
+INT_LIMIT = 2**31 - 1
 
 TRUE_WORDS = ("true", "yes", "on", "1")
 FALSE_WORDS = ("false", "no", "off", "0")
@@ -117,6 +122,11 @@ def split_optional(typ):
 
 def is_dict_type(typ) -> bool:
     return typ is dict or typing.get_origin(typ) is dict
+
+
+def is_callable_type(typ) -> bool:
+    """``Callable`` or ``Callable[[...], ...]`` (of collections.abc or typing)."""
+    return typ is collections.abc.Callable or typing.get_origin(typ) is collections.abc.Callable
 
 
 def raw_options_field(options_cls, solver_name: str) -> str | None:
@@ -256,7 +266,11 @@ def _check_type(kind, value, where):
         if isinstance(value, bool) or not isinstance(value, (int, *np_int)):
             if not (isinstance(value, float) and value.is_integer()):
                 raise ConfigError(f"expected an integer, got {value!r}", **where)
-        return int(value)
+        value = int(value)
+        if abs(value) > INT_LIMIT:
+            raise ConfigError(f"value {value!r} out of range: integer options are C ints of the "
+                              "back-ends", **where, allowed=f"-{INT_LIMIT} .. {INT_LIMIT}")
+        return value
     if kind is float:
         if isinstance(value, bool) or not isinstance(value, (int, float, *np_int, *np_float)):
             raise ConfigError(f"expected a number, got {value!r}", **where)
@@ -268,6 +282,8 @@ def _check_type(kind, value, where):
         raise ConfigError(f"expected a string, got {value!r}", **where)
     if is_dict_type(kind) and not isinstance(value, dict):
         raise ConfigError(f"expected a mapping, got {value!r}", **where)
+    if is_callable_type(kind) and not callable(value):
+        raise ConfigError(f"expected a function (a callable), got {type(value).__name__} {value!r:.40}", **where)
     return value
 
 

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import OladoError
+from .errors import ResultFileError, ResultFileNotFoundError
 
 
 class Status(enum.Enum):
@@ -80,34 +80,82 @@ def _jsonable(value):
     return repr(value)
 
 
-def _float_or_nan(value):
-    if value is None:
-        return None
-    if isinstance(value, str):
-        return float(value)
-    return float(value)
+def _file_modes(paths) -> list[int]:
+    """Permission bits for files written at ``paths``: those of the file each replaces (a user's
+    private 0600 result stays private); for a new file those of another of ``paths`` that exists
+    (a new npz beside a private JSON), else an ordinary new file's (0666 less the umask)."""
+    modes = []
+    for path in paths:
+        try:
+            modes.append(os.stat(path).st_mode & 0o7777)
+        except OSError:
+            modes.append(None)
+    known = [m for m in modes if m is not None]
+    if known:
+        default = known[0]
+    else:
+        umask = os.umask(0)
+        os.umask(umask)
+        default = 0o666 & ~umask
+    return [default if m is None else m for m in modes]
 
 
-def atomic_write_bytes(path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file in the same folder and os.replace."""
-    path = Path(path)
+def _real_path(path) -> Path:
+    """``path`` with symbolic links resolved: a save replaces the file a link points to, not the link."""
+    return Path(os.path.realpath(path))
+
+
+def _write_temporary(path: Path, data: bytes, mode: int) -> str:
+    """Write ``data`` to a new temporary file beside ``path`` (flushed to disk, mode ``mode``);
+    return its name. Nothing is left behind on failure."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.fchmod(fd, 0o666 & ~umask)   # mkstemp creates 0600; a saved result is an ordinary file
+        os.fchmod(fd, mode)   # mkstemp creates 0600
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
-        os.replace(tmp, path)
     except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
+        _remove_quietly(tmp)
         raise
+    return tmp
+
+
+def _remove_quietly(name) -> None:
+    try:
+        os.unlink(name)
+    except OSError:
+        pass
+
+
+def atomic_write_files(items) -> None:
+    """Write several files all-or-nothing as far as a file system allows: every ``(path, data)``
+    first goes to a temporary file beside its target (flushed to disk), and only when all are
+    written are they moved over their targets with ``os.replace``, one after the other. A failure
+    while writing leaves every target as it was and no temporary file; a crash between two
+    replaces leaves complete files only (a result's JSON and npz carry a shared ``save_id`` for
+    that case, see :meth:`Result.save`). A replaced file keeps its permission bits."""
+    items = [(_real_path(path), data) for path, data in items]
+    modes = _file_modes([path for path, _ in items])
+    staged = []
+    try:
+        for (path, data), mode in zip(items, modes):
+            staged.append((_write_temporary(path, data, mode), path))
+        while staged:
+            tmp, path = staged[0]
+            os.replace(tmp, path)
+            staged.pop(0)
+    except BaseException:
+        for tmp, _ in staged:
+            _remove_quietly(tmp)
+        raise
+
+
+def atomic_write_bytes(path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary file in the same folder and os.replace
+    (:func:`atomic_write_files` with one file)."""
+    atomic_write_files([(path, data)])
 
 
 @dataclasses.dataclass
@@ -225,77 +273,273 @@ class Result:
         return _jsonable(d)
 
     def save(self, path) -> Path:
-        """Save as JSON (``path``) plus an ``.npz`` of the arrays beside it, each written
-        atomically (temporary file + os.replace).
-
-        Both files carry the same random ``save_id``; :meth:`load` uses the npz only when the
-        ids match, so a crash between the two writes never pairs an old JSON with new arrays
-        (the JSON itself holds every array, with floats written exactly). Returns the JSON path."""
-        path = Path(path)
-        if path.suffix.lower() != ".json":
-            path = path.with_suffix(".json")
-        import io
-
-        import uuid
-
-        save_id = uuid.uuid4().hex
-        buf = io.BytesIO()
-        arrays = {"x": np.asarray(self.x), "u": np.asarray(self.u), "save_id": np.array(save_id)}
-        for k, v in self.multipliers.items():
-            arrays[f"multipliers__{k}"] = np.asarray(v)
-        np.savez_compressed(buf, **arrays)
-        atomic_write_bytes(path.with_suffix(".npz"), buf.getvalue())
-        doc = self.to_dict()
-        doc["save_id"] = save_id
-        text = json.dumps(doc, indent=1)
-        atomic_write_bytes(path, text.encode("utf-8"))
-        return path
+        """Save as JSON (``path``) plus an ``.npz`` of the arrays beside it (:func:`write_result`).
+        Returns the JSON path."""
+        return write_result(self, path)
 
     @classmethod
     def load(cls, path) -> "Result":
-        """Load a result written by :meth:`save` (exact arrays from the npz when present)."""
-        path = Path(path)
-        if path.suffix.lower() != ".json":
-            path = path.with_suffix(".json")
+        """Load a result written by :meth:`save` (exact arrays from the npz when it belongs to the
+        JSON). Every field is checked: :class:`~olado.errors.ResultFileError` names the file and
+        the field of anything that is not what :meth:`save` writes."""
+        return cls(**read_result(path))
+
+
+# ---------------------------------------------------------------------------- the result file
+#: the layout :meth:`Result.save` writes; :func:`read_result` reads this version and older ones
+FORMAT = "olado-result"
+FORMAT_VERSION = 1
+
+
+def _json_path(path) -> Path:
+    if not isinstance(path, (str, os.PathLike)):
+        raise ResultFileError(f"expected a file path (str or pathlib.Path), got {type(path).__name__} {path!r:.40}")
+    path = Path(path)
+    return path if path.suffix.lower() == ".json" else path.with_suffix(".json")
+
+
+def write_result(result: Result, path) -> Path:
+    """The JSON (every field, arrays as nested lists with floats written exactly) and an ``.npz``
+    of the arrays beside it, written together by :func:`atomic_write_files`: a failure leaves
+    the old pair, a crash between the two replaces a new npz beside the old JSON. Both carry the
+    same random ``save_id``; :func:`read_result` takes the npz's arrays only when the ids match,
+    so an old JSON is never paired with new arrays."""
+    import io
+    import uuid
+
+    path = _real_path(_json_path(path))   # through a link: the npz goes beside the real JSON
+    save_id = uuid.uuid4().hex
+    buf = io.BytesIO()
+    arrays = {"x": np.asarray(result.x), "u": np.asarray(result.u), "save_id": np.array(save_id)}
+    for k, v in result.multipliers.items():
+        arrays[f"multipliers__{k}"] = np.asarray(v)
+    np.savez_compressed(buf, **arrays)
+    doc = {"format": FORMAT, "format_version": FORMAT_VERSION, **result.to_dict(), "save_id": save_id}
+    text = json.dumps(doc, indent=1)
+    atomic_write_files([(path.with_suffix(".npz"), buf.getvalue()), (path, text.encode("utf-8"))])
+    return path
+
+
+def read_result(path) -> dict:
+    """The keyword arguments of :class:`Result` from a file written by :func:`write_result`,
+    every field checked (:data:`RESULT_FIELDS`); ResultFileError naming the file and the field."""
+    path = _json_path(path)
+    doc = _read_json(path)
+    _check_format(doc, path)
+    values = {}
+    for name, (reader, default) in RESULT_FIELDS.items():
+        if name not in doc:
+            if default is _REQUIRED:
+                raise ResultFileError("missing (a result file written by Result.save has it)", file=path, field=name)
+            values[name] = default() if callable(default) else default
+            continue
         try:
-            d = json.loads(path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise
-        except json.JSONDecodeError as exc:
-            raise OladoError(f"{path}: not a valid olado result file ({exc})") from exc
-        x = np.asarray(d["x"], dtype=float)
-        u = np.asarray(d["u"], dtype=float)
-        mult = {k: np.asarray(v, dtype=float) for k, v in d.get("multipliers", {}).items()}
-        npz = path.with_suffix(".npz")
-        if npz.exists():
-            with np.load(npz) as data:
-                if "save_id" not in data.files or str(data["save_id"]) != d.get("save_id"):
-                    data = None  # arrays from another save: keep the JSON's own (exact) values
-                if data is not None:
-                    x, u = data["x"], data["u"]
-                    for name in data.files:
-                        if name.startswith("multipliers__"):
-                            mult[name[len("multipliers__"):]] = data[name]
-        return cls(
-            status=Status(d["status"]),
-            message=d.get("message", ""),
-            objective=_float_or_nan(d["objective"]),
-            x=x,
-            u=u,
-            multipliers=mult,
-            max_constraint_violation=_float_or_nan(d.get("max_constraint_violation", "nan")),
-            kkt_residual=_float_or_nan(d.get("kkt_residual")),
-            iterations=int(d.get("iterations", 0)),
-            qp_iterations=int(d.get("qp_iterations", 0)),
-            evaluations=d.get("evaluations", {}),
-            time_s=float(d.get("time_s", 0.0)),
-            history=d.get("history", []),
-            problem=d.get("problem", ""),
-            N=int(d.get("N", 0)),
-            solver=d.get("solver", ""),
-            options=d.get("options", {}),
-            info=d.get("info", {}),
-        )
+            values[name] = reader(doc[name])
+        except _FieldError as exc:
+            raise ResultFileError(str(exc), file=path, field=f"{name}{exc.where}") from None
+    _check_consistency(doc, values, path)
+    _take_npz_arrays(path, doc.get("save_id"), values)
+    return values
+
+
+def _read_json(path: Path) -> dict:
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except FileNotFoundError:
+        raise ResultFileNotFoundError("result file not found", file=path) from None
+    except UnicodeDecodeError as exc:
+        raise ResultFileError(f"not a text file ({exc.reason} at byte {exc.start})", file=path) from None
+    except OSError as exc:
+        raise ResultFileError(f"cannot read the result file ({exc.strerror or exc})", file=path) from None
+    try:
+        doc = json.loads(text)
+    except (json.JSONDecodeError, RecursionError) as exc:
+        raise ResultFileError(f"not a valid olado result file (not JSON: {exc})", file=path) from None
+    if not isinstance(doc, dict):
+        raise ResultFileError(f"not a valid olado result file (a JSON {_json_type(doc)}, "
+                              "expected an object of fields)", file=path)
+    return doc
+
+
+def _check_format(doc: dict, path: Path) -> None:
+    fmt = doc.get("format", FORMAT)
+    if fmt != FORMAT:
+        raise ResultFileError(f"expected {FORMAT!r}, got {fmt!r}", file=path, field="format")
+    version = doc.get("format_version", FORMAT_VERSION)  # files of olado 0.1 before versioning: 1
+    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+        raise ResultFileError(f"expected a positive integer, got {version!r}", file=path, field="format_version")
+    if version > FORMAT_VERSION:
+        raise ResultFileError(f"version {version} was written by a newer olado; this one reads "
+                              f"versions up to {FORMAT_VERSION}", file=path, field="format_version")
+
+
+def _check_consistency(doc: dict, values: dict, path: Path) -> None:
+    """Fields that must agree: the trajectories' lengths, N, and ``success`` with the status."""
+    x, u = values["x"], values["u"]
+    for name, arr in (("x", x), ("u", u)):
+        if arr.ndim != 2 and arr.size:
+            raise ResultFileError(f"expected a table (one row of numbers per stage), got {arr.ndim} "
+                                  "dimensions", file=path, field=name)
+    if x.size and u.size and x.shape[0] != u.shape[0] + 1:
+        raise ResultFileError(f"{x.shape[0]} state rows for {u.shape[0]} control rows (expected one more)",
+                              file=path, field="x")
+    if "N" in doc and u.size and values["N"] != u.shape[0]:
+        raise ResultFileError(f"N = {values['N']} but 'u' has {u.shape[0]} rows", file=path, field="N")
+    if "success" in doc and not isinstance(doc["success"], bool):
+        raise ResultFileError(f"expected true or false, got {_short(doc['success'])}", file=path, field="success")
+    if "success" in doc and doc["success"] != values["status"].success:
+        raise ResultFileError(f"{doc['success']} does not agree with status {values['status'].value!r}",
+                              file=path, field="success")
+
+
+def _take_npz_arrays(path: Path, save_id, values: dict) -> None:
+    """Replace the JSON's arrays by the npz's exact ones when the npz belongs to this JSON."""
+    npz = path.with_suffix(".npz")
+    if not npz.exists():
+        return
+    try:
+        with np.load(npz, allow_pickle=False) as data:
+            if "save_id" not in data.files or str(data["save_id"]) != save_id:
+                return  # arrays from another save: keep the JSON's own (exact) values
+            arrays = {name: data[name] for name in data.files if name != "save_id"}
+    except Exception as exc:  # zip, pickle and format errors of every kind: the file is unusable
+        raise ResultFileError(f"cannot read the arrays ({type(exc).__name__}: {exc})", file=npz) from None
+    for name, arr in arrays.items():
+        field = name.replace("multipliers__", "multipliers.")
+        if arr.dtype.kind not in "if":
+            raise ResultFileError(f"expected numbers, got dtype {arr.dtype}", file=npz, field=field)
+        if name in ("x", "u"):
+            if arr.shape != values[name].shape:
+                raise ResultFileError(f"shape {arr.shape} differs from the JSON's {values[name].shape}",
+                                      file=npz, field=field)
+            values[name] = arr
+        elif name.startswith("multipliers__"):
+            values["multipliers"][name[len("multipliers__"):]] = arr
+
+
+class _FieldError(Exception):
+    """A field's value is not what :func:`write_result` writes (``where``: index inside it)."""
+
+    def __init__(self, message, where=""):
+        super().__init__(message)
+        self.where = where
+
+
+def _json_type(value) -> str:
+    return {dict: "object", list: "array", str: "string", bool: "boolean", type(None): "null",
+            int: "number", float: "number"}.get(type(value), type(value).__name__)
+
+
+def _read_status(value):
+    if not isinstance(value, str):
+        raise _FieldError(f"expected a string, got a JSON {_json_type(value)}")
+    try:
+        return Status(value)
+    except ValueError:
+        raise _FieldError(f"unknown status {value!r} (known: {', '.join(s.value for s in Status)})") from None
+
+
+def _read_str(value):
+    if not isinstance(value, str):
+        raise _FieldError(f"expected a string, got a JSON {_json_type(value)}")
+    return value
+
+
+def _read_count(value):
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise _FieldError(f"expected a non-negative integer, got {value!r}")
+    return value
+
+
+#: how :func:`_jsonable` writes a non-finite float (JSON has no NaN): as a string
+_NONFINITE = {"nan": math.nan, "inf": math.inf, "-inf": -math.inf}
+
+
+def _read_float(value):
+    if isinstance(value, str) and value.lower() in _NONFINITE:
+        return _NONFINITE[value.lower()]
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise _FieldError(f"expected a number (or 'nan', 'inf'), got {_short(value)}")
+    try:
+        return float(value)
+    except OverflowError:  # an integer beyond the float range
+        raise _FieldError(f"the number {_short(value)} is beyond the floating-point range") from None
+
+
+def _short(value, width=40) -> str:
+    text = repr(value)
+    return text if len(text) <= width else text[:width - 3] + "..."
+
+
+def _read_optional_float(value):
+    return None if value is None else _read_float(value)
+
+
+def _read_dict(value):
+    if not isinstance(value, dict):
+        raise _FieldError(f"expected a JSON object, got a JSON {_json_type(value)}")
+    return value
+
+
+def _read_list(value):
+    if not isinstance(value, list):
+        raise _FieldError(f"expected a JSON array, got a JSON {_json_type(value)}")
+    return value
+
+
+def _read_array(value):
+    """A (nested) JSON array of numbers -> float array; non-finite entries as _NONFINITE strings."""
+    if not isinstance(value, list):
+        raise _FieldError(f"expected an array of numbers, got a JSON {_json_type(value)}")
+    try:
+        raw = np.asarray(value)
+    except (ValueError, TypeError) as exc:  # ragged nesting
+        raise _FieldError(f"expected a rectangular array of numbers ({str(exc).split('.')[0]})") from None
+    if raw.dtype.kind in "if":
+        return raw.astype(float)
+    entries = np.asarray(value, dtype=object)  # the JSON's own values (strings, null, ...) by index
+    out = np.empty(entries.shape)
+    for index, entry in np.ndenumerate(entries):
+        try:
+            out[index] = _read_float(entry)
+        except _FieldError as exc:
+            raise _FieldError(str(exc), where=str(list(index))) from None
+    return out
+
+
+def _read_multipliers(value):
+    out = {}
+    for name, arr in _read_dict(value).items():
+        try:
+            out[name] = _read_array(arr)
+        except _FieldError as exc:
+            raise _FieldError(str(exc), where=f".{name}{exc.where}") from None
+    return out
+
+
+_REQUIRED = object()
+
+#: Result field -> (reader of its JSON value, default when missing: _REQUIRED, a value or a factory)
+RESULT_FIELDS = {
+    "status": (_read_status, _REQUIRED),
+    "message": (_read_str, ""),
+    "objective": (_read_float, _REQUIRED),
+    "x": (_read_array, _REQUIRED),
+    "u": (_read_array, _REQUIRED),
+    "multipliers": (_read_multipliers, dict),
+    "max_constraint_violation": (_read_float, math.nan),
+    "kkt_residual": (_read_optional_float, None),
+    "iterations": (_read_count, 0),
+    "qp_iterations": (_read_count, 0),
+    "evaluations": (_read_dict, dict),
+    "time_s": (_read_float, 0.0),
+    "history": (_read_list, list),
+    "problem": (_read_str, ""),
+    "N": (_read_count, 0),
+    "solver": (_read_str, ""),
+    "options": (_read_dict, dict),
+    "info": (_read_dict, dict),
+}
 
 
 def save_figure(fig, path) -> Path:

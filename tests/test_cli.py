@@ -44,7 +44,7 @@ def test_list_marks_missing_backend(capsys, monkeypatch):
     code, out, _ = run(capsys, "list")
     assert code == 0
     line = next(l for l in out.splitlines() if l.strip().startswith("ipopt"))
-    assert "not installed" in line and "olado[ipopt]" in line
+    assert "not installed" in line and "cyipopt-wheels" in line
     line = next(l for l in out.splitlines() if l.strip().startswith("slsqp"))
     assert "not installed" not in line
 

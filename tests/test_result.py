@@ -104,7 +104,7 @@ def test_load_rejects_bad_files(tmp_path):
     with pytest.raises(OladoError) as exc:
         Result.load(bad)
     assert "bad.json" in str(exc.value)
-    with pytest.raises(FileNotFoundError):
+    with pytest.raises(FileNotFoundError):   # a ResultFileError that is a FileNotFoundError too
         Result.load(tmp_path / "missing.json")
 
 
@@ -153,21 +153,56 @@ def test_failed_save_keeps_old_file_and_leaves_no_temp(tmp_path, monkeypatch, wh
 
 
 def test_failure_between_npz_and_json_is_not_mixed(tmp_path, monkeypatch):
+    """A crash after the npz was replaced and before the JSON was: the new npz is not paired
+    with the old JSON (their save ids differ), and no temporary file is left."""
     old = make_result(seed=1)
     path = old.save(tmp_path / "res.json")
-    real = result_module.atomic_write_bytes
+    npz_before = path.with_suffix(".npz").read_bytes()
+    real = os.replace
 
-    def fail_on_json(target, data):
-        if str(target).endswith(".json"):
+    def fail_on_json(src, dst):
+        if str(dst).endswith(".json"):
             raise OSError("crash between the two writes (simulated)")
-        real(target, data)
+        real(src, dst)
 
-    monkeypatch.setattr(result_module, "atomic_write_bytes", fail_on_json)
+    monkeypatch.setattr(result_module.os, "replace", fail_on_json)
     with pytest.raises(OSError):
         make_result(seed=2).save(path)
     monkeypatch.undo()
+    assert path.with_suffix(".npz").read_bytes() != npz_before   # the new arrays did land
+    assert tmp_files(tmp_path) == []
     back = Result.load(path)
     assert np.array_equal(back.x, old.x) and back.objective == old.objective
+
+
+@pytest.mark.parametrize("mode", [0o600, 0o640, 0o644])
+def test_save_keeps_the_replaced_files_permissions(tmp_path, mode):
+    path = make_result(seed=1).save(tmp_path / "res.json")
+    for f in (path, path.with_suffix(".npz")):
+        os.chmod(f, mode)
+    make_result(seed=2).save(path)
+    for f in (path, path.with_suffix(".npz")):
+        assert os.stat(f).st_mode & 0o777 == mode, f.name
+    assert Result.load(path).x.tolist() == make_result(seed=2).x.tolist()
+
+
+def test_new_npz_beside_a_private_json_is_private_too(tmp_path):
+    path = make_result(seed=1).save(tmp_path / "res.json")
+    os.chmod(path, 0o600)
+    path.with_suffix(".npz").unlink()
+    make_result(seed=2).save(path)
+    assert os.stat(path.with_suffix(".npz")).st_mode & 0o777 == 0o600
+
+
+def test_save_through_a_symlink_replaces_the_target(tmp_path):
+    real_dir = tmp_path / "real"
+    real_dir.mkdir()
+    target = make_result(seed=1).save(real_dir / "res.json")
+    link = tmp_path / "link.json"
+    link.symlink_to(target)
+    make_result(seed=2, objective=7.0).save(link)
+    assert link.is_symlink() and Result.load(target).objective == 7.0
+    assert not (tmp_path / "link.npz").exists()
 
 
 def test_atomic_write_bytes_replaces(tmp_path):

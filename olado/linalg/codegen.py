@@ -30,6 +30,7 @@ afresh (the old cache entries are never loaded again).
 from __future__ import annotations
 
 import collections
+import os
 
 import numba as nb
 from llvmlite import ir as llir
@@ -109,6 +110,102 @@ def fixed_size_tags(n, m):
     """size_tags(n, m) for blocks that get the kernels compiled for their sizes (0 < n, 0 < m,
     n + m <= FIXED_SIZE_MAX), else None."""
     return size_tags(n, m) if 0 < n and 0 < m and n + m <= FIXED_SIZE_MAX else None
+
+
+# ----------------------------------------------------------------------------- bound kernels
+#: environment variable: when set (not "0"), every call of a bound kernel types its arguments and
+#: compares them with the signature it was bound to (the test suite sets it, see KernelSet)
+CHECK_TYPES_ENV = "OLADO_CHECK_KERNEL_TYPES"
+
+
+class KernelTypeError(TypeError):
+    """A bound kernel was called with arguments of other types than those it was bound to (an
+    internal error: a caller broke the invariant of :class:`KernelSet`)."""
+
+
+def entry_point(kernel, args):
+    """The compiled entry point of the numba dispatcher ``kernel`` for the types of ``args`` (it
+    must have been called with such arguments), or the dispatcher itself if numba does not
+    expose it."""
+    try:
+        return kernel.overloads[tuple(kernel.typeof_pyval(a) for a in args)].entry_point
+    except (AttributeError, KeyError, TypeError):
+        return kernel
+
+
+class _FirstCall:
+    """A kernel of a KernelSet before its first call: the call goes through numba's dispatcher
+    (which compiles or loads the kernel), then the set's attribute becomes the entry point."""
+
+    __slots__ = ("owner", "name", "kernel")
+
+    def __init__(self, owner, name, kernel):
+        self.owner, self.name, self.kernel = owner, name, kernel
+
+    def __call__(self, *args):
+        bound = getattr(self.owner, self.name)
+        if bound is not self:   # bound since this object was looked up
+            return bound(*args)
+        result = self.kernel(*args)
+        entry = entry_point(self.kernel, args)
+        if os.environ.get(CHECK_TYPES_ENV, "0") not in ("", "0"):
+            entry = _Checked(self.kernel, args, entry)
+        setattr(self.owner, self.name, entry)
+        return result
+
+
+class _Checked:
+    """A bound kernel that checks the types of every call's arguments (CHECK_TYPES_ENV)."""
+
+    __slots__ = ("kernel", "signature", "entry")
+
+    def __init__(self, kernel, args, entry):
+        self.kernel, self.entry = kernel, entry
+        self.signature = tuple(kernel.typeof_pyval(a) for a in args)
+
+    def __call__(self, *args):
+        signature = tuple(self.kernel.typeof_pyval(a) for a in args)
+        if signature != self.signature:
+            diff = [i for i, (a, b) in enumerate(zip(signature, self.signature)) if a != b]
+            raise KernelTypeError(f"{self.kernel.__name__} bound to {self.signature} called with other types at "
+                                  f"arguments {diff}: {[signature[i] for i in diff]}")
+        return self.entry(*args)
+
+
+class KernelSet:
+    """Compiled kernels called through their entry points, without numba's per-call typing.
+
+    numba's dispatcher types every argument of every call to find the compiled version for
+    them: cheap for an array, several hundred nanoseconds for a bundle (a tuple of arrays, typed
+    through a fingerprint of all its members) -- at small N, where a QP iteration is a few dozen
+    kernel calls on short arrays, that typing was about 5 % of the SQP's time. A KernelSet holds
+    kernels whose callers pass arguments of fixed types: after a kernel's first call through the
+    dispatcher, its attribute is the compiled entry point for that call's types, which the later
+    calls reach directly.
+
+    The invariant is the caller's: every call of a set's kernel passes arguments of the types of
+    the first call. The stage arrays are C-contiguous float64 by construction (StageData,
+    StageQP and the prepared QP make them so), so their types depend on nothing but the size
+    tags of the kernels compiled for the block sizes: :func:`kernel_set` keeps one set per
+    (kernel table, size key). With CHECK_TYPES_ENV set (the test suite does), every call is
+    checked against the first one's types and a difference raises KernelTypeError."""
+
+    def __init__(self, kernels):
+        for name, kernel in kernels.items():
+            setattr(self, name, _FirstCall(self, name, kernel))
+
+
+_KERNEL_SETS: dict = {}
+
+
+def kernel_set(kernels: dict, key=None) -> KernelSet:
+    """The KernelSet of the kernels ``kernels`` ({name: dispatcher}, a module-level table) for
+    the argument types named by ``key`` (e.g. the block sizes (n, m) of kernels that take size
+    tags; None when the types do not depend on the sizes), made at the first request."""
+    ks = _KERNEL_SETS.get((id(kernels), key))
+    if ks is None:
+        ks = _KERNEL_SETS[(id(kernels), key)] = KernelSet(kernels)
+    return ks
 
 
 F64 = llir.DoubleType()

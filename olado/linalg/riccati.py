@@ -29,11 +29,17 @@ import numpy as np
 
 from ..errors import OladoError
 from .backend import RHS, LQSolution, NotPositiveDefiniteError, Solution, StageData
-from .codegen import fixed_size_tags
+from .codegen import fixed_size_tags, kernel_set
 from .riccati_fixed import (_STRAIGHT_N_MAX, _factor_unconstrained_fixed, _factor_unconstrained_fixed_loops,
                             _solve_unconstrained_fixed)
 from .riccati_kernels import (Costs, Dynamics, EqualityRows, GeneralFactors, IPTerms, PlainFactors, _factor,
                               _factor_unconstrained, _solve, _solve_unconstrained)
+
+#: the kernels of the recursion, called through a KernelSet (codegen.kernel_set: the stage arrays
+#: are C-contiguous float64, so the argument types depend only on the size tags)
+_KERNELS = {"factor": _factor, "solve": _solve, "factor_plain": _factor_unconstrained,
+            "solve_plain": _solve_unconstrained, "factor_fixed": _factor_unconstrained_fixed,
+            "factor_fixed_loops": _factor_unconstrained_fixed_loops, "solve_fixed": _solve_unconstrained_fixed}
 
 _NU = Solution._fields.index("nu")
 
@@ -92,18 +98,26 @@ class RiccatiFactorization:
             self._factors = tuple(GeneralFactors(P=self.P, K=self.K, Quu=self.Quu, Qux=self.Qux, Lww=self.Lww, Qm=self.Qm,
                                                  Rm=self.Rm, perm=self.perm, rank=self.rank, nc=self.nc, Cx=self.Cx, G=self.G,
                                                  ng=self.ng, Wx=self.Wx, Dmat=self.Dmat, pg=self.pg, Zg=self.Zg))
+            self._size_tags = None
+        self._kernels = kernel_set(_KERNELS, None if self._size_tags is None else (n, m))
         self._factorize()
 
-    def refactor(self, Dx=None, Du=None, sigma=None, regularization=None):
+    def refactor(self, Dx=None, Du=None, sigma=None, regularization=None, from_stage=None):
         """Factorize again after a change of the diagonal terms only -- the interior-point
         Newton matrix of the next iteration (arguments as
         :meth:`~olado.linalg.backend.StageData.set_diagonal`); Q, S, R, A, B and the equality
         rows stay.  The factors are overwritten in place (no new allocation: on large N the first
         touch of fresh factor arrays costs as much as the kernel).  Raises
         NotPositiveDefiniteError like the constructor (the object must then be refactored before
-        the next solve)."""
+        the next solve).
+
+        ``from_stage`` k (general recursion only; the plain one always factors every stage):
+        only the stages <= k are factored again, for a caller that changed the stage data of
+        those stages only -- in place, e.g. equality rows written into E, F and their counts into
+        ``data.ne`` (the active-set QP's working-set changes) -- and whose last factorization
+        of this object succeeded; the backward sweep's factors of the later stages are kept."""
         self.data.set_diagonal(Dx=Dx, Du=Du, sigma=sigma, regularization=regularization)
-        self._factorize()
+        self._factorize(self.N - 1 if from_stage is None else max(-1, min(int(from_stage), self.N - 1)))
         return self
 
     def _ip_terms(self):
@@ -115,25 +129,27 @@ class RiccatiFactorization:
             ipt = self._ipt = tuple(IPTerms(Dx=d.Dx, Du=d.Du, Ci=d.Ci, sig=d.sig, ni=d.ni))
         return ipt
 
-    def _factorize(self):
+    def _factorize(self, k_start=None):
         # the interior-point terms as the kernels take them, for the factorization and its
-        # solves (a refactor may have replaced their arrays)
+        # solves (a refactor may have replaced their arrays); the general recursion factors the
+        # stages <= k_start (default: all)
         ipt = self._ip_terms()
-        reg, costs, dyn = self.data.regularization, self._costs, self._dyn
+        reg, costs, dyn, k = self.data.regularization, self._costs, self._dyn, self._kernels
         if self.unconstrained:
             if self._size_tags is None:
-                code = _factor_unconstrained(costs, dyn, ipt, reg, self._factors)
+                code = k.factor_plain(costs, dyn, ipt, reg, self._factors)
             elif self.n <= _STRAIGHT_N_MAX:
-                code = _factor_unconstrained_fixed(self._size_tags, costs, dyn, ipt, reg, self._factors)
+                code = k.factor_fixed(self._size_tags, costs, dyn, ipt, reg, self._factors)
             else:
-                code = _factor_unconstrained_fixed_loops(self._size_tags, costs, dyn, ipt, reg, self._factors)
+                code = k.factor_fixed_loops(self._size_tags, costs, dyn, ipt, reg, self._factors)
             if code >= 0:
                 raise NotPositiveDefiniteError(code)
             return
+        k_start = self.N - 1 if k_start is None else k_start
         for w in (self.Lww, self.Rm, self.perm, self.rank, self.nc, self.Cx, self.G, self.ng, self.Wx, self.Dmat,
                   self.pg, self.Zg):
-            w.fill(0)   # the general kernel expects zeroed padding (a refactor reuses the arrays)
-        code = _factor(costs, dyn, self._eq, ipt, reg, self.rank_tol, self._factors)
+            w[:k_start + 1].fill(0)   # the general kernel expects zeroed padding (a refactor reuses the arrays)
+        code = k.factor(costs, dyn, self._eq, ipt, reg, self.rank_tol, self._factors, k_start)
         if code >= 0:
             raise NotPositiveDefiniteError(code)
         if code <= -1000:
@@ -167,12 +183,13 @@ class RiccatiFactorization:
         no row counts) and returns ``LQSolution.x0_residual``."""
         out[_NU].fill(0.0)
         rhs, out = tuple(rhs), tuple(out)       # the kernels take plain tuples (codegen.as_bundle)
+        k = self._kernels
         if not self.unconstrained:
-            return float(_solve(self._costs, self._dyn, self._eq, self._ipt, self._factors, rhs, out))
+            return float(k.solve(self._costs, self._dyn, self._eq, self._ipt, self._factors, rhs, out))
         if self._size_tags is None:
-            _solve_unconstrained(self._costs, self._dyn, self._ipt, self._factors, rhs, out)
+            k.solve_plain(self._costs, self._dyn, self._ipt, self._factors, rhs, out)
         else:
-            _solve_unconstrained_fixed(self._size_tags, self._dyn, self._ipt, self._factors, rhs, out)
+            k.solve_fixed(self._size_tags, self._dyn, self._ipt, self._factors, rhs, out)
         return 0.0
 
 

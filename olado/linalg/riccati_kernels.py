@@ -209,7 +209,7 @@ def _closed_loop(A, B, c, K, kff, X, U):
 
 
 @nb.njit(cache=True)
-def _factor(costs, dyn, eq, ipt, reg, rank_tol, fac):
+def _factor(costs, dyn, eq, ipt, reg, rank_tol, fac, k_start):
     """Backward factorization sweep (paper 001 sec. 4.2.3, Arnold's elimination in the
     constraint-propagating form). Returns -1 on success, the stage index of a failure
     (non-positive-definite reduced Hessian), or -(1000 + k) when more rows than the buffers hold
@@ -229,7 +229,11 @@ def _factor(costs, dyn, eq, ipt, reg, rank_tol, fac):
     Zg = D1^{-1} S11^{-1} S12 D2 (D1, D2 the scalings of the kept / dropped rows; stored in Zg[k],
     rg x (nc[k] - rk - rg)), so for the constants they only impose the consistency
     (Pi_g^T graw)[rg:] = Zg^T g_k, checked by :func:`_solve`. The row sets G_N = E_N and G_k are
-    stored in G (rows on x_k only)."""
+    stored in G (rows on x_k only).
+
+    ``k_start`` < N - 1 factors only the stages k <= k_start again: the factors of the later
+    stages and of the terminal stage (P, G, ng) are those of the last factorization into ``fac``
+    (the caller changed nothing there); k_start = N - 1 is the whole sweep."""
     costs = as_bundle(costs, Costs)
     Q, S, R = costs.Q, costs.S, costs.R
     dyn = as_bundle(dyn, Dynamics)
@@ -255,15 +259,16 @@ def _factor(costs, dyn, eq, ipt, reg, rank_tol, fac):
     Graw = np.empty((ncmax, n)); Mg = np.empty((n, ncmax)); vg = np.empty(max(n, 1)); Qg = np.empty((1, 1))
     sg = np.empty(max(ncmax, 1)); wu = np.empty(max(ncmax, 1)); nowt = np.empty(0)
     # terminal stage
-    for i in range(n):
-        for j in range(n):
-            P[N, i, j] = Q[N, i, j]
-        P[N, i, i] += Dx[N, i]
-    ng[N] = neN
-    for i in range(neN):
-        for j in range(n):
-            G[N, i, j] = EN[i, j]
-    for k in range(N - 1, -1, -1):
+    if k_start >= N - 1:
+        for i in range(n):
+            for j in range(n):
+                P[N, i, j] = Q[N, i, j]
+            P[N, i, i] += Dx[N, i]
+        ng[N] = neN
+        for i in range(neN):
+            for j in range(n):
+                G[N, i, j] = EN[i, j]
+    for k in range(min(k_start, N - 1), -1, -1):
         # PA = P_{k+1} A_k, PB = P_{k+1} B_k
         for i in range(n):
             for j in range(n):

@@ -14,6 +14,8 @@ def _registry():
         pass
     from .testproblems import PROBLEMS as _t
     problems.update(_t)
+    from .catalog import lazy_factories   # the literature problems: modules imported on use
+    problems.update(lazy_factories())
     return problems
 
 

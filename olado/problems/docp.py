@@ -21,7 +21,9 @@ of a line search it means "step too long").
 
 from __future__ import annotations
 
+import inspect
 import math
+import os
 from collections import Counter
 
 import numpy as np
@@ -56,21 +58,175 @@ def _all_finite(arr):
     return flat.size == 0 or _count_nonfinite(flat.view(np.int64)) == 0
 
 
+#: user functions and derivative methods (overridable) and the arguments olado calls them with
+CALL_ARGUMENTS = {
+    "dynamics": ("k", "x", "u"),
+    "stage_cost": ("k", "x", "u"),
+    "final_cost": ("x",),
+    "stage_constraints": ("k", "x", "u"),
+    "final_constraints": ("x",),
+    "dynamics_jacobian": ("k", "x", "u"),
+    "stage_cost_gradient": ("k", "x", "u"),
+    "final_cost_gradient": ("x",),
+    "stage_constraints_jacobian": ("k", "x", "u"),
+    "final_constraints_jacobian": ("x",),
+    "stage_hessian": ("k", "x", "u", "sigma", "p", "lam"),
+    "final_hessian": ("x", "sigma", "lam"),
+    "initial_guess": (),
+    "initial_state_guess": ("U",),
+}
+
+
+def stage_floats(n, m, r=0):
+    """Lower estimate of the float64 numbers every solver keeps per stage: x, u and their bounds,
+    the dynamics Jacobians (A, B), the Hessian blocks, the constraint Jacobians, the multipliers."""
+    return (n + m) * (3 + n + (n + m) + r) + n + r
+
+
+def physical_memory():
+    """This machine's memory in bytes (None where the system does not say)."""
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def check_problem_size(n, m, N, r=0, function="__init__"):
+    """Refuse, before anything is allocated, a horizon whose stage arrays alone (a lower estimate,
+    :func:`stage_floats`) exceed this machine's memory; the message gives the estimate."""
+    memory = physical_memory()
+    per_stage = 8 * stage_floats(n, m, r)
+    need = per_stage * int(N)
+    if memory and need > memory:
+        raise ProblemDefinitionError(
+            f"N={N} stages cannot fit in memory: the stage arrays alone need at least "
+            f"{need / 2**30:,.1f} GiB ({per_stage} bytes per stage for n={n}, m={m}, r={r}), "
+            f"this machine has {memory / 2**30:,.1f} GiB", function=function, array="N")
+
+
+def _describe(value):
+    text = repr(value)
+    return f"{type(value).__name__} {text if len(text) <= 40 else text[:37] + '...'}"
+
+
+#: dtype kinds that convert to float64 without losing anything a user meant (bool, int, float)
+_REAL_KINDS = "biuf"
+
+
+def as_real_array(value, function, array, stage=None, *, stage0=None):
+    """``value`` as a float64 array, or a :class:`ProblemDefinitionError` naming ``function``,
+    ``array`` and the stage when it is not an array of real numbers: None, complex values (their
+    imaginary parts would be dropped silently), text, objects or a ragged nest of lists.
+
+    The one conversion behind :meth:`DOCP.check_array` (one stage) and the all-stages check
+    (``stage0``: the stage of the first row, so that an error names the stage it found)."""
+    if type(value) is np.ndarray and value.dtype == np.float64:
+        return value
+    got = "returned" if function in CALL_ARGUMENTS else "got"
+    if value is None:
+        raise ProblemDefinitionError(f"{got} None instead of a float array" + (
+            " (a missing return statement?)" if got == "returned" else ""),
+            function=function, stage=stage, array=array)
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError) as exc:
+        raise ProblemDefinitionError(f"cannot convert to a float array ({exc})", function=function,
+                                     stage=stage, array=array) from None
+    kind = arr.dtype.kind
+    if kind in _REAL_KINDS:
+        return arr if arr.dtype == np.float64 else arr.astype(np.float64)
+    if kind not in "cO":
+        raise ProblemDefinitionError(f"expected real numbers, got dtype {arr.dtype} ({_dtype_words(kind)})",
+                                     function=function, stage=stage, array=array)
+    index = _first_bad_entry(arr, kind)
+    if index is None:  # an object array of plain numbers
+        return arr.astype(np.float64)
+    entry = arr[index]
+    if stage0 is not None and index:
+        stage, index = stage0 + index[0], index[1:]
+    at = f" at index {index}" if index else ""
+    if kind == "c":
+        raise ProblemDefinitionError(f"complex values (dtype {arr.dtype}){at}: {entry}; olado works in "
+                                     "real arithmetic: real numbers only", function=function,
+                                     stage=stage, array=array)
+    what = "None" if entry is None else _a(type(entry).__name__)
+    text = f"{got} {what}" if arr.ndim == 0 else f"an array holding {what}{at}"
+    raise ProblemDefinitionError(f"{text}; expected real numbers", function=function, stage=stage, array=array)
+
+
+def _first_bad_entry(arr, kind):
+    """Index (a tuple) of the first entry of a complex or object array that is not a real number;
+    for a complex array whose imaginary parts are all zero, its first entry (complex is refused
+    as a type); None for an object array of plain numbers."""
+    if kind == "c":
+        bad = np.argwhere(np.atleast_1d(arr.imag != 0))
+        first = tuple(int(i) for i in bad[0]) if len(bad) else (0,) * arr.ndim
+        return first[:arr.ndim]
+    flags = np.frompyfunc(_not_real, 1, 1)(arr)
+    bad = np.argwhere(np.atleast_1d(np.asarray(flags, dtype=bool)))
+    if not len(bad):
+        return None
+    return tuple(int(i) for i in bad[0])[:arr.ndim]
+
+
+def _a(noun):
+    return f"{'an' if noun[:1].lower() in 'aeiou' else 'a'} {noun}"
+
+
+def _not_real(v):
+    return not isinstance(v, (int, float, np.integer, np.floating, np.bool_))
+
+
+def _dtype_words(kind):
+    return {"U": "text", "S": "bytes", "M": "dates", "m": "time spans", "V": "records"}.get(kind, "not numbers")
+
+
 def _as_bool_mask(spec, size, name):
     """Turn None / bool mask / index list into a bool mask of length ``size``."""
     mask = np.zeros(size, dtype=bool)
     if spec is None:
         return mask
-    arr = np.asarray(spec)
+    try:
+        arr = np.asarray(spec)
+    except (TypeError, ValueError) as exc:
+        raise ProblemDefinitionError(f"expected a boolean mask or a list of indices ({exc})", function="__init__", array=name) from None
     if arr.dtype == bool:
         if arr.shape != (size,):
-            raise ProblemDefinitionError(f"expected a boolean mask of length {size}, got shape {arr.shape}", array=name)
+            raise ProblemDefinitionError(f"expected a boolean mask of length {size}, got shape {arr.shape}", function="__init__", array=name)
         return arr.copy()
+    if arr.size and arr.dtype.kind not in "iu":
+        raise ProblemDefinitionError(f"expected a boolean mask or a list of integer indices, got {_describe(spec)}",
+                                     function="__init__", array=name)
     idx = arr.astype(int).ravel()
     if np.any(idx < 0) or np.any(idx >= size):
-        raise ProblemDefinitionError(f"indices must lie in 0..{size - 1}, got {idx.tolist()}", array=name)
+        raise ProblemDefinitionError(f"indices must lie in 0..{size - 1} (the constraint components), got {idx.tolist()}"
+                                     if size else f"there are no such constraints (0 components), got indices {idx.tolist()}",
+                                     function="__init__", array=name)
     mask[idx] = True
     return mask
+
+
+def check_problem(problem, entry="olado.solve"):
+    """The public entry points' guard on their ``problem`` argument: a constructed DOCP whose user
+    functions can be called (:meth:`DOCP.check_functions`); ProblemDefinitionError naming the
+    argument (and ``entry``, the function that received it) otherwise."""
+    if isinstance(problem, type) and issubclass(problem, DOCP):
+        raise ProblemDefinitionError(f"argument 'problem' is the class {problem.__name__}, not an "
+                                     f"instance: build one first, e.g. {problem.__name__}(...)", function=entry)
+    if not isinstance(problem, DOCP):
+        raise ProblemDefinitionError("argument 'problem' must be a DOCP instance (of a subclass of "
+                                     f"olado.DOCP, LagrangeDOCP or MayerDOCP), got {_describe(problem)}",
+                                     function=entry)
+    missing = [a for a in ("n", "m", "N", "x0", "x_lower", "u_lower", "counters", "_K") if not hasattr(problem, a)]
+    if missing:
+        raise ProblemDefinitionError(f"{type(problem).__name__}.__init__ did not call DOCP.__init__ "
+                                     f"(super().__init__(n, m, N, x0, ...)): attribute '{missing[0]}' is "
+                                     "missing", function=entry)
+    if not isinstance(problem.name, str):
+        raise ProblemDefinitionError(f"{type(problem).__name__}.name must be a string (it names the problem "
+                                     f"in results), got {_describe(problem.name)}", function=entry)
+    problem.check_functions()
+    return problem
 
 
 class DOCP:
@@ -107,13 +263,18 @@ class DOCP:
             if not isinstance(val, (int, np.integer)) or isinstance(val, bool) or val < 0:
                 raise ProblemDefinitionError(f"must be a non-negative integer, got {val!r}", function="__init__", array=nm)
         self.r, self.rN = int(n_stage_constraints), int(n_final_constraints)
+        check_problem_size(self.n, self.m, self.N, self.r)
         self.x0 = self.check_array(x0, (self.n,), "__init__", "x0")
         self.stage_equality_mask = _as_bool_mask(stage_equalities, self.r, "stage_equalities")
         self.final_equality_mask = _as_bool_mask(final_equalities, self.rN, "final_equalities")
-        if derivatives not in ("auto", "fd"):
-            raise ProblemDefinitionError(f"derivatives must be 'auto' or 'fd', got {derivatives!r}", array="derivatives")
-        if fd_method not in ("forward", "backward", "central"):
-            raise ProblemDefinitionError(f"fd_method must be forward, backward or central, got {fd_method!r}", array="fd_method")
+        if not isinstance(derivatives, str) or derivatives not in ("auto", "fd"):
+            raise ProblemDefinitionError(f"derivatives must be 'auto' or 'fd', got {derivatives!r}", function="__init__", array="derivatives")
+        if not isinstance(fd_method, str) or fd_method not in ("forward", "backward", "central"):
+            raise ProblemDefinitionError(f"fd_method must be forward, backward or central, got {fd_method!r}", function="__init__", array="fd_method")
+        if fd_step is not None and (isinstance(fd_step, bool) or not isinstance(fd_step, (int, float, np.integer, np.floating))
+                                    or not 0 < fd_step < 1):
+            raise ProblemDefinitionError(f"fd_step must be None (the default steps) or a relative step in (0, 1), "
+                                         f"got {fd_step!r}", function="__init__", array="fd_step")
         self.derivatives, self.fd_method, self.fd_step = derivatives, fd_method, fd_step
         self.counters = Counter()
         self._K = np.arange(self.N)
@@ -128,6 +289,7 @@ class DOCP:
             raise ProblemDefinitionError(f"n_stage_constraints={self.r} but stage_constraints is not defined", function="stage_constraints")
         if self.rN and not self._overrides("final_constraints"):
             raise ProblemDefinitionError(f"n_final_constraints={self.rN} but final_constraints is not defined", function="final_constraints")
+        self.check_functions()
 
     # ======================================================================== user functions
     def dynamics(self, k, x, u):
@@ -208,7 +370,7 @@ class DOCP:
             if side is None:
                 arr = np.full((rows, cols), default)
             else:
-                arr = np.asarray(side, dtype=float)
+                arr = as_real_array(side, "__init__", name)
                 if arr.ndim == 0:
                     arr = np.full((rows, cols), float(arr))
                 elif arr.shape == (cols,):
@@ -232,14 +394,9 @@ class DOCP:
     # ======================================================================== validation
     def check_array(self, value, shape, function, array, stage=None):
         """Return ``value`` as a float array of ``shape``; ProblemDefinitionError otherwise
-        (NonFiniteEvaluationError for a NaN or inf entry)."""
-        if type(value) is np.ndarray and value.dtype == np.float64:
-            arr = value
-        else:
-            try:
-                arr = np.asarray(value, dtype=float)
-            except (TypeError, ValueError) as exc:
-                raise ProblemDefinitionError(f"cannot convert to a float array ({exc})", function=function, stage=stage, array=array) from None
+        (NonFiniteEvaluationError for a NaN or inf entry). None, complex values, text and object
+        arrays are refused by name (:func:`as_real_array`)."""
+        arr = as_real_array(value, function, array, stage)
         if arr.shape != tuple(shape):
             if arr.size == int(np.prod(shape)) and arr.ndim <= 1 and len(shape) <= 1:
                 arr = arr.reshape(shape)
@@ -256,13 +413,7 @@ class DOCP:
 
     def _check_stacked(self, value, shape, function, array, stage0=0):
         """Validate an all-stages array (leading axis = stage); errors name the stage."""
-        if type(value) is np.ndarray and value.dtype == np.float64:
-            arr = value
-        else:
-            try:
-                arr = np.asarray(value, dtype=float)
-            except (TypeError, ValueError) as exc:
-                raise ProblemDefinitionError(f"cannot convert to a float array ({exc})", function=function, array=array) from None
+        arr = as_real_array(value, function, array, None, stage0=stage0)
         if arr.shape != tuple(shape):
             raise ProblemDefinitionError(f"expected shape {tuple(shape)} (one row per stage), got {arr.shape}", function=function, array=array)
         if not _all_finite(arr):
@@ -271,6 +422,29 @@ class DOCP:
             raise NonFiniteEvaluationError(f"non-finite value {arr[tuple(bad)]} at entry {tuple(int(b) for b in bad[1:])}",
                                            function=function, stage=stage0 + int(bad[0]), array=array)
         return arr
+
+    def check_functions(self):
+        """Every user function and derivative method is callable with the arguments olado passes
+        (:data:`CALL_ARGUMENTS`); ProblemDefinitionError naming the function otherwise. Run by
+        the constructor and again at the public entry points (an attribute may be replaced after
+        construction)."""
+        for name, args in CALL_ARGUMENTS.items():
+            fn = getattr(self, name, None)
+            call = f"{name}({', '.join(args)})"
+            if not callable(fn):
+                raise ProblemDefinitionError(f"must be a method called as {call}, got {_describe(fn)}",
+                                             function=name)
+            if not self._overrides(name):
+                continue
+            try:
+                signature = inspect.signature(fn)
+            except (TypeError, ValueError):  # a builtin or compiled function: no signature to check
+                continue
+            try:
+                signature.bind(*args)
+            except TypeError:
+                raise ProblemDefinitionError(f"olado calls it as {call}, but its signature is "
+                                             f"{name}{signature}", function=name) from None
 
     def _overrides(self, name):
         return getattr(type(self), name, None) is not getattr(DOCP, name, None)

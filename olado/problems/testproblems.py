@@ -37,6 +37,7 @@ import numpy as np
 
 from ..errors import ProblemDefinitionError
 from .docp import DOCP
+from .integrators import rk_step_derivatives
 
 __all__ = ["LinearQuadratic", "VanDerPol", "Rayleigh", "CSTR", "ODEProblem", "PROBLEMS",
            "REGRESSION_VALUES"]
@@ -309,53 +310,10 @@ class ODEProblem(DOCP):
 
     # ------------------------------------------------------------------ step derivatives
     def step_derivatives(self, X, U, order=1):
-        """Derivatives of the step map z = (x, u) -> (x+, c) (K, n+1 outputs) by forward
-        propagation through the Euler / RK4 stages: (D (K, n+1, n+m), D2 (K, n+1, n+m, n+m) or
-        None). For RK4 with stage points w_i = (y_i, u), y_1 = x, y_{i+1} = x + a_i h k_i[:n],
-
-            dk_i = F_z(w_i) W_i,   d2k_i = W_i' F_zz(w_i) W_i + F_z[:, :n](w_i) d2y_i,
-
-        with W_i = dw_i/dz, and the step is (x, 0) + h/6 (k_1 + 2 k_2 + 2 k_3 + k_4)."""
-        X = np.asarray(X, dtype=float)
-        U = np.asarray(U, dtype=float)
-        K, n, m = X.shape[0], self.n, self.m
-        nz = n + m
-        h = self.h
-        E = np.zeros((n + 1, nz))
-        E[np.arange(n), np.arange(n)] = 1.0
-        if not self._rk4:
-            _, J, H = self.rhs_derivatives(X, U, order)
-            D = E + h * J
-            return D, (h * H if order >= 2 else None)
-        coef = (0.5, 0.5, 1.0)
-        weights = (1.0, 2.0, 2.0, 1.0)
-        D = np.broadcast_to(E, (K, n + 1, nz)).copy()
-        D2 = np.zeros((K, n + 1, nz, nz)) if order >= 2 else None
-        Y = X
-        W = np.zeros((K, nz, nz))          # dw/dz, w = (y, u)
-        W[:, n:, n:] = np.eye(m)
-        W[:, :n, :n] = np.eye(n)
-        Y2 = None                          # d2y/dz2 (K, n, nz, nz); zero at the first stage
-        for i in range(4):
-            F, J, H = self.rhs_derivatives(Y, U, order)
-            dk = np.matmul(J, W)                                  # (K, n+1, nz)
-            if order >= 2:
-                HW = np.matmul(H, W[:, None])                     # (K, n+1, nz, nz): F_zz W
-                d2k = np.matmul(np.swapaxes(W, 1, 2)[:, None], HW)  # W' F_zz W
-                if Y2 is not None:
-                    d2k += np.einsum("kab,kbij->kaij", J[:, :, :n], Y2)
-            w = weights[i] * h / 6.0
-            D += w * dk
-            if order >= 2:
-                D2 += w * d2k
-            if i < 3:
-                a = coef[i] * h
-                Y = X + a * F[:, :n]
-                W = W.copy()
-                W[:, :n, :] = E[:n] + a * dk[:, :n]
-                if order >= 2:
-                    Y2 = a * d2k[:, :n]
-        return D, D2
+        """Derivatives of the step map z = (x, u) -> (x+, c) by forward propagation through the
+        Euler / RK4 stages (:func:`olado.problems.integrators.rk_step_derivatives`):
+        (D (K, n+1, n+m), D2 (K, n+1, n+m, n+m) or None)."""
+        return rk_step_derivatives(self.rhs_derivatives, X, U, self.h, self._rk4, order)
 
     def dynamics_jacobian(self, k, x, u):
         D, _ = self.step_derivatives(x, u, 1)

@@ -45,7 +45,7 @@ import numba as nb
 import numpy as np
 
 from ..errors import ProblemDefinitionError
-from .docp import DOCP
+from .docp import DOCP, check_problem_size
 
 DATA_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "zambezi.json")
 
@@ -361,6 +361,7 @@ class Zambezi(DOCP):
             raise ProblemDefinitionError(f"start must be 'balance' or 'sif', got {start!r}",
                                          function="Zambezi", array="start")
         N = int(N)
+        check_problem_size(len(STATE_NAMES), len(CONTROL_NAMES), N, function="Zambezi")
         self.family, self.start_year, self.extend, self.start = family, int(year), extend, start
         self.max_N = max_N
         self.params = dict(fam)

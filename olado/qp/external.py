@@ -53,7 +53,7 @@ from ..options import make_options, option
 
 __all__ = ["ExternalQP", "ExternalQPOptions", "available_qp_backends"]
 
-INSTALL_HINT = 'pip install "olado[qp]"'
+INSTALL_HINT = "pip install qpsolvers osqp clarabel (dependencies of olado)"
 
 # backends whose qpsolvers interface accepts +-inf in lb/ub (others get finite bounds as rows)
 _NATIVE_INF_BOX = frozenset({"osqp", "piqp"})
@@ -529,5 +529,5 @@ def _require_backend(backend: str) -> None:
     if backend not in installed:
         raise SolverNotAvailableError(
             f"QP backend {backend!r} is not installed (installed qpsolvers backends: "
-            f"{', '.join(installed) if installed else 'none'}); install the QP extras with: {INSTALL_HINT}"
-            f" (OSQP, Clarabel), or the backend's own package (e.g. pip install {backend})")
+            f"{', '.join(installed) if installed else 'none'}); OSQP and Clarabel: {INSTALL_HINT}; "
+            f"another backend: its own package (e.g. pip install {backend})")

@@ -242,6 +242,10 @@ class QPResult:
     #: the solve needed -- for a failed solve the value at which the factorization last failed;
     #: a caller with a nonconvex Hessian (the SQP's inertia correction) can shift by at least this
     regularization: float = 0.0
+    #: the active-set method's final working set: for each kind of BOX_FIELDS ("x", "u", "c",
+    #: "cN") the boolean masks (lower side, upper side) of the inequality sides held at their
+    #: bounds, in the shapes of the boxes; its warm start begins there. None from other methods
+    active_set: dict | None = None
 
     @property
     def success(self) -> bool:

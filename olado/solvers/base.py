@@ -15,9 +15,11 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections.abc import Callable
 from typing import Any
 
 from ..options import make_options, option, option_fields, validate_value  # noqa: F401 - re-exported
+from ..problems.docp import check_problem
 from ..result import Result
 
 
@@ -30,7 +32,7 @@ class SolverOptions:
     constr_viol_tol: float = option(1e-8, "constraint violation tolerance", min=0.0, min_exclusive=True)
     max_time: float = option(math.inf, "wall-time limit in seconds", min=0.0, min_exclusive=True)
     verbose: int = option(0, "0 silent, 1 summary, 2 iteration log, 3+ solver's own output", min=0, max=12)
-    callback: Any = option(None, "callable(info: dict) -> bool|None; True stops the solver", ini=False)
+    callback: Callable[[dict], Any] | None = option(None, "callable(info: dict) -> bool|None; True stops the solver", ini=False)
 
 
 class Solver:
@@ -94,6 +96,7 @@ class Solver:
     def initial_point(problem, guess):
         """Normalise a guess to (X (N+1,n), U (N,m)); X simulated from U when not given (for the
         problem's own guess: its ``initial_state_guess(U)`` when that is not None)."""
+        check_problem(problem, entry="Solver.solve")
         if guess is None:
             U = problem.initial_guess()
             state_guess = getattr(problem, "initial_state_guess", None)

@@ -25,7 +25,7 @@ SOLVERS = LazyRegistry("solver", {
                       "steepest descent in the control space (adjoint gradient), strong Wolfe line search"),
     "ipopt": Entry("olado.solvers.nlp.ipopt:IpoptSolver",
                    "IPOPT interior-point method (cyipopt) on the sparse NLP view, sec. 4.3.2",
-                   requires=("cyipopt",), install="pip install 'olado[ipopt]'"),
+                   requires=("cyipopt",), install='pip install "cyipopt-wheels>=1.7.0.dev0"'),
     "newton": Entry(f"{_CONTROL}.reduced_gradient:NewtonSolver",
                     "Newton's method in the control space: truncated CG on reduced-Hessian products "
                     "(second-order adjoint), negative-curvature exit, strong Wolfe line search"),

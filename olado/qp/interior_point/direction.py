@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kernels import _combined_rhs, _corrector_rhs
 
 
 def predictor_corrector(solver, ctx, combined):
@@ -38,10 +37,10 @@ def predictor_corrector(solver, ctx, combined):
     if not safeguard:
         sigma = (1.0 - a_aff) ** 3
         if combined:
-            _combined_rhs(it.slacks, fl, fu, d_aff.slacks, sigma * mu, 1.0, rho_l, rho_u)
+            P.kernels.combined_rhs(it.slacks, fl, fu, d_aff.slacks, sigma * mu, 1.0, rho_l, rho_u)
             d = ctx.solve(ctx.res, rho_l, rho_u, P.dir_main)
         else:
-            _corrector_rhs(fl, fu, d_aff.slacks, sigma * mu, 1.0, rho_l, rho_u)
+            P.kernels.corrector_rhs(fl, fu, d_aff.slacks, sigma * mu, 1.0, rho_l, rho_u)
             d_c = ctx.solve(ctx.zero_res, rho_l, rho_u, P.dir_corr)
             omega = solver._corrector_weight(ctx, d_aff, d_c, a_aff)
             d = d_aff.plus(omega, d_c)
@@ -49,7 +48,7 @@ def predictor_corrector(solver, ctx, combined):
     if safeguard:
         gam = opts.safeguard_gamma
         sigma = gam / (1.0 - gam)
-        _corrector_rhs(fl, fu, d_aff.slacks, sigma * mu, a_aff, rho_l, rho_u)
+        P.kernels.corrector_rhs(fl, fu, d_aff.slacks, sigma * mu, a_aff, rho_l, rho_u)
         d_c = ctx.solve(ctx.zero_res, rho_l, rho_u, P.dir_corr)
         omega = solver._corrector_weight(ctx, d_aff, d_c, a_aff)
         d = d_aff.plus(omega, d_c)

@@ -78,3 +78,26 @@ class WeightedCorrectorQPOptions(GondzioQPOptions):
     """Options of :class:`WeightedCorrectorQP`."""
 
     weight_points: int = option(10, "number of weights tried by the line search on [omega_min, 1]", min=2, max=100)
+
+
+@dataclasses.dataclass
+class FrankeQPOptions(InteriorPointQPOptions):
+    """Options of :class:`FrankeQP`: Franke's defaults for the shared ones (one step length for
+    primal and dual variables, no neighbourhood, no olado restart) and Franke's own."""
+
+    step_rule: str = option("common", "'common' (Franke: one step length alpha for every variable) or 'primal-dual'",
+                            choices=("common", "primal-dual"))
+    neighborhood: float = option(0.0, "steps keep every product t_i z_i >= neighborhood * mu (Franke: 0, the step "
+                                 "to the boundary only)", min=0.0, max=0.5)
+    stall_restart_mu: float = option(1.0, "a cold start that stalls or crawls is solved again from initial_mu times "
+                                     "this (1: never, Franke's method has its own restart of a failed hot start)",
+                                     min=1.0)
+    start: str = option("wright", "cold start: 'wright' (Franke after Wright 1993: x = 0, every slack "
+                        "L + d_i, every multiplier L / m^2 with L = max(|d|_inf, 100 m), m the number of "
+                        "inequality sides) or 'centred' (olado's start of the other methods, initial_mu)",
+                        choices=("wright", "centred"))
+    rho_min: float = option(1000.0, "rho_min of the barrier rule at a cold start, per inequality side (Franke: "
+                            "1000 m); it doubles after full steps and halves after short ones", min=1.0)
+    max_warm_iter: int = option(15, "a hot (warm) start that is not optimal after this many iterations, or whose "
+                                "duality gap grows above the gap after its first iteration, is abandoned for a cold "
+                                "start (the iterations count)", min=1)

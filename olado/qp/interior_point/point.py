@@ -10,7 +10,6 @@ import numpy as np
 
 from ...linalg.backend import RHS, Solution
 from .bundles import DUAL_FIELDS, PointArrays, Residuals, Slacks
-from .kernels import _all_finite, _axpy, _axpy_split, _max_abs
 
 
 class _Layout:
@@ -72,10 +71,11 @@ class _PointForm:
     """The layout of the points of a prepared problem (a _Layout of PointArrays) and the mask of
     the dual fields (lam, nu, zl, zu)."""
 
-    __slots__ = ("layout", "dual_mask")
+    __slots__ = ("layout", "dual_mask", "kernels")
 
-    def __init__(self, layout):
+    def __init__(self, layout, kernels):
         self.layout, self.dual_mask = layout, layout.mask(DUAL_FIELDS)
+        self.kernels = kernels   # the prepared QP's KernelSet (presolve._KERNELS)
 
 
 class _Point:
@@ -100,14 +100,15 @@ class _Point:
         self.solution = a[_SOLUTION]
 
     def plus(self, alpha, d):
-        return _Point(self._form, _axpy(self.v, float(alpha), d.v))
+        return _Point(self._form, self._form.kernels.axpy(self.v, float(alpha), d.v))
 
     def plus_split(self, alpha, alpha_dual, d):
         """The point + alpha d on (X, U, tl, tu) and + alpha_dual d on (lam, nu, zl, zu)."""
-        return _Point(self._form, _axpy_split(self.v, float(alpha), float(alpha_dual), d.v, self._form.dual_mask))
+        form = self._form
+        return _Point(form, form.kernels.axpy_split(self.v, float(alpha), float(alpha_dual), d.v, form.dual_mask))
 
     def finite(self):
-        return _all_finite(self.v)
+        return self._form.kernels.all_finite(self.v)
 
 
 class _Rhs:
@@ -116,10 +117,10 @@ class _Rhs:
     ``arrays`` (a plain tuple), and ``kkt_rhs``, the KKT back-end's right-hand side of a solve for
     them (olado.linalg.backend.RHS)."""
 
-    __slots__ = ("buf", "arrays", "kkt_rhs", *Residuals._fields, "_size")
+    __slots__ = ("buf", "arrays", "kkt_rhs", *Residuals._fields, "_size", "_kernels")
 
     def __init__(self, P, buf):
-        self.buf, self._size = buf, None
+        self.buf, self._size, self._kernels = buf, None, P.kernels
         self.arrays = P.rhs_layout.views(buf)
         _set_rhs_fields(self, self.arrays)
         # the right-hand side of the reduced system (25) for these residuals: the gradient and
@@ -129,5 +130,5 @@ class _Rhs:
     def size(self):
         """max-norm of all residuals."""
         if self._size is None:
-            self._size = _max_abs(self.buf)
+            self._size = self._kernels.max_abs(self.buf)
         return self._size

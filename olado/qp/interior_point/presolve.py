@@ -8,14 +8,25 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...linalg.codegen import fixed_size_tags
+from ...linalg.codegen import fixed_size_tags, kernel_set
 from ..stageqp import StageQP
-from .kernels import _max_abs, _symmetric_stage_hessians
+from .kernels import (_all_finite, _axpy, _axpy_split, _combined_rhs, _complementarity_residual, _corrector_rhs,
+                      _implied_newton_residual, _max_abs, _max_step, _max_step_split, _neighbourhood_step, _newton_rhs,
+                      _recover_step, _scaling, _symmetric_stage_hessians)
 from .kkt_map import _kkt_map
 from .bundles import KKTData, PointArrays, Residuals
 from .point import _Layout, _Point, _PointForm, _Rhs
 
 _FIX_RTOL = 1e-12
+
+#: the kernels of an interior-point iteration, called through a KernelSet of the prepared QP
+#: (olado.linalg.codegen.kernel_set: its arrays are C-contiguous float64, so the argument types
+#: depend only on the size tags)
+_KERNELS = {"kkt_map": _kkt_map, "scaling": _scaling, "newton_rhs": _newton_rhs, "recover_step": _recover_step,
+            "complementarity_residual": _complementarity_residual, "max_abs": _max_abs, "max_step": _max_step,
+            "max_step_split": _max_step_split, "neighbourhood_step": _neighbourhood_step,
+            "combined_rhs": _combined_rhs, "corrector_rhs": _corrector_rhs, "axpy": _axpy, "axpy_split": _axpy_split,
+            "all_finite": _all_finite, "implied_newton_residual": _implied_newton_residual}
 
 
 def _equal_bounds(lo, hi):
@@ -144,7 +155,9 @@ class _Prepared:
                                            np.ascontiguousarray(self.R), np.empty((N, nz, nz)))
         self.QN = np.ascontiguousarray(0.5 * (self.Q[N] + self.Q[N].T))
         self.AB = np.ascontiguousarray(np.concatenate([self.A, self.B], axis=2))
-        self.sizes = fixed_size_tags(n, m) or (n, m, n + m)
+        tags = fixed_size_tags(n, m)
+        self.sizes = tags or (n, m, n + m)
+        self.kernels = kernel_set(_KERNELS, None if tags is None else (n, m))
         self.EF = np.ascontiguousarray(np.concatenate([self.E, self.F], axis=2)); self.EFt = tr(self.EF)
         self.eqm = self.eq_mask.astype(float)
         self.be = self.e * self.eqm
@@ -158,7 +171,7 @@ class _Prepared:
         pl = self.point_layout
         self.part_slices = (pl.span("X", "U"), pl.span("lam", "nu"), pl.span("zl", "zu"))
         self.qr = np.concatenate([self.q.ravel(), self.r.ravel()])   # the gradient, laid out as (X, U)
-        self.point_form = _PointForm(pl)
+        self.point_form = _PointForm(pl, self.kernels)
         # the bundles of the residual kernel: the stage data, and the offsets of the iterate's
         # residuals (q, r, c, x0, e, eN; -lo, hi)
         self.kkt_data = tuple(KKTData(H=self.H, QN=self.QN, AB=self.AB, EF=self.EF, EFt=self.EFt, eqm=self.eqm, EN=self.EN,

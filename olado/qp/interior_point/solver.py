@@ -18,8 +18,6 @@ from ...options import make_options
 from ..stageqp import QPResult, StageQP, qp_kkt_residuals
 from .certificates import STALLED as _STALLED, certificates, stall_status
 from .direction import predictor_corrector
-from .kernels import _implied_newton_residual
-from .kkt_map import _kkt_map
 from .options import InteriorPointQPOptions
 from .polish import polish
 from .presolve import _Prepared
@@ -133,7 +131,7 @@ class InteriorPointQP:
             res, pr, du, scales, obj, znorm, comp = self._residuals(P, it)
             if pending is not None:
                 old, a_p, a_d, rhs_old, target_old = pending
-                e = _implied_newton_residual(res.buf, old.buf, a_p, a_d, n_dual)
+                e = P.kernels.implied_newton_residual(res.buf, old.buf, a_p, a_d, n_dual)
                 rel_last, rel_age = (e / rhs_old, 0) if e <= target_old and rhs_old > 0 else (None, 0)
                 # all rows verified (common step) and within the target: the next direction is
                 # trusted as well and checked in the same way afterwards
@@ -293,7 +291,7 @@ class InteriorPointQP:
         scales as in docs/qp-interior-point.md, "Stopping" (one pass of a compiled kernel)."""
         res = P.residual_buffer()
         st = P.stats
-        _kkt_map(P.sizes, P.kkt_data, it.arrays, P.offsets, res.arrays, P.work_w, st)
+        P.kernels.kkt_map(P.sizes, P.kkt_data, it.arrays, P.offsets, res.arrays, P.work_w, st)
         pr, du, znorm, hnorm, obj, comp = (float(v) for v in st)
         res._size = max(pr, du)
         scales = (1.0 + max(P.p_data, znorm), 1.0 + max(P.d_data, hnorm))

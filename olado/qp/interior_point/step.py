@@ -15,9 +15,6 @@ import math
 import numpy as np
 
 from ...linalg.backend import NotPositiveDefiniteError, make_kkt_solver
-from .kernels import (_complementarity_residual, _max_abs, _max_step, _max_step_split, _neighbourhood_step,
-                      _newton_rhs, _recover_step, _scaling)
-from .kkt_map import _kkt_map
 
 
 class _InconsistentRows(ArithmeticError):
@@ -52,7 +49,7 @@ class _StepContext:
         self.rel_prior = None   # bound on it from an earlier iteration's measurement (set by the caller)
         self.first = None       # (|rhs|, target) of the first solve
         self.inv_tl, self.inv_tu, D = P.inv_tl, P.inv_tu, P.D
-        _scaling(it.slacks, P.fl, P.fu, self.inv_tl, self.inv_tu, D)
+        P.kernels.scaling(it.slacks, P.fl, P.fu, self.inv_tl, self.inv_tu, D)
         self.Ds = P.Ds
         if P.ncN:
             P.Q_final[-1] = P.Q[-1] + P.CN.T @ (D[P.sl_sN][:, None] * P.CN)
@@ -150,7 +147,7 @@ class _StepContext:
         P, it = self.P, self.it
         self.n_solves += 1
         q, r, ci = P.work_q, P.work_r, P.work_ci
-        _newton_rhs(res.rx, res.ru, res.rl, res.rup, rho_l, rho_u, it.slacks, self.inv_tl, self.inv_tu, self.Ds, P.CN,
+        P.kernels.newton_rhs(res.rx, res.ru, res.rl, res.rup, rho_l, rho_u, it.slacks, self.inv_tl, self.inv_tu, self.Ds, P.CN,
                     q, r, ci)
         if out is None:
             d = P.point(np.empty(P.point_layout.size))
@@ -160,7 +157,7 @@ class _StepContext:
         # the direction's arrays
         defect = self.fact.solve_into(res.kkt_rhs, d.solution)
         _check_rows(P, defect, res, "Newton step")
-        ok, ap, ad = _recover_step(d.X, d.U, P.Ct, P.CN, P.fl, P.fu, res.rl, res.rup, rho_l, rho_u, self.inv_tl,
+        ok, ap, ad = P.kernels.recover_step(d.X, d.U, P.Ct, P.CN, P.fl, P.fu, res.rl, res.rup, rho_l, rho_u, self.inv_tl,
                                    self.inv_tu, it.slacks, d.slacks, P.work_w)
         if not ok:
             raise FloatingPointError("non-finite Newton step")
@@ -174,9 +171,10 @@ class _StepContext:
         the work arrays of the prepared problem; returns (residual, el, eu, max-norm of all)."""
         P, it = self.P, self.it
         e, st = P.newton_res, P.stats
-        _kkt_map(P.sizes, P.kkt_data, d.arrays, res.arrays, e.arrays, P.work_w, st)
+        k = P.kernels
+        k.kkt_map(P.sizes, P.kkt_data, d.arrays, res.arrays, e.arrays, P.work_w, st)
         e._size = max(st[0], st[1])
-        big = _complementarity_residual(rho_l, rho_u, it.slacks, d.slacks, P.work_el, P.work_eu)
+        big = k.complementarity_residual(rho_l, rho_u, it.slacks, d.slacks, P.work_el, P.work_eu)
         return e, P.work_el, P.work_eu, max(e._size, big)
 
     def solve(self, res, rho_l, rho_u, out=None):
@@ -194,7 +192,8 @@ class _StepContext:
         d = self._reduced_solve(res, rho_l, rho_u, out)
         if self.refinement_steps == 0:
             return d
-        rhs = max(res.size(), _max_abs(rho_l), _max_abs(rho_u))
+        max_abs = self.P.kernels.max_abs
+        rhs = max(res.size(), max_abs(rho_l), max_abs(rho_u))
         target = max(1e-3 * self.tol * (1.0 + rhs), self.refinement_tol * rhs)
         if self.first is None:
             self.first = (rhs, target)
@@ -232,9 +231,9 @@ class _StepContext:
         it = self.it
         if corr is None:
             if d.max_step is None:
-                d.max_step = _max_step(it.slacks, d.slacks, d.slacks, 0.0)
+                d.max_step = self.P.kernels.max_step(it.slacks, d.slacks, d.slacks, 0.0)
             return d.max_step
-        return _max_step(it.slacks, d.slacks, corr.slacks, float(omega))
+        return self.P.kernels.max_step(it.slacks, d.slacks, corr.slacks, float(omega))
 
     def step_length(self, d):
         """(alpha, alpha_dual): alpha = min(1, step_to_boundary * alpha_max) -- with
@@ -254,10 +253,10 @@ class _StepContext:
             alpha_dual = alpha
         else:
             if d.max_split is None:
-                d.max_split = _max_step_split(it.slacks, d.slacks)
+                d.max_split = P.kernels.max_step_split(it.slacks, d.slacks)
             ap, ad = d.max_split
             alpha, alpha_dual = min(1.0, opts.step_to_boundary * ap), min(1.0, opts.step_to_boundary * ad)
         if P.n_comp == 0:
             return alpha, alpha_dual
-        a = _neighbourhood_step(it.slacks, P.fl, P.fu, d.slacks, alpha, opts.neighborhood, self.mu, alpha_dual)
+        a = P.kernels.neighbourhood_step(it.slacks, P.fl, P.fu, d.slacks, alpha, opts.neighborhood, self.mu, alpha_dual)
         return a, alpha_dual * (a / alpha) if alpha > 0 else alpha_dual

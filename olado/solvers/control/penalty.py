@@ -53,7 +53,7 @@ from collections import Counter
 import numpy as np
 
 from ...errors import NonFiniteEvaluationError, ProblemDefinitionError, SolverNotAvailableError
-from ...problems.docp import DOCP
+from ...problems.docp import DOCP, as_real_array
 from ...result import Result, Status
 from ...options import option
 from ..base import Solver, SolverOptions
@@ -171,7 +171,7 @@ class PenalizedProblem(DOCP):
         b = self.base
         if b.r == 0:
             return np.zeros(np.shape(x)[:-1] + (0,))
-        return np.asarray(b.stage_constraints(k, x, u), dtype=float)
+        return as_real_array(b.stage_constraints(k, x, u), "stage_constraints", "g")
 
     # ------------------------------------------------------------------ user functions
     def dynamics(self, k, x, u):
@@ -179,12 +179,12 @@ class PenalizedProblem(DOCP):
 
     def stage_cost(self, k, x, u):
         G = self._base_stage_constraints_raw(k, x, u)
-        return np.asarray(self.base.stage_cost(k, x, u), dtype=float) + self._stage_pieces(k, x, u, G)[0]
+        return as_real_array(self.base.stage_cost(k, x, u), "stage_cost", "cost") + self._stage_pieces(k, x, u, G)[0]
 
     def final_cost(self, x):
         b = self.base
-        gN = np.asarray(b.final_constraints(x), dtype=float) if b.rN else np.zeros(0)
-        return float(b.final_cost(x)) + self._final_pieces(x, gN)[0]
+        gN = as_real_array(b.final_constraints(x), "final_constraints", "gN") if b.rN else np.zeros(0)
+        return float(as_real_array(b.final_cost(x), "final_cost", "cost")) + self._final_pieces(x, gN)[0]
 
     # ------------------------------------------------------------------ solver-facing evaluations
     def simulate(self, U):

@@ -6,9 +6,10 @@ primal-dual system (28)-(30) through the symmetric system (34). olado hands it t
 NLP (6) of :class:`~olado.problems.nlp.StructuredNLP` through cyipopt: sparse constraint Jacobian
 and lower-triangle Lagrangian Hessian with fixed patterns, nothing dense.
 
-cyipopt is optional: ``pip install "olado[ipopt]"`` (which installs the ``cyipopt-wheels``
-package, IPOPT 3.14 with MUMPS) or, on Debian/Ubuntu, ``apt install coinor-libipopt-dev
-pkg-config`` followed by ``pip install cyipopt``.
+cyipopt is one of olado's dependencies (the ``cyipopt-wheels`` package: IPOPT 3.14 with MUMPS
+inside the wheel); where it is missing or broken, ``pip install "cyipopt-wheels>=1.7.0.dev0"``
+or, on Debian/Ubuntu, ``apt install coinor-libipopt-dev pkg-config`` followed by
+``pip install cyipopt`` brings it back.
 """
 
 from __future__ import annotations
@@ -25,9 +26,9 @@ from .. import common
 from ...options import option
 from ..base import Solver, SolverOptions
 
-INSTALL_HINT = ('IPOPT support needs cyipopt: pip install "olado[ipopt]" (installs the '
-                "cyipopt-wheels package with IPOPT 3.14 and MUMPS), or on Debian/Ubuntu: "
-                "apt install coinor-libipopt-dev pkg-config && pip install cyipopt")
+INSTALL_HINT = ('IPOPT support needs cyipopt, a dependency of olado that is missing here: '
+                'pip install "cyipopt-wheels>=1.7.0.dev0" (IPOPT 3.14 and MUMPS inside the wheel), '
+                "or on Debian/Ubuntu: apt install coinor-libipopt-dev pkg-config && pip install cyipopt")
 
 
 def import_cyipopt():
@@ -158,12 +159,12 @@ class IpoptSolver(Solver):
         try:
             nlp_solver.add_option(key, value)
             return
-        except TypeError:
+        except (TypeError, OverflowError):  # OverflowError: an int beyond IPOPT's C int
             if isinstance(value, int):
                 try:
                     nlp_solver.add_option(key, float(value))
                     return
-                except TypeError:
+                except (TypeError, OverflowError):
                     pass
         raise ConfigError(f"IPOPT rejected the option value {value!r} (unknown option, wrong type "
                           "or out of range; see IPOPT's options reference)", section="ipopt.raw", key=key)

@@ -85,7 +85,7 @@ import time
 
 import numpy as np
 
-from ...qp import INTERIOR_POINT_METHODS, QP_METHODS, make_qp_solver
+from ...qp import INTERIOR_POINT_METHODS, OLADO_METHODS, QP_METHODS, make_qp_solver
 from ...qp.stageqp import StageQP
 from .augmented import AugmentedLagrangian
 from .merit import Merit
@@ -109,7 +109,7 @@ def _apply_qp_options(qp_solver, qp_name, qp_options):
     opts = qp_solver.options
     known = {f.name for f in dataclasses.fields(opts)}
     for key, value in qp_options.items():
-        if key not in known and qp_name not in INTERIOR_POINT_METHODS:
+        if key not in known and qp_name not in OLADO_METHODS:
             opts.backend_options = {**opts.backend_options, key: value}
         else:   # validate_value also names an unknown key and the allowed ones
             setattr(opts, key, validate_value(type(opts), key, value, section="sqp.raw (qp_options)"))
@@ -295,8 +295,11 @@ def make_setup(options, problem, callback):
     t_start = time.perf_counter()
     deadline = Deadline(o.max_time)
     qp_solver = make_qp_solver(o.qp, kkt=o.kkt, tol=o.qp_tol, max_iter=o.qp_max_iter)
-    interior = o.qp in INTERIOR_POINT_METHODS
-    if interior:
+    # olado's own QP methods (interior point, active set) take qp_tol and report a failed
+    # factorization (a reduced Hessian not positive definite) as NUMERICAL_ERROR: the inertia
+    # correction below works with them
+    interior = o.qp in OLADO_METHODS
+    if o.qp in INTERIOR_POINT_METHODS:
         qp_solver.options.warm_start_push = o.qp_warm_start_push
     _apply_qp_options(qp_solver, o.qp, o.qp_options)
     convexify = o.convexify

@@ -164,7 +164,7 @@ class SQPSetup:
     options: Any
     problem: Any
     qp_solver: Any
-    interior: bool              # one of olado's interior-point QP methods
+    interior: bool              # one of olado's own QP methods (olado.qp.OLADO_METHODS)
     convexify: str              # the Hessian convexification in effect
     inertia: bool
     masks: ConstraintMasks

@@ -407,7 +407,7 @@ def test_missing_cyipopt_raises_with_install_hint(monkeypatch):
 
     monkeypatch.setitem(sys.modules, "cyipopt", None)  # makes `import cyipopt` fail
     assert IpoptSolver.available() is False
-    with pytest.raises(SolverNotAvailableError, match=r'pip install "olado\[ipopt\]"') as err:
+    with pytest.raises(SolverNotAvailableError, match=r"pip install \"cyipopt-wheels>=1.7.0.dev0\"") as err:
         IpoptSolver().solve(LQ(N=3))
     assert "cyipopt-wheels" in str(err.value) and "apt install" in str(err.value)
     assert isinstance(err.value, ImportError)

@@ -1,0 +1,222 @@
+"""What make_robustness_refs.py and bench_robustness.py share: solving one entry of the
+robustness suite in an isolated worker process with a time limit, and classifying the outcome.
+
+Isolation: every solve runs in a worker process (spawned, so it shares nothing with the parent);
+the parent waits for at most the time limit plus a grace period, then kills the worker and
+records a timeout; a worker that dies (a crash in compiled code, an abort) is recorded as a
+crash. Workers are reused between solves (starting one costs imports and numba's cache loads);
+the solver also gets the time limit as its own ``max_time``, so a solver that honours it stops
+by itself and returns its last iterate.
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing as mp
+import os
+import subprocess
+import time
+import traceback
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+CONFIGS = ROOT / "configs"
+#: extra seconds the parent waits beyond the time limit before it kills a worker
+GRACE = 15.0
+#: a point is feasible when its max-norm violation (verified on the NLP view) is at most this
+FEAS_TOL = 1e-6
+#: same objective as IPOPT: |J - J_ipopt| <= SAME_RTOL * max(|J_ipopt|, SAME_FLOOR)
+SAME_RTOL, SAME_FLOOR = 1e-6, 1e-3
+#: a reported success at a point whose verified KKT residual (divided by max(1, |grad J|)) exceeds
+#: this is not a minimum (IPOPT's own solutions of the set verify below 1e-4)
+KKT_TOL = 1e-3
+
+
+def olado_commit() -> str:
+    """The checkout's commit (short), with ' (dirty)' when tracked files under olado/ changed;
+    the environment variable OLADO_COMMIT overrides it (a copy made by ``git archive``, which has
+    no .git, runs the benchmark while the checkout itself changes)."""
+    if os.environ.get("OLADO_COMMIT"):
+        return os.environ["OLADO_COMMIT"]
+    try:
+        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                             check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", "olado"], cwd=ROOT,
+                               capture_output=True, text=True, check=True).stdout.strip()
+        return rev + (" (dirty)" if dirty else "")
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+# ---------------------------------------------------------------------------- the worker side
+def _solver(config_name, time_limit):
+    from olado.config import load_config, make_solver
+
+    path = CONFIGS / f"{config_name}.ini"
+    cfg = load_config(path)
+    if math.isfinite(time_limit):
+        cfg = load_config(path, [f"{cfg.solver}.max_time={time_limit:g}"])
+    return make_solver(cfg)
+
+
+def solve_entry(entry_name, config_name, time_limit) -> dict:
+    """Solve one suite entry with one preset; a dict of plain values (the worker's answer).
+    Exceptions are caught and returned as status ``exception`` (a finding in itself: no raw
+    exception should reach a user)."""
+    from olado.problems.suites import load_suite, verify_point
+
+    entry = next(e for e in load_suite("robustness") if e.name == entry_name)
+    out = {"entry": entry_name, "config": config_name}
+    t0 = time.perf_counter()
+    try:
+        problem, guess = entry.build()
+        result = _solver(config_name, time_limit).solve(problem, guess=guess)
+    except Exception as exc:  # noqa: BLE001 - recorded, not hidden
+        out.update(status="exception", message=f"{type(exc).__name__}: {exc}"[:300],
+                   traceback=traceback.format_exc()[-1500:], wall_s=time.perf_counter() - t0)
+        return out
+    out.update(status=result.status.value, message=(result.message or "")[:300], objective=float(result.objective),
+               violation=float(result.max_constraint_violation),
+               kkt=None if result.kkt_residual is None else float(result.kkt_residual),
+               iterations=int(result.iterations), time_s=float(result.time_s), wall_s=time.perf_counter() - t0)
+    try:
+        check = verify_point(problem, result.x, result.u)
+        out.update(verified_objective=check.objective, verified_violation=check.violation,
+                   verified_kkt=check.kkt_residual, verified_kkt_scaled=check.kkt_residual_scaled)
+    except Exception as exc:  # noqa: BLE001 - e.g. a NaN in the returned point
+        out.update(verified_violation=math.inf, verify_error=f"{type(exc).__name__}: {exc}"[:200])
+    return out
+
+
+def _worker(conn, target):
+    while True:
+        task = conn.recv()
+        if task is None:
+            return
+        conn.send(target(*task))
+
+
+# ---------------------------------------------------------------------------- the parent side
+class IsolatedPool:
+    """``jobs`` worker processes; :meth:`run` yields one answer per task (entry, config), in
+    completion order, with timeouts and crashes recorded instead of raised. A worker answers
+    a task by ``target(entry, config, time_limit)`` (default :func:`solve_entry`; a module-level
+    function, as the spawned worker imports it by name)."""
+
+    def __init__(self, jobs=1, time_limit=60.0, target=solve_entry, grace=GRACE):
+        self.jobs = max(1, int(jobs))
+        self.time_limit = float(time_limit)
+        self.grace = float(grace)
+        self.target = target
+        self._ctx = mp.get_context("spawn")
+        self._workers = []
+
+    def _start(self):
+        parent, child = self._ctx.Pipe()
+        proc = self._ctx.Process(target=_worker, args=(child, self.target), daemon=True)
+        proc.start()
+        child.close()
+        return {"proc": proc, "conn": parent, "task": None, "t0": 0.0}
+
+    def _stop(self, w):
+        try:
+            w["conn"].close()
+        except OSError:
+            pass
+        if w["proc"].is_alive():
+            w["proc"].kill()
+        w["proc"].join(5)
+
+    def run(self, tasks):
+        pending = list(tasks)
+        self._workers = [self._start() for _ in range(min(self.jobs, max(1, len(pending))))]
+        try:
+            while pending or any(w["task"] for w in self._workers):
+                for w in self._workers:
+                    if w["task"] is None and pending:
+                        w["task"], w["t0"] = pending.pop(0), time.perf_counter()
+                        w["conn"].send((*w["task"], self.time_limit))
+                for i, w in enumerate(self._workers):
+                    if w["task"] is None:
+                        continue
+                    answer = self._poll(w)
+                    if answer is None:
+                        continue
+                    if answer.pop("_restart", False):
+                        self._stop(w)
+                        self._workers[i] = self._start()
+                    else:
+                        w["task"] = None
+                    yield answer
+                time.sleep(0.01)
+        finally:
+            for w in self._workers:
+                try:
+                    w["conn"].send(None)
+                except OSError:
+                    pass
+                self._stop(w)
+
+    def _poll(self, w):
+        entry, config = w["task"]
+        elapsed = time.perf_counter() - w["t0"]
+        try:
+            if w["conn"].poll(0):
+                return w["conn"].recv()
+        except (EOFError, OSError):
+            pass
+        if not w["proc"].is_alive():
+            return {"entry": entry, "config": config, "status": "crash", "_restart": True, "wall_s": elapsed,
+                    "message": f"the worker process died (exit code {w['proc'].exitcode})"}
+        if elapsed > self.time_limit + self.grace:
+            return {"entry": entry, "config": config, "status": "timeout", "_restart": True, "wall_s": elapsed,
+                    "message": f"no answer after {elapsed:.0f} s (time limit {self.time_limit:g} s + "
+                               f"{self.grace:g} s grace)"}
+        return None
+
+
+# ---------------------------------------------------------------------------- classification
+SOLVED, OTHER, FAILED, INFEASIBLE_OK, INFEASIBLE_WRONG, FALSE_SUCCESS, UNREFERENCED = (
+    "solved", "other-local-min", "failed", "infeasible-correct", "infeasible-wrong", "false-success", "solved-unreferenced")
+
+CLASSES = {
+    SOLVED: "converged at IPOPT's objective (relative 1e-6) with a verified feasible point",
+    OTHER: "converged at a verified feasible and stationary point (verified KKT residual <= 1e-3, scaled) with "
+           "another objective: another local minimum (or a stop close to one)",
+    UNREFERENCED: "converged at a verified feasible and stationary point of an entry IPOPT did not solve",
+    FAILED: "any other stop: iteration or time limit, numerical error, exception, crash, timeout",
+    FALSE_SUCCESS: "reported success at a point that is not a minimum: its verified violation exceeds 1e-6, or its "
+                   "verified KKT residual (scaled) exceeds 1e-3 where the objective differs from IPOPT's, or the "
+                   "problem is deliberately infeasible",
+    INFEASIBLE_OK: "reported infeasible on a deliberately infeasible problem",
+    INFEASIBLE_WRONG: "reported infeasible on a feasible problem",
+}
+
+
+def _feasible(rec):
+    v = rec.get("verified_violation")
+    return v is not None and math.isfinite(v) and v <= FEAS_TOL
+
+
+def same_objective(objective, reference) -> bool:
+    return abs(objective - reference) <= SAME_RTOL * max(abs(reference), SAME_FLOOR)
+
+
+def classify(rec, ref, feasible_problem) -> str:
+    """The class (one of :data:`CLASSES`) of a solve record ``rec`` (from :func:`solve_entry`)
+    against the IPOPT reference ``ref`` of its entry."""
+    status = rec.get("status")
+    success = status in ("success", "acceptable")
+    if status == "infeasible":
+        return INFEASIBLE_OK if not feasible_problem else INFEASIBLE_WRONG
+    if not success:
+        return FAILED
+    if not feasible_problem or not _feasible(rec):
+        return FALSE_SUCCESS
+    ref_ok = ref is not None and ref.get("status") in ("success", "acceptable") and _feasible(ref)
+    if ref_ok and same_objective(rec["objective"], ref["objective"]):
+        return SOLVED
+    kkt = rec.get("verified_kkt_scaled")
+    if kkt is None or not kkt <= KKT_TOL:
+        return FALSE_SUCCESS
+    return OTHER if ref_ok else UNREFERENCED

@@ -1,0 +1,824 @@
+"""Optimal-control problems of the literature (Bryson and Ho; Betts; Luus; Sager; Kelly),
+discretized by RK4 (or Euler) with piecewise-constant controls (:mod:`olado.problems.continuous`).
+
+Each class states its source, its formulation and the published continuous-time optimal value,
+or says that none is published (or that the value is the analytic one, derived in the
+docstring). Objectives are minimized: a maximization of the source appears with a minus sign.
+Free final times are written with the time scaling as a state set by a parameter stage (N
+stages, N - 1 integration steps).
+
+==========================  ======================================================================
+``brachistochrone``         Bernoulli's curve to a vertical line (analytic T = sqrt(pi x_f / g))
+``brachistochrone-point``   the same to a point (analytic, the cycloid through it)
+``double-integrator``       minimum energy x'' = u between rest-like states (analytic J = 2)
+``bryson-denham``           the same with the state constraint x <= 1/9 (analytic J = 4)
+``bang-bang-cart``          minimum time x'' = u, |u| <= 1 (analytic T = 1 + sqrt 6)
+``moon-lander``             minimum-fuel vertical landing (analytic J = 2 sqrt 17)
+``lotka-fishing``           Lotka-Volterra fishing, relaxed (Sager 2005: 1.34408)
+``batch-reactor``           consecutive reactions A -> B -> C (Ray 1981, Luus 2000: 0.57353)
+``alp-rider``               Betts's alp rider, a stiff path constraint (Betts 2010: 2030.85609)
+``free-flying-robot``       Sakawa's free-flying robot (Betts 2010: 7.91055654)
+``dubins``                  minimum-time Dubins car (analytic pi + 2)
+``rigid-body``              minimum-time reorientation of an asymmetric rigid body (Betts 2010: 28.6304077)
+``obstacle``                minimum-energy point mass around a disc (none published)
+``cart-pole``               cart-pole swing-up (Kelly 2017; none published)
+``orbit-raising``           maximal radius low-thrust orbit transfer (Bryson and Ho 1975: 1.525)
+==========================  ======================================================================
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .continuous import ContinuousDOCP, ExactHessians
+
+__all__ = ["Brachistochrone", "BrachistochronePoint", "DoubleIntegrator", "BrysonDenham", "BangBangCart",
+           "MoonLander", "LotkaFishing", "BatchReactor", "AlpRider", "FreeFlyingRobot", "Dubins",
+           "RigidBody", "Obstacle", "CartPole", "OrbitRaising", "PROBLEMS"]
+
+
+def _z(K, rows, cols):
+    return np.zeros((K, rows, cols))
+
+
+def _select(n, idx):
+    """(values row selector) Jacobian rows e_idx of x -> x[idx] for a state of size n."""
+    jac = np.zeros((len(idx), n))
+    jac[np.arange(len(idx)), list(idx)] = 1.0
+    return jac
+
+
+class _MinTime:
+    """Mayer term T (the time-scaling state, last) of a minimum-time problem."""
+
+    def mayer(self, x, order):
+        g = np.zeros(self.n)
+        g[-1] = 1.0
+        return x[-1], g, np.zeros((self.n, self.n))
+
+
+# ============================================================================ brachistochrone
+class Brachistochrone(_MinTime, ContinuousDOCP):
+    """Brachistochrone to a vertical line (Johann Bernoulli 1696; Bryson and Ho, *Applied
+    Optimal Control*, 1975, sec. 2.6)::
+
+        min T,   x' = v cos th,   y' = v sin th,   v' = g sin th   (y downwards),
+        (x, y, v)(0) = 0,   x(T) = x_f = 1,   y(T) free,   |th| <= pi/2,   g = 9.81.
+
+    Analytic value: the optimum is the cycloid x = a (p - sin p), y = a (1 - cos p), t = p
+    sqrt(a/g) whose lowest point lies on the line x = x_f (y free: the costate of y vanishes,
+    so the path meets the line horizontally, p_f = pi, a = x_f/pi), hence
+    T* = sqrt(pi x_f / g) = 0.5659010 for x_f = 1, g = 9.81.
+    Start: T = 1, th = pi/4 (states simulated).
+    """
+
+    name = "brachistochrone"
+    STATES = ("x", "y", "v")
+    CONTROLS = ("theta",)
+    G = 9.81
+    X0 = (0.0, 0.0, 0.0)
+    T = None
+    T_BOUNDS = (0.01, 10.0)
+    T_GUESS = 1.0
+    U_BOUNDS = ((-np.pi / 2,), (np.pi / 2,))
+    N_TERMINAL = 1
+    TERMINAL_EQUALITIES = [0]
+    DEFAULT_N = 51
+    TARGET = (1.0,)
+
+    def model(self, X, U, order):
+        v, th = X[:, 2], U[:, 0]
+        K = len(v)
+        c, s = np.cos(th), np.sin(th)
+        F = np.stack([v * c, v * s, self.G * s, np.zeros(K)], axis=1)
+        if order < 1:
+            return F, None, None
+        J = _z(K, 4, 4)
+        J[:, 0, 2], J[:, 0, 3] = c, -v * s
+        J[:, 1, 2], J[:, 1, 3] = s, v * c
+        J[:, 2, 3] = self.G * c
+        return F, J, None
+
+    def terminal(self, x, order):
+        idx = list(range(len(self.TARGET)))
+        return x[idx] - np.asarray(self.TARGET), _select(self.n, idx), np.zeros((len(idx), self.n, self.n))
+
+    def control_guess(self):
+        return np.full((self.steps, 1), np.pi / 4)
+
+
+class BrachistochronePoint(Brachistochrone):
+    """Brachistochrone to the point (x_f, y_f) = (1, 0.6) (y downwards; Bryson and Ho 1975,
+    sec. 2.6), otherwise as ``brachistochrone``.
+
+    Analytic value: the cycloid x = a (p - sin p), y = a (1 - cos p) through the end point,
+    (1 - cos p_f)/(p_f - sin p_f) = y_f/x_f gives p_f = 3.2339751, a = 0.3006410, and
+    T* = p_f sqrt(a/g) = 0.5661432 (g = 9.81). The path dips below y_f (p_f > pi).
+    """
+
+    name = "brachistochrone-point"
+    N_TERMINAL = 2
+    TERMINAL_EQUALITIES = [0, 1]
+    TARGET = (1.0, 0.6)
+
+
+# ============================================================================ double integrator
+class DoubleIntegrator(ExactHessians, ContinuousDOCP):
+    """Minimum-energy double integrator (Bryson and Ho 1975, sec. 3.11, without the state
+    constraint)::
+
+        min 1/2 int_0^1 u^2 dt,   x' = v,  v' = u,   (x, v)(0) = (0, 1),   (x, v)(1) = (0, -1).
+
+    Analytic value: u = -2, x = t - t^2, J* = 2 (the unconstrained arc of Bryson-Denham;
+    max x = 1/4). Linear-quadratic: exact second derivatives.
+    """
+
+    name = "double-integrator"
+    STATES = ("x", "v")
+    CONTROLS = ("u",)
+    X0 = (0.0, 1.0)
+    T = 1.0
+    N_TERMINAL = 2
+    TERMINAL_EQUALITIES = [0, 1]
+    DEFAULT_N = 50
+
+    def model(self, X, U, order):
+        v, u = X[:, 1], U[:, 0]
+        K = len(u)
+        F = np.stack([v, u, 0.5 * u * u], axis=1)
+        if order < 1:
+            return F, None, None
+        J = _z(K, 3, 3)
+        J[:, 0, 1] = 1.0
+        J[:, 1, 2] = 1.0
+        J[:, 2, 2] = u
+        H = None
+        if order >= 2:
+            H = np.zeros((K, 3, 3, 3))
+            H[:, 2, 2, 2] = 1.0
+        return F, J, H
+
+    def terminal(self, x, order):
+        return np.array([x[0], x[1] + 1.0]), np.eye(2), np.zeros((2, 2, 2))
+
+
+class BrysonDenham(DoubleIntegrator):
+    """The Bryson-Denham problem: ``double-integrator`` with the state constraint x <= l = 1/9
+    (Bryson, Denham and Dreyfus, AIAA J. 1 (1963) 2544-2550; Bryson and Ho 1975, sec. 3.11).
+
+    Analytic value: for l <= 1/6 the optimum has a boundary arc x = l on [3l, 1 - 3l] and
+    J* = 4/(9 l) = 4 for l = 1/9. Written as the state bound x^k <= 1/9, k = 0..N.
+    """
+
+    name = "bryson-denham"
+    X_BOUNDS = ((-np.inf, -np.inf), (1.0 / 9.0, np.inf))
+
+
+# ============================================================================ minimum time cart
+class BangBangCart(_MinTime, ContinuousDOCP):
+    """Minimum-time control of a cart, x'' = u, |u| <= 1, to the origin (Bryson and Ho 1975,
+    sec. 7.3; Pontryagin et al. 1962)::
+
+        min T,   x' = v,  v' = u,   (x, v)(0) = (1, 1),   (x, v)(T) = (0, 0),   |u| <= 1.
+
+    Analytic value: u = -1 until the switching curve x = -v |v|/2 is reached at t = 1 +
+    sqrt(3/2) with v = -sqrt(3/2), then u = +1: T* = 1 + sqrt(6) = 3.4494897. Bang-bang: the
+    switch falls between grid points, so the discrete optimum lies slightly above T*. Start:
+    T = 4, u = 0 (states simulated).
+    """
+
+    name = "bang-bang-cart"
+    STATES = ("x", "v")
+    CONTROLS = ("u",)
+    X0 = (1.0, 1.0)
+    T = None
+    T_BOUNDS = (0.1, 20.0)
+    T_GUESS = 4.0
+    U_BOUNDS = ((-1.0,), (1.0,))
+    N_TERMINAL = 2
+    TERMINAL_EQUALITIES = [0, 1]
+    DEFAULT_N = 51
+
+    def model(self, X, U, order):
+        K = X.shape[0]
+        F = np.stack([X[:, 1], U[:, 0], np.zeros(K)], axis=1)
+        if order < 1:
+            return F, None, None
+        J = _z(K, 3, 3)
+        J[:, 0, 1] = 1.0
+        J[:, 1, 2] = 1.0
+        return F, J, None
+
+    def terminal(self, x, order):
+        return x[:2].copy(), _select(self.n, [0, 1]), np.zeros((2, self.n, self.n))
+
+    def control_guess(self):
+        return np.zeros((self.steps, 1))
+
+
+# ============================================================================ moon lander
+class MoonLander(ContinuousDOCP):
+    """Minimum-fuel soft landing (Meditch, IEEE Trans. Automat. Control 9 (1964) 477-484, in the
+    unit-mass form of many textbooks)::
+
+        min int_0^T u dt,   h' = v,  v' = -g + u,   (h, v)(0) = (10, -2),   (h, v)(T) = 0,
+        0 <= u <= 3,   h >= 0,   g = 1.5,   T free.
+
+    Analytic value: int u = v(T) - v(0) + g T = 2 + 1.5 T, so minimum fuel is minimum time:
+    free fall until v^2 = 17 (h = 17/3), then full thrust for sqrt(17)/1.5; J* = 2 sqrt(17) =
+    8.2462113. Start: T = 5, u = 1.5 (hover thrust; states simulated).
+    """
+
+    name = "moon-lander"
+    STATES = ("h", "v")
+    CONTROLS = ("u",)
+    G = 1.5
+    X0 = (10.0, -2.0)
+    T = None
+    T_BOUNDS = (0.1, 50.0)
+    T_GUESS = 5.0
+    X_BOUNDS = ((0.0, -np.inf), None)
+    U_BOUNDS = ((0.0,), (3.0,))
+    N_TERMINAL = 2
+    TERMINAL_EQUALITIES = [0, 1]
+    DEFAULT_N = 51
+
+    def model(self, X, U, order):
+        v, u = X[:, 1], U[:, 0]
+        K = len(u)
+        F = np.stack([v, u - self.G, u], axis=1)
+        if order < 1:
+            return F, None, None
+        J = _z(K, 3, 3)
+        J[:, 0, 1] = 1.0
+        J[:, 1, 2] = 1.0
+        J[:, 2, 2] = 1.0
+        return F, J, None
+
+    def terminal(self, x, order):
+        return x[:2].copy(), _select(self.n, [0, 1]), np.zeros((2, self.n, self.n))
+
+    def control_guess(self):
+        return np.full((self.steps, 1), self.G)
+
+
+# ============================================================================ Lotka-Volterra
+class LotkaFishing(ExactHessians, ContinuousDOCP):
+    """Lotka-Volterra fishing problem, relaxed (Sager, *Numerical methods for mixed-integer
+    optimal control problems*, Der andere Verlag 2005; the mintOC library)::
+
+        min int_0^12 (x0 - 1)^2 + (x1 - 1)^2 dt,
+        x0' = x0 - x0 x1 - c0 x0 w,   x1' = -x1 + x0 x1 - c1 x1 w,   x(0) = (0.5, 0.7),
+        0 <= w <= 1,   c0 = 0.4,  c1 = 0.2.
+
+    Published: 1.34408 (Sager 2005, the relaxed problem). Exact second derivatives. Start:
+    w = 0 (no fishing).
+    """
+
+    name = "lotka-fishing"
+    STATES = ("x0", "x1")
+    CONTROLS = ("w",)
+    C0, C1 = 0.4, 0.2
+    X0 = (0.5, 0.7)
+    T = 12.0
+    U_BOUNDS = ((0.0,), (1.0,))
+    DEFAULT_N = 60
+
+    def model(self, X, U, order):
+        a, b, w = X[:, 0], X[:, 1], U[:, 0]
+        K = len(w)
+        F = np.stack([a - a * b - self.C0 * a * w, -b + a * b - self.C1 * b * w,
+                      (a - 1) ** 2 + (b - 1) ** 2], axis=1)
+        if order < 1:
+            return F, None, None
+        J = _z(K, 3, 3)
+        J[:, 0, 0], J[:, 0, 1], J[:, 0, 2] = 1 - b - self.C0 * w, -a, -self.C0 * a
+        J[:, 1, 0], J[:, 1, 1], J[:, 1, 2] = b, -1 + a - self.C1 * w, -self.C1 * b
+        J[:, 2, 0], J[:, 2, 1] = 2 * (a - 1), 2 * (b - 1)
+        H = None
+        if order >= 2:
+            H = np.zeros((K, 3, 3, 3))
+            H[:, 0, 0, 1] = H[:, 0, 1, 0] = -1.0
+            H[:, 0, 0, 2] = H[:, 0, 2, 0] = -self.C0
+            H[:, 1, 0, 1] = H[:, 1, 1, 0] = 1.0
+            H[:, 1, 1, 2] = H[:, 1, 2, 1] = -self.C1
+            H[:, 2, 0, 0] = H[:, 2, 1, 1] = 2.0
+        return F, J, H
+
+    def control_guess(self):
+        return np.zeros((self.steps, 1))
+
+
+# ============================================================================ batch reactor
+class BatchReactor(ExactHessians, ContinuousDOCP):
+    """Consecutive reactions A -> B -> C in a batch reactor (Ray, *Advanced Process Control*,
+    McGraw-Hill 1981; Luus, *Iterative Dynamic Programming*, Chapman & Hall/CRC 2000)::
+
+        max x2(1)   (here: min -x2(1)),   x1' = -(u + u^2/2) x1,   x2' = u x1,
+        x(0) = (1, 0),   0 <= u <= 5.
+
+    Published: max x2(1) = 0.57353 (Luus 2000), i.e. objective -0.57353 here. Exact second
+    derivatives. Start: u = 2.5 (midpoint). ``min_yield`` adds the terminal constraint
+    x2(1) >= min_yield (the infeasible variant ``batch-overyield``: x1 + x2 never grows above 1).
+    """
+
+    name = "batch-reactor"
+    STATES = ("x1", "x2")
+    CONTROLS = ("u",)
+    X0 = (1.0, 0.0)
+    T = 1.0
+    U_BOUNDS = ((0.0,), (5.0,))
+    DEFAULT_N = 50
+
+    def model(self, X, U, order):
+        x1, u = X[:, 0], U[:, 0]
+        K = len(u)
+        r = u + 0.5 * u * u
+        F = np.stack([-r * x1, u * x1, np.zeros(K)], axis=1)
+        if order < 1:
+            return F, None, None
+        J = _z(K, 3, 3)
+        J[:, 0, 0], J[:, 0, 2] = -r, -(1 + u) * x1
+        J[:, 1, 0], J[:, 1, 2] = u, x1
+        H = None
+        if order >= 2:
+            H = np.zeros((K, 3, 3, 3))
+            H[:, 0, 0, 2] = H[:, 0, 2, 0] = -(1 + u)
+            H[:, 0, 2, 2] = -x1
+            H[:, 1, 0, 2] = H[:, 1, 2, 0] = 1.0
+        return F, J, H
+
+    def mayer(self, x, order):
+        return -x[1], np.array([0.0, -1.0]), np.zeros((2, 2))
+
+
+# ============================================================================ alp rider
+def _bump(t, a, b):
+    """p(t, a, b) = exp(-b (t - a)^2) and its first two derivatives in t."""
+    p = np.exp(-b * (t - a) ** 2)
+    d = -2.0 * b * (t - a) * p
+    return p, d, -2.0 * b * p - 2.0 * b * (t - a) * d
+
+
+class AlpRider(ExactHessians, ContinuousDOCP):
+    """Betts's alp rider (Betts, *Practical Methods for Optimal Control and Estimation Using
+    Nonlinear Programming*, 2nd ed., SIAM 2010, pp. 163-165)::
+
+        min int_0^20 100 (y1^2 + y2^2 + y3^2 + y4^2) + 0.01 (u1^2 + u2^2) dt,
+        y1' = -10 y1 + u1 + u2,       y2' = -2 y2 + u1 + 2 u2,
+        y3' = -3 y3 + 5 y4 + u1 - u2,  y4' = 5 y3 - 3 y4 + u1 + 3 u2,
+        |y|^2 >= 3 p(t,3,12) + 3 p(t,6,10) + 3 p(t,10,6) + 8 p(t,15,4) + 0.01,  p(t,a,b) = exp(-b (t-a)^2),
+        y(0) = (2, 1, 2, 1),   y(20) = (2, 3, 1, -2).
+
+    Published: 2030.85609 (Betts 2010). The path constraint depends on t: the time is a fifth
+    state t' = 1. The path constraint is imposed at the stages k = 0..N-1 (at the grid points;
+    between them a discrete trajectory may cut the ridges). Exact second derivatives. Start:
+    u = 0 with y linear between its end values (see :meth:`state_guess`); the default N = 100
+    gives h = 0.2, inside RK4's stability region for the fastest mode (-10).
+    """
+
+    name = "alp-rider"
+    STATES = ("y1", "y2", "y3", "y4", "t")
+    CONTROLS = ("u1", "u2")
+    X0 = (2.0, 1.0, 2.0, 1.0, 0.0)
+    YF = (2.0, 3.0, 1.0, -2.0)
+    T = 20.0
+    A = np.array([[-10.0, 0, 0, 0], [0, -2.0, 0, 0], [0, 0, -3.0, 5.0], [0, 0, 5.0, -3.0]])
+    B = np.array([[1.0, 1.0], [1.0, 2.0], [1.0, -1.0], [1.0, 3.0]])
+    BUMPS = ((3.0, 3.0, 12.0), (3.0, 6.0, 10.0), (3.0, 10.0, 6.0), (8.0, 15.0, 4.0))
+    N_PATH = 1
+    N_TERMINAL = 4
+    TERMINAL_EQUALITIES = [0, 1, 2, 3]
+    DEFAULT_N = 100
+
+    def model(self, X, U, order):
+        y, u = X[:, :4], U
+        K = len(u)
+        F = np.empty((K, 6))
+        F[:, :4] = y @ self.A.T + u @ self.B.T
+        F[:, 4] = 1.0
+        F[:, 5] = 100.0 * np.sum(y * y, axis=1) + 0.01 * np.sum(u * u, axis=1)
+        if order < 1:
+            return F, None, None
+        J = _z(K, 6, 7)
+        J[:, :4, :4] = self.A
+        J[:, :4, 5:] = self.B
+        J[:, 5, :4] = 200.0 * y
+        J[:, 5, 5:] = 0.02 * u
+        H = None
+        if order >= 2:
+            H = np.zeros((K, 6, 7, 7))
+            for i in range(4):
+                H[:, 5, i, i] = 200.0
+            H[:, 5, 5, 5] = H[:, 5, 6, 6] = 0.02
+        return F, J, H
+
+    def path(self, X, U, order):
+        y, t = X[:, :4], X[:, 4]
+        K = len(t)
+        q, dq, d2q = np.full(K, 0.01), np.zeros(K), np.zeros(K)
+        for c, a, b in self.BUMPS:
+            p, d, d2 = _bump(t, a, b)
+            q, dq, d2q = q + c * p, dq + c * d, d2q + c * d2
+        G = (np.sum(y * y, axis=1) - q)[:, None]
+        if order < 1:
+            return G, None, None, None
+        Gx = np.zeros((K, 1, self.n))
+        Gx[:, 0, :4] = 2.0 * y
+        Gx[:, 0, 4] = -dq
+        Gzz = None
+        if order >= 2:
+            Gzz = np.zeros((K, 1, self.n + self.m, self.n + self.m))
+            for i in range(4):
+                Gzz[:, 0, i, i] = 2.0
+            Gzz[:, 0, 4, 4] = -d2q
+        return G, Gx, np.zeros((K, 1, self.m)), Gzz
+
+    def terminal(self, x, order):
+        return x[:4] - np.asarray(self.YF), _select(self.n, range(4)), np.zeros((4, self.n, self.n))
+
+    def control_guess(self):
+        return np.zeros((self.steps, 2))
+
+    def state_guess(self):
+        """y linear from y(0) to y(20) (simulating u = 0 would not do: the (y3, y4) block has
+        the eigenvalue +2, so y grows like exp(2 t) to about 1e17)."""
+        t = np.linspace(0.0, 1.0, self.steps + 1)[:, None]
+        y = (1 - t) * np.asarray(self.X0[:4]) + t * np.asarray(self.YF)
+        return np.column_stack([y, self.horizon * t[:, 0]])
+
+
+# ============================================================================ free-flying robot
+class FreeFlyingRobot(ExactHessians, ContinuousDOCP):
+    """Sakawa's free-flying robot (Sakawa, Optim. Control Appl. Meth. 20 (1999) 235-248; Betts
+    2010, sec. 6.13, ex. 'ffrb')::
+
+        min int_0^12 (u1 + u2 + u3 + u4) dt,
+        x' = vx,  y' = vy,  th' = w,   vx' = (F1 + F2) cos th,   vy' = (F1 + F2) sin th,
+        w' = alpha F1 - beta F2,   F1 = u1 - u2,  F2 = u3 - u4,   alpha = beta = 0.2,
+        0 <= u_i <= 1,   u1 + u2 <= 1,   u3 + u4 <= 1   (path constraints),
+        (x, y, th, vx, vy, w)(0) = (-10, -10, pi/2, 0, 0, 0),   all six = 0 at t = 12.
+
+    The thrusts |F1| + |F2| of Sakawa are split into nonnegative parts (Betts's form). Published:
+    7.91055654 (Betts 2010). Exact second derivatives. Start: u = 0 (states simulated).
+    """
+
+    name = "free-flying-robot"
+    STATES = ("x", "y", "theta", "vx", "vy", "omega")
+    CONTROLS = ("u1", "u2", "u3", "u4")
+    ALPHA = BETA = 0.2
+    X0 = (-10.0, -10.0, np.pi / 2, 0.0, 0.0, 0.0)
+    T = 12.0
+    U_BOUNDS = ((0.0,) * 4, (1.0,) * 4)
+    N_PATH = 2
+    N_TERMINAL = 6
+    TERMINAL_EQUALITIES = list(range(6))
+    DEFAULT_N = 60
+
+    def model(self, X, U, order):
+        th = X[:, 2]
+        K = len(th)
+        F1, F2 = U[:, 0] - U[:, 1], U[:, 2] - U[:, 3]
+        S = F1 + F2
+        c, s = np.cos(th), np.sin(th)
+        F = np.stack([X[:, 3], X[:, 4], X[:, 5], S * c, S * s, self.ALPHA * F1 - self.BETA * F2,
+                      U.sum(axis=1)], axis=1)
+        if order < 1:
+            return F, None, None
+        sign = np.array([1.0, -1.0, 1.0, -1.0])
+        J = _z(K, 7, 10)
+        J[:, 0, 3] = J[:, 1, 4] = J[:, 2, 5] = 1.0
+        J[:, 3, 2], J[:, 4, 2] = -S * s, S * c
+        J[:, 3, 6:] = c[:, None] * sign
+        J[:, 4, 6:] = s[:, None] * sign
+        J[:, 5, 6:] = [self.ALPHA, -self.ALPHA, -self.BETA, self.BETA]
+        J[:, 6, 6:] = 1.0
+        H = None
+        if order >= 2:
+            H = np.zeros((K, 7, 10, 10))
+            H[:, 3, 2, 2], H[:, 4, 2, 2] = -S * c, -S * s
+            H[:, 3, 2, 6:] = H[:, 3, 6:, 2] = -s[:, None] * sign
+            H[:, 4, 2, 6:] = H[:, 4, 6:, 2] = c[:, None] * sign
+        return F, J, H
+
+    def path(self, X, U, order):
+        K = X.shape[0]
+        G = np.stack([1.0 - U[:, 0] - U[:, 1], 1.0 - U[:, 2] - U[:, 3]], axis=1)
+        if order < 1:
+            return G, None, None, None
+        Gu = np.zeros((K, 2, 4))
+        Gu[:, 0, :2] = Gu[:, 1, 2:] = -1.0
+        Gzz = np.zeros((K, 2, self.n + 4, self.n + 4)) if order >= 2 else None
+        return G, np.zeros((K, 2, self.n)), Gu, Gzz
+
+    def terminal(self, x, order):
+        return x.copy(), np.eye(6), np.zeros((6, 6, 6))
+
+    def control_guess(self):
+        return np.zeros((self.steps, 4))
+
+
+# ============================================================================ Dubins car
+class Dubins(_MinTime, ContinuousDOCP):
+    """Minimum-time Dubins car (Dubins, Amer. J. Math. 79 (1957) 497-516)::
+
+        min T,   x' = cos th,  y' = sin th,  th' = w,   |w| <= 1   (unit speed and turning radius),
+        (x, y, th)(0) = (0, 0, 0),   (x, y, th)(T) = (0, 4, pi).
+
+    Analytic value: Dubins' shortest path is a left quarter circle, a straight segment of
+    length 2 and another left quarter circle (LSL), T* = pi + 2 = 5.1415927. Start: T = 6,
+    w = 0.5 (states simulated).
+    """
+
+    name = "dubins"
+    STATES = ("x", "y", "theta")
+    CONTROLS = ("w",)
+    X0 = (0.0, 0.0, 0.0)
+    XF = (0.0, 4.0, np.pi)
+    T = None
+    T_BOUNDS = (0.1, 50.0)
+    T_GUESS = 6.0
+    U_BOUNDS = ((-1.0,), (1.0,))
+    N_TERMINAL = 3
+    TERMINAL_EQUALITIES = [0, 1, 2]
+    DEFAULT_N = 51
+
+    def model(self, X, U, order):
+        th = X[:, 2]
+        K = len(th)
+        F = np.stack([np.cos(th), np.sin(th), U[:, 0], np.zeros(K)], axis=1)
+        if order < 1:
+            return F, None, None
+        J = _z(K, 4, 4)
+        J[:, 0, 2], J[:, 1, 2], J[:, 2, 3] = -np.sin(th), np.cos(th), 1.0
+        return F, J, None
+
+    def terminal(self, x, order):
+        return x[:3] - np.asarray(self.XF), _select(self.n, [0, 1, 2]), np.zeros((3, self.n, self.n))
+
+    def control_guess(self):
+        return np.full((self.steps, 1), 0.5)
+
+
+# ============================================================================ rigid body
+class RigidBody(_MinTime, ContinuousDOCP):
+    """Minimum-time reorientation of an asymmetric rigid body (Fleming, Sekhavat and Ross,
+    AIAA 2008-7012; Betts 2010, sec. 6.8)::
+
+        min T,   q' = 1/2 Omega(w) q   (quaternion q = (q1, q2, q3, q4), q4 scalar),
+        Ix w1' = u1 - (Iz - Iy) w2 w3,  Iy w2' = u2 - (Ix - Iz) w1 w3,  Iz w3' = u3 - (Iy - Ix) w1 w2,
+        q(0) = (0, 0, 0, 1), w(0) = 0,   (q1, q2, q3)(T) = (sin(phi/2), 0, 0), w(T) = 0,   |u_i| <= 50,
+
+    with (Ix, Iy, Iz) = (5621, 4547, 2364) and a rest-to-rest rotation by phi = 150 deg about the
+    x axis. Published: T* = 28.6304077 (Betts 2010). q4 is a state here (Betts eliminates it by
+    |q| = 1; RK4 keeps |q| = 1 to its local error). Start: the eigenaxis maneuver, u1 = +-50 over
+    the two halves of T = 2 sqrt(phi Ix / 50) = 34.31, with u2 = 10 cos(pi t/T) and u3 = 5 cos(pi
+    t/T) added (states simulated); from the pure eigenaxis maneuver, a KKT point of the discrete
+    problem, IPOPT does not move.
+    """
+
+    name = "rigid-body"
+    STATES = ("q1", "q2", "q3", "q4", "w1", "w2", "w3")
+    CONTROLS = ("u1", "u2", "u3")
+    INERTIA = (5621.0, 4547.0, 2364.0)
+    PHI = 150.0 * np.pi / 180.0
+    X0 = (0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
+    T = None
+    T_BOUNDS = (1.0, 200.0)
+    T_GUESS = 2.0 * np.sqrt(150.0 * np.pi / 180.0 * 5621.0 / 50.0)
+    U_BOUNDS = ((-50.0,) * 3, (50.0,) * 3)
+    N_TERMINAL = 6
+    TERMINAL_EQUALITIES = list(range(6))
+    DEFAULT_N = 61
+
+    def model(self, X, U, order):
+        q, w = X[:, :4], X[:, 4:7]
+        K = X.shape[0]
+        Ix, Iy, Iz = self.INERTIA
+        w1, w2, w3 = w[:, 0], w[:, 1], w[:, 2]
+        q1, q2, q3, q4 = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+        F = np.empty((K, 8))
+        F[:, 0] = 0.5 * (w1 * q4 - w2 * q3 + w3 * q2)
+        F[:, 1] = 0.5 * (w1 * q3 + w2 * q4 - w3 * q1)
+        F[:, 2] = 0.5 * (-w1 * q2 + w2 * q1 + w3 * q4)
+        F[:, 3] = 0.5 * (-w1 * q1 - w2 * q2 - w3 * q3)
+        F[:, 4] = (U[:, 0] - (Iz - Iy) * w2 * w3) / Ix
+        F[:, 5] = (U[:, 1] - (Ix - Iz) * w1 * w3) / Iy
+        F[:, 6] = (U[:, 2] - (Iy - Ix) * w1 * w2) / Iz
+        F[:, 7] = 0.0
+        if order < 1:
+            return F, None, None
+        J = _z(K, 8, 10)
+        # d q'/d q (columns 0..3) and d q'/d w (columns 4..6)
+        J[:, 0, 1], J[:, 0, 2], J[:, 0, 3] = 0.5 * w3, -0.5 * w2, 0.5 * w1
+        J[:, 0, 4], J[:, 0, 5], J[:, 0, 6] = 0.5 * q4, -0.5 * q3, 0.5 * q2
+        J[:, 1, 0], J[:, 1, 2], J[:, 1, 3] = -0.5 * w3, 0.5 * w1, 0.5 * w2
+        J[:, 1, 4], J[:, 1, 5], J[:, 1, 6] = 0.5 * q3, 0.5 * q4, -0.5 * q1
+        J[:, 2, 0], J[:, 2, 1], J[:, 2, 3] = 0.5 * w2, -0.5 * w1, 0.5 * w3
+        J[:, 2, 4], J[:, 2, 5], J[:, 2, 6] = -0.5 * q2, 0.5 * q1, 0.5 * q4
+        J[:, 3, 0], J[:, 3, 1], J[:, 3, 2] = -0.5 * w1, -0.5 * w2, -0.5 * w3
+        J[:, 3, 4], J[:, 3, 5], J[:, 3, 6] = -0.5 * q1, -0.5 * q2, -0.5 * q3
+        J[:, 4, 5], J[:, 4, 6], J[:, 4, 7] = -(Iz - Iy) * w3 / Ix, -(Iz - Iy) * w2 / Ix, 1.0 / Ix
+        J[:, 5, 4], J[:, 5, 6], J[:, 5, 8] = -(Ix - Iz) * w3 / Iy, -(Ix - Iz) * w1 / Iy, 1.0 / Iy
+        J[:, 6, 4], J[:, 6, 5], J[:, 6, 9] = -(Iy - Ix) * w2 / Iz, -(Iy - Ix) * w1 / Iz, 1.0 / Iz
+        return F, J, None
+
+    def terminal(self, x, order):
+        idx = [0, 1, 2, 4, 5, 6]
+        target = np.array([np.sin(self.PHI / 2), 0, 0, 0, 0, 0])
+        return x[idx] - target, _select(self.n, idx), np.zeros((6, self.n, self.n))
+
+    def control_guess(self):
+        U = np.zeros((self.steps, 3))
+        half = self.steps // 2
+        U[:half, 0], U[half:, 0] = 50.0, -50.0
+        t = (np.arange(self.steps) + 0.5) / self.steps
+        U[:, 1], U[:, 2] = 10.0 * np.cos(np.pi * t), 5.0 * np.cos(np.pi * t)
+        return U
+
+
+# ============================================================================ obstacle
+class Obstacle(ExactHessians, ContinuousDOCP):
+    """Minimum-energy transfer of a point mass around a circular obstacle (a standard test of
+    path-constrained trajectory optimization, written here; no published value)::
+
+        min 1/2 int_0^1 |u|^2 dt,   p'' = u  (p, u in R^2),   p(0) = (0, 0),  p(1) = (1, 0),
+        p'(0) = p'(1) = 0,   |p - c|^2 >= r^2,   c = (0.5, 0.05),  r = 0.2.
+
+    The disc sits slightly above the straight line, so passing below (the global minimum) and
+    passing above (a local minimum with a higher value) are both KKT points; the straight line
+    u = 0 crosses the obstacle (IPOPT does not recover from it). Start: u = (0, -20 cos 2 pi t),
+    which bends the path below the disc first (states simulated). Exact second derivatives.
+    """
+
+    name = "obstacle"
+    STATES = ("x", "y", "vx", "vy")
+    CONTROLS = ("ux", "uy")
+    CENTER, RADIUS = (0.5, 0.05), 0.2
+    X0 = (0.0, 0.0, 0.0, 0.0)
+    T = 1.0
+    N_PATH = 1
+    N_TERMINAL = 4
+    TERMINAL_EQUALITIES = [0, 1, 2, 3]
+    DEFAULT_N = 50
+
+    def model(self, X, U, order):
+        K = X.shape[0]
+        F = np.stack([X[:, 2], X[:, 3], U[:, 0], U[:, 1], 0.5 * np.sum(U * U, axis=1)], axis=1)
+        if order < 1:
+            return F, None, None
+        J = _z(K, 5, 6)
+        J[:, 0, 2] = J[:, 1, 3] = J[:, 2, 4] = J[:, 3, 5] = 1.0
+        J[:, 4, 4:] = U
+        H = None
+        if order >= 2:
+            H = np.zeros((K, 5, 6, 6))
+            H[:, 4, 4, 4] = H[:, 4, 5, 5] = 1.0
+        return F, J, H
+
+    def path(self, X, U, order):
+        K = X.shape[0]
+        d = X[:, :2] - np.asarray(self.CENTER)
+        G = (np.sum(d * d, axis=1) - self.RADIUS ** 2)[:, None]
+        if order < 1:
+            return G, None, None, None
+        Gx = np.zeros((K, 1, 4))
+        Gx[:, 0, :2] = 2.0 * d
+        Gzz = None
+        if order >= 2:
+            Gzz = np.zeros((K, 1, 6, 6))
+            Gzz[:, 0, 0, 0] = Gzz[:, 0, 1, 1] = 2.0
+        return G, Gx, np.zeros((K, 1, 2)), Gzz
+
+    def terminal(self, x, order):
+        return x - np.array([1.0, 0.0, 0.0, 0.0]), np.eye(4), np.zeros((4, 4, 4))
+
+    def control_guess(self):
+        t = (np.arange(self.steps) + 0.5) / self.steps
+        U = np.zeros((self.steps, 2))
+        U[:, 1] = -20.0 * np.cos(2.0 * np.pi * t)
+        return U
+
+
+# ============================================================================ cart-pole
+class CartPole(ContinuousDOCP):
+    """Cart-pole swing-up (Kelly, *An introduction to trajectory optimization*, SIAM Review 59
+    (2017) 849-904, sec. 6 and appendix E)::
+
+        min int_0^2 u^2 dt,   cart position q1, pole angle q2 (0 hanging down),
+        q1'' = (l m2 sin q2 q2'^2 + u + m2 g cos q2 sin q2) / (m1 + m2 (1 - cos^2 q2)),
+        q2'' = -(l m2 cos q2 sin q2 q2'^2 + u cos q2 + (m1 + m2) g sin q2) / (l m1 + l m2 (1 - cos^2 q2)),
+        (q1, q2, q1', q2')(0) = 0,   (q1, q2, q1', q2')(2) = (1, pi, 0, 0),   |u| <= 20,  |q1| <= 2,
+
+    with m1 = 1, m2 = 0.3, l = 0.5, g = 9.81. No published optimal value (Kelly shows the
+    trajectory only). The model's Jacobian is by central differences of its values (the step
+    derivatives through RK4 are then exact given it). Start: u = 0 with the states linear from
+    the initial to the final values (Kelly's guess).
+    """
+
+    name = "cart-pole"
+    STATES = ("q1", "q2", "q1_dot", "q2_dot")
+    CONTROLS = ("u",)
+    M1, M2, LEN, G = 1.0, 0.3, 0.5, 9.81
+    X0 = (0.0, 0.0, 0.0, 0.0)
+    XF = (1.0, np.pi, 0.0, 0.0)
+    T = 2.0
+    X_BOUNDS = ((-2.0, -np.inf, -np.inf, -np.inf), (2.0, np.inf, np.inf, np.inf))
+    U_BOUNDS = ((-20.0,), (20.0,))
+    N_TERMINAL = 4
+    TERMINAL_EQUALITIES = [0, 1, 2, 3]
+    DEFAULT_N = 50
+
+    def model(self, X, U, order):
+        q2, dq2, u = X[:, 1], X[:, 3], U[:, 0]
+        m1, m2, ln, g = self.M1, self.M2, self.LEN, self.G
+        s, c = np.sin(q2), np.cos(q2)
+        den = m1 + m2 * (1.0 - c * c)
+        a1 = (ln * m2 * s * dq2 ** 2 + u + m2 * g * c * s) / den
+        a2 = -(ln * m2 * c * s * dq2 ** 2 + u * c + (m1 + m2) * g * s) / (ln * den)
+        F = np.stack([X[:, 2], dq2, a1, a2, u * u], axis=1)
+        return F, None, None
+
+    def terminal(self, x, order):
+        return x - np.asarray(self.XF), np.eye(4), np.zeros((4, 4, 4))
+
+    def control_guess(self):
+        return np.zeros((self.steps, 1))
+
+    def state_guess(self):
+        t = np.linspace(0.0, 1.0, self.steps + 1)[:, None]
+        return t * np.asarray(self.XF)[None, :]
+
+
+# ============================================================================ orbit raising
+class OrbitRaising(ContinuousDOCP):
+    """Maximal-radius low-thrust orbit transfer in fixed time (Moyer and Pinkham 1964; Bryson and
+    Ho, *Applied Optimal Control*, 1975, sec. 2.5)::
+
+        max r(T)   (here: min -r(T)),   T = 3.32  (normalized: mu = r(0) = m(0) = 1),
+        r' = vr,   vr' = vt^2/r - 1/r^2 + a sin phi,   vt' = -vr vt / r + a cos phi,
+        a = 0.1405 / (1 - 0.0749 t),   (r, vr, vt)(0) = (1, 0, 1),   vr(T) = 0,  vt(T) = 1/sqrt(r(T)),
+
+    phi the thrust angle from the local horizontal (unbounded). Published: r(T) ~ 1.525 (Bryson
+    and Ho 1975, sec. 2.5; three digits), i.e. objective -1.525 here. The thrust acceleration
+    depends on t: the time is a fourth state t' = 1. Start: phi = 0 (tangential thrust; states
+    simulated).
+    """
+
+    name = "orbit-raising"
+    STATES = ("r", "vr", "vt", "t")
+    CONTROLS = ("phi",)
+    THRUST, MDOT = 0.1405, 0.0749
+    X0 = (1.0, 0.0, 1.0, 0.0)
+    T = 3.32
+    X_BOUNDS = ((0.5, -np.inf, -np.inf, -np.inf), None)
+    N_TERMINAL = 2
+    TERMINAL_EQUALITIES = [0, 1]
+    DEFAULT_N = 50
+
+    def model(self, X, U, order):
+        r, vr, vt, t, ph = X[:, 0], X[:, 1], X[:, 2], X[:, 3], U[:, 0]
+        K = len(r)
+        den = 1.0 - self.MDOT * t
+        a = self.THRUST / den
+        s, c = np.sin(ph), np.cos(ph)
+        F = np.stack([vr, vt * vt / r - 1.0 / (r * r) + a * s, -vr * vt / r + a * c, np.ones(K), np.zeros(K)], axis=1)
+        if order < 1:
+            return F, None, None
+        da = self.THRUST * self.MDOT / den ** 2
+        J = _z(K, 5, 5)
+        J[:, 0, 1] = 1.0
+        J[:, 1, 0], J[:, 1, 2], J[:, 1, 3], J[:, 1, 4] = -vt * vt / r ** 2 + 2.0 / r ** 3, 2.0 * vt / r, da * s, a * c
+        J[:, 2, 0], J[:, 2, 1], J[:, 2, 2] = vr * vt / r ** 2, -vt / r, -vr / r
+        J[:, 2, 3], J[:, 2, 4] = da * c, -a * s
+        return F, J, None
+
+    def mayer(self, x, order):
+        g = np.zeros(self.n)
+        g[0] = -1.0
+        return -x[0], g, np.zeros((self.n, self.n))
+
+    def terminal(self, x, order):
+        r, vr, vt = x[0], x[1], x[2]
+        jac = np.zeros((2, self.n))
+        jac[0, 1] = 1.0
+        jac[1, 0], jac[1, 2] = 0.5 * r ** -1.5, 1.0
+        return np.array([vr, vt - r ** -0.5]), jac, None
+
+    def control_guess(self):
+        return np.zeros((self.steps, 1))
+
+
+def _factory(cls):
+    def make(N=None, method="rk4"):
+        return cls(N=N, method=method)
+    make.__doc__ = (cls.__doc__ or "").strip().splitlines()[0]
+    make.__name__ = cls.name.replace("-", "_")
+    return make
+
+
+#: name -> factory(N=None, method="rk4") (registered lazily by olado.problems.catalog)
+PROBLEMS = {cls.name: _factory(cls) for cls in (
+    Brachistochrone, BrachistochronePoint, DoubleIntegrator, BrysonDenham, BangBangCart, MoonLander,
+    LotkaFishing, BatchReactor, AlpRider, FreeFlyingRobot, Dubins, RigidBody, Obstacle, CartPole,
+    OrbitRaising)}
