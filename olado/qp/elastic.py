@@ -66,10 +66,13 @@ def _sides(lo, hi):
 @dataclasses.dataclass
 class ElasticQP:
     """The relaxed form of ``qp`` (module docstring) with penalty ``eta``; ``relaxed`` is the
-    StageQP to solve, :meth:`restore` maps its result back."""
+    StageQP to solve, :meth:`restore` maps its result back. ``curvature`` > 0 adds
+    curvature/2 |slacks|^2 to the objective: a strictly convex QP in the slacks, which dual
+    active-set methods (Goldfarb-Idnani) and quadprog need (the l1 penalty alone has none)."""
 
     qp: StageQP
     eta: float
+    curvature: float = 0.0
     relaxed: StageQP = dataclasses.field(init=False)
 
     def __post_init__(self):
@@ -128,6 +131,7 @@ class ElasticQP:
             sl_hi[:-1, ne:ner] = 0.0
             sl_hi[:-1, ner + ne: 2 * ner] = 0.0
         R = np.zeros((N, ma, ma)); R[:, :m, :m] = qp.R
+        R[:, np.arange(m, ma), np.arange(m, ma)] = float(self.curvature)
         S = np.zeros((N, n, ma)); S[:, :, :m] = qp.S
         r = np.concatenate([qp.r, np.full((N, msl), float(self.eta))], axis=1)
         B = np.zeros((N, n, ma)); B[:, :, :m] = qp.B

@@ -157,6 +157,10 @@ def _qp_shift(qp_solver, qres):
 
 _FAILED = (Status.NUMERICAL_ERROR, Status.UNBOUNDED, Status.MAX_ITERATIONS, Status.FAILED)
 
+#: the relaxed QP's slacks get this times max|H| as curvature (olado.qp.elastic.ElasticQP), so that
+#: the QP methods that need a strictly convex QP (the active-set method, quadprog) take it too
+ELASTIC_CURVATURE = 1e-6
+
 
 def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=False, offsets=None, eta=None):
     """Solve the QP subproblem at pt with delta*I (+ the proximal term) added to the Hessian.
@@ -189,7 +193,7 @@ def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=
         if eta is None:
             qres = qp_solver.solve(qp, warm_start=warm)
         else:
-            elastic = ElasticQP(qp, eta)
+            elastic = ElasticQP(qp, eta, curvature=ELASTIC_CURVATURE * scale)
             qres, slacks = elastic.restore(qp_solver.solve(elastic.relaxed))
         iterations += int(qres.iterations)
         if inertia and o.curvature_tol > 0 and qres.success:

@@ -57,6 +57,16 @@ def test_vanderpol_path_starts_from_a_relaxed_qp():
     assert r.success
 
 
+@pytest.mark.parametrize("cfg", ["sqp-as", "sqp-gondzio", "sqp-sr1", "sqp-schittkowski"])
+def test_vanderpol_path_with_other_presets(cfg):
+    """The relaxed QP with every QP method (its slacks have a little curvature, which the dual
+    active-set method needs: a strictly convex QP)."""
+    ref = _ipopt(PROBLEMS["vanderpol-path"]())
+    r = olado.solve(PROBLEMS["vanderpol-path"](), config=CONFIGS / f"{cfg}.ini")
+    assert r.success, r.message
+    assert r.objective == pytest.approx(ref.objective, rel=1e-6)
+
+
 # ---------------------------------------------------------------------------- regularization
 def test_gerschgorin_bounds_and_tau_one_make_every_block_positive_definite():
     rng = np.random.default_rng(0)
