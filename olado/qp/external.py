@@ -16,6 +16,9 @@ backend's multipliers back to the :class:`olado.qp.stageqp.QPResult` convention:
 * general inequalities h_lower <= G y <= h_upper: one row G y <= h_upper per finite upper side
   (multiplier -> y_upper) and one row -G y <= -h_lower per finite lower side (-> y_lower);
   infinite sides produce no row;
+* dense-only backends (quadprog, qpsolvers' ``dense_solvers`` that are not in its
+  ``sparse_solvers``) get the matrices as dense arrays (stage QPs of a few thousand variables
+  at most are sensible for them);
 * variable bounds: passed as qpsolvers' lb/ub to backends that accept +-inf there (OSQP,
   PIQP), whose box multiplier z_box (< 0 at an active lower bound) splits by sign into
   zx/zu lower and upper; for every other backend the finite bounds become rows of G (with
@@ -85,6 +88,12 @@ class ExternalQPOptions:
     warm_start: bool = option(True, "pass the primal of a warm-start QPResult to backends that use one "
                                     "(OSQP, ProxQP, QPALM ...; Clarabel and PIQP ignore it)")
     verbose: bool = option(False, "print the backend's own output")
+    convexify: str = option("none", "'augmented': a QP whose Hessian P is not positive definite is passed with "
+                            "P + rho A_eq^T A_eq (and q - rho A_eq^T b_eq), the smallest rho of a tenfold ladder that "
+                            "makes it positive semidefinite -- the same solution and multipliers, since the added "
+                            "term vanishes where A_eq y = b_eq (Debreu's lemma: such a rho exists if P is positive "
+                            "definite on the null space of A_eq); a QP for which none does is reported as a failed "
+                            "(nonconvex) QP. 'none': P as it is", choices=("none", "augmented"))
     backend_options: dict = option({}, "further keyword arguments passed unchanged to the backend")
 
 
@@ -198,12 +207,65 @@ class _Rows:
     b_lo: np.ndarray             # variables with a finite lower bound as rows (non-native box)
     native_box: bool             # lb/ub passed to the backend
     n_g: int                     # rows of to_sparse()'s G
+    rho: float = 0.0             # convexify = "augmented": the rho of P + rho A_eq^T A_eq
+    A_eq: object = None          # ... and the rows A_eq y = b_eq it was taken over
+    b_eq: object = None
 
 
-def _build_rows(qp: StageQP, backend: str) -> _Rows:
+def _positive_semidefinite(M, floor) -> bool:
+    """Whether the symmetric sparse M + floor I is positive definite (M positive semidefinite up
+    to floor): a banded Cholesky factorization (a stage QP in stage order is banded, bandwidth
+    about 2n + m)."""
+    import scipy.linalg as sla
+
+    M = sp.csr_matrix(M)
+    coo = M.tocoo()
+    bw = int(np.max(np.abs(coo.row - coo.col), initial=0))
+    nv = M.shape[0]
+    ab = np.zeros((bw + 1, nv))
+    for k in range(bw + 1):
+        ab[bw - k, k:] = M.diagonal(k)
+    ab[bw] += floor
+    try:
+        sla.cholesky_banded(ab, lower=False, check_finite=False)
+    except (np.linalg.LinAlgError, ValueError):
+        return False
+    return True
+
+
+#: the rho ladder of convexify = "augmented": rho_0 times 10^0..10^_AUGMENT_STEPS
+_AUGMENT_STEPS = 12
+
+
+def augmented_hessian(d):
+    """(P, q, rho) with P + rho A^T A positive semidefinite (to 1e-10 max|P_ii|) and q - rho A^T b,
+    rho the smallest of the ladder (0 first), for the sparse form ``d`` of a stage QP; None when
+    no rho works (P is not positive semidefinite on the null space of the equality rows A y = b)."""
+    P, A, b = d["P"], d["A_eq"], d["b_eq"]
+    scale = max(float(np.max(np.abs(P.diagonal()), initial=0.0)), 1e-300)
+    floor = 1e-10 * scale
+    if _positive_semidefinite(P, floor):
+        return P, d["q"], 0.0
+    AtA = (A.T @ A).tocsc()
+    rho0 = scale / max(float(np.max(np.abs(AtA.diagonal()), initial=0.0)), 1e-300)
+    for j in range(_AUGMENT_STEPS + 1):
+        rho = rho0 * 10.0 ** j
+        Pa = (P + rho * AtA).tocsc()
+        if _positive_semidefinite(Pa, floor):
+            return Pa, d["q"] - rho * (A.T @ b), rho
+    return None
+
+
+def _build_rows(qp: StageQP, backend: str, convexify: str = "none") -> _Rows | None:
     import qpsolvers
 
     d = qp.to_sparse()
+    rho = 0.0
+    if convexify == "augmented":
+        aug = augmented_hessian(d)
+        if aug is None:
+            return None
+        d["P"], d["q"], rho = aug
     nv = qp.n_vars
     G, hl, hu = d["G"].tocsr(), d["h_lower"], d["h_upper"]
     lb, ub = d["lb"], d["ub"]
@@ -237,9 +299,15 @@ def _build_rows(qp: StageQP, backend: str) -> _Rows:
         lbq, ubq = lb.copy(), ub.copy()
     else:
         lbq = ubq = None
-    problem = qpsolvers.Problem(d["P"], d["q"], Gq, h, A, b, lbq, ubq)
+    if backend not in qpsolvers.sparse_solvers:
+        # dense-only backends (quadprog, ...) refuse sparse matrices ("problem has sparse matrices")
+        P, A = d["P"].toarray(), A.toarray()
+        Gq = None if Gq is None else Gq.toarray()
+    else:
+        P = d["P"]
+    problem = qpsolvers.Problem(P, d["q"], Gq, h, A, b, lbq, ubq)
     return _Rows(problem, d["A_eq"].shape[0], eq_g, eq_fix, g_up, g_lo, b_up, b_lo,
-                 lbq is not None, G.shape[0])
+                 lbq is not None, G.shape[0], rho, d["A_eq"], d["b_eq"])
 
 
 def _split_signed(w):
@@ -387,7 +455,11 @@ class ExternalQP:
         o = self.options
         backend = self.backend
         t0 = time.perf_counter()
-        rows = _build_rows(qp, backend)
+        rows = _build_rows(qp, backend, o.convexify)
+        if rows is None:
+            return _nan_result(qp, Status.NUMERICAL_ERROR, (f"{backend}: not solved, the QP is nonconvex (its Hessian "
+                                                            "is not positive definite on the null space of its "
+                                                            "equality rows)"), backend, time.perf_counter() - t0)
         initvals = duals = None
         if (warm_start is not None and o.warm_start and backend in _WARM_START
                 and warm_start.X.shape == (qp.N + 1, qp.n) and warm_start.U.shape == (qp.N, qp.m)
@@ -414,6 +486,13 @@ class ExternalQP:
         except (qpsolvers.QPError, ValueError, ArithmeticError) as exc:
             return _nan_result(qp, Status.FAILED, f"{backend} raised {type(exc).__name__}: {exc}", backend,
                                time.perf_counter() - t0)
+        except Exception as exc:   # noqa: BLE001 - a backend's own exception type (OSQPException ...)
+            if type(exc).__module__.split(".")[0] not in (backend, "qpsolvers"):
+                raise
+            # OSQP raises at setup when its KKT factorization fails: "the problem seems to be non-convex"
+            return _nan_result(qp, Status.NUMERICAL_ERROR, f"{backend} raised {type(exc).__name__} {exc} (a "
+                               "failed factorization: the QP is nonconvex or singular)", backend,
+                               time.perf_counter() - t0)
         elapsed = time.perf_counter() - t0
         raw = _status_text(sol)
         status = map_backend_status(raw, sol.found)
@@ -431,7 +510,12 @@ class ExternalQP:
                 res.status = Status.NUMERICAL_ERROR
                 res.message = message + "; no finite primal solution returned"
             return res
-        arrays = _map_back(qp, rows, x, sol.y, sol.z, sol.z_box)
+        y_eq = sol.y
+        if rows.rho and y_eq is not None and len(y_eq):
+            # multipliers of the QP itself: lambda + rho (A_eq y - b_eq) (the augmented term's gradient)
+            y_eq = np.array(y_eq, dtype=float)
+            y_eq[: rows.n_eq0] += rows.rho * (rows.A_eq @ x - rows.b_eq)
+        arrays = _map_back(qp, rows, x, y_eq, sol.z, sol.z_box)
         res = QPResult(status, message, *arrays, iterations=iters, time_s=elapsed, solver=backend)
         res.objective = qp.objective(res.X, res.U)
         res.kkt = qp_kkt_residuals(qp, res)

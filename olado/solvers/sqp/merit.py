@@ -14,6 +14,11 @@ from __future__ import annotations
 import numpy as np
 
 
+#: the arrays of Merit.violations: (name, indexed by stage)
+_VIOLATION_NAMES = (("dynamics row", True), ("stage constraint", True), ("final constraint", False),
+                    ("bound of state component", True), ("bound of control component", True))
+
+
 class Merit:
     """Constraint violations and phi for one problem (masks of its equality components)."""
 
@@ -31,11 +36,66 @@ class Merit:
         vbu = np.maximum(p.u_lower - q.U, 0.0) + np.maximum(q.U - p.u_upper, 0.0)
         return np.abs(q.h), vg, vgN, vbx, vbu
 
+    def worst(self, q):
+        """The largest constraint violation at q, named: (sentence, value), e.g. "final
+        constraint 0 (violation 7)" or "dynamics row 1 at stage 3 (violation 0.2)"."""
+        best = (0.0, "no constraint")
+        for (name, stage_wise), v in zip(_VIOLATION_NAMES, self.violations(q)):
+            if v.size == 0 or not np.max(v) > best[0]:
+                continue
+            idx = np.unravel_index(int(np.argmax(v)), v.shape)
+            where = f"{name} {idx[1]} at stage {idx[0]}" if stage_wise and v.ndim == 2 else f"{name} {idx[0]}"
+            best = (float(v[idx]), where)
+        return f"{best[1]} (violation {best[0]:.3g})", best[0]
+
     def max_violation(self, q):
         return max(float(np.max(v, initial=0.0)) for v in self.violations(q))
 
     def penalty(self, q, weights):
         return sum(float(np.sum(w * v)) for w, v in zip(weights, self.violations(q)))
+
+    # ------------------------------------------------------------------ the merit function's interface
+    # (shared with olado.solvers.sqp.augmented.AugmentedLagrangian; the phases call only these)
+    name = "l1"
+
+    def initial_weights(self):
+        """The weights before the first step: all 0."""
+        p = self.problem
+        return zero_weights(p.N, p.n, p.r, p.rN, p.m)
+
+    def largest_weight(self, weights):
+        return max(float(np.max(w, initial=0.0)) for w in weights)
+
+    def update(self, weights, step, bounds, options, iteration, sHs):
+        """The weights for this step: Powell's rule with the step's QP multipliers."""
+        return powell_weights(weights, step.mult_new, bounds, options.penalty_min)
+
+    def derivative(self, pt, step, weights):
+        """D along the step (Nocedal & Wright (18.29)); after a relaxed QP plus the penalty of the
+        linearized violation its slacks leave (olado.solvers.sqp.relaxation)."""
+        D = directional_derivative(self, pt, step.dX, step.dU, weights)
+        if step.slacks is not None:
+            D += self.slack_penalty(step.slacks, weights)
+        return D
+
+    def slack_penalty(self, slacks, weights):
+        """sum rho v(c + J s): the weights times the slacks of a relaxed QP (the linearized
+        violations at its step; the dynamics and the control bounds stay exact)."""
+        (eq, ineq, eqN, ineqN), p = self.masks, self.problem
+        total = float(np.sum(weights[3][1:] * slacks.x[1:]))
+        if p.r:
+            total += float(np.sum(weights[1][:, eq] * slacks.e) + np.sum(weights[1][:, ineq] * slacks.c))
+        if p.rN:
+            total += float(np.sum(weights[2][eqN] * slacks.eN) + np.sum(weights[2][ineqN] * slacks.cN))
+        return total
+
+    def along(self, weights, step):
+        """phi(point, alpha) for the line search along the step (the weights fixed)."""
+        return lambda q, alpha=1.0: self.value(q, weights)
+
+    def accepted(self, weights, step, alpha):
+        """The weights at the accepted point (unchanged)."""
+        return weights
 
     def value(self, q, weights):
         """phi(q) with the penalty weights ``weights``."""

@@ -21,16 +21,17 @@ the iteration go on.
 from __future__ import annotations
 
 import dataclasses
-import time
 from typing import Any
 
 import numpy as np
 
+from ...errors import NonFiniteEvaluationError
 from ...result import Status
 from .line_search import Direction, SearchResult, line_search
-from .merit import descent_tolerance, directional_derivative, powell_weights, watch_target, zero_weights
+from .merit import descent_tolerance, watch_target
 from .residuals import kkt_residual
 from .state import BoundMultipliers, Multipliers, Point, SQPState, Watch
+from . import recession, regularization, relaxation, restoration
 from . import step as qp_step
 from .step import ShiftRule, hessian_scale, qp_multipliers, qp_tolerance, soc_offsets
 
@@ -49,6 +50,8 @@ class Step:
     mult_new: Multipliers       # its multipliers, the new estimates
     hscale: float               # max|H|
     warm: bool                  # the QP was warm-started
+    slacks: Any = None          # the relaxed QP's slacks (linearized violations at the step), or None
+    bounds: Any = None          # its bound multipliers (BoundMultipliers)
     viol: float = float("nan")          # constraint violation at the iterate
     step_norm: float = float("nan")
     rho_new: tuple = ()                 # Powell's penalty weights for this step
@@ -70,7 +73,7 @@ def initial_state(setup, X0, U0, hess, clock):
     X[0] = p.x0
     pt = Point(p, X, U, clock=clock)
     return SQPState(pt=pt, mult=Multipliers.zeros(N, n, r, rN), bounds=BoundMultipliers.zeros(N, n, m),
-                    rho=zero_weights(N, n, r, rN, m), hess=hess, clock=clock, shift=np.zeros(N + 1),
+                    rho=setup.merit.initial_weights(), hess=hess, clock=clock, shift=np.zeros(N + 1),
                     ascent_relaxed=o.max_ascent_steps,
                     message=f"maximum number of SQP iterations ({o.max_iter}) reached")
 
@@ -81,8 +84,8 @@ def iterate(setup, st: SQPState) -> bool:
         return STOP
     hscale = hessian_phase(setup, st)
     step = qp_phase(setup, st, hscale)
-    if step is None:
-        return STOP
+    if not isinstance(step, Step):
+        return step
     for phase in (test_with_new_multipliers, feasibility_step, merit_phase, search_phase):
         end = phase(setup, st, step)
         if end is not None:
@@ -90,6 +93,8 @@ def iterate(setup, st: SQPState) -> bool:
     accept(setup, st, step)
     if report(setup, st, step):
         return STOP
+    if st.unbounded is not None:
+        return st.stop(Status.UNBOUNDED, st.unbounded)
     end_expired_watch(setup, st, step)
     return NEXT
 
@@ -124,15 +129,7 @@ def hessian_phase(setup, st):
     if st.Bk is None:
         hess, p, pt = st.hess, setup.problem, st.pt
         if hess.needs_exact:
-            N, n, m = p.N, p.n, p.m
-            t0 = time.perf_counter()
-            Hxx, Hxu, Huu = p.eval_stage_hessians(pt.X, pt.U, 1.0, st.mult.lam[1:], st.mult.Lg)
-            HN = p.eval_final_hessian(pt.X[-1], 1.0, st.mult.LgN)
-            st.clock.add(("hessian",), t0)
-            blocks = np.empty((N, n + m, n + m))
-            blocks[:, :n, :n] = Hxx; blocks[:, :n, n:] = Hxu
-            blocks[:, n:, :n] = np.transpose(Hxu, (0, 2, 1)); blocks[:, n:, n:] = Huu
-            hess.set_exact(blocks, HN)
+            hess.set_exact(*pt.lagrangian_hessian(p, st.mult))
         st.Bk, st.BN = hess.current()
     return hessian_scale(st.Bk, st.BN)
 
@@ -146,14 +143,18 @@ def starting_shift(setup, st, hscale):
     if not setup.inertia:
         return np.zeros(N + 1)
     if st.force_delta is not None:
-        return st.force_delta
-    if st.local and not st.was_local:
-        return np.zeros(N + 1)     # entering the local phase: the unshifted Hessian first
-    return ShiftRule(setup.options).start(st.shift, hscale)
+        delta = st.force_delta
+    elif st.local and not st.was_local:
+        delta = np.zeros(N + 1)     # entering the local phase: the unshifted Hessian first
+    else:
+        delta = ShiftRule(setup.options).start(st.shift, hscale)
+    if st.tau > 0.0:                # WORHP's regularization [11], once a step was untrusted
+        delta = np.maximum(delta, regularization.tau_shift(st.tau, st.Bk, st.BN, hscale))
+    return delta
 
 
 def qp_phase(setup, st, hscale):
-    """Solve the QP at the iterate; the Step, or None (status set) when the QP failed."""
+    """Solve the QP at the iterate: the Step, or STOP (status set) / NEXT when the QP failed."""
     o, p, qp_solver = setup.options, setup.problem, setup.qp_solver
     if setup.interior:
         qp_solver.options.tol = qp_tolerance(o, st.kkt_res, st.grad_scale)
@@ -166,19 +167,72 @@ def qp_phase(setup, st, hscale):
     st.force_delta = None
     warm = st.last_qp if (o.qp_warm_start == "always" or (o.qp_warm_start == "local" and st.local)) else None
     st.qp_local = st.local
+    if st.restoring and st.restoration_steps == 0:      # entering the restoration phase
+        return restoration_iteration(setup, st, delta0)
     qs = qp_step.solve_qp(setup, st, st.pt, st.Bk, st.BN, delta0, inertia=setup.inertia, warm=warm)
     st.qp_iters += qs.iterations
     qres = qs.result
+    if st.restoring:
+        if not (qres.success and restoration.may_leave(setup, st)):
+            return restoration_iteration(setup, st, qs.delta)
+        st.restoring = False    # the optimality phase resumes with this QP's step
+    if not qres.success and qres.status == Status.INFEASIBLE and o.elastic:
+        # inconsistent linearization: the relaxed (elastic) QP instead (olado.solvers.sqp.relaxation)
+        rel = relaxation.solve_relaxed(setup, st, st.Bk, st.BN, qs.delta)
+        st.qp_iters += rel.solve.iterations
+        if rel.stationary:
+            return restoration.infeasible(setup, st, "the linearized constraints are inconsistent and no step "
+                                          "reduces their l1 violation")
+        if rel.solve.result.success:
+            st.eta = rel.eta
+            qs, qres = rel.solve, rel.solve.result
     if not qres.success:
-        if qres.status == Status.INFEASIBLE:
-            st.stop(Status.INFEASIBLE, (f"the QP subproblem of SQP iteration {st.it} is infeasible: the linearized "
-                                        f"constraints are inconsistent ({qres.message})"))
-        else:
-            st.stop(Status.NUMERICAL_ERROR, f"the QP subproblem of SQP iteration {st.it} failed: {qres.message}")
-        return None
+        return qp_failed(setup, st, qres)
     mult_new, st.bounds = qp_multipliers(qres, setup.masks, p.N, p.r, p.rN)
     return Step(qres=qres, delta=qs.delta, dX=qres.X, dU=qres.U, mult_new=mult_new, hscale=hscale,
-                warm=warm is not None)
+                warm=warm is not None, slacks=qs.slacks, bounds=st.bounds)
+
+
+def restoration_iteration(setup, st, delta):
+    """One step of the restoration phase (olado.solvers.sqp.restoration), logged like an SQP
+    iteration: NEXT, or STOP (infeasible, or the callback)."""
+    rec = restoration.restoration_step(setup, st, delta, completion(setup, st, st.mult))
+    if rec is STOP:
+        return STOP
+    return STOP if log_iteration(setup, st, rec) else NEXT
+
+
+def qp_failed(setup, st, qres):
+    """A QP that failed even after the inertia correction (and its relaxed form). Reached by
+    relaxed (watchdog) steps: back to the watched point with WORHP's regularization switched on
+    (tau, olado.solvers.sqp.regularization) and no more relaxed steps (NEXT). At an infeasible
+    point: the restoration phase (NEXT). At a feasible point after a step that decreased the
+    objective, a QP that is unbounded ends the solve UNBOUNDED; otherwise the solve ends (STOP)."""
+    w = st.watch
+    if w is not None and setup.inertia:
+        st.watch = None
+        st.pt, st.mult = restore(setup, w)
+        st.Bk = None
+        st.failed_watch = w
+        st.ascent_relaxed = 0
+        st.tau = regularization.raise_tau(st.tau, setup.options)
+        st.force_delta = w.delta
+        st.retries = 0
+        st.local = False
+        return NEXT
+    if (qres.status == Status.UNBOUNDED and st.decreased
+            and recession.feasible(setup, st.pt, setup.merit.max_violation(st.pt))):
+        return st.stop(Status.UNBOUNDED, (f"the problem appears unbounded below: the last step decreased the "
+                                          f"objective to {st.pt.J:.6g}, and the QP subproblem of SQP iteration "
+                                          f"{st.it} at this feasible iterate is unbounded ({qres.message})"))
+    if (setup.options.restoration and not st.restoring
+            and setup.merit.max_violation(st.pt) > setup.options.constr_viol_tol):
+        restoration.start(setup, st)    # WORHP's recovery from a failed QP at an infeasible point
+        return NEXT
+    if qres.status == Status.INFEASIBLE:
+        return st.stop(Status.INFEASIBLE, (f"the QP subproblem of SQP iteration {st.it} is infeasible: the "
+                                           f"linearized constraints are inconsistent ({qres.message})"))
+    return st.stop(Status.NUMERICAL_ERROR, f"the QP subproblem of SQP iteration {st.it} failed: {qres.message}")
 
 
 # ---------------------------------------------------------------------------- 4. test, feasibility
@@ -215,10 +269,13 @@ def feasibility_step(setup, st, step):
     fres = fs.result
     if not fres.success:
         return None
-    cand = Point(p, st.pt.X + fres.X, st.pt.U + fres.U, derivatives=False, clock=st.clock)
-    if not setup.merit.max_violation(cand) < step.viol:
+    try:
+        cand = Point(p, st.pt.X + fres.X, st.pt.U + fres.U, derivatives=False, clock=st.clock)
+        if not setup.merit.max_violation(cand) < step.viol:
+            return None
+        completion(setup, st, step.mult_new)(cand)
+    except NonFiniteEvaluationError:     # non-finite values or derivatives there: no correction step
         return None
-    cand.add_derivatives(p)
     st.pt = cand
     st.mult = step.mult_new
     st.Bk = None
@@ -240,9 +297,10 @@ def merit_phase(setup, st, step):
     """Powell's penalty update, D along the step, and whether the step may be a relaxed one;
     then the decision to solve the QP again at the same point instead of searching along it."""
     o, merit, pt = setup.options, setup.merit, st.pt
-    step.rho_new = powell_weights(st.rho, step.mult_new, st.bounds, o.penalty_min)
+    step.rho_new = merit.update(st.rho, step, st.bounds, o, st.it,
+                                lambda: regularization.step_curvature(st.Bk, st.BN, step.delta, step.dX, step.dU))
     step.phi0 = merit.value(pt, step.rho_new)
-    step.D = directional_derivative(merit, pt, step.dX, step.dU, step.rho_new)
+    step.D = merit.derivative(pt, step, step.rho_new)
     step.d_tol = descent_tolerance(step.phi0, o.tol, st.grad_scale, step.dX, step.dU)
     step.descent = step.D <= step.d_tol
     # no relaxed step right after a watchdog return: from the point the return reached (often
@@ -282,8 +340,8 @@ def shift_and_resolve(setup, st, step):
 
 # ---------------------------------------------------------------------------- 6. line search
 def merit_of(setup, st):
-    """phi with the current penalty weights, as a function of a point."""
-    return lambda q: setup.merit.value(q, st.rho)
+    """phi with the current penalty weights, as a function of a point (and a step length, unused)."""
+    return lambda q, alpha=1.0: setup.merit.value(q, st.rho)
 
 
 def second_order_correction(setup, st, step):
@@ -302,6 +360,20 @@ def second_order_correction(setup, st, step):
     return soc
 
 
+def completion(setup, st, mult):
+    """complete(point) for the line search: the derivatives, and with the exact Hessian the
+    Hessian blocks with the multipliers ``mult`` the point will carry, evaluated when the point
+    is about to be accepted, so that a non-finite derivative rejects the step instead of ending
+    the solve."""
+    p, exact = setup.problem, st.hess.needs_exact
+
+    def complete(cand):
+        cand.add_derivatives(p)
+        if exact:
+            cand.lagrangian_hessian(p, mult)
+    return complete
+
+
 def restore(setup, watch):
     """Back to the watched point (watchdog return): it and its multipliers, with derivatives."""
     watch.pt.add_derivatives(setup.problem)
@@ -316,15 +388,27 @@ def search_phase(setup, st, step):
     o, merit = setup.options, merit_of(setup, st)
     soc = second_order_correction(setup, st, step) if o.second_order_correction else None
     direction = Direction(st.pt, step.dX, step.dU, step.phi0, step.D)
-    found = line_search(o, setup.problem, direction, merit, st.watch, relaxed_ok=step.relaxed_ok, soc=soc,
-                        d_tol=step.d_tol, backtrack_uphill=not setup.inertia)
+    found = line_search(o, setup.problem, direction, setup.merit.along(st.rho, step), st.watch,
+                        relaxed_ok=step.relaxed_ok, soc=soc,
+                        d_tol=step.d_tol, backtrack_uphill=not setup.inertia,
+                        complete=completion(setup, st, step.mult_new),
+                        untrusted=lambda phi: regularization.untrusted(phi, step.phi0, step.D, o),
+                        stop_untrusted=setup.inertia and st.retries < o.max_shift_retries)
+    if found.mode == "untrusted":
+        # the model does not describe the step at all: regularize the Hessian (WORHP [11]) and
+        # solve the QP again at the same point
+        st.tau = regularization.raise_tau(st.tau, o)
+        st.force_delta = np.maximum(step.delta, regularization.tau_shift(st.tau, st.Bk, st.BN, step.hscale))
+        st.retries += 1
+        return NEXT
     if found.point is None and st.watch is not None:
         w, st.watch = st.watch, None
         st.pt, st.mult = restore(setup, w)
         st.Bk = None
         if w.D < 0.0:
             step.dX, step.dU, step.D, step.delta, step.mult_new = w.dX, w.dU, w.D, w.delta, w.mult_new
-            back = line_search(o, setup.problem, Direction(st.pt, w.dX, w.dU, merit(st.pt), w.D), merit, None)
+            back = line_search(o, setup.problem, Direction(st.pt, w.dX, w.dU, merit(st.pt), w.D), merit, None,
+                               complete=completion(setup, st, w.mult_new))
             found = back._replace(mode="watchdog-return")
             st.returned = back.point is not None
         st.failed_watch = w
@@ -336,9 +420,13 @@ def search_phase(setup, st, step):
     if found.point is None:
         if setup.inertia and not step.descent and st.retries < o.max_shift_retries:
             return shift_and_resolve(setup, st, step)
+        if o.restoration and not st.restoring and step.viol > o.constr_viol_tol:
+            restoration.start(setup, st)     # WORHP's feasibility mode
+            st.retries = 0
+            return NEXT
         st.mult = step.mult_new
         return st.stop(Status.NUMERICAL_ERROR, (f"line search failed at SQP iteration {st.it}: no step down to "
-                                                f"{o.min_step:g} decreases the L1 merit function (D={step.D:.2e})"))
+                                                f"{o.min_step:g} decreases the merit function (D={step.D:.2e})"))
     step.search = found
     return None
 
@@ -361,6 +449,11 @@ def accept(setup, st, step):
         g_new, gN_new = new_pt.lagrangian_gradients(step.mult_new)
         s_blocks = np.concatenate([new_pt.X[:-1] - pt.X[:-1], new_pt.U - pt.U], axis=1)
         st.hess.update(s_blocks, new_pt.X[-1] - pt.X[-1], g_new - g_old, gN_new - gN_old)
+    if st.tau > 0.0:
+        tau_update(setup, st, step, new_pt)
+    st.rho = setup.merit.accepted(st.rho, step, step.search.alpha)
+    st.unbounded = recession.count(setup, st, step, new_pt.J)
+    st.decreased = new_pt.J < st.pt.J
     st.pt = new_pt
     st.mult = step.mult_new
     st.Bk = None
@@ -370,6 +463,17 @@ def accept(setup, st, step):
     st.was_local = st.local
     st.local = mode == "full" and st.kkt_rel <= o.local_tol
     st.it += 1
+
+
+def tau_update(setup, st, step, new_pt):
+    """WORHP's update of tau (olado.solvers.sqp.regularization, [12]-[14]) after the step to
+    new_pt: actual against predicted merit reduction, and the rate of the KKT residual."""
+    alpha = step.search.alpha
+    actual = step.phi0 - setup.merit.along(step.rho_new, step)(new_pt, alpha)
+    sHs = regularization.step_curvature(st.Bk, st.BN, step.delta, step.dX, step.dU)
+    ratio = st.kkt_res / st.tau_kkt if st.tau_kkt > 0 else 1.0
+    st.tau = regularization.update_tau(st.tau, setup.options, actual, alpha, step.D, sHs, ratio)
+    st.tau_kkt = st.kkt_res
 
 
 def watchdog_bookkeeping(setup, st, step):
@@ -392,19 +496,28 @@ def watchdog_bookkeeping(setup, st, step):
 
 def report(setup, st, step):
     """The history record of the iteration, the iteration log, and the callback (True: stop)."""
-    o, merit, pt, rho = setup.options, setup.merit, st.pt, st.rho
-    found = step.search
-    rec = {"iter": st.it, "objective": pt.J, "violation": merit.max_violation(pt), "kkt": st.kkt_res,
-           "step": found.alpha, "step_norm": step.step_norm, "merit": merit.value(pt, rho),
-           "penalty": float(max(w.max(initial=0) for w in (rho[0], rho[1], rho[3], rho[4]))),
-           "qp_iterations": int(step.qres.iterations), "ls_trials": found.trials, "mode": found.mode,
-           "shift": float(np.max(step.delta)), "D": step.D, "warm": step.warm}
+    rho, found = st.rho, step.search
+    return log_iteration(setup, st, {
+        "step": found.alpha, "step_norm": step.step_norm, "merit": setup.merit.value(st.pt, rho),
+        "penalty": setup.merit.largest_weight(rho),
+        "qp_iterations": int(step.qres.iterations), "ls_trials": found.trials, "mode": found.mode,
+        "shift": float(np.max(step.delta)), "D": step.D, "warm": step.warm,
+        "eta": st.eta if step.slacks is not None else float("nan"), "tau": st.tau})
+
+
+def log_iteration(setup, st, fields):
+    """Append the record {iter, objective, violation, kkt} + ``fields`` of iteration st.it to the
+    history, print it (verbose >= 2) and call the callback (True: stop)."""
+    o, pt = setup.options, st.pt
+    rec = {"iter": st.it, "objective": pt.J, "violation": setup.merit.max_violation(pt), "kkt": st.kkt_res}
+    rec.update(fields)
+    rec.setdefault("penalty", float("nan"))
     st.history.append(rec)
     if o.verbose >= 2:
         if st.it == 1:
             print(f"{'iter':>5} {'objective':>16} {'violation':>10} {'kkt':>10} {'alpha':>8} {'|s|':>10} {'penalty':>9} {'qp':>4}  mode")
-        print(f"{st.it:5d} {pt.J:16.9e} {rec['violation']:10.2e} {st.kkt_res:10.2e} {found.alpha:8.2e} "
-              f"{step.step_norm:10.2e} {rec['penalty']:9.2e} {rec['qp_iterations']:4d}  {found.mode}")
+        print(f"{st.it:5d} {pt.J:16.9e} {rec['violation']:10.2e} {st.kkt_res:10.2e} {rec['step']:8.2e} "
+              f"{rec['step_norm']:10.2e} {rec['penalty']:9.2e} {rec['qp_iterations']:4d}  {rec['mode']}")
     if setup.callback(dict(rec)):
         return st.stop(Status.USER_STOP, f"stopped by the callback after SQP iteration {st.it}")
     return False
@@ -424,10 +537,10 @@ def end_expired_watch(setup, st, step):
     st.pt, st.mult = restore(setup, w)
     back = None
     if w.D < 0.0:
-        back = line_search(o, setup.problem, Direction(st.pt, w.dX, w.dU, merit(st.pt), w.D), merit, None).point
+        back = line_search(o, setup.problem, Direction(st.pt, w.dX, w.dU, merit(st.pt), w.D), merit, None,
+                           complete=completion(setup, st, w.mult_new)).point
     st.failed_watch = w
     if back is not None:
-        back.add_derivatives(setup.problem)
         st.pt = back
         st.returned = True
         st.mult = w.mult_new

@@ -69,9 +69,14 @@ Code layout (one solve's state is an object of its own, the solver holds only op
 * ``step.py``    -- the QP (8)-(10) in stage form, its solution with the inertia correction of the
   Hessian shift, the QP multipliers, the second-order correction's constraint values;
 * ``merit.py``   -- the L1 merit function, Powell's weights, the directional derivative;
+* ``augmented.py`` -- Schittkowski's augmented-Lagrangian merit function (``merit`` option);
 * ``line_search.py`` -- Armijo backtracking with the watchdog and the second-order correction;
 * ``residuals.py``   -- the KKT residuals stage by stage and the Result;
-* ``hessian.py``     -- the block-diagonal Hessian approximations (12), (13).
+* ``hessian.py``     -- the block-diagonal Hessian approximations (12), (13);
+* the safeguards of WORHP (seed 000; docs/structure-exploiting-sqp.md, "Safeguards"):
+  ``regularization.py`` (Hessian regularization after untrusted steps), ``relaxation.py`` (the
+  relaxed QP for inconsistent linearizations), ``restoration.py`` (feasibility restoration and
+  local infeasibility), ``recession.py`` (UNBOUNDED).
 """
 from __future__ import annotations
 
@@ -82,6 +87,7 @@ import numpy as np
 
 from ...qp import INTERIOR_POINT_METHODS, OLADO_METHODS, QP_METHODS, make_qp_solver
 from ...qp.stageqp import StageQP
+from .augmented import AugmentedLagrangian
 from .merit import Merit
 from .phases import initial_state, iterate
 from .residuals import finish
@@ -160,6 +166,10 @@ class SQPOptions(SolverOptions):
                            "tol_gap_abs / tol_gap_rel for Clarabel)", min=0.0, min_exclusive=True)
     qp_max_iter: int = option(200, "iteration limit of olado's interior-point QP methods (OSQP: 100 times this, at "
                               "least 50 000; the other external backends keep their own)", min=1)
+    merit: str = option("l1", "merit function of the line search: 'l1', the exact penalty function with Powell's "
+                        "weights (paper 001 sec. 4.2.1), or 'augmented-lagrangian', Schittkowski's (1983) augmented "
+                        "Lagrangian on primal and dual variables with his penalty update (docs/structure-exploiting-"
+                        "sqp.md)", choices=("l1", "augmented-lagrangian"))
     watchdog: bool = option(True, "use the watchdog technique (Chamberlain et al. 1982)")
     watchdog_steps: int = option(2, "relaxed iterations allowed before returning to the last good point", min=1)
     armijo: float = option(1e-4, "sufficient-decrease constant of the line search", min=0.0, max=0.5, min_exclusive=True)
@@ -226,6 +236,42 @@ class SQPOptions(SolverOptions):
     second_order_correction: bool = option(False, "when a full step along a descent direction fails the Armijo test, "
                                            "try the second-order correction step once (Fletcher 1982; Nocedal & Wright "
                                            "sec. 18.3): the QP again with the constraint values c(y + s) - J s")
+    untrusted_growth: float = option(10.0, "a full QP step along which the merit function grows by more than this "
+                                     "times (|phi| + |D|) is never taken as a relaxed or watchdog step: with the exact "
+                                     "Hessian and convexify = 'inertia' it switches on WORHP's Hessian regularization "
+                                     "(tau_*) and the QP is solved again (inf: off)", min=0.0, min_exclusive=True)
+    tau_init: float = option(1e-3, "WORHP's Hessian regularization H + tau (|sigma_k| + max|H|) I: tau after the first "
+                             "untrusted step or failed QP (see untrusted_growth)", min=0.0, max=1.0, min_exclusive=True)
+    tau_increase: float = option(10.0, "WORHP's Hessian regularization: theta, the factor by which tau grows after a "
+                                 "poor model prediction and shrinks (at least) after a good one", min=1.0,
+                                 min_exclusive=True)
+    tau_min: float = option(1e-10, "WORHP's Hessian regularization: tau below this is set to 0 (regularization off)",
+                            min=0.0)
+    unbounded_steps: int = option(5, "end with status UNBOUNDED after this many consecutive accepted steps from "
+                                  "feasible iterates that decreased the objective along directions of recession of the "
+                                  "QP model (docs/structure-exploiting-sqp.md)", min=1)
+    recession_tol: float = option(1e-6, "a step direction d is one of recession of the QP model when |H d|, the "
+                                  "linearized constraint residuals and the bound violations along d are at most this "
+                                  "times the objective's slope |g.d|", min=0.0)
+    elastic: bool = option(True, "a QP found infeasible (inconsistent linearized constraints) is replaced by its "
+                           "relaxed (elastic) form, every constraint but the dynamics relaxed by slacks charged at the "
+                           "penalty eta (WORHP's relaxed QP, docs/structure-exploiting-sqp.md); off: the SQP ends "
+                           "INFEASIBLE at such a QP")
+    elastic_penalty: float = option(10.0, "relaxed QP: first penalty eta, times (1 + |grad J|), and at least the "
+                                    "merit function's largest weight", min=0.0, min_exclusive=True)
+    elastic_penalty_max: float = option(1e4, "relaxed QP: largest penalty eta, times (1 + |grad J|) (olado's "
+                                        "interior-point QPs stall on relaxed QPs with eta ~ 1e6 times their Hessian's "
+                                        "scale: see docs)", min=0.0, min_exclusive=True)
+    elastic_progress: float = option(0.1, "relaxed QP: eta grows tenfold while the step removes less than this "
+                                     "fraction of the l1 violation of the linearized constraints", min=0.0, max=1.0,
+                                     min_exclusive=True)
+    restoration: bool = option(True, "feasibility restoration (WORHP's feasibility mode): when the line search fails "
+                               "at an infeasible point, minimize the l1 constraint violation by feasibility QPs until "
+                               "it has fallen below restoration_reduction times its value and the QP is consistent, "
+                               "or end INFEASIBLE at a stationary point of the violation; off: NUMERICAL_ERROR there")
+    restoration_reduction: float = option(0.9, "feasibility restoration: the optimality phase resumes once the l1 "
+                                          "constraint violation is below this times its value at the start",
+                                          min=0.0, max=1.0, min_exclusive=True)
     qp_options: dict = option({}, "extra options of the QP solver, in an ini file the [sqp.raw] section: options of "
                               "olado's interior-point methods (InteriorPointQPOptions, e.g. initial_mu) or of "
                               "ExternalQPOptions (eps_abs, tol_feas, ...); for an external backend any other key "
@@ -236,6 +282,10 @@ class SQPOptions(SolverOptions):
                                     "the exact Hessian, 0 with the quasi-Newton ones (their blocks keep the initial "
                                     "scale in directions no step has explored, so max|H| overstates the curvature and "
                                     "the term stalls the SQP)", min=0.0)
+
+
+#: the merit functions of the line search (option ``merit``)
+MERITS = {"l1": Merit, "augmented-lagrangian": AugmentedLagrangian}
 
 
 def make_setup(options, problem, callback):
@@ -255,16 +305,17 @@ def make_setup(options, problem, callback):
     _apply_qp_options(qp_solver, o.qp, o.qp_options)
     convexify = o.convexify
     if o.hessian == "exact" and convexify == "inertia" and not interior:
-        # external QP solvers need a convex QP and do not report a failed factorization:
-        # shift every block to positive definiteness instead
-        convexify = "levenberg"
+        # external QP solvers need a convex QP: the exact Hessian is passed with P + rho A_eq^T A_eq
+        # (the same solution where the reduced Hessian is positive definite), and a QP whose reduced
+        # Hessian is not is reported as failed, so that the inertia correction shifts it
+        qp_solver.options.convexify = "augmented"
     hess = make_hessian(o.hessian, convexify=convexify, initial_scale=o.initial_hessian_scale,
                         min_eig=o.min_eigenvalue, max_condition=o.max_condition)
     hess.initial(problem.N, problem.n, problem.m)
     masks = ConstraintMasks.of(problem)
     setup = SQPSetup(options=o, problem=problem, qp_solver=qp_solver, interior=interior, convexify=convexify,
                      inertia=hess.needs_exact and convexify == "inertia", masks=masks,
-                     merit=Merit(problem, masks), callback=callback, limits=limits, t_start=t_start)
+                     merit=MERITS[o.merit](problem, masks), callback=callback, limits=limits, t_start=t_start)
     return setup, hess
 
 

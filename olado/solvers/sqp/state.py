@@ -72,6 +72,24 @@ class Point:
         self.derivs = True
         self.clock.add(("gradient", "jacobian"), t0)
 
+    def lagrangian_hessian(self, p, mult):
+        """The exact Hessian blocks (12) of the Lagrangian at (X, U) with the multipliers ``mult``:
+        (blocks (N, n+m, n+m), final (n, n)), evaluated once per (point, multipliers) pair (the
+        line search evaluates them at the point it accepts, olado.solvers.sqp.phases)."""
+        cached = getattr(self, "_hessian", None)
+        if cached is not None and cached[0] is mult:
+            return cached[1], cached[2]
+        N, n, m = p.N, p.n, p.m
+        t0 = time.perf_counter()
+        Hxx, Hxu, Huu = p.eval_stage_hessians(self.X, self.U, 1.0, mult.lam[1:], mult.Lg)
+        HN = p.eval_final_hessian(self.X[-1], 1.0, mult.LgN)
+        self.clock.add(("hessian",), t0)
+        blocks = np.empty((N, n + m, n + m))
+        blocks[:, :n, :n] = Hxx; blocks[:, :n, n:] = Hxu
+        blocks[:, n:, :n] = np.transpose(Hxu, (0, 2, 1)); blocks[:, n:, n:] = Huu
+        self._hessian = (mult, blocks, HN)
+        return blocks, HN
+
     def lagrangian_gradients(self, mult):
         """Per-block gradients of the stage Lagrangians f0 + lam_{k+1}.f + Lg.g (z-blocks) and
         of F + LgN.gN (final block); the terms linear in x_{k+1} cancel in differences."""
@@ -195,6 +213,15 @@ class SQPState:
     local: bool = False             # local phase: full steps and a small KKT residual
     was_local: bool = False
     qp_local: bool = False          # the local flag the current iteration's QPs were built with
+    eta: float = 0.0                # penalty of the last relaxed (elastic) QP (olado.solvers.sqp.relaxation)
+    tau: float = 0.0                # WORHP's regularization parameter (olado.solvers.sqp.regularization)
+    recession_steps: int = 0        # consecutive accepted steps along directions of recession (olado.solvers.sqp.recession)
+    unbounded: str | None = None    # the sentence of an UNBOUNDED end
+    decreased: bool = False         # the last accepted step decreased the objective
+    restoring: bool = False         # in the feasibility restoration phase (olado.solvers.sqp.restoration)
+    restoration_theta: float = 0.0  # l1 violation where the restoration phase started
+    restoration_steps: int = 0      # restoration steps since then
+    tau_kkt: float = 0.0            # KKT residual at the last step's start (rho_3 of the tau update)
 
     def stop(self, status, message):
         self.status, self.message = status, message

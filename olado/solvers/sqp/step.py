@@ -18,6 +18,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from ...qp.elastic import ElasticQP
 from ...qp.stageqp import StageQP
 from ...result import Status
 from .state import BoundMultipliers, Multipliers
@@ -25,11 +26,13 @@ from .state import BoundMultipliers, Multipliers
 
 class QPSolve(NamedTuple):
     """A solved QP subproblem: the QP result, the shift delta (per stage block) it was solved
-    with, and the interior-point iterations of all its attempts."""
+    with, the interior-point iterations of all its attempts, and for the elastic QP
+    (olado.qp.elastic) its slacks, the linearized violations at the step (None otherwise)."""
 
     result: Any
     delta: np.ndarray
     iterations: int
+    slacks: Any = None
 
 
 def proximal_factor(options, local):
@@ -154,14 +157,19 @@ def _qp_shift(qp_solver, qres):
 
 _FAILED = (Status.NUMERICAL_ERROR, Status.UNBOUNDED, Status.MAX_ITERATIONS, Status.FAILED)
 
+#: the relaxed QP's slacks get this times max|H| as curvature (olado.qp.elastic.ElasticQP), so that
+#: the QP methods that need a strictly convex QP (the active-set method, quadprog) take it too
+ELASTIC_CURVATURE = 1e-6
 
-def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=False, offsets=None):
+
+def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=False, offsets=None, eta=None):
     """Solve the QP subproblem at pt with delta*I (+ the proximal term) added to the Hessian.
     With ``inertia`` a QP whose KKT factorization fails -- a reduced Hessian that is not positive
     definite -- is solved again with a larger delta (:class:`ShiftRule`); with ``curvature_tol``
     so is a QP step along which the Hessian has almost no positive curvature (inertia-free test,
-    Chiang & Zavala 2016). ``warm`` is a QPResult to start the QP from. Reads the local-phase flag
-    and the relative KKT residual of ``st``; returns a :class:`QPSolve`."""
+    Chiang & Zavala 2016). ``warm`` is a QPResult to start the QP from. With ``eta`` the elastic
+    form of the QP (olado.qp.elastic, penalty eta) is solved instead, cold. Reads the local-phase
+    flag and the relative KKT residual of ``st``; returns a :class:`QPSolve`."""
     o, p, qp_solver = setup.options, setup.problem, setup.qp_solver
     rule = ShiftRule(o)
     iterations = 0
@@ -181,7 +189,12 @@ def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=
         if zero_gradient:
             qp.q[:] = 0.0
             qp.r[:] = 0.0
-        qres = qp_solver.solve(qp, warm_start=warm, limits=setup.limits)
+        slacks = None
+        if eta is None:
+            qres = qp_solver.solve(qp, warm_start=warm, limits=setup.limits)
+        else:
+            elastic = ElasticQP(qp, eta, curvature=ELASTIC_CURVATURE * scale)
+            qres, slacks = elastic.restore(qp_solver.solve(elastic.relaxed, limits=setup.limits))
         iterations += int(qres.iterations)
         if inertia and o.curvature_tol > 0 and qres.success:
             sHs, ss = curvature(Bd, BNd, qres.X, qres.U)
@@ -190,14 +203,14 @@ def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=
                 continue
         qshift = _qp_shift(qp_solver, qres)
         if not inertia or qres.success or qres.status not in _FAILED:
-            return QPSolve(qres, delta + qshift, iterations)
+            return QPSolve(qres, delta + qshift, iterations, slacks)
         # a failed QP: raise the shift (with shift_mode = 'stage' on the blocks without positive
         # curvature along its last iterate, when it has one)
         if qres.X is not None and np.all(np.isfinite(qres.X)) and np.all(np.isfinite(qres.U)):
             delta = rule.raise_along(delta, scale, Bk, BN, qres.X, qres.U, st.qp_local)
         else:
             delta = rule.raise_(delta, scale)
-    return QPSolve(qres, delta, iterations)
+    return QPSolve(qres, delta, iterations, slacks)
 
 
 def qp_multipliers(qres, masks, N, r, rN):

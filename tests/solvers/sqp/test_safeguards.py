@@ -1,0 +1,225 @@
+"""The SQP's safeguards from WORHP (seed 000; docs/structure-exploiting-sqp.md, "Safeguards"):
+Hessian regularization after untrusted steps, the relaxed QP for inconsistent linearizations,
+feasibility restoration and local infeasibility, non-finite evaluations at trial points,
+UNBOUNDED, and the augmented-Lagrangian merit function. Reference solutions from IPOPT."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import olado
+from olado.problems import PROBLEMS
+from olado.result import Status
+from olado.solvers.sqp import phases, regularization
+from olado.solvers.sqp.line_search import Direction, SearchResult, line_search
+from olado.solvers.sqp.solver import SQPOptions
+
+from fixtures.safeguard_problems import Annulus, DegenerateFinalConstraint, NarrowDomain, UnboundedBelow
+from fixtures.toy_problems import Pendulum
+
+pytest.importorskip("cyipopt")
+
+CONFIGS = Path(__file__).resolve().parents[3] / "configs"
+SQP_IP = CONFIGS / "sqp-ip.ini"
+IPOPT = CONFIGS / "ipopt.ini"
+
+
+def _ipopt(problem):
+    return olado.solve(problem, config=IPOPT)
+
+
+# ---------------------------------------------------------------------------- built-in problems
+@pytest.mark.parametrize("name", ["vanderpol", "rayleigh", "vanderpol-path", "cstr"])
+def test_sqp_ip_reaches_ipopts_objective_on_the_builtin_ode_problems(name):
+    ref = _ipopt(PROBLEMS[name]())
+    r = olado.solve(PROBLEMS[name](), config=SQP_IP)
+    assert ref.success and r.success, r.message
+    assert r.objective == pytest.approx(ref.objective, rel=1e-6)
+    assert r.max_constraint_violation < 1e-8
+
+
+def test_vanderpol_switches_on_the_hessian_regularization_which_then_decays():
+    # its second QP step (2e4 long) took the L1 merit from 12 to 3.5e76 as a relaxed step
+    r = olado.solve(PROBLEMS["vanderpol"](), config=SQP_IP)
+    taus = [h["tau"] for h in r.history]
+    assert max(taus) > 0.0                   # the untrusted step switched WORHP's tau on ...
+    assert taus[-1] <= 1e-3 * max(taus)      # ... and it decayed as the model agreed again
+    assert max(h["objective"] for h in r.history) < 100.0     # no runaway iterate accepted
+    assert r.success
+
+
+def test_vanderpol_path_starts_from_a_relaxed_qp():
+    # the first linearization is inconsistent: x1 >= -0.4 cannot be reached with -0.3 <= u <= 1
+    r = olado.solve(PROBLEMS["vanderpol-path"](), config=SQP_IP)
+    assert np.isfinite(r.history[0]["eta"])          # the elastic QP was used at iteration 0 ...
+    assert all(np.isnan(h["eta"]) for h in r.history[2:])   # ... and the QPs were consistent later
+    assert r.success
+
+
+@pytest.mark.parametrize("cfg", ["sqp-as", "sqp-gondzio", "sqp-sr1", "sqp-schittkowski"])
+def test_vanderpol_path_with_other_presets(cfg):
+    """The relaxed QP with every QP method (its slacks have a little curvature, which the dual
+    active-set method needs: a strictly convex QP)."""
+    ref = _ipopt(PROBLEMS["vanderpol-path"]())
+    r = olado.solve(PROBLEMS["vanderpol-path"](), config=CONFIGS / f"{cfg}.ini")
+    assert r.success, r.message
+    assert r.objective == pytest.approx(ref.objective, rel=1e-6)
+
+
+# ---------------------------------------------------------------------------- regularization
+def test_gerschgorin_bounds_and_tau_one_make_every_block_positive_definite():
+    rng = np.random.default_rng(0)
+    Bk = rng.standard_normal((5, 4, 4)); Bk = Bk + Bk.transpose(0, 2, 1)
+    BN = np.array([[1.0, 3.0], [3.0, -2.0]])
+    sigma = regularization.gerschgorin_bounds(Bk, BN)
+    for H, s in zip(list(Bk) + [BN], sigma):
+        d = np.diag(H)
+        assert s == pytest.approx(np.min(d - (np.sum(np.abs(H), axis=1) - np.abs(d))))
+        assert np.linalg.eigvalsh(H)[0] >= s - 1e-12                 # a lower bound of the spectrum
+    delta = regularization.tau_shift(1.0, Bk, BN, hscale=1e-3)
+    for H, d in zip(list(Bk) + [BN], delta):
+        assert np.linalg.eigvalsh(H + d * np.eye(len(H)))[0] > 0.0
+    assert not np.any(regularization.tau_shift(0.0, Bk, BN, 1.0))
+
+
+def test_tau_update_follows_worhps_rule():
+    o = SQPOptions()
+    theta = o.tau_increase
+    # predicted reduction -alpha D - alpha^2/2 s.H s = 1 - 0.5 = 0.5 for alpha = 1, D = -1, sHs = 1
+    assert regularization.update_tau(1e-2, o, 0.1, 1.0, -1.0, 1.0, 0.5) == pytest.approx(theta * 1e-2)   # rho_1 <= 0.25 rho_2
+    assert regularization.update_tau(1e-2, o, 0.45, 1.0, -1.0, 1.0, 0.5) == pytest.approx(1e-2 * 0.5 if 0.5 < 1 / theta else 1e-3)
+    assert regularization.update_tau(1e-2, o, 0.45, 1.0, -1.0, 1.0, 1e-3) == pytest.approx(1e-5)     # min(1/theta, rho_3)
+    assert regularization.update_tau(1e-2, o, 0.3, 1.0, -1.0, 1.0, 1e-3) == 1e-2                      # in between: kept
+    assert regularization.update_tau(0.5, o, -1.0, 1.0, -1.0, 1.0, 1.0) == 1.0                        # capped at 1
+    assert regularization.update_tau(1e-9, o, 0.45, 1.0, -1.0, 1.0, 1e-3) == 0.0                      # below tau_min: off
+
+
+def test_an_untrusted_full_step_is_never_relaxed_and_stops_the_search_when_asked():
+    p = Pendulum(N=4)
+    pt = phases.Point(p, p.simulate(np.zeros((4, 1))), np.zeros((4, 1)))
+    d = Direction(pt, np.ones_like(pt.X), np.ones_like(pt.U), 1.0, -1.0)
+    o = SQPOptions()
+    huge = lambda q, alpha=1.0: 1e80 if alpha == 1.0 else 0.5    # noqa: E731 - the full step explodes
+    untrusted = lambda phi: regularization.untrusted(phi, 1.0, -1.0, o)   # noqa: E731
+    found = line_search(o, p, d, huge, None, untrusted=untrusted, stop_untrusted=True)
+    assert found.mode == "untrusted" and found.point is None
+    found = line_search(o, p, d, huge, None, untrusted=untrusted)
+    assert found.mode == "backtrack" and found.alpha == 0.5       # backtracked, not relaxed
+    assert line_search(o, p, d, huge, None).mode == "relaxed"        # without the test: the old relaxed step
+
+
+# ---------------------------------------------------------------------------- infeasibility
+@pytest.mark.parametrize("problem, where", [(Annulus, "stage constraint"), (DegenerateFinalConstraint, "final constraint 0")])
+def test_locally_infeasible_problems_end_infeasible_naming_the_largest_violation(problem, where):
+    assert _ipopt(problem()).status == Status.INFEASIBLE
+    for cfg in ("sqp-ip", "sqp-sr1"):
+        r = olado.solve(problem(), config=CONFIGS / f"{cfg}.ini")
+        assert r.status == Status.INFEASIBLE, r.message
+        assert "locally infeasible" in r.message and where in r.message
+
+
+def test_restoration_returns_to_the_optimality_phase(monkeypatch):
+    """A line search that fails once at an infeasible point starts the restoration phase; its
+    steps reduce the l1 violation and the SQP then converges to IPOPT's solution."""
+    failed = []
+
+    def failing_once(options, problem, direction, merit, watch, **kw):
+        if not failed and kw.get("soc", None) is None and "untrusted" in kw:
+            failed.append(True)
+            return SearchResult(1e-11, None, 30, "failed")
+        return line_search(options, problem, direction, merit, watch, **kw)
+
+    monkeypatch.setattr(phases, "line_search", failing_once)
+    p = PROBLEMS["vanderpol-path"]()
+    r = olado.solve(p, config=SQP_IP)
+    modes = [h["mode"] for h in r.history]
+    assert failed and "restoration" in modes
+    first = modes.index("restoration")
+    assert any(m != "restoration" for m in modes[first:])            # the optimality phase resumed
+    assert r.success
+    assert r.objective == pytest.approx(_ipopt(PROBLEMS["vanderpol-path"]()).objective, rel=1e-6)
+
+
+# ---------------------------------------------------------------------------- non-finite values
+@pytest.mark.parametrize("nan_in, cfg", [("values", "sqp-ip"), ("jacobian", "sqp-ip"), ("jacobian", "sqp-sr1"),
+                                          ("hessian", "sqp-ip")])
+def test_a_non_finite_evaluation_at_a_trial_point_rejects_the_step(nan_in, cfg):
+    """dynamics NaN for |u| >= 0.5 ("values"; the optimum has |u| = 0.499), or finite values but a
+    NaN Jacobian / Hessian for |u| > 0.4 (the optimum has |u| = 0.34): trial points there are
+    rejected steps, and the SQP reaches IPOPT's solution."""
+    kw = dict(target=2.0) if nan_in == "values" else dict(target=0.1, nan_above=0.4, nan_in=nan_in)
+    ref = _ipopt(NarrowDomain(target=kw["target"]))   # the same optimum (IPOPT's result assembly cannot take the NaN derivatives)
+    p = NarrowDomain(**kw)
+    r = olado.solve(p, config=CONFIGS / f"{cfg}.ini")
+    assert (p.nan_values if nan_in == "values" else p.nan_derivatives) > 0     # the safeguard was needed
+    assert r.success, r.message
+    assert r.objective == pytest.approx(ref.objective, rel=1e-6)
+
+
+# ---------------------------------------------------------------------------- unbounded
+@pytest.mark.parametrize("cfg", ["sqp-ip", "sqp-sr1", "sqp-clarabel"])
+def test_an_unbounded_problem_ends_unbounded(cfg):
+    assert _ipopt(UnboundedBelow()).status == Status.UNBOUNDED
+    r = olado.solve(UnboundedBelow(), config=CONFIGS / f"{cfg}.ini")
+    assert r.status == Status.UNBOUNDED, r.message
+    assert "unbounded below" in r.message and r.iterations < 20
+    assert r.objective < -1e4
+
+
+def test_a_bounded_problem_is_not_called_unbounded():
+    r = olado.solve(UnboundedBelow(u_bounds=(-1.0, 100.0)), config=SQP_IP)
+    assert r.success and r.u[-1, 0] == pytest.approx(100.0, abs=1e-6)
+
+
+# ---------------------------------------------------------------------------- augmented Lagrangian merit
+def test_augmented_lagrangian_directional_derivative_matches_finite_differences():
+    from olado.solvers.sqp.augmented import AugmentedLagrangian
+    from olado.solvers.sqp.state import BoundMultipliers, ConstraintMasks, Multipliers
+
+    p = Pendulum(N=5)
+    rng = np.random.default_rng(1)
+    U = 0.3 * rng.standard_normal((5, 1))
+    X = p.simulate(U) + 0.05 * rng.standard_normal((6, 2))       # infeasible: the dynamics terms count
+    X[0] = p.x0
+    pt = phases.Point(p, X, U)
+    merit = AugmentedLagrangian(p, ConstraintMasks.of(p))
+    w = merit.initial_weights()
+    w = w._replace(r_e=rng.uniform(0.5, 2, w.r_e.shape), r_c=rng.uniform(0.5, 2, w.r_c.shape),
+                   lam=rng.standard_normal(w.lam.shape), y=rng.uniform(0, 1, w.y.shape))
+
+    class Step:
+        dX = 0.1 * rng.standard_normal(X.shape)
+        dU = 0.1 * rng.standard_normal(U.shape)
+        mult_new = Multipliers(rng.standard_normal((6, 2)), rng.standard_normal((5, 1)), rng.standard_normal(1))
+        bounds = BoundMultipliers(*(rng.uniform(0, 1, a.shape) for a in BoundMultipliers.zeros(5, 2, 1)))
+        slacks = None
+
+    Step.dX[0] = 0.0
+    psi = merit.along(w, Step)
+    h = 1e-6
+    fd = (psi(phases.Point(p, X + h * Step.dX, U + h * Step.dU), h)
+          - psi(phases.Point(p, X - h * Step.dX, U - h * Step.dU), -h)) / (2 * h)
+    assert merit.derivative(pt, Step, w) == pytest.approx(fd, rel=1e-6, abs=1e-8)
+    assert psi(pt, 0.0) == pytest.approx(merit.value(pt, w))
+
+
+@pytest.mark.parametrize("name", ["vanderpol", "rayleigh", "vanderpol-path"])
+def test_schittkowski_preset_reaches_ipopts_objective(name):
+    ref = _ipopt(PROBLEMS[name]())
+    r = olado.solve(PROBLEMS[name](), config=CONFIGS / "sqp-schittkowski.ini")
+    assert r.success and r.options["merit"] == "augmented-lagrangian"
+    assert r.objective == pytest.approx(ref.objective, rel=1e-6)
+
+
+# ---------------------------------------------------------------------------- external QP solvers
+@pytest.mark.parametrize("qp", ["osqp", "clarabel"])
+@pytest.mark.parametrize("name", ["cstr", "vanderpol-path"])
+def test_external_qp_with_the_exact_hessian_reaches_ipopts_objective(qp, name):
+    """The exact Hessian passed as H + rho A_eq^T A_eq (before: every block shifted to positive
+    definiteness; cstr stopped after 200 iterations at another local minimum, 0.244)."""
+    pytest.importorskip("qpsolvers")
+    ref = _ipopt(PROBLEMS[name]())
+    r = olado.solve(PROBLEMS[name](), config=SQP_IP, qp=qp)
+    assert r.success, r.message
+    assert r.objective == pytest.approx(ref.objective, rel=1e-6)
