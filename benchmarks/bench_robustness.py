@@ -191,7 +191,8 @@ def main(argv=None):
             if i % 20 == 0:
                 _save_store(store)
         _save_store(store)
-    text = table(entries, configs, store, refs, " ".join(argv if argv is not None else sys.argv[1:]))
+    shown = [a for a in (argv if argv is not None else sys.argv[1:]) if a not in ("--table-only", "--no-write")]
+    text = table(entries, configs, store, refs, " ".join(shown))
     print(text)
     if not args.no_write:
         write_section(SECTION, text)
