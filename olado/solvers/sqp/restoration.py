@@ -6,15 +6,20 @@ on the same stage QP machinery: the objective is dropped and the l1 violation
     theta(y) = sum |h| + sum v(g) + sum v(g_N) + sum v(bounds of x)
 
 is minimized by steps whose QP is the feasibility QP of olado.solvers.sqp.relaxation (the relaxed
-QP without the objective's gradient) with penalty 1 and the identity as Hessian -- WORHP's SLP
-recovery ("instead of a second-order approximation of the Hessian the identity matrix is used,
-which has stabilizing properties"; the Lagrangian Hessian is useless here, its multipliers grow
-without bound when the iterates approach a point where the constraints are degenerate):
+QP without the objective's gradient) with penalty 1 and a multiple of the identity as Hessian --
+WORHP's SLP recovery ("instead of a second-order approximation of the Hessian the identity matrix
+is used, which has stabilizing properties"; the Lagrangian Hessian is useless here, its
+multipliers grow without bound when the iterates approach a point where the constraints are
+degenerate):
 
-    min_s  sum(slacks) + 1/2 |s|^2   s.t. the relaxed linearized constraints,
+    min_s  sum(slacks) + mu/2 |s|^2   s.t. the relaxed linearized constraints,
 
-a proximal gradient step on theta, with Armijo backtracking on theta along it (directional
-derivative D = sum(slacks) - theta <= -1/2 |s|^2).
+a proximal-gradient step on theta, with Armijo backtracking on theta along it (directional
+derivative D = sum(slacks) - theta <= -mu/2 |s|^2). The identity presumes a scaled problem; mu
+(1 at the start of the phase) therefore follows the agreement of the actual and the predicted
+reduction of theta, as WORHP's tau does ([12]-[13]): a full step with actual >= 0.75 predicted
+divides it by 10, a backtracked step or actual <= 0.25 predicted multiplies it by 10 (within
+1e-8..1e8). Before a predicted decrease is called too small (below), mu is lowered to 1e-8.
 
 It starts when the line search of the optimality phase fails at an infeasible point (where the
 SQP used to end with NUMERICAL_ERROR). After each restoration step, once theta is below
@@ -34,6 +39,19 @@ import numpy as np
 from ...result import Status
 from .line_search import Direction, line_search
 from . import relaxation
+
+
+#: range of the restoration metric mu I
+MU_MIN, MU_MAX = 1e-8, 1e8
+
+
+#: theta is stationary when the projected gradient of the feasibility QP is below this times (1 +
+#: the largest Jacobian entry)
+STATIONARY_TOL = 1e-6
+
+
+def jacobian_scale(pt):
+    return max(float(np.max(np.abs(a), initial=0.0)) for a in (pt.A, pt.B, pt.Cx, pt.Cu, pt.CN))
 
 
 def theta(setup):
@@ -61,6 +79,7 @@ def start(setup, st):
     st.restoring = True
     st.restoration_theta = theta(setup)(st.pt)
     st.restoration_steps = 0
+    st.restoration_mu = 1.0
     st.watch = None
     st.local = False
 
@@ -73,36 +92,59 @@ def may_leave(setup, st):
                                          or setup.merit.max_violation(st.pt) <= setup.options.constr_viol_tol)
 
 
+def feasibility_step(setup, st, mu):
+    """The feasibility QP with metric mu I: min sum(slacks) + mu/2 |s|^2 (a QPSolve)."""
+    p = setup.problem
+    N, n, m = p.N, p.n, p.m
+    eye = np.tile(mu * np.eye(n + m), (N, 1, 1))
+    return relaxation.feasibility_qp(setup, st, eye, mu * np.eye(n), np.zeros(N + 1), eta=1.0, inertia=False)
+
+
 def restoration_step(setup, st, delta, complete):
     """One iteration of the restoration phase: the feasibility QP and a line search on theta
     (``complete``: the line search's completion of the accepted point). Returns the history
     record of the step, or True (STOP, status set)."""
     o, p = setup.options, setup.problem
-    N, n, m = p.N, p.n, p.m
-    eye = np.tile(np.eye(n + m), (N, 1, 1))
-    fs = relaxation.feasibility_qp(setup, st, eye, np.eye(n), np.zeros(N + 1), eta=1.0, inertia=False)
-    st.qp_iters += fs.iterations
-    if not fs.result.success:
-        return st.stop(Status.NUMERICAL_ERROR, (f"the feasibility QP of SQP iteration {st.it} (restoration phase) "
-                                                f"failed: {fs.result.message}"))
     th = theta(setup)
     theta0 = th(st.pt)
-    D = fs.slacks.total() - theta0
-    if -D <= max(o.tol * theta0, rounding_level(st.pt)):
-        return infeasible(setup, st, "the l1 constraint violation is stationary (its feasibility QP predicts a "
-                          f"decrease of {-D:.3g})")
-    res = fs.result
+    iterations = 0
+    while True:
+        fs = feasibility_step(setup, st, st.restoration_mu)
+        iterations += fs.iterations
+        if not fs.result.success:
+            st.qp_iters += iterations
+            return st.stop(Status.NUMERICAL_ERROR, (f"the feasibility QP of SQP iteration {st.it} (restoration "
+                                                    f"phase) failed: {fs.result.message}"))
+        D = fs.slacks.total() - theta0
+        res = fs.result
+        # stationarity of theta: mu s = -(J^T y - z), the projected gradient of the l1 violation
+        # at the feasibility QP's multipliers (|y| <= 1), whatever mu
+        grad = st.restoration_mu * max(float(np.max(np.abs(res.X))), float(np.max(np.abs(res.U))))
+        small = -D <= rounding_level(st.pt) or grad <= STATIONARY_TOL * (1.0 + jacobian_scale(st.pt))
+        if not small or st.restoration_mu <= MU_MIN:
+            break
+        st.restoration_mu = max(MU_MIN, 1e-3 * st.restoration_mu)   # a longer step before concluding
+    st.qp_iters += iterations
+    if small:
+        return infeasible(setup, st, "the l1 constraint violation is stationary (its projected gradient "
+                          f"{grad:.3g}, the predicted decrease {-D:.3g})")
     found = line_search(o, p, Direction(st.pt, res.X, res.U, theta0, D), th, None, relaxed_ok=False,
                         complete=complete, d_tol=rounding_level(st.pt))
     if found.point is None:   # not a proof of infeasibility (the linearization promised a reduction)
         return st.stop(Status.NUMERICAL_ERROR, (f"line search failed in the restoration phase at SQP iteration "
                                                 f"{st.it}: no step down to {o.min_step:g} along the feasibility QP's "
                                                 f"step reduces the l1 constraint violation {theta0:.3g}"))
+    # the metric follows the agreement of actual and predicted reduction (as WORHP's tau, [12]-[13])
+    ratio = (theta0 - th(found.point)) / (-found.alpha * D)
+    if found.alpha == 1.0 and ratio >= 0.75:
+        st.restoration_mu = max(MU_MIN, 0.1 * st.restoration_mu)
+    elif found.alpha < 1.0 or ratio <= 0.25:
+        st.restoration_mu = min(MU_MAX, 10.0 * st.restoration_mu)
     step_norm = max(float(np.max(np.abs(res.X))), float(np.max(np.abs(res.U))))
     st.pt = found.point
     st.Bk = None
     st.restoration_steps += 1
     st.it += 1
     return {"step": found.alpha, "step_norm": step_norm, "merit": th(st.pt), "D": D,
-            "qp_iterations": int(res.iterations), "ls_trials": found.trials, "mode": "restoration",
-            "shift": float(np.max(fs.delta))}
+            "qp_iterations": iterations, "ls_trials": found.trials, "mode": "restoration",
+            "shift": st.restoration_mu}

@@ -221,6 +221,7 @@ class SQPState:
     restoring: bool = False         # in the feasibility restoration phase (olado.solvers.sqp.restoration)
     restoration_theta: float = 0.0  # l1 violation where the restoration phase started
     restoration_steps: int = 0      # restoration steps since then
+    restoration_mu: float = 1.0     # the restoration steps' metric mu I
     tau_kkt: float = 0.0            # KKT residual at the last step's start (rho_3 of the tau update)
 
     def stop(self, status, message):
