@@ -83,12 +83,13 @@ def largest_penalty(setup, st):
     return max(start_penalty(setup, st), setup.options.elastic_penalty_max * (1.0 + gradient_norm(st.pt)))
 
 
-def feasibility_qp(setup, st, Bk, BN, delta, eta=None, inertia=None):
+def feasibility_qp(setup, st, Bk, BN, delta, eta=None, inertia=None, u_box=None):
     """The feasibility QP: the relaxed QP without the objective's gradient, min eta sum(slacks) +
     1/2 s.H s; at the largest penalty (default) the step that removes the most linearized
     violation (the shortest such step in the Hessian's norm)."""
     return qp_step.solve_qp(setup, st, st.pt, Bk, BN, delta, inertia=setup.inertia if inertia is None else inertia,
-                            eta=largest_penalty(setup, st) if eta is None else eta, zero_gradient=True)
+                            eta=largest_penalty(setup, st) if eta is None else eta, zero_gradient=True,
+                            u_box=u_box)
 
 
 def solve_relaxed(setup, st, Bk, BN, delta):

@@ -19,15 +19,18 @@ derivative D = sum(slacks) - theta <= -mu/2 |s|^2). The identity presumes a scal
 (1 at the start of the phase) therefore follows the agreement of the actual and the predicted
 reduction of theta, as WORHP's tau does ([12]-[13]): a full step with actual >= 0.75 predicted
 divides it by 10, a backtracked step or actual <= 0.25 predicted multiplies it by 10 (within
-1e-8..1e8). Before a predicted decrease is called too small (below), mu is lowered to 1e-8.
+1e-8..1e8).
 
 It starts when the line search of the optimality phase fails at an infeasible point (where the
 SQP used to end with NUMERICAL_ERROR). After each restoration step, once theta is below
 ``restoration_reduction`` times its value at the start (or below constr_viol_tol) and the QP of
 the optimality phase is consistent again, the optimality phase resumes from the new point. The
-phase ends the solve with status INFEASIBLE when the predicted decrease -D falls below tol * theta
-or below the rounding level of theta (a stationary point of theta: the point is locally
-infeasible, or its constraints are degenerate), the sentence naming the largest violation left; with NUMERICAL_ERROR when the line search along
+phase ends the solve with status INFEASIBLE at a stationary point of theta (the point is locally
+infeasible, or its constraints are degenerate): when the step's predicted decrease is below tol *
+1e-6 theta, the best linear decrease with the control steps in the box |du| <= 1 + |u|_inf (a
+near-LP: mu = 1e-8; scale-free, unlike the identity metric) is computed, and if that too is below
+1e-6 theta or the rounding level of theta, the solve ends, the sentence naming the largest
+violation left (otherwise the mu-step is taken and mu divided by 10); with NUMERICAL_ERROR when the line search along
 the feasibility step fails (the linearization promised a reduction, so this proves nothing
 about feasibility).
 """
@@ -43,15 +46,9 @@ from . import relaxation
 
 #: range of the restoration metric mu I
 MU_MIN, MU_MAX = 1e-8, 1e8
-
-
-#: theta is stationary when the projected gradient of the feasibility QP is below this times (1 +
-#: the largest Jacobian entry)
-STATIONARY_TOL = 1e-6
-
-
-def jacobian_scale(pt):
-    return max(float(np.max(np.abs(a), initial=0.0)) for a in (pt.A, pt.B, pt.Cx, pt.Cu, pt.CN))
+#: theta is stationary when no control step in the box reduces its linearization by more than
+#: this times theta
+THETA_RTOL = 1e-6
 
 
 def theta(setup):
@@ -92,12 +89,14 @@ def may_leave(setup, st):
                                          or setup.merit.max_violation(st.pt) <= setup.options.constr_viol_tol)
 
 
-def feasibility_step(setup, st, mu):
-    """The feasibility QP with metric mu I: min sum(slacks) + mu/2 |s|^2 (a QPSolve)."""
+def feasibility_step(setup, st, mu, u_box=None):
+    """The feasibility QP with metric mu I: min sum(slacks) + mu/2 |s|^2, with |du| <= u_box
+    (a QPSolve)."""
     p = setup.problem
     N, n, m = p.N, p.n, p.m
     eye = np.tile(mu * np.eye(n + m), (N, 1, 1))
-    return relaxation.feasibility_qp(setup, st, eye, mu * np.eye(n), np.zeros(N + 1), eta=1.0, inertia=False)
+    return relaxation.feasibility_qp(setup, st, eye, mu * np.eye(n), np.zeros(N + 1), eta=1.0, inertia=False,
+                                     u_box=u_box)
 
 
 def restoration_step(setup, st, delta, complete):
@@ -107,27 +106,29 @@ def restoration_step(setup, st, delta, complete):
     o, p = setup.options, setup.problem
     th = theta(setup)
     theta0 = th(st.pt)
-    iterations = 0
-    while True:
-        fs = feasibility_step(setup, st, st.restoration_mu)
-        iterations += fs.iterations
-        if not fs.result.success:
+    fs = feasibility_step(setup, st, st.restoration_mu)
+    iterations = fs.iterations
+    if fs.result.success and -(fs.slacks.total() - theta0) <= THETA_RTOL * theta0:
+        # little predicted decrease: is theta stationary? The best linear decrease with the control
+        # steps in a box of the controls' size (near-LP, mu = MU_MIN): scale-free, unlike mu I
+        box = 1.0 + float(np.max(np.abs(st.pt.U), initial=0.0))
+        test = feasibility_step(setup, st, MU_MIN, u_box=box)
+        iterations += test.iterations
+        best = -(test.slacks.total() - theta0) if test.result.success else float("inf")
+        if best <= max(THETA_RTOL * theta0, rounding_level(st.pt)):
             st.qp_iters += iterations
-            return st.stop(Status.NUMERICAL_ERROR, (f"the feasibility QP of SQP iteration {st.it} (restoration "
-                                                    f"phase) failed: {fs.result.message}"))
-        D = fs.slacks.total() - theta0
-        res = fs.result
-        # stationarity of theta: mu s = -(J^T y - z), the projected gradient of the l1 violation
-        # at the feasibility QP's multipliers (|y| <= 1), whatever mu
-        grad = st.restoration_mu * max(float(np.max(np.abs(res.X))), float(np.max(np.abs(res.U))))
-        small = -D <= rounding_level(st.pt) or grad <= STATIONARY_TOL * (1.0 + jacobian_scale(st.pt))
-        if not small or st.restoration_mu <= MU_MIN:
-            break
-        st.restoration_mu = max(MU_MIN, 1e-3 * st.restoration_mu)   # a longer step before concluding
+            return infeasible(setup, st, "the l1 constraint violation is stationary (no control step within the "
+                              f"box |du| <= 1 + |u| reduces its linearization by more than {best:.3g})")
+        st.restoration_mu = max(MU_MIN, 0.1 * st.restoration_mu)    # not stationary: longer steps
     st.qp_iters += iterations
-    if small:
-        return infeasible(setup, st, "the l1 constraint violation is stationary (its projected gradient "
-                          f"{grad:.3g}, the predicted decrease {-D:.3g})")
+    if not fs.result.success:
+        return st.stop(Status.NUMERICAL_ERROR, (f"the feasibility QP of SQP iteration {st.it} (restoration "
+                                                f"phase) failed: {fs.result.message}"))
+    D = fs.slacks.total() - theta0
+    res = fs.result
+    if -D <= rounding_level(st.pt):
+        return infeasible(setup, st, "the l1 constraint violation is stationary to rounding (its feasibility QP "
+                          f"predicts a decrease of {-D:.3g})")
     found = line_search(o, p, Direction(st.pt, res.X, res.U, theta0, D), th, None, relaxed_ok=False,
                         complete=complete, d_tol=rounding_level(st.pt))
     if found.point is None:   # not a proof of infeasibility (the linearization promised a reduction)

@@ -162,14 +162,16 @@ _FAILED = (Status.NUMERICAL_ERROR, Status.UNBOUNDED, Status.MAX_ITERATIONS, Stat
 ELASTIC_CURVATURE = 1e-6
 
 
-def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=False, offsets=None, eta=None):
+def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=False, offsets=None, eta=None,
+             u_box=None):
     """Solve the QP subproblem at pt with delta*I (+ the proximal term) added to the Hessian.
     With ``inertia`` a QP whose KKT factorization fails -- a reduced Hessian that is not positive
     definite -- is solved again with a larger delta (:class:`ShiftRule`); with ``curvature_tol``
     so is a QP step along which the Hessian has almost no positive curvature (inertia-free test,
     Chiang & Zavala 2016). ``warm`` is a QPResult to start the QP from. With ``eta`` the elastic
-    form of the QP (olado.qp.elastic, penalty eta) is solved instead, cold. Reads the local-phase
-    flag and the relative KKT residual of ``st``; returns a :class:`QPSolve`."""
+    form of the QP (olado.qp.elastic, penalty eta) is solved instead, cold; ``u_box`` bounds the
+    control steps, |du| <= u_box (a trust region). Reads the local-phase flag and the relative KKT
+    residual of ``st``; returns a :class:`QPSolve`."""
     o, p, qp_solver = setup.options, setup.problem, setup.qp_solver
     rule = ShiftRule(o)
     iterations = 0
@@ -189,6 +191,9 @@ def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=
         if zero_gradient:
             qp.q[:] = 0.0
             qp.r[:] = 0.0
+        if u_box is not None:
+            qp.u_lower = np.maximum(qp.u_lower, -u_box)
+            qp.u_upper = np.minimum(qp.u_upper, u_box)
         slacks = None
         if eta is None:
             qres = qp_solver.solve(qp, warm_start=warm, limits=setup.limits)
