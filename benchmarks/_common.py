@@ -16,6 +16,35 @@ sys.path.insert(0, str(HERE.parent))
 from olado.result import atomic_write_bytes  # noqa: E402
 
 
+def commit(checkout: Path = HERE.parent, mark_changes: bool = True) -> str:
+    """The checkout's commit (short) for a benchmark's heading, with " (with uncommitted changes)"
+    when tracked files changed (``mark_changes``); "unknown" outside a git checkout. The environment
+    variable OLADO_COMMIT overrides it (a ``git archive`` copy has no .git)."""
+    if os.environ.get("OLADO_COMMIT"):
+        return os.environ["OLADO_COMMIT"]
+    try:
+        run = lambda *a: subprocess.run(["git", *a], cwd=checkout, capture_output=True, text=True,  # noqa: E731
+                                        check=True).stdout.strip()
+        rev = run("rev-parse", "--short", "HEAD")
+        changed = mark_changes and run("status", "--porcelain", "--untracked-files=no")
+        return rev + (" (with uncommitted changes)" if changed else "")
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def best_of(solver, N, repeats, family="zambezi12"):
+    """The fastest of ``repeats`` solves of the Zambezi ``family`` at horizon N (a fresh problem each
+    time, so every solve starts from the same state)."""
+    from olado.problems.zambezi import zambezi_problem
+
+    best = None
+    for _ in range(repeats):
+        r = solver.solve(zambezi_problem(family, N=N))
+        if best is None or r.time_s < best.time_s:
+            best = r
+    return best
+
+
 def machine(with_ipopt=True) -> str:
     """CPU model and core count (lscpu), Python and, when installed, IPOPT versions."""
     model, cores = platform.processor() or "unknown CPU", os.cpu_count()

@@ -33,19 +33,11 @@ KKT_TOL = 1e-3
 
 
 def olado_commit() -> str:
-    """The checkout's commit (short), with ' (dirty)' when tracked files under olado/ changed;
-    the environment variable OLADO_COMMIT overrides it (a copy made by ``git archive``, which has
-    no .git, runs the benchmark while the checkout itself changes)."""
-    if os.environ.get("OLADO_COMMIT"):
-        return os.environ["OLADO_COMMIT"]
-    try:
-        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
-                             check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", "olado"], cwd=ROOT,
-                               capture_output=True, text=True, check=True).stdout.strip()
-        return rev + (" (dirty)" if dirty else "")
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
+    """The checkout's commit for the suite's references and runs (benchmarks/_common.commit:
+    OLADO_COMMIT overrides it for a ``git archive`` copy)."""
+    from _common import commit
+
+    return commit(ROOT)
 
 
 # ---------------------------------------------------------------------------- the worker side

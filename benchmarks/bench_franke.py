@@ -13,9 +13,7 @@ import argparse
 import datetime
 import os
 
-from _common import HERE, machine, write_section
-from bench_sqp_as import best_of, commit
-
+from _common import HERE, best_of, commit, machine, write_section
 from olado.config import load_config, make_solver
 from olado.problems.zambezi import zambezi_problem
 

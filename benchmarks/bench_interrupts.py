@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _common import HERE, machine, write_section
+from _common import HERE, commit, machine, write_section
 
 from olado.errors import OladoError
 from olado.result import Result, Status
@@ -145,13 +145,9 @@ def main(argv=None):
 
 
 def report(rows, load0, load1, args):
-    commit = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True,
-                            text=True).stdout.strip()
-    dirty = subprocess.run(["git", "-C", str(REPO), "status", "--porcelain", "--untracked-files=no"],
-                           capture_output=True, text=True).stdout.strip()
     lines = [f"## {SECTION}", "",
              f"Command: `python benchmarks/bench_interrupts.py --runs {args.runs} --seed {args.seed}`  ",
-             f"Commit: {commit}{' (with uncommitted changes)' if dirty else ''}  ",
+             f"Commit: {commit(REPO)}  ",
              f"Date: {time.strftime('%Y-%m-%d')}  ",
              f"Machine: {machine()}  ",
              f"Load average (1 min) at start and end: {load0:.2f}, {load1:.2f} (a shared machine: times are "

@@ -15,10 +15,9 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import subprocess
 from pathlib import Path
 
-from _common import HERE, machine, write_section
+from _common import HERE, commit, machine, write_section
 
 import olado
 from olado.config import load_config, make_solver
@@ -63,12 +62,10 @@ def main(argv=None):
     args = ap.parse_args(argv)
     rows = run(args.problems, args.presets, args.repeats, args.configs)
     if args.write:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=HERE, capture_output=True,
-                                text=True).stdout.strip()
         text = "\n".join([
             f"## {SECTION}", "",
             "Command: `python benchmarks/bench_safeguards.py --write`  ",
-            f"Date: {datetime.date.today()}  ", f"Machine: {machine()}  ", f"Commit: {commit} (olado {olado.__version__})", "",
+            f"Date: {datetime.date.today()}  ", f"Machine: {machine()}  ", f"Commit: {commit()} (olado {olado.__version__})", "",
             "Every SQP preset against IPOPT (configs/ipopt.ini) from the problem's initial guess at N = 50: status, "
             "objective, relative difference from IPOPT's, SQP (QP) iterations, solve time in ms (best of "
             f"{args.repeats} after a warm-up).", "",

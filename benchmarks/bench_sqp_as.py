@@ -23,10 +23,9 @@ from __future__ import annotations
 import argparse
 import datetime
 import os
-import subprocess
 import time
 
-from _common import HERE, machine, write_section
+from _common import HERE, best_of, commit, machine, write_section
 
 from olado.config import load_config, make_solver
 from olado.problems.zambezi import zambezi_problem
@@ -40,15 +39,6 @@ PAIRS = {"exact": (("sqp-as", []), ("sqp-ip", [])),
 
 def solver(name, overrides):
     return make_solver(load_config(HERE.parent / "configs" / f"{name}.ini", overrides))
-
-
-def best_of(s, N, repeats):
-    best = None
-    for _ in range(repeats):
-        r = s.solve(zambezi_problem("zambezi12", N=N))
-        if best is None or r.time_s < best.time_s:
-            best = r
-    return best
 
 
 def captured_qps(N):
@@ -93,17 +83,6 @@ def qp_chain(N, repeats):
         if best_as is None or t_as < best_as[1]:
             best_as = (changes, t_as, fails)
     return len(qps), best_ip, best_as
-
-
-def commit():
-    try:
-        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=HERE.parent, capture_output=True,
-                             text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=HERE.parent,
-                               capture_output=True, text=True, check=True).stdout.strip()
-        return rev + (" (with uncommitted changes)" if dirty else "")
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
 
 
 def main(argv=None):

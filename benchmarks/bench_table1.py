@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import datetime
 
-from _common import HERE, machine, write_section
+from _common import HERE, best_of, machine, write_section
 
 from olado.config import load_config, make_solver
 from olado.problems.zambezi import table1_counts, zambezi_problem
@@ -28,15 +28,6 @@ PAPER = {12: ((3, 65, 0.06), (19, 0.15)), 24: ((4, 60, 0.11), (23, 0.35)), 36: (
          156: ((11, 341, 4.02), (45, 4.82)), 168: ((11, 305, 3.99), (51, 6.17)), 180: ((11, 350, 4.88), (50, 6.59)),
          192: ((12, 365, 5.48), (48, 6.98)), 204: ((10, 348, 5.74), (48, 7.69)), 216: ((11, 355, 6.24), (47, 8.25)),
          228: ((21, 423, 8.12), (51, 9.96)), 240: ((12, 470, 8.91), (50, 10.49)), 252: ((14, 424, 8.61), (50, 11.43))}
-
-
-def best_of(solver, N, repeats):
-    best = None
-    for _ in range(repeats):
-        r = solver.solve(zambezi_problem("zambezi12", N=N))
-        if best is None or r.time_s < best.time_s:
-            best = r
-    return best
 
 
 def main(argv=None):

@@ -26,7 +26,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from _common import HERE, machine, write_section
+from _common import HERE, commit, machine, write_section
 
 SECTION = "Side by side: before and after a restructuring"
 WORKLOADS = ["kkt-1000", "kkt-10000", "kkt-100000", "qp-1200", "qp-12000", "table1", "large-1200"]
@@ -110,14 +110,6 @@ def measure(checkout, work, repeats):
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def commit_of(checkout):
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=checkout, capture_output=True,
-                              text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "?"
-
-
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("old", type=Path, help="checkout A (before)")
@@ -147,7 +139,7 @@ def main(argv=None):
              f"Command: `python benchmarks/side_by_side.py OLD NEW --rounds {args.rounds} --repeats {args.repeats}`  ",
              f"Date: {datetime.date.today().isoformat()}  ",
              f"Machine: {machine()}  ",
-             f"Old: {commit_of(old)}; new: {commit_of(new)}", "",
+             f"Old: {commit(old, mark_changes=False)}; new: {commit(new, mark_changes=False)}", "",
              "Each figure: the median over the rounds of the best of the timed repeats in one process (after a "
              "warm-up); the checkouts alternate process by process. \"same results\": the iteration counts and "
              "objectives (or a checksum of the solution) are identical in every process of both checkouts.", "",
