@@ -19,13 +19,8 @@ from olado.qp import make_qp_solver
 from fixtures.qp_problems import random_qp
 
 
-@pytest.fixture(autouse=True)
-def python_default_sigint():
-    """Python's own SIGINT handler, whatever the test run started with (a background job of a
-    non-interactive shell has SIGINT ignored: olado then leaves it ignored, by design)."""
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
-    yield
-    signal.signal(signal.SIGINT, previous)
+#: Python's own SIGINT handler in every test here (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("python_default_sigint")
 
 
 def test_limits_reason_time_and_interrupt():

@@ -96,6 +96,11 @@ class ContinuousDOCP(DOCP):
         if self.free_time and self.N_PATH:
             raise ProblemDefinitionError("path constraints are not offered with a free final time",
                                          function="__init__", array="N_PATH")
+        for hook, needed in (("model", True), ("path", self.N_PATH > 0), ("terminal", self.N_TERMINAL > 0)):
+            if needed and getattr(type(self), hook) is getattr(ContinuousDOCP, hook):
+                raise ProblemDefinitionError(f"{type(self).__name__} does not define {hook}(), which it needs "
+                                             f"(N_PATH = {self.N_PATH}, N_TERMINAL = {self.N_TERMINAL})",
+                                             function=hook)
         self.steps = int(N) - 1 if self.free_time else int(N)
         if self.steps < 1:
             raise ProblemDefinitionError(f"N must give at least one integration step, got N={N!r}",

@@ -240,3 +240,23 @@ def test_chain_too_short_length_is_at_least_the_chord():
         X = p.simulate(U)
         chord = np.hypot(1.0, X[-1, 0] - 1.0)
         assert X[-1, 1] >= chord - 1e-12 and p.length < np.sqrt(5)
+
+
+def test_a_continuous_problem_without_a_hook_it_needs_is_refused_by_name():
+    from olado.errors import ProblemDefinitionError
+    from olado.problems.continuous import ContinuousDOCP
+
+    class NoTerminal(ContinuousDOCP):
+        STATES, CONTROLS, X0, T = ("x",), ("u",), (0.0,), 1.0
+        N_TERMINAL, TERMINAL_EQUALITIES = 1, [0]
+
+        def model(self, X, U, order):
+            return np.stack([U[:, 0], U[:, 0] ** 2], axis=1), None, None
+
+    class NoModel(ContinuousDOCP):
+        STATES, CONTROLS, X0, T = ("x",), ("u",), (0.0,), 1.0
+
+    with pytest.raises(ProblemDefinitionError, match=r"terminal\(\).*NoTerminal does not define terminal"):
+        NoTerminal(N=4)
+    with pytest.raises(ProblemDefinitionError, match=r"NoModel does not define model"):
+        NoModel(N=4)

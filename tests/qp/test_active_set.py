@@ -4,9 +4,8 @@ against Clarabel (solution, objective) and olado's Mehrotra method at a tight to
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
 
-from fixtures.qp_problems import random_qp, replace, zambezi_qp
+from fixtures.qp_problems import clarabel_solution, random_qp, replace, zambezi_qp
 from olado.errors import ConfigError
 from olado.linalg import RiccatiFactorization
 from olado.qp import OLADO_METHODS, QP_METHODS, make_qp_solver
@@ -18,26 +17,6 @@ from olado.result import Status
 CASES = [dict(seed=0), dict(seed=3), dict(seed=4, N=10, n=4, m=3), dict(seed=1, fixed=True), dict(seed=2, eq=True),
          dict(seed=5, fixed=True, eq=True), dict(seed=7, N=15, n=3, m=2)]
 MULTIPLIERS = ("lam", "nu", "zx_lower", "zx_upper", "zu_lower", "zu_upper", "yc_lower", "yc_upper", "yN_lower", "yN_upper")
-
-
-def clarabel_solution(qp):
-    """(X, U, objective) from Clarabel (through qpsolvers) on the sparse form, at tight tolerances."""
-    qpsolvers = pytest.importorskip("qpsolvers")
-    pytest.importorskip("clarabel")
-    d = qp.to_sparse()
-    G, hl, hu = d["G"], d["h_lower"], d["h_upper"]
-    Gi = hi = None
-    if G.shape[0]:
-        fu, fl = np.isfinite(hu), np.isfinite(hl)
-        Gi = sp.vstack([G[fu], -G[fl]]).tocsc()
-        hi = np.concatenate([hu[fu], -hl[fl]])
-    lb = np.where(np.isfinite(d["lb"]), d["lb"], -1e30)
-    ub = np.where(np.isfinite(d["ub"]), d["ub"], 1e30)
-    y = qpsolvers.solve_qp(d["P"], d["q"], Gi, hi, d["A_eq"], d["b_eq"], lb=lb, ub=ub, solver="clarabel",
-                           tol_gap_abs=1e-12, tol_gap_rel=1e-12, tol_feas=1e-12)
-    assert y is not None, "Clarabel failed on the reference problem"
-    X, U = qp.unpack(y)
-    return X, U, qp.objective(X, U)
 
 
 def kkt_small(res, tol=1e-9):

@@ -81,8 +81,7 @@ def test_a_qp_not_convex_on_the_null_space_is_a_failed_qp(backend):
 
 
 def test_osqp_on_a_nonconvex_qp_reports_a_status_instead_of_raising():
-    if "osqp" not in BACKENDS:
-        pytest.skip("OSQP not installed")
+    assert "osqp" in BACKENDS      # a core dependency (pyproject.toml)
     qp = dataclasses.replace(_qp(0.0), R=-np.tile(np.eye(2), (5, 1, 1)) * 50.0)
     res = ExternalQP("osqp").solve(qp)     # OSQP raises OSQPException at setup: a failed QP
     assert not res.success and res.status in (Status.NUMERICAL_ERROR, Status.FAILED)

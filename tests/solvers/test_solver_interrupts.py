@@ -25,13 +25,8 @@ from fixtures.reduced_gradient_problems import VanDerPol
 from fixtures.toy_problems import Pendulum
 
 
-@pytest.fixture(autouse=True)
-def python_default_sigint():
-    """Python's own SIGINT handler, whatever the test run started with (a background job of a
-    non-interactive shell has SIGINT ignored: olado then leaves it ignored, by design)."""
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
-    yield
-    signal.signal(signal.SIGINT, previous)
+#: Python's own SIGINT handler in every test here (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("python_default_sigint")
 
 #: solver -> a problem it solves in several iterations (constraints, none, control bounds)
 CASES = {
