@@ -31,6 +31,17 @@ class SolverOptions:
     max_time: float = option(math.inf, "wall-time limit in seconds", min=0.0, min_exclusive=True)
     verbose: int = option(0, "0 silent, 1 summary, 2 iteration log, 3+ solver's own output", min=0, max=12)
     callback: Any = option(None, "callable(info: dict) -> bool|None; True stops the solver", ini=False)
+    certify: bool = option(True, "check every success independently: constraint violation, stationarity and "
+                           "complementarity recomputed from the problem's own functions with the solver's or "
+                           "least-squares multipliers, and a spot check of the derivatives (docs/certificate.md)")
+    certificate_tol: float = option(1e-6, "tolerance of the certificate's scaled stationarity and complementarity "
+                                    "(relative units of the objective); the solver's tol when that is larger",
+                                    min=0.0, min_exclusive=True)
+    certificate_acceptable_tol: float = option(1e-4, "a success whose certificate meets only this looser tolerance "
+                                               "is reported as acceptable", min=0.0, min_exclusive=True)
+    certificate_acceptable_constr_viol_tol: float = option(1e-6, "constraint violation allowed at the certificate's "
+                                                           "acceptable level (constr_viol_tol when that is larger)",
+                                                           min=0.0, min_exclusive=True)
 
 
 class Solver:
@@ -65,7 +76,8 @@ class Solver:
     # -- common machinery -----------------------------------------------------------------
     def solve(self, problem, guess=None) -> Result:
         """Solve ``problem`` from ``guess`` (U (N,m), (X, U), a Result, or None for the
-        problem's own initial guess) and return a :class:`Result`."""
+        problem's own initial guess) and return a :class:`Result`. A success is certified
+        (olado.solvers.certificate, option ``certify``) unless the solver did so itself."""
         X0, U0 = self.initial_point(problem, guess)
         t0 = time.perf_counter()
         problem.reset_counters()
@@ -78,6 +90,11 @@ class Solver:
         ev = dict(problem.counters)
         ev.update(result.evaluations)
         result.evaluations = ev
+        if self.options.certify and result.status.success and result.certificate is None:
+            from .certificate import certify_result   # noqa: PLC0415 - loaded only for a success
+
+            certify_result(result, problem, self.options)
+            result.time_s += result.certificate.time_s
         if self.options.verbose >= 1:
             print(result.summary())
         return result

@@ -87,6 +87,7 @@ from .phases import initial_state, iterate
 from .residuals import finish
 from .state import Clock, ConstraintMasks, SQPSetup
 from ..common import Deadline
+from ..certificate import CertificateSettings
 from ...options import option
 from ..base import Solver, SolverOptions
 from .hessian import make_hessian
@@ -225,6 +226,16 @@ class SQPOptions(SolverOptions):
     second_order_correction: bool = option(False, "when a full step along a descent direction fails the Armijo test, "
                                            "try the second-order correction step once (Fletcher 1982; Nocedal & Wright "
                                            "sec. 18.3): the QP again with the constraint values c(y + s) - J s")
+    stall_filter: float = option(0.5, "low-pass filter termination (WORHP): weight of the newest value in the filtered "
+                                 "objective and constraint violation", min=0.0, max=1.0, min_exclusive=True)
+    stall_tol: float = option(1e-10, "low-pass filter termination: the filtered objective and violation stall when "
+                              "each changes by less than this relative to max(1, its value)", min=0.0)
+    stall_iterations: int = option(5, "low-pass filter termination: after this many successive stalled iterations at "
+                                   "a feasible point whose KKT test fails, the point is certified and the solve ends "
+                                   "as acceptable if the certificate holds (0: never)", min=0)
+    certificate_attempts: int = option(3, "certificates per solve (olado.solvers.certificate): when the SQP's own "
+                                       "test holds but the certificate does not, the SQP iterates on, up to this "
+                                       "many certificates; then the last one's verdict is the status", min=1)
     qp_options: dict = option({}, "extra options of the QP solver, in an ini file the [sqp.raw] section: options of "
                               "olado's interior-point methods (InteriorPointQPOptions, e.g. initial_mu) or of "
                               "ExternalQPOptions (eps_abs, tol_feas, ...); for an external backend any other key "
@@ -260,7 +271,8 @@ def make_setup(options, problem, callback):
     masks = ConstraintMasks.of(problem)
     setup = SQPSetup(options=o, problem=problem, qp_solver=qp_solver, interior=interior, convexify=convexify,
                      inertia=hess.needs_exact and convexify == "inertia", masks=masks,
-                     merit=Merit(problem, masks), callback=callback, deadline=deadline, t_start=t_start)
+                     merit=Merit(problem, masks), callback=callback, deadline=deadline, t_start=t_start,
+                     certificate=CertificateSettings.from_options(o) if o.certify else None)
     return setup, hess
 
 

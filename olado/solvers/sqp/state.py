@@ -154,6 +154,7 @@ class SQPSetup:
     callback: Callable[[dict], bool]
     deadline: Deadline
     t_start: float
+    certificate: Any = None     # CertificateSettings (None: options.certify is off)
 
 
 @dataclasses.dataclass
@@ -189,6 +190,12 @@ class SQPState:
     local: bool = False             # local phase: full steps and a small KKT residual
     was_local: bool = False
     qp_local: bool = False          # the local flag the current iteration's QPs were built with
+    certificate: Any = None         # olado's certificate of the point the solve stopped at (olado.solvers.certificate)
+    certificates: int = 0           # certificates computed in this solve
+    tol_factor: float = 1.0         # the KKT test's tol is o.tol times this (< 1 after a failed certificate)
+    filter_obj: float = float("nan")    # WORHP's low-pass filters of the objective and the violation
+    filter_con: float = float("nan")
+    stalled: int = 0                # successive iterations in which both filters stalled
 
     def stop(self, status, message):
         self.status, self.message = status, message
