@@ -32,7 +32,7 @@ from olado.solvers.certificate import (CertificateSettings, StageBounds, StagePo
 
 TABLE = "Certificate of every success (built-in problems x presets)"
 COST = "Certificate cost (zambezi, sqp-ip)"
-ZAMBEZI_N = 24
+ZAMBEZI_N = 12
 
 
 def commit() -> str:

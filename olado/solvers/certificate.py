@@ -27,17 +27,23 @@ The check, in stages, each cheap against a solve (all O(N), stage by stage):
    per variable, in closed form: a residual r_i that a bound could cancel takes
    z_i = |r_i| w_i / (w_i + slack_i), which minimises max(|r_i - z_i| w_i, z_i slack_i) (w_i =
    max(1, |y_i|)): the best trade between stationarity and complementarity of that variable;
-3. only when 2 fails: olado's least-squares multipliers with sign constraints, the multipliers of
-   the projection QP
+3. only when 2 fails: olado's least-squares multipliers with sign constraints. With the bound
+   multipliers eliminated per variable as in 2 (in the least-squares sense: min over z >= 0 of
+   w^2 (r - z)^2 + s^2 z^2), they minimise the convex, piecewise quadratic
 
-       min_d 1/2 d' W^-2 d + grad J . d   s.t.  linearized constraints at y with d = 0 feasible
-       (h: A dx + B du - dx^+ = 0; equality rows J_i d = 0; g >= 0 rows J_i d >= -max(g_i, 0);
-        bounds lb - y <= d <= ub - y, widened to contain 0),
+       Phi(lam) = sum_i D_i(r_i) r_i^2,   r = grad J + Jc' lam,
+       D_i = w_i^2 s_i^2 / (w_i^2 + s_i^2) on the side where a bound at slack s_i can cancel r_i,
+             w_i^2 elsewhere,
 
-   i.e. the SQP subproblem with the identity (in the scaled variables) as Hessian: its solution is
-   d = -W^2 (grad J + Jc' lam - z), the sign-constrained least-squares residual in the metric of
-   the scaled test, and it is 0 exactly at a KKT point. It is solved in O(N) by olado's
-   interior-point QP (Riccati recursion), and step 2 is repeated with its multipliers;
+   over the multipliers of the dynamics and the equality rows (free) and of the rows g >= 0 (<= 0,
+   active-set: a row whose multiplier comes out positive is released). Semismooth Newton: with
+   the weights D of the current residual frozen, the minimiser is the multiplier vector of the
+   equality-constrained stage QP  min 1/2 d' D^-1 d + grad J . d  s.t. the linearized dynamics and
+   rows (its KKT conditions give d = -D r and J D r = 0, the normal equations), solved in O(N) by
+   olado's interior-point QP with the Riccati back-end; the weights are then recomputed, until
+   they repeat (at most LSQ_STEPS). At the fixed point the gradient of Phi vanishes: the
+   multipliers are its exact minimiser. It starts from the solver's multipliers when there are
+   some, else from 0, and step 2 is repeated with its result;
 4. a spot check of the derivatives the figures rest on: along ``CHECK_DIRECTIONS`` random
    directions v the five-point central difference of every stage function (stage costs, final
    cost, dynamics, constraints, per stage) is compared with the derivative the problem supplies
@@ -71,8 +77,12 @@ CHECK_DIRECTIONS = 2
 CHECK_RTOL = 1e-5
 #: the spot check's directions are drawn from this seed (a certificate is reproducible)
 CHECK_SEED = 20260418
-#: tolerance of the projection QP of step 3 (relative, olado's interior-point QP)
-LSQ_TOL = 1e-11
+#: tolerance of the weighted least-squares QPs of step 3 (relative, olado's interior-point QP)
+LSQ_TOL = 1e-12
+#: smallest weight of a residual in the least squares of step 3, relative to max(1, |y_i|)^2
+LSQ_FLOOR = 1e-12
+#: semismooth Newton steps of step 3 at most
+LSQ_STEPS = 8
 
 _EPS = np.finfo(float).eps
 
@@ -273,62 +283,96 @@ def _solver_multipliers(p, multipliers):
 
 
 # ---------------------------------------------------------------------------- least squares (step 3)
-def _diagonal(weights):
-    """Stacked diagonal matrices diag(1 / w^2) (K, k, k)."""
-    K, k = weights.shape
+def _diagonal(values):
+    """Stacked diagonal matrices (K, k, k) with ``values`` (K, k) on the diagonals."""
+    K, k = values.shape
     D = np.zeros((K, k, k))
-    D[:, np.arange(k), np.arange(k)] = 1.0 / weights ** 2
+    D[:, np.arange(k), np.arange(k)] = values
     return D
 
 
-def projection_qp(p, pt, bounds, W):
-    """The projection QP of step 3 (module docstring) in stage form."""
+def _lsq_weights(r, y, lo, hi, w):
+    """The weights D_i of Phi (module docstring, step 3) at the residual r: w^2 s^2 / (w^2 + s^2)
+    where a bound at slack s can cancel r, w^2 elsewhere, at least LSQ_FLOOR w^2."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        slack = np.maximum(np.where(r > 0, y - lo, hi - y), 0.0)
+        bounded = np.isfinite(slack)
+        s2 = np.where(bounded, slack, 0.0) ** 2
+        D = np.where(bounded, w ** 2 * s2 / (w ** 2 + s2), w ** 2)
+    return np.maximum(D, LSQ_FLOOR * w ** 2)
+
+
+def weighted_qp(p, pt, Dx, Du, active, activeN):
+    """The equality-constrained stage QP  min 1/2 d' D^-1 d + grad J . d  s.t. the linearized
+    dynamics, the equality rows and the rows g >= 0 flagged active (as equalities), whose
+    multipliers minimise |D^(1/2) (grad J + Jc' lam)|_2 (module docstring, step 3)."""
     from ..qp.stageqp import StageQP
 
     N, n = p.N, p.n
-    X, U = pt.X, pt.U
     eq, eqN = p.stage_equality_mask, p.final_equality_mask
     ineq, ineqN = ~eq, ~eqN
     kw = {}
     if p.r and eq.any():
         kw.update(E=pt.Cx[:, eq, :], F=pt.Cu[:, eq, :], e=np.zeros((N, int(eq.sum()))))
     if p.r and ineq.any():
-        kw.update(C=np.concatenate([pt.Cx[:, ineq, :], pt.Cu[:, ineq, :]], axis=2),
-                  c_lower=-np.maximum(pt.g[:, ineq], 0.0), c_upper=np.full((N, int(ineq.sum())), np.inf))
+        free = np.where(active, 0.0, np.inf)
+        kw.update(C=np.concatenate([pt.Cx[:, ineq, :], pt.Cu[:, ineq, :]], axis=2), c_lower=-free, c_upper=free)
     if p.rN and eqN.any():
         kw.update(EN=pt.CN[eqN], eN=np.zeros(int(eqN.sum())))
     if p.rN and ineqN.any():
-        kw.update(CN=pt.CN[ineqN], cN_lower=-np.maximum(pt.gN[ineqN], 0.0), cN_upper=np.full(int(ineqN.sum()), np.inf))
-    with np.errstate(invalid="ignore"):
-        xl, xu = np.minimum(bounds.xl - X, 0.0), np.maximum(bounds.xu - X, 0.0)
-        ul, uu = np.minimum(bounds.ul - U, 0.0), np.maximum(bounds.uu - U, 0.0)
-    xl[0], xu[0] = -np.inf, np.inf             # x^0 is fixed by the x0 row
-    wx, wu = W
-    return StageQP(Q=_diagonal(wx), R=_diagonal(wu), q=np.vstack([pt.lx, pt.lN[None, :]]), r=pt.lu, A=pt.A, B=pt.B,
-                   c=np.zeros((N, n)), x0=np.zeros(n), x_lower=xl, x_upper=xu, u_lower=ul, u_upper=uu, **kw)
+        free = np.where(activeN, 0.0, np.inf)
+        kw.update(CN=pt.CN[ineqN], cN_lower=-free, cN_upper=free)
+    Dx = Dx.copy()
+    Dx[0] = 1.0                                 # x^0 is fixed by the x0 row
+    return StageQP(Q=_diagonal(1.0 / Dx), R=_diagonal(1.0 / Du), q=np.vstack([pt.lx, pt.lN[None, :]]), r=pt.lu,
+                   A=pt.A, B=pt.B, c=np.zeros((N, n)), x0=np.zeros(n), **kw)
 
 
-def least_squares_multipliers(p, pt, bounds, W):
-    """(lam, Lg, LgN) of the projection QP, or a sentence saying why they could not be computed."""
+def least_squares_multipliers(p, pt, bounds, W, start=None):
+    """olado's sign-constrained least-squares multipliers (module docstring, step 3), from the
+    multipliers ``start`` (lam, Lg, LgN) or zero: semismooth Newton steps on Phi, each one
+    weighted least-squares problem (:func:`weighted_qp`, O(N)), until the weights repeat. Returns
+    (lam, Lg, LgN), or a sentence saying why they could not be computed."""
     from ..qp import make_qp_solver
 
-    try:
-        qp = projection_qp(p, pt, bounds, W)
-        res = make_qp_solver("mehrotra", tol=LSQ_TOL, max_iter=200).solve(qp)
-    except (OladoError, ValueError, np.linalg.LinAlgError, ArithmeticError) as exc:
-        return f"the least-squares multipliers could not be computed ({exc})"
-    if not res.success:
-        return f"the least-squares multipliers could not be computed (projection QP: {res.message})"
-    eq, eqN = p.stage_equality_mask, p.final_equality_mask
-    Lg = np.zeros((p.N, p.r))
-    if p.r:
-        Lg[:, eq] = res.nu[:p.N, :int(eq.sum())]
-        Lg[:, ~eq] = res.yc_upper - res.yc_lower
-    LgN = np.zeros(p.rN)
-    if p.rN:
-        LgN[eqN] = res.nu[p.N, :int(eqN.sum())]
-        LgN[~eqN] = res.yN_upper - res.yN_lower
-    return res.lam[1:].copy(), Lg, LgN
+    ineq, ineqN = ~p.stage_equality_mask, ~p.final_equality_mask
+    if start is None:
+        start = (np.zeros((p.N, p.n)), np.zeros((p.N, p.r)), np.zeros(p.rN))
+    lam, Lg, LgN = (np.array(a, dtype=float) for a in start)
+    # rows g >= 0 start active where their multiplier is negative or their slack ~0
+    active = (Lg[:, ineq] < 0) | (pt.g[:, ineq] <= LSQ_FLOOR ** 0.5)
+    activeN = (LgN[ineqN] < 0) | (pt.gN[ineqN] <= LSQ_FLOOR ** 0.5)
+    wx, wu = W
+    solver = make_qp_solver("mehrotra", tol=LSQ_TOL, max_iter=50)
+    seen = []
+    for _ in range(LSQ_STEPS):
+        rx, ru = _gradient_terms(p, pt, lam, Lg, LgN)
+        Dx = _lsq_weights(rx, pt.X, bounds.xl, bounds.xu, wx)
+        Du = _lsq_weights(ru, pt.U, bounds.ul, bounds.uu, wu)
+        key = (Dx.tobytes(), Du.tobytes(), active.tobytes(), activeN.tobytes())
+        if key in seen:
+            break
+        seen.append(key)
+        try:
+            res = solver.solve(weighted_qp(p, pt, Dx, Du, active, activeN))
+        except (OladoError, ValueError, np.linalg.LinAlgError, ArithmeticError) as exc:
+            return f"the least-squares multipliers could not be computed ({exc})"
+        if not res.success:
+            return f"the least-squares multipliers could not be computed (weighted QP: {res.message})"
+        lam = res.lam[1:].copy()
+        if p.r:
+            Lg = np.zeros((p.N, p.r))
+            Lg[:, ~ineq] = res.nu[:p.N, :int((~ineq).sum())]
+            Lg[:, ineq] = res.yc_upper - res.yc_lower
+            active &= ~(Lg[:, ineq] > 0)        # a row whose multiplier has the wrong sign is released
+            Lg[:, ineq] = np.minimum(Lg[:, ineq], 0.0)
+        if p.rN:
+            LgN = np.zeros(p.rN)
+            LgN[~ineqN] = res.nu[p.N, :int((~ineqN).sum())]
+            LgN[ineqN] = res.yN_upper - res.yN_lower
+            activeN &= ~(LgN[ineqN] > 0)
+            LgN[ineqN] = np.minimum(LgN[ineqN], 0.0)
+    return lam, Lg, LgN
 
 
 # ---------------------------------------------------------------------------- derivative spot check
@@ -479,7 +523,7 @@ def _certify(p, X, U, multipliers, settings):
     solver_fig = None if given is None else _figures(p, pt, bounds, W, S, *given, "solver")
     fig, note = solver_fig, ""
     if fig is None or fig.error() > settings.tol:
-        ls = least_squares_multipliers(p, pt, bounds, W)
+        ls = least_squares_multipliers(p, pt, bounds, W, given)
         if isinstance(ls, str):
             note = ls
         else:
