@@ -68,6 +68,7 @@ import numpy as np
 
 from ..errors import OladoError
 from ..result import Certificate, Status
+from .common import stage_gradient_terms
 
 #: relative step of the derivative spot check (a variable moves by at most 2 CHECK_STEP max(1, |y_i|))
 CHECK_STEP = 1e-3
@@ -183,21 +184,6 @@ def _violation(p, pt, bounds):
 
 
 # ---------------------------------------------------------------------------- stationarity [3]-[5]
-def _gradient_terms(p, pt, lam, Lg, LgN):
-    """grad J + Jc^T lam per stage (rx (N+1, n), ru (N, m)); lam (N, n) is the multiplier of h."""
-    rx = np.empty((p.N + 1, p.n))
-    rx[:-1] = pt.lx + np.einsum("kij,ki->kj", pt.A, lam)
-    rx[1:-1] -= lam[:-1]
-    rx[-1] = pt.lN - lam[-1]
-    ru = pt.lu + np.einsum("kij,ki->kj", pt.B, lam)
-    if p.r:
-        rx[:-1] += np.einsum("kij,ki->kj", pt.Cx, Lg)
-        ru += np.einsum("kij,ki->kj", pt.Cu, Lg)
-    if p.rN:
-        rx[-1] += pt.CN.T @ LgN
-    return rx, ru
-
-
 def _bound_choice(r, y, lo, hi, w):
     """Per variable, the bound multiplier that minimises max(|r - z| w, z slack) (module docstring,
     step 2): returns the remaining |r - z| and z * slack. Fixed variables (lo == hi) take any
@@ -232,7 +218,7 @@ def _figures(p, pt, bounds, W, S, lam, Lg, LgN, kind):
     LgN = np.array(LgN, dtype=float)
     Lg[:, ineq] = np.minimum(Lg[:, ineq], 0.0)
     LgN[ineqN] = np.minimum(LgN[ineqN], 0.0)
-    rx, ru = _gradient_terms(p, pt, lam, Lg, LgN)
+    rx, ru = stage_gradient_terms(p, pt, lam, Lg, LgN)
     wx, wu = W
     sx, cx = _bound_choice(rx, pt.X, bounds.xl, bounds.xu, wx)
     su, cu = _bound_choice(ru, pt.U, bounds.ul, bounds.uu, wu)
@@ -346,7 +332,7 @@ def least_squares_multipliers(p, pt, bounds, W, start=None):
     solver = make_qp_solver("mehrotra", tol=LSQ_TOL, max_iter=50)
     seen = []
     for _ in range(LSQ_STEPS):
-        rx, ru = _gradient_terms(p, pt, lam, Lg, LgN)
+        rx, ru = stage_gradient_terms(p, pt, lam, Lg, LgN)
         Dx = _lsq_weights(rx, pt.X, bounds.xl, bounds.xu, wx)
         Du = _lsq_weights(ru, pt.U, bounds.ul, bounds.uu, wu)
         key = (Dx.tobytes(), Du.tobytes(), active.tobytes(), activeN.tobytes())

@@ -27,7 +27,7 @@ import numpy as np
 
 from ...problems.nlp import nlp_counts
 from ...result import Result
-from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION, bound_complementarity
+from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION, bound_complementarity, stage_gradient_terms
 from .state import BoundMultipliers
 
 
@@ -71,18 +71,7 @@ def _bounds(p):
 
 def _gradient_terms(p, pt, mult):
     """grad J + Jc^T lam per stage, without the bound multipliers: (rx (N+1, n), ru (N, m))."""
-    lam, Lg, LgN = mult.lam[1:], mult.Lg, mult.LgN
-    rx = np.empty((p.N + 1, p.n))
-    rx[:-1] = pt.lx + np.einsum("kij,ki->kj", pt.A, lam)
-    rx[1:-1] -= lam[:-1]
-    rx[-1] = pt.lN - lam[-1]
-    ru = pt.lu + np.einsum("kij,ki->kj", pt.B, lam)
-    if p.r:
-        rx[:-1] += np.einsum("kij,ki->kj", pt.Cx, Lg)
-        ru += np.einsum("kij,ki->kj", pt.Cu, Lg)
-    if p.rN:
-        rx[-1] += pt.CN.T @ LgN
-    return rx, ru
+    return stage_gradient_terms(p, pt, mult.lam[1:], mult.Lg, mult.LgN)
 
 
 def _fill_fixed(r, lo, hi, zl, zu):
