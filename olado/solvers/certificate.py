@@ -41,9 +41,10 @@ The check, in stages, each cheap against a solve (all O(N), stage by stage):
    equality-constrained stage QP  min 1/2 d' D^-1 d + grad J . d  s.t. the linearized dynamics and
    rows (its KKT conditions give d = -D r and J D r = 0, the normal equations), solved in O(N) by
    olado's interior-point QP with the Riccati back-end; the weights are then recomputed, until
-   they repeat (at most LSQ_STEPS). At the fixed point the gradient of Phi vanishes: the
-   multipliers are its exact minimiser. It starts from the solver's multipliers when there are
-   some, else from 0, and step 2 is repeated with its result;
+   they repeat (at most LSQ_STEPS) or the figures of step 2 meet the tolerance. At the fixed
+   point the gradient of Phi vanishes: the multipliers are its exact minimiser. It starts from
+   the solver's multipliers when there are some, else from 0; the step with the best figures
+   is kept;
 4. a spot check of the derivatives the figures rest on: along ``CHECK_DIRECTIONS`` random
    directions v the five-point central difference of every stage function (stage costs, final
    cost, dynamics, constraints, per stage) is compared with the derivative the problem supplies
@@ -82,8 +83,8 @@ CHECK_SEED = 20260418
 LSQ_TOL = 1e-12
 #: smallest weight of a residual in the least squares of step 3, relative to max(1, |y_i|)^2
 LSQ_FLOOR = 1e-12
-#: semismooth Newton steps of step 3 at most
-LSQ_STEPS = 8
+#: semismooth Newton steps of step 3 at most (the weights usually repeat after 2-12)
+LSQ_STEPS = 30
 
 _EPS = np.finfo(float).eps
 
@@ -314,11 +315,12 @@ def weighted_qp(p, pt, Dx, Du, active, activeN):
                    A=pt.A, B=pt.B, c=np.zeros((N, n)), x0=np.zeros(n), **kw)
 
 
-def least_squares_multipliers(p, pt, bounds, W, start=None):
+def least_squares_multipliers(p, pt, bounds, W, start=None, target=0.0):
     """olado's sign-constrained least-squares multipliers (module docstring, step 3), from the
     multipliers ``start`` (lam, Lg, LgN) or zero: semismooth Newton steps on Phi, each one
-    weighted least-squares problem (:func:`weighted_qp`, O(N)), until the weights repeat. Returns
-    (lam, Lg, LgN), or a sentence saying why they could not be computed."""
+    weighted least-squares problem (:func:`weighted_qp`, O(N)), until the weights repeat, or the
+    step's figures (:func:`_figures`) meet ``target``. Returns the multipliers of the step with
+    the best figures (lam, Lg, LgN), or a sentence saying why they could not be computed."""
     from ..qp import make_qp_solver
 
     ineq, ineqN = ~p.stage_equality_mask, ~p.final_equality_mask
@@ -329,8 +331,9 @@ def least_squares_multipliers(p, pt, bounds, W, start=None):
     active = (Lg[:, ineq] < 0) | (pt.g[:, ineq] <= LSQ_FLOOR ** 0.5)
     activeN = (LgN[ineqN] < 0) | (pt.gN[ineqN] <= LSQ_FLOOR ** 0.5)
     wx, wu = W
+    S = max(1.0, abs(pt.J))
     solver = make_qp_solver("mehrotra", tol=LSQ_TOL, max_iter=50)
-    seen = []
+    seen, best = [], (np.inf, None)
     for _ in range(LSQ_STEPS):
         rx, ru = stage_gradient_terms(p, pt, lam, Lg, LgN)
         Dx = _lsq_weights(rx, pt.X, bounds.xl, bounds.xu, wx)
@@ -358,7 +361,12 @@ def least_squares_multipliers(p, pt, bounds, W, start=None):
             LgN[ineqN] = res.yN_upper - res.yN_lower
             activeN &= ~(LgN[ineqN] > 0)
             LgN[ineqN] = np.minimum(LgN[ineqN], 0.0)
-    return lam, Lg, LgN
+        err = _figures(p, pt, bounds, W, S, lam, Lg, LgN, "least-squares").error()
+        if err < best[0]:
+            best = (err, (lam, Lg, LgN))
+        if err <= target:
+            break
+    return best[1] if best[1] is not None else (lam, Lg, LgN)
 
 
 # ---------------------------------------------------------------------------- derivative spot check
@@ -509,7 +517,7 @@ def _certify(p, X, U, multipliers, settings):
     solver_fig = None if given is None else _figures(p, pt, bounds, W, S, *given, "solver")
     fig, note = solver_fig, ""
     if fig is None or fig.error() > settings.tol:
-        ls = least_squares_multipliers(p, pt, bounds, W, given)
+        ls = least_squares_multipliers(p, pt, bounds, W, given, target=settings.tol)
         if isinstance(ls, str):
             note = ls
         else:
