@@ -19,6 +19,8 @@ _LAZY = {
     "solve": "olado.api",
     "Result": "olado.result",
     "Status": "olado.result",
+    "Certificate": "olado.result",
+    "certify": "olado.solvers.certificate",
     "DOCP": "olado.problems",
     "LagrangeDOCP": "olado.problems",
     "MayerDOCP": "olado.problems",

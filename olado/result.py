@@ -35,6 +35,7 @@ class Status(enum.Enum):
     INTERRUPTED = "interrupted"
     INVALID_PROBLEM = "invalid_problem"
     FAILED = "failed"
+    UNCERTIFIED = "uncertified"
 
     @property
     def sentence(self) -> str:
@@ -58,6 +59,9 @@ _SENTENCES = {
                          "the next safe point; the result holds the last accepted iterate."),
     Status.INVALID_PROBLEM: "The problem could not be evaluated at the points the solver needed.",
     Status.FAILED: "The solver failed for another reason; see the message.",
+    Status.UNCERTIFIED: ("The solver reported convergence, but olado's independent check of the first-order "
+                         "optimality conditions does not hold at the returned point; the message names the "
+                         "condition that fails."),
 }
 
 
@@ -162,6 +166,60 @@ def atomic_write_bytes(path, data: bytes) -> None:
 
 
 @dataclasses.dataclass
+class Certificate:
+    """olado's independent check of the first-order optimality conditions at a point a solver
+    reported as optimal (computed by :mod:`olado.solvers.certificate`; docs/certificate.md).
+
+    ``level`` is ``"success"`` (every figure within its tolerance), ``"acceptable"`` (within the
+    acceptable tolerances only) or ``"failed"``; ``reason`` is the sentence naming the figure that
+    fails and its value (empty at level success). ``multipliers`` says which multipliers gave the
+    figures: ``"solver"`` (the solver's own, projected on their sign constraints) or
+    ``"least-squares"`` (olado's sign-constrained least-squares multipliers). The scaled residuals
+    are in relative units of the objective (WORHP's scaled KKT test, seed 000 sec. IV.II [7]):
+    ``stationarity_scaled`` = max_i |grad_i L| max(1, |y_i|) / max(1, |J|),
+    ``complementarity_scaled`` = max_j |mu_j slack_j| / max(1, |J|). ``gradient_check`` is the
+    largest relative error of the derivative spot check (None when it did not run)."""
+
+    level: str
+    reason: str = ""
+    multipliers: str = ""
+    violation: float = float("nan")
+    stationarity: float = float("nan")
+    complementarity: float = float("nan")
+    stationarity_scaled: float = float("nan")
+    complementarity_scaled: float = float("nan")
+    solver_stationarity_scaled: float = float("nan")
+    gradient_check: float | None = None
+    gradient_check_note: str = ""
+    tol: float = float("nan")
+    acceptable_tol: float = float("nan")
+    constr_viol_tol: float = float("nan")
+    acceptable_constr_viol_tol: float = float("nan")
+    time_s: float = 0.0
+    evaluations: int = 0
+
+    LEVELS = ("success", "acceptable", "failed")
+
+    @property
+    def holds(self) -> bool:
+        """True at level success or acceptable."""
+        return self.level in ("success", "acceptable")
+
+    def to_dict(self) -> dict:
+        return _jsonable(dataclasses.asdict(self))
+
+    def summary(self) -> str:
+        """One line for :meth:`Result.summary`."""
+        verdict = {"success": "holds", "acceptable": "holds at the acceptable level", "failed": "FAILS"}[self.level]
+        figures = (f"scaled stationarity {self.stationarity_scaled:.1e}, complementarity "
+                   f"{self.complementarity_scaled:.1e}, violation {self.violation:.1e}")
+        if self.gradient_check is not None:
+            figures += f", gradient check {self.gradient_check:.1e}"
+        text = f"{verdict} ({self.multipliers or 'no'} multipliers): {figures}"
+        return text + (f" -- {self.reason}" if self.reason else "")
+
+
+@dataclasses.dataclass
 class Result:
     """Outcome of a solve: see the module docstring for what each field means."""
 
@@ -183,6 +241,7 @@ class Result:
     solver: str = ""
     options: dict = dataclasses.field(default_factory=dict)
     info: dict = dataclasses.field(default_factory=dict)
+    certificate: Certificate | None = None
 
     @property
     def success(self) -> bool:
@@ -201,6 +260,8 @@ class Result:
         ]
         if self.kkt_residual is not None:
             lines.append(f"  KKT residual : {self.kkt_residual:.3e}")
+        if self.certificate is not None:
+            lines.append(f"  certificate  : {self.certificate.summary()}")
         counts = f"  iterations   : {self.iterations}"
         if self.qp_iterations:
             counts += f" (QP iterations {self.qp_iterations})"
@@ -262,6 +323,7 @@ class Result:
             "objective": self.objective,
             "max_constraint_violation": self.max_constraint_violation,
             "kkt_residual": self.kkt_residual,
+            "certificate": None if self.certificate is None else self.certificate.to_dict(),
             "iterations": int(self.iterations),
             "qp_iterations": int(self.qp_iterations),
             "evaluations": self.evaluations,
@@ -478,6 +540,31 @@ def _read_optional_float(value):
     return None if value is None else _read_float(value)
 
 
+def _read_certificate(value):
+    """A saved :class:`Certificate` (null for results written without one); every field checked."""
+    if value is None:
+        return None
+    if not isinstance(value, dict):
+        raise _FieldError(f"expected an object or null, got a JSON {_json_type(value)}")
+    kw = {}
+    for f in dataclasses.fields(Certificate):
+        if f.name not in value:
+            continue
+        v = value[f.name]
+        try:
+            if f.name in ("level", "reason", "multipliers", "gradient_check_note"):
+                kw[f.name] = _read_str(v)
+            elif f.name == "evaluations":
+                kw[f.name] = _read_count(v)
+            else:
+                kw[f.name] = _read_optional_float(v) if f.name == "gradient_check" else _read_float(v)
+        except _FieldError as exc:
+            raise _FieldError(str(exc), where=f".{f.name}") from None
+    if kw.get("level") not in Certificate.LEVELS:
+        raise _FieldError(f"expected one of {', '.join(Certificate.LEVELS)}, got {kw.get('level')!r}", where=".level")
+    return Certificate(**kw)
+
+
 def _read_dict(value):
     if not isinstance(value, dict):
         raise _FieldError(f"expected a JSON object, got a JSON {_json_type(value)}")
@@ -542,6 +629,7 @@ RESULT_FIELDS = {
     "solver": (_read_str, ""),
     "options": (_read_dict, dict),
     "info": (_read_dict, dict),
+    "certificate": (_read_certificate, None),
 }
 
 

@@ -45,6 +45,17 @@ class SolverOptions:
     max_time: float = option(math.inf, "wall-time limit in seconds", min=0.0, min_exclusive=True)
     verbose: int = option(0, "0 silent, 1 summary, 2 iteration log, 3+ solver's own output", min=0, max=12)
     callback: Callable[[dict], Any] | None = option(None, "callable(info: dict) -> bool|None; True stops the solver", ini=False)
+    certify: bool = option(True, "check every success independently: constraint violation, stationarity and "
+                           "complementarity recomputed from the problem's own functions with the solver's or "
+                           "least-squares multipliers, and a spot check of the derivatives (docs/certificate.md)")
+    certificate_tol: float = option(1e-6, "tolerance of the certificate's scaled stationarity and complementarity "
+                                    "(relative units of the objective); the solver's tol when that is larger",
+                                    min=0.0, min_exclusive=True)
+    certificate_acceptable_tol: float = option(1e-4, "a success whose certificate meets only this looser tolerance "
+                                               "is reported as acceptable", min=0.0, min_exclusive=True)
+    certificate_acceptable_constr_viol_tol: float = option(1e-6, "constraint violation allowed at the certificate's "
+                                                           "acceptable level (constr_viol_tol when that is larger)",
+                                                           min=0.0, min_exclusive=True)
 
 
 class Solver:
@@ -79,7 +90,8 @@ class Solver:
     # -- common machinery -----------------------------------------------------------------
     def solve(self, problem, guess=None) -> Result:
         """Solve ``problem`` from ``guess`` (U (N,m), (X, U), a Result, or None for the
-        problem's own initial guess) and return a :class:`Result`."""
+        problem's own initial guess) and return a :class:`Result`. A success is certified
+        (olado.solvers.certificate, option ``certify``) unless the solver did so itself."""
         with InterruptGuard(), _exclusive(problem):
             X0 = U0 = None
             t0 = time.perf_counter()
@@ -95,14 +107,19 @@ class Solver:
             age = interrupt_age()
             if result.status is Status.INTERRUPTED and age is not None:
                 result.info["interrupt_latency_s"] = age     # from the signal to the solver's stop
-        result.time_s = time.perf_counter() - t0 if not result.time_s else result.time_s
-        result.problem = result.problem or getattr(problem, "name", type(problem).__name__)
-        result.N = problem.N
-        result.solver = result.solver or self.name
-        result.options = {k: v for k, v in self.options_dict().items()}
-        ev = dict(problem.counters)
-        ev.update(result.evaluations)
-        result.evaluations = ev
+            result.time_s = time.perf_counter() - t0 if not result.time_s else result.time_s
+            result.problem = result.problem or getattr(problem, "name", type(problem).__name__)
+            result.N = problem.N
+            result.solver = result.solver or self.name
+            result.options = {k: v for k, v in self.options_dict().items()}
+            ev = dict(problem.counters)
+            ev.update(result.evaluations)
+            result.evaluations = ev
+            if self.options.certify and result.status.success and result.certificate is None:
+                from .certificate import certify_result   # noqa: PLC0415 - loaded only for a success
+
+                certify_result(result, problem, self.options)
+                result.time_s += result.certificate.time_s
         if self.options.verbose >= 1:
             print(result.summary())
         return result

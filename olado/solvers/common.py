@@ -205,6 +205,25 @@ def complementarity_residual(nlp, y, c, lam, zl, zu) -> float:
     return max(parts)
 
 
+def stage_gradient_terms(p, pt, lam, Lg, LgN):
+    """grad J + Jc^T lam stage by stage, without bound multipliers: (rx (N+1, n), ru (N, m)).
+
+    ``pt`` holds the derivatives per stage (lx (N, n), lu (N, m), lN (n,), A, B, Cx, Cu, CN, the
+    names of the SQP's and the certificate's points); ``lam`` (N, n) is the multiplier of the
+    dynamics row h^k = f^k - x^{k+1}, ``Lg`` (N, r) and ``LgN`` (rN,) those of g and g^N."""
+    rx = np.empty((p.N + 1, p.n))
+    rx[:-1] = pt.lx + np.einsum("kij,ki->kj", pt.A, lam)
+    rx[1:-1] -= lam[:-1]
+    rx[-1] = pt.lN - lam[-1]
+    ru = pt.lu + np.einsum("kij,ki->kj", pt.B, lam)
+    if p.r:
+        rx[:-1] += np.einsum("kij,ki->kj", pt.Cx, Lg)
+        ru += np.einsum("kij,ki->kj", pt.Cu, Lg)
+    if p.rN:
+        rx[-1] += pt.CN.T @ LgN
+    return rx, ru
+
+
 def bound_complementarity(y, lb, ub, zl, zu) -> list:
     """The bound terms of the complementarity residual: |z_L (y - lb)| and |z_U (ub - y)| on the
     free variables (lb < ub) with a finite bound, and the negative parts of z_L, z_U there (as

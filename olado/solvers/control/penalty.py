@@ -498,6 +498,7 @@ class PenaltySolver(Solver):
                 opts = dict(o.inner_options)
                 opts.setdefault("tol", o.tol)
                 opts.setdefault("max_iter", o.inner_max_iter)
+                opts.setdefault("certify", False)   # the penalized subproblem: the outer result is certified
                 if math.isfinite(o.max_time):
                     opts.setdefault("max_time", max(o.max_time - (time.perf_counter() - t0), 1e-3))
                 res = inner_cls(**opts).solve(pen, guess=out.U)

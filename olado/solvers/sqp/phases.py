@@ -27,9 +27,10 @@ import numpy as np
 
 from ...errors import NonFiniteEvaluationError
 from ...result import Status
+from ..certificate import certify, verdict_status
 from .line_search import Direction, SearchResult, line_search
 from .merit import descent_tolerance, watch_target
-from .residuals import kkt_residual
+from .residuals import kkt_residual, stage_complementarity
 from .state import BoundMultipliers, Multipliers, Point, SQPState, Watch
 from . import recession, regularization, relaxation, restoration
 from . import step as qp_step
@@ -80,7 +81,7 @@ def initial_state(setup, X0, U0, hess, clock):
 
 def iterate(setup, st: SQPState) -> bool:
     """One major iteration; True when the solve stops (``st.status`` says why)."""
-    if limits_reached(setup, st) or converged_at_iterate(setup, st):
+    if limits_reached(setup, st) or converged_at_iterate(setup, st) or stalled_at_acceptable_point(setup, st):
         return STOP
     hscale = hessian_phase(setup, st)
     step = qp_phase(setup, st, hscale)
@@ -107,20 +108,84 @@ def limits_reached(setup, st):
     return st.it >= setup.options.max_iter
 
 
+def kkt_test(setup, st, kkt_res, mult, bounds, viol):
+    """WORHP's optimality test [3]-[6] (seed 000 sec. IV.II) with the SQP's scaling: stationarity
+    ``kkt_res`` <= tol * (largest |grad J| seen), complementarity and multiplier signs at the
+    iterate <= tol * max(1, |J|) (the multipliers of a QP belong to the bounds and inequalities
+    active at the QP's solution y + s; at y they must be complementary too, else a residual is
+    cancelled by the multiplier of a bound that y does not touch), violation <= constr_viol_tol.
+    After a certificate that failed where this test held, tol is tightened (``st.tol_factor``)."""
+    o = setup.options
+    tol = o.tol * st.tol_factor
+    if not (viol <= o.constr_viol_tol and kkt_res <= tol * st.grad_scale):
+        return False
+    return stage_complementarity(setup.problem, st.pt, mult, bounds) <= tol * max(1.0, abs(st.pt.J))
+
+
+def certified_stop(setup, st, status, message, mult, promote=False):
+    """Stop with ``status`` (SUCCESS or ACCEPTABLE) when olado's certificate of the iterate holds
+    (olado.solvers.certificate; at the acceptable level for ACCEPTABLE), setting ``st.mult``.
+    Otherwise iterate on (False) -- unless a derivative is wrong (the iterates cannot help that) or
+    ``certificate_attempts`` certificates have been computed: then stop with the certificate's
+    verdict (ACCEPTABLE or UNCERTIFIED, the message naming the residual that fails). With
+    ``promote`` an ACCEPTABLE stop whose certificate holds at its full tolerance is a SUCCESS."""
+    if setup.certificate is None:
+        st.mult = mult
+        return st.stop(status, message)
+    cert = certify(setup.problem, st.pt.X, st.pt.U, {"dynamics": mult.lam[1:], "stage_constraints": mult.Lg,
+                                                      "final_constraints": mult.LgN}, setup.certificate)
+    st.certificates += 1
+    done = cert.level == "success" or (cert.level == "acceptable" and status == Status.ACCEPTABLE)
+    if not (done or cert.gradient_check_note or st.certificates >= setup.options.certificate_attempts):
+        # the SQP's own test is looser here than the certificate's: tighten it by the ratio
+        err = max(cert.stationarity_scaled, cert.complementarity_scaled)
+        if err > setup.certificate.tol:
+            st.tol_factor *= max(0.5 * setup.certificate.tol / err, 1e-8)
+        return False
+    st.mult, st.certificate = mult, cert
+    if promote and cert.level == "success":
+        status, message = Status.SUCCESS, f"{message}; olado's certificate holds"
+    return st.stop(*verdict_status(cert, status, message))
+
+
 def converged_at_iterate(setup, st):
     """The KKT test at a new iterate with the multipliers of the QP that produced it (not after a
     QP re-solve at the same point)."""
-    o = setup.options
     if not (st.it > 0 and st.retries == 0 and st.force_delta is None and st.force_qp_tol is None):
         return False
     kkt0, gscale = kkt_residual(setup.problem, st.pt, st.mult, st.bounds)
     st.grad_scale = max(st.grad_scale, gscale)
     viol0 = setup.merit.max_violation(st.pt)
-    if viol0 <= o.constr_viol_tol and kkt0 <= o.tol * st.grad_scale:
+    if kkt_test(setup, st, kkt0, st.mult, st.bounds, viol0):
         st.kkt_res = kkt0
-        return st.stop(Status.SUCCESS, (f"converged in {st.it} SQP iterations: KKT residual {kkt0:.2e}, "
-                                        f"constraint violation {viol0:.2e}"))
+        return certified_stop(setup, st, Status.SUCCESS, (f"converged in {st.it} SQP iterations: KKT residual "
+                                                          f"{kkt0:.2e}, constraint violation {viol0:.2e}"), st.mult)
     return False
+
+
+#: low-pass filter termination: the KKT residual counts as stalled when it fell by less than this
+#: factor over the last stall_iterations iterations (a slow but steady decrease is progress)
+STALL_KKT_FACTOR = 0.5
+
+
+def stalled_at_acceptable_point(setup, st):
+    """WORHP's low-pass filter termination (seed 000 sec. IV.II): the filtered objective and
+    constraint violation (updated in :func:`report`) have not moved for ``stall_iterations``
+    iterations at a feasible point, and the KKT residual fell by less than STALL_KKT_FACTOR
+    meanwhile -- no more progress is made with the given inputs (e.g. inexact derivatives). The
+    point ends the solve if olado's certificate holds there: SUCCESS when it holds at the
+    certificate's tolerance, ACCEPTABLE at the acceptable level only."""
+    o = setup.options
+    k = o.stall_iterations
+    if not (k and st.stalled >= k and len(st.history) > k):
+        return False
+    if not st.history[-1]["kkt"] > STALL_KKT_FACTOR * st.history[-1 - k]["kkt"]:
+        return False
+    st.stalled = 0
+    message = (f"stalled at SQP iteration {st.it}: the filtered objective and constraint violation changed by "
+               f"less than {o.stall_tol:g} (relative) and the KKT residual by less than a factor "
+               f"{STALL_KKT_FACTOR:g} in {k} iterations at a feasible point")
+    return certified_stop(setup, st, Status.ACCEPTABLE, message, st.mult, promote=True)
 
 
 # ---------------------------------------------------------------------------- 2. Hessian
@@ -246,14 +311,14 @@ def test_with_new_multipliers(setup, st, step):
     step.viol = viol = setup.merit.max_violation(st.pt)
     step.step_norm = max(float(np.max(np.abs(step.dX))), float(np.max(np.abs(step.dU))))
     y_norm = max(float(np.max(np.abs(st.pt.X))), float(np.max(np.abs(st.pt.U))))
-    if viol <= o.constr_viol_tol and st.kkt_res <= o.tol * st.grad_scale:
-        st.mult = step.mult_new
-        return st.stop(Status.SUCCESS, (f"converged in {st.it} SQP iterations: KKT residual {st.kkt_res:.2e}, "
-                                        f"constraint violation {viol:.2e}"))
-    if viol <= o.constr_viol_tol and step.step_norm <= o.step_tol * (1 + y_norm):
-        st.mult = step.mult_new
-        return st.stop(Status.ACCEPTABLE, (f"step below step_tol at SQP iteration {st.it} with a feasible point; "
-                                           f"KKT residual {st.kkt_res:.2e}"))
+    if kkt_test(setup, st, st.kkt_res, step.mult_new, st.bounds, viol) and certified_stop(
+            setup, st, Status.SUCCESS, (f"converged in {st.it} SQP iterations: KKT residual {st.kkt_res:.2e}, "
+                                        f"constraint violation {viol:.2e}"), step.mult_new):
+        return STOP
+    if viol <= o.constr_viol_tol and step.step_norm <= o.step_tol * (1 + y_norm) and certified_stop(
+            setup, st, Status.ACCEPTABLE, (f"step below step_tol at SQP iteration {st.it} with a feasible point; "
+                                           f"KKT residual {st.kkt_res:.2e}"), step.mult_new):
+        return STOP
     return None
 
 
@@ -513,6 +578,7 @@ def log_iteration(setup, st, fields):
     rec.update(fields)
     rec.setdefault("penalty", float("nan"))
     st.history.append(rec)
+    update_filters(o, st, pt.J, rec["violation"])
     if o.verbose >= 2:
         if st.it == 1:
             print(f"{'iter':>5} {'objective':>16} {'violation':>10} {'kkt':>10} {'alpha':>8} {'|s|':>10} {'penalty':>9} {'qp':>4}  mode")
@@ -521,6 +587,23 @@ def log_iteration(setup, st, fields):
     if setup.callback(dict(rec)):
         return st.stop(Status.USER_STOP, f"stopped by the callback after SQP iteration {st.it}")
     return False
+
+
+def update_filters(o, st, J, viol):
+    """WORHP's low-pass filters (seed 000 sec. IV.II) Filter^k = a v^k + (1 - a) Filter^(k-1) of the
+    objective and the constraint violation (a = ``stall_filter``); ``st.stalled`` counts the
+    successive iterations at a feasible point in which both moved by less than ``stall_tol``
+    relative to max(1, |Filter^k|)."""
+    if not np.isfinite(st.filter_obj):
+        st.filter_obj, st.filter_con, st.stalled = J, viol, 0
+        return
+    a = o.stall_filter
+    new_obj = a * J + (1.0 - a) * st.filter_obj
+    new_con = a * viol + (1.0 - a) * st.filter_con
+    still = (abs(new_obj - st.filter_obj) < o.stall_tol * max(1.0, abs(new_obj))
+             and abs(new_con - st.filter_con) < o.stall_tol * max(1.0, abs(new_con)) and viol <= o.constr_viol_tol)
+    st.filter_obj, st.filter_con = new_obj, new_con
+    st.stalled = st.stalled + 1 if still else 0
 
 
 def end_expired_watch(setup, st, step):

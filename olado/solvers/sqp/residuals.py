@@ -27,7 +27,7 @@ import numpy as np
 
 from ...problems.nlp import nlp_counts
 from ...result import Result
-from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION, bound_complementarity
+from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION, bound_complementarity, stage_gradient_terms
 from .state import BoundMultipliers
 
 
@@ -71,18 +71,7 @@ def _bounds(p):
 
 def _gradient_terms(p, pt, mult):
     """grad J + Jc^T lam per stage, without the bound multipliers: (rx (N+1, n), ru (N, m))."""
-    lam, Lg, LgN = mult.lam[1:], mult.Lg, mult.LgN
-    rx = np.empty((p.N + 1, p.n))
-    rx[:-1] = pt.lx + np.einsum("kij,ki->kj", pt.A, lam)
-    rx[1:-1] -= lam[:-1]
-    rx[-1] = pt.lN - lam[-1]
-    ru = pt.lu + np.einsum("kij,ki->kj", pt.B, lam)
-    if p.r:
-        rx[:-1] += np.einsum("kij,ki->kj", pt.Cx, Lg)
-        ru += np.einsum("kij,ki->kj", pt.Cu, Lg)
-    if p.rN:
-        rx[-1] += pt.CN.T @ LgN
-    return rx, ru
+    return stage_gradient_terms(p, pt, mult.lam[1:], mult.Lg, mult.LgN)
 
 
 def _fill_fixed(r, lo, hi, zl, zu):
@@ -104,6 +93,20 @@ def _violation(c_parts, y_parts):
     return v
 
 
+def stage_complementarity(p, pt, mult, bounds):
+    """Max-norm of the complementarity and multiplier-sign errors at pt (WORHP's conditions [4]-[5],
+    seed 000 sec. IV.II): |z_L (y - lb)|, |z_U (ub - y)| and negative parts of z on the free
+    variables, |Lg g| and positive parts of Lg on the rows g >= 0 (their multipliers are <= 0)."""
+    xl, xu, ul, uu = _bounds(p)
+    parts = [0.0]
+    parts += bound_complementarity(pt.X, xl, xu, bounds.zl_x, bounds.zu_x) + bound_complementarity(pt.U, ul, uu, bounds.zl_u, bounds.zu_u)
+    ineq, ineqN = ~p.stage_equality_mask, ~p.final_equality_mask
+    for lam, g in ((mult.Lg[:, ineq], pt.g[:, ineq]), (mult.LgN[ineqN], pt.gN[ineqN])):
+        if lam.size:      # rows g >= 0: |lam g| and the positive part of lam (it must be <= 0)
+            parts += [float(np.max(np.abs(lam * g))), float(np.max(np.maximum(lam, 0.0)))]
+    return max(parts)
+
+
 def stage_kkt(p, pt, mult, bounds) -> StageKKT:
     """The Result's KKT quantities at pt (values and derivatives evaluated) with the stage
     multipliers ``mult`` and bound multipliers ``bounds`` (see the module docstring)."""
@@ -112,15 +115,11 @@ def stage_kkt(p, pt, mult, bounds) -> StageKKT:
     zl_x, zu_x = _fill_fixed(rx, xl, xu, bounds.zl_x, bounds.zu_x)
     zl_u, zu_u = _fill_fixed(ru, ul, uu, bounds.zl_u, bounds.zu_u)
     stat = max(float(np.max(np.abs(rx - zl_x + zu_x), initial=0.0)), float(np.max(np.abs(ru - zl_u + zu_u), initial=0.0)))
-    parts = [0.0]
-    parts += bound_complementarity(pt.X, xl, xu, zl_x, zu_x) + bound_complementarity(pt.U, ul, uu, zl_u, zu_u)
-    ineq, ineqN = ~p.stage_equality_mask, ~p.final_equality_mask
-    for lam, g in ((mult.Lg[:, ineq], pt.g[:, ineq]), (mult.LgN[ineqN], pt.gN[ineqN])):
-        if lam.size:      # rows g >= 0: |lam g| and the positive part of lam (it must be <= 0)
-            parts += [float(np.max(np.abs(lam * g))), float(np.max(np.maximum(lam, 0.0)))]
+    filled = BoundMultipliers(zl_x, zu_x, zl_u, zu_u)
+    compl = stage_complementarity(p, pt, mult, filled)
     upper = (np.zeros_like(pt.h), np.where(p.stage_equality_mask, 0.0, np.inf), np.where(p.final_equality_mask, 0.0, np.inf))
     viol = _violation(zip((pt.h, pt.g, pt.gN), upper), ((pt.X, xl, xu), (pt.U, ul, uu)))
-    return StageKKT(stat, max(parts), viol, BoundMultipliers(zl_x, zu_x, zl_u, zu_u))
+    return StageKKT(stat, compl, viol, filled)
 
 
 def finish(setup, st, info) -> Result:
@@ -149,6 +148,6 @@ def finish(setup, st, info) -> Result:
                  u=st.pt.U.copy(), multipliers=multipliers, max_constraint_violation=kkt.violation,
                  kkt_residual=float(st.kkt_res), iterations=int(st.it),
                  evaluations={k: int(clock.counts[k]) for k in EVALUATION_KINDS}, history=list(st.history),
-                 info=info)
+                 info=info, certificate=st.certificate)
     res.qp_iterations = st.qp_iters
     return res

@@ -94,6 +94,7 @@ from .residuals import finish
 from .state import Clock, ConstraintMasks, SQPSetup
 from ..common import stop_outcome
 from ...interrupts import Limits
+from ..certificate import CertificateSettings
 from ...options import option
 from ..base import Solver, SolverOptions
 from .hessian import make_hessian
@@ -272,6 +273,16 @@ class SQPOptions(SolverOptions):
     restoration_reduction: float = option(0.9, "feasibility restoration: the optimality phase resumes once the l1 "
                                           "constraint violation is below this times its value at the start",
                                           min=0.0, max=1.0, min_exclusive=True)
+    stall_filter: float = option(0.5, "low-pass filter termination (WORHP): weight of the newest value in the filtered "
+                                 "objective and constraint violation", min=0.0, max=1.0, min_exclusive=True)
+    stall_tol: float = option(1e-10, "low-pass filter termination: the filtered objective and violation stall when "
+                              "each changes by less than this relative to max(1, its value)", min=0.0)
+    stall_iterations: int = option(5, "low-pass filter termination: after this many successive stalled iterations at "
+                                   "a feasible point whose KKT test fails, the point is certified and the solve ends "
+                                   "as acceptable if the certificate holds (0: never)", min=0)
+    certificate_attempts: int = option(3, "certificates per solve (olado.solvers.certificate): when the SQP's own "
+                                       "test holds but the certificate does not, the SQP iterates on, up to this "
+                                       "many certificates; then the last one's verdict is the status", min=1)
     qp_options: dict = option({}, "extra options of the QP solver, in an ini file the [sqp.raw] section: options of "
                               "olado's interior-point methods (InteriorPointQPOptions, e.g. initial_mu) or of "
                               "ExternalQPOptions (eps_abs, tol_feas, ...); for an external backend any other key "
@@ -315,7 +326,8 @@ def make_setup(options, problem, callback):
     masks = ConstraintMasks.of(problem)
     setup = SQPSetup(options=o, problem=problem, qp_solver=qp_solver, interior=interior, convexify=convexify,
                      inertia=hess.needs_exact and convexify == "inertia", masks=masks,
-                     merit=MERITS[o.merit](problem, masks), callback=callback, limits=limits, t_start=t_start)
+                     merit=MERITS[o.merit](problem, masks), callback=callback, limits=limits, t_start=t_start,
+                     certificate=CertificateSettings.from_options(o) if o.certify else None)
     return setup, hess
 
 

@@ -178,6 +178,7 @@ class SQPSetup:
     callback: Callable[[dict], bool]
     limits: Limits              # time limit and interrupts (olado.interrupts)
     t_start: float
+    certificate: Any = None     # CertificateSettings (None: options.certify is off)
 
 
 @dataclasses.dataclass
@@ -223,6 +224,12 @@ class SQPState:
     restoration_steps: int = 0      # restoration steps since then
     restoration_mu: float = 1.0     # the restoration steps' metric mu I
     tau_kkt: float = 0.0            # KKT residual at the last step's start (rho_3 of the tau update)
+    certificate: Any = None         # olado's certificate of the point the solve stopped at (olado.solvers.certificate)
+    certificates: int = 0           # certificates computed in this solve
+    tol_factor: float = 1.0         # the KKT test's tol is o.tol times this (< 1 after a failed certificate)
+    filter_obj: float = float("nan")    # WORHP's low-pass filters of the objective and the violation
+    filter_con: float = float("nan")
+    stalled: int = 0                # successive iterations in which both filters stalled
 
     def stop(self, status, message):
         self.status, self.message = status, message

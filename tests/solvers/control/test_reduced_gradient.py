@@ -154,10 +154,13 @@ def test_relative_tolerance_and_acceptable_stops():
     res = olado.solve(VanDerPol(), solver="gradient", tol=1e-4, relative_tol=True)
     g0 = res.history[0]["grad_norm"]
     assert res.success and res.kkt_residual <= 1e-4 * max(1.0, g0)
-    res = olado.solve(VanDerPol(), solver="gradient", f_tol=1e-6)
+    res = olado.solve(VanDerPol(), solver="gradient", f_tol=1e-6, certify=False)
     assert res.status == Status.ACCEPTABLE and "f_tol" in res.message
-    res = olado.solve(VanDerPol(), solver="gradient", step_tol=1e-3)
+    res = olado.solve(VanDerPol(), solver="gradient", step_tol=1e-3, certify=False)
     assert res.status == Status.ACCEPTABLE and "step_tol" in res.message
+    # certified (the default), the f_tol stop at |dJ/du| ~ 3e-3 is no acceptable point
+    res = olado.solve(VanDerPol(), solver="gradient", f_tol=1e-6)
+    assert res.status == Status.UNCERTIFIED and "f_tol" in res.message and "scaled stationarity" in res.message
 
 
 @pytest.mark.parametrize("name", ["gradient", "cg", "variable-metric", "newton"])

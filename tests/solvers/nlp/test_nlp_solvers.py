@@ -362,9 +362,11 @@ def test_raw_ipopt_options_are_passed_verbatim():
     res = make("ipopt", ipopt_options={"max_iter": 2, "mu_strategy": "adaptive"}).solve(Cart())
     assert res.status is Status.MAX_ITERATIONS
     assert res.info["ipopt_options"]["mu_strategy"] == "adaptive"
-    # an integer given for a real-valued IPOPT option is accepted
+    # an integer given for a real-valued IPOPT option is accepted: IPOPT stops at once with
+    # tol = 1 and reports success, which olado's certificate does not confirm
     res = make("ipopt", ipopt_options={"tol": 1}).solve(LQ(N=4))
-    assert res.success
+    assert "Solve_Succeeded" in res.message
+    assert res.status is Status.UNCERTIFIED and "scaled stationarity" in res.message
 
 
 def test_bad_options_are_config_errors():

@@ -1,0 +1,561 @@
+"""Certified success: olado's own check of the first-order optimality conditions at a point that
+a solver reports as optimal, independent of the subproblem that produced the point
+(docs/certificate.md).
+
+The conditions are those of WORHP's optimality test (seed 000 sec. IV.II): the KKT conditions [1]
+checked as [3] (stationarity of the Lagrangian), [4]-[5] (signs of the multipliers of active
+inequalities, vanishing multipliers of inactive ones -- here as complementarity |mu_j slack_j|)
+and [6] (feasibility), in the scaled form [7]: residuals in relative units of the objective, so
+that the test reads "the first-order change of J that the residual allows is small against
+max(1, |J|)" instead of depending on the scale of J:
+
+    stationarity     max_i |grad_i L(y, lam, z)| max(1, |y_i|) / max(1, |J|)
+    complementarity  max_j |mu_j slack_j| / max(1, |J|)          (rows g >= 0 and variable bounds)
+    feasibility      max-norm violation of h = f - x^+, g, g^N and the bounds (absolute, [6])
+
+with L = J + lam . c - z_L . (y - lb) - z_U . (ub - y) in the sign convention of
+:mod:`olado.solvers.common` (eq. (28)). WORHP's [7] divides by the step |d| of the current
+iteration; a returned point has no step, and max(1, |y_i|) -- the step that would move the
+variable by its own size -- takes its place.
+
+The check, in stages, each cheap against a solve (all O(N), stage by stage):
+
+1. values and first derivatives at (X, U) from the problem's own functions (analytic where the
+   problem provides them, finite differences otherwise) -- nothing is taken from the solver;
+2. the solver's multipliers of the constraints c = (h, g, g^N), projected on their sign
+   constraints (inequality rows g >= 0 take multipliers <= 0); the bound multipliers are chosen
+   per variable, in closed form: a residual r_i that a bound could cancel takes
+   z_i = |r_i| w_i / (w_i + slack_i), which minimises max(|r_i - z_i| w_i, z_i slack_i) (w_i =
+   max(1, |y_i|)): the best trade between stationarity and complementarity of that variable;
+3. only when 2 fails: olado's least-squares multipliers with sign constraints. With the bound
+   multipliers eliminated per variable as in 2 (in the least-squares sense: min over z >= 0 of
+   w^2 (r - z)^2 + s^2 z^2), they minimise the convex, piecewise quadratic
+
+       Phi(lam) = sum_i D_i(r_i) r_i^2,   r = grad J + Jc' lam,
+       D_i = w_i^2 s_i^2 / (w_i^2 + s_i^2) on the side where a bound at slack s_i can cancel r_i,
+             w_i^2 elsewhere,
+
+   over the multipliers of the dynamics and the equality rows (free) and of the rows g >= 0 (<= 0,
+   active-set: a row whose multiplier comes out positive is released). Semismooth Newton: with
+   the weights D of the current residual frozen, the minimiser is the multiplier vector of the
+   equality-constrained stage QP  min 1/2 d' D^-1 d + grad J . d  s.t. the linearized dynamics and
+   rows (its KKT conditions give d = -D r and J D r = 0, the normal equations), solved in O(N) by
+   olado's interior-point QP with the Riccati back-end; the weights are then recomputed, until
+   they repeat (at most LSQ_STEPS) or the figures of step 2 meet the tolerance. At the fixed
+   point the gradient of Phi vanishes: the multipliers are its exact minimiser. It starts from
+   the solver's multipliers when there are some, else from 0; the step with the best figures
+   is kept;
+4. a spot check of the derivatives the figures rest on: along ``CHECK_DIRECTIONS`` random
+   directions v the five-point central difference of every stage function (stage costs, final
+   cost, dynamics, constraints, per stage) is compared with the derivative the problem supplies
+   (a second difference scheme, independent of the one olado's finite differences use); a
+   difference beyond CHECK_RTOL times the terms' size plus ten times the scheme's own error
+   estimate (the difference of its two central differences) means a wrong derivative.
+
+:func:`certify` returns the :class:`olado.result.Certificate`; :func:`certify_result` applies it
+to a Result (``Solver.solve`` does this for every solver family: a SUCCESS whose certificate holds
+only at the acceptable tolerances becomes ACCEPTABLE, one that fails becomes UNCERTIFIED with a
+sentence naming the residual that fails and its value). The SQP calls :func:`certify` before it
+stops and iterates on when the certificate fails (olado.solvers.sqp.phases).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from ..errors import OladoError
+from ..result import Certificate, Status
+from .common import stage_gradient_terms
+
+#: relative step of the derivative spot check (a variable moves by at most 2 CHECK_STEP max(1, |y_i|))
+CHECK_STEP = 1e-3
+#: random directions of the spot check
+CHECK_DIRECTIONS = 2
+#: relative tolerance of the spot check, on top of the difference scheme's own error estimate
+CHECK_RTOL = 1e-5
+#: the spot check's directions are drawn from this seed (a certificate is reproducible)
+CHECK_SEED = 20260418
+#: tolerance of the weighted least-squares QPs of step 3 (relative, olado's interior-point QP)
+LSQ_TOL = 1e-12
+#: smallest weight of a residual in the least squares of step 3, relative to max(1, |y_i|)^2
+LSQ_FLOOR = 1e-12
+#: semismooth Newton steps of step 3 at most (the weights usually repeat after 2-12)
+LSQ_STEPS = 30
+
+_EPS = np.finfo(float).eps
+
+
+@dataclasses.dataclass(frozen=True)
+class CertificateSettings:
+    """Tolerances of a certificate: the scaled stationarity and complementarity must be <= tol
+    (acceptable: <= acceptable_tol), the violation <= constr_viol_tol (acceptable_constr_viol_tol)."""
+
+    tol: float = 1e-6
+    acceptable_tol: float = 1e-4
+    constr_viol_tol: float = 1e-8
+    acceptable_constr_viol_tol: float = 1e-6
+    gradient_check: bool = True
+
+    @classmethod
+    def from_options(cls, o):
+        """From a solver's options (olado.solvers.base.SolverOptions): certificate_tol or the
+        solver's tol when larger, constr_viol_tol, and the acceptable levels."""
+        tol = max(float(o.certificate_tol), float(getattr(o, "tol", 0.0)))
+        viol = float(o.constr_viol_tol)
+        return cls(tol=tol, acceptable_tol=max(float(o.certificate_acceptable_tol), tol), constr_viol_tol=viol,
+                   acceptable_constr_viol_tol=max(float(o.certificate_acceptable_constr_viol_tol), viol))
+
+
+# ---------------------------------------------------------------------------- the point
+class StagePoint:
+    """Values and first derivatives of the DOCP at (X, U), from the problem's own functions."""
+
+    def __init__(self, p, X, U):
+        self.X, self.U = X, U
+        self.f0 = p.eval_stage_costs(X, U)
+        self.F = p.eval_final_cost(X[-1])
+        self.J = float(np.sum(self.f0) + self.F)
+        self.f = p.eval_dynamics(X, U)
+        self.h = self.f - X[1:]
+        self.g = p.eval_stage_constraints(X, U)
+        self.gN = p.eval_final_constraints(X[-1])
+        self.lx, self.lu = p.eval_stage_cost_gradients(X, U)
+        self.lN = p.eval_final_cost_gradient(X[-1])
+        self.A, self.B = p.eval_dynamics_jacobians(X, U)
+        self.Cx, self.Cu = p.eval_stage_constraint_jacobians(X, U)
+        self.CN = p.eval_final_constraint_jacobian(X[-1])
+
+
+class StageBounds(NamedTuple):
+    """Variable bounds of the NLP view per stage (x^0 fixed at x0)."""
+
+    xl: np.ndarray
+    xu: np.ndarray
+    ul: np.ndarray
+    uu: np.ndarray
+
+    @classmethod
+    def of(cls, p):
+        xl, xu = p.x_lower.copy(), p.x_upper.copy()
+        xl[0] = p.x0
+        xu[0] = p.x0
+        return cls(xl, xu, p.u_lower, p.u_upper)
+
+
+class KKTFigures(NamedTuple):
+    """Residuals at a point with one set of multipliers (unscaled max-norms, scaled values and
+    where the largest scaled ones occur)."""
+
+    kind: str
+    stationarity: float
+    complementarity: float
+    stationarity_scaled: float
+    complementarity_scaled: float
+    stationarity_at: str
+    complementarity_at: str
+    residual_at: float          # the Lagrangian gradient entry at stationarity_at
+
+    def error(self):
+        return max(self.stationarity_scaled, self.complementarity_scaled)
+
+
+# ---------------------------------------------------------------------------- feasibility [6]
+def _violation(p, pt, bounds):
+    """Max-norm violation and where it occurs (a phrase)."""
+    eq, eqN = p.stage_equality_mask, p.final_equality_mask
+    parts = [("dynamics", np.abs(pt.h), True)]
+    if p.r:
+        parts.append(("stage_constraints", np.where(eq, np.abs(pt.g), np.maximum(-pt.g, 0.0)), True))
+    if p.rN:
+        parts.append(("final_constraints", np.where(eqN, np.abs(pt.gN), np.maximum(-pt.gN, 0.0)), False))
+    for name, y, lo, hi in (("x", pt.X, bounds.xl, bounds.xu), ("u", pt.U, bounds.ul, bounds.uu)):
+        with np.errstate(invalid="ignore"):
+            parts.append((f"bounds of {name}", np.maximum(np.maximum(lo - y, 0.0), np.maximum(y - hi, 0.0)), True))
+    best, where = 0.0, ""
+    for name, v, staged in parts:
+        if v.size and float(np.max(v)) > best:
+            idx = np.unravel_index(int(np.argmax(v)), v.shape)
+            best = float(v[idx])
+            where = f"{name}, stage {idx[0]}, component {idx[1]}" if staged and v.ndim == 2 else f"{name}, component {idx[-1]}"
+    return best, where
+
+
+# ---------------------------------------------------------------------------- stationarity [3]-[5]
+def _bound_choice(r, y, lo, hi, w):
+    """Per variable, the bound multiplier that minimises max(|r - z| w, z slack) (module docstring,
+    step 2): returns the remaining |r - z| and z * slack. Fixed variables (lo == hi) take any
+    multiplier: both are 0 there."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        slack = np.where(r > 0, y - lo, hi - y)            # the bound that can cancel r; inf: none
+        slack = np.maximum(slack, 0.0)
+        bounded = np.isfinite(slack)
+        a = np.abs(r)
+        z = np.where(bounded, a * w / (w + np.where(bounded, slack, 0.0)), 0.0)
+        stat = a - z
+        comp = np.where(bounded, z * np.where(bounded, slack, 0.0), 0.0)
+    fixed = lo == hi
+    return np.where(fixed, 0.0, stat), np.where(fixed, 0.0, comp)
+
+
+def _largest(arrays):
+    """The largest entry over named (K, k) arrays: (value, name, K index, k index)."""
+    best = (-1.0, "", 0, 0)
+    for name, a in arrays:
+        if a.size and float(np.max(a)) > best[0]:
+            k, i = np.unravel_index(int(np.argmax(a)), a.shape)
+            best = (float(a[k, i]), name, int(k), int(i))
+    return best
+
+
+def _figures(p, pt, bounds, W, S, lam, Lg, LgN, kind):
+    """The residuals with the multipliers (lam, Lg, LgN), inequality multipliers projected on
+    their signs, bound multipliers chosen per variable (:func:`_bound_choice`)."""
+    ineq, ineqN = ~p.stage_equality_mask, ~p.final_equality_mask
+    Lg = np.array(Lg, dtype=float)
+    LgN = np.array(LgN, dtype=float)
+    Lg[:, ineq] = np.minimum(Lg[:, ineq], 0.0)
+    LgN[ineqN] = np.minimum(LgN[ineqN], 0.0)
+    rx, ru = stage_gradient_terms(p, pt, lam, Lg, LgN)
+    wx, wu = W
+    sx, cx = _bound_choice(rx, pt.X, bounds.xl, bounds.xu, wx)
+    su, cu = _bound_choice(ru, pt.U, bounds.ul, bounds.uu, wu)
+    sx[0] = 0.0
+    cx[0] = 0.0                                         # x^0 is fixed
+    stat_scaled, name, k, i = _largest((("x", sx * wx / S), ("u", su * wu / S)))
+    residual = float((rx if name == "x" else ru)[k, i])
+    comp_rows = [("x bounds", cx), ("u bounds", cu)]
+    if p.r and ineq.any():
+        rows = np.zeros_like(pt.g)
+        rows[:, ineq] = np.abs(Lg[:, ineq] * pt.g[:, ineq])
+        comp_rows.append(("stage constraint", rows))
+    if p.rN and ineqN.any():
+        rows = np.zeros((1, p.rN))
+        rows[0, ineqN] = np.abs(LgN[ineqN] * pt.gN[ineqN])
+        comp_rows.append(("final constraint", rows))
+    comp, cname, ck, ci = _largest(comp_rows)
+    comp_at = f"{cname} {ci}" if cname == "final constraint" else f"{cname}, stage {ck}, component {ci}"
+    stat = max(float(np.max(sx, initial=0.0)), float(np.max(su, initial=0.0)))
+    return KKTFigures(kind, stat, comp, stat_scaled, comp / S, f"{name}^{k}[{i}]", comp_at, residual)
+
+
+def kkt_figures(problem, X, U, multipliers, kind="solver") -> KKTFigures:
+    """The residuals of step 2 (module docstring) at (X, U) with a Result's multipliers dict."""
+    X, U = np.asarray(X, dtype=float), np.asarray(U, dtype=float)
+    pt = StagePoint(problem, X, U)
+    given = _solver_multipliers(problem, multipliers)
+    if given is None:
+        raise OladoError("kkt_figures needs the multipliers 'dynamics' (N, n) and, if the problem has them, "
+                         "'stage_constraints' (N, r) and 'final_constraints' (rN,)")
+    W = (np.maximum(1.0, np.abs(X)), np.maximum(1.0, np.abs(U)))
+    return _figures(problem, pt, StageBounds.of(problem), W, max(1.0, abs(pt.J)), *given, kind)
+
+
+def _solver_multipliers(p, multipliers):
+    """(lam, Lg, LgN) from a Result's multipliers dict, or None when they are missing or unusable."""
+    if not multipliers:
+        return None
+    try:
+        lam = np.asarray(multipliers.get("dynamics"), dtype=float).reshape(p.N, p.n)
+        Lg = np.asarray(multipliers.get("stage_constraints", np.zeros((p.N, p.r))), dtype=float).reshape(p.N, p.r)
+        LgN = np.asarray(multipliers.get("final_constraints", np.zeros(p.rN)), dtype=float).reshape(p.rN)
+    except (TypeError, ValueError):
+        return None
+    if not all(np.all(np.isfinite(a)) for a in (lam, Lg, LgN)):
+        return None
+    return lam, Lg, LgN
+
+
+# ---------------------------------------------------------------------------- least squares (step 3)
+def _diagonal(values):
+    """Stacked diagonal matrices (K, k, k) with ``values`` (K, k) on the diagonals."""
+    K, k = values.shape
+    D = np.zeros((K, k, k))
+    D[:, np.arange(k), np.arange(k)] = values
+    return D
+
+
+def _lsq_weights(r, y, lo, hi, w):
+    """The weights D_i of Phi (module docstring, step 3) at the residual r: w^2 s^2 / (w^2 + s^2)
+    where a bound at slack s can cancel r, w^2 elsewhere, at least LSQ_FLOOR w^2."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        slack = np.maximum(np.where(r > 0, y - lo, hi - y), 0.0)
+        bounded = np.isfinite(slack)
+        s2 = np.where(bounded, slack, 0.0) ** 2
+        D = np.where(bounded, w ** 2 * s2 / (w ** 2 + s2), w ** 2)
+    return np.maximum(D, LSQ_FLOOR * w ** 2)
+
+
+def weighted_qp(p, pt, Dx, Du, active, activeN):
+    """The equality-constrained stage QP  min 1/2 d' D^-1 d + grad J . d  s.t. the linearized
+    dynamics, the equality rows and the rows g >= 0 flagged active (as equalities), whose
+    multipliers minimise |D^(1/2) (grad J + Jc' lam)|_2 (module docstring, step 3)."""
+    from ..qp.stageqp import StageQP
+
+    N, n = p.N, p.n
+    eq, eqN = p.stage_equality_mask, p.final_equality_mask
+    ineq, ineqN = ~eq, ~eqN
+    kw = {}
+    if p.r and eq.any():
+        kw.update(E=pt.Cx[:, eq, :], F=pt.Cu[:, eq, :], e=np.zeros((N, int(eq.sum()))))
+    if p.r and ineq.any():
+        free = np.where(active, 0.0, np.inf)
+        kw.update(C=np.concatenate([pt.Cx[:, ineq, :], pt.Cu[:, ineq, :]], axis=2), c_lower=-free, c_upper=free)
+    if p.rN and eqN.any():
+        kw.update(EN=pt.CN[eqN], eN=np.zeros(int(eqN.sum())))
+    if p.rN and ineqN.any():
+        free = np.where(activeN, 0.0, np.inf)
+        kw.update(CN=pt.CN[ineqN], cN_lower=-free, cN_upper=free)
+    Dx = Dx.copy()
+    Dx[0] = 1.0                                 # x^0 is fixed by the x0 row
+    return StageQP(Q=_diagonal(1.0 / Dx), R=_diagonal(1.0 / Du), q=np.vstack([pt.lx, pt.lN[None, :]]), r=pt.lu,
+                   A=pt.A, B=pt.B, c=np.zeros((N, n)), x0=np.zeros(n), **kw)
+
+
+def least_squares_multipliers(p, pt, bounds, W, start=None, target=0.0):
+    """olado's sign-constrained least-squares multipliers (module docstring, step 3), from the
+    multipliers ``start`` (lam, Lg, LgN) or zero: semismooth Newton steps on Phi, each one
+    weighted least-squares problem (:func:`weighted_qp`, O(N)), until the weights repeat, or the
+    step's figures (:func:`_figures`) meet ``target``. Returns the multipliers of the step with
+    the best figures (lam, Lg, LgN), or a sentence saying why they could not be computed."""
+    from ..qp import make_qp_solver
+
+    ineq, ineqN = ~p.stage_equality_mask, ~p.final_equality_mask
+    if start is None:
+        start = (np.zeros((p.N, p.n)), np.zeros((p.N, p.r)), np.zeros(p.rN))
+    lam, Lg, LgN = (np.array(a, dtype=float) for a in start)
+    # rows g >= 0 start active where their multiplier is negative or their slack ~0
+    active = (Lg[:, ineq] < 0) | (pt.g[:, ineq] <= LSQ_FLOOR ** 0.5)
+    activeN = (LgN[ineqN] < 0) | (pt.gN[ineqN] <= LSQ_FLOOR ** 0.5)
+    wx, wu = W
+    S = max(1.0, abs(pt.J))
+    solver = make_qp_solver("mehrotra", tol=LSQ_TOL, max_iter=50)
+    seen, best = [], (np.inf, None)
+    for _ in range(LSQ_STEPS):
+        rx, ru = stage_gradient_terms(p, pt, lam, Lg, LgN)
+        Dx = _lsq_weights(rx, pt.X, bounds.xl, bounds.xu, wx)
+        Du = _lsq_weights(ru, pt.U, bounds.ul, bounds.uu, wu)
+        key = (Dx.tobytes(), Du.tobytes(), active.tobytes(), activeN.tobytes())
+        if key in seen:
+            break
+        seen.append(key)
+        try:
+            res = solver.solve(weighted_qp(p, pt, Dx, Du, active, activeN))
+        except (OladoError, ValueError, np.linalg.LinAlgError, ArithmeticError) as exc:
+            return f"the least-squares multipliers could not be computed ({exc})"
+        if not res.success:
+            return f"the least-squares multipliers could not be computed (weighted QP: {res.message})"
+        lam = res.lam[1:].copy()
+        if p.r:
+            Lg = np.zeros((p.N, p.r))
+            Lg[:, ~ineq] = res.nu[:p.N, :int((~ineq).sum())]
+            Lg[:, ineq] = res.yc_upper - res.yc_lower
+            active &= ~(Lg[:, ineq] > 0)        # a row whose multiplier has the wrong sign is released
+            Lg[:, ineq] = np.minimum(Lg[:, ineq], 0.0)
+        if p.rN:
+            LgN = np.zeros(p.rN)
+            LgN[~ineqN] = res.nu[p.N, :int((~ineqN).sum())]
+            LgN[ineqN] = res.yN_upper - res.yN_lower
+            activeN &= ~(LgN[ineqN] > 0)
+            LgN[ineqN] = np.minimum(LgN[ineqN], 0.0)
+        err = _figures(p, pt, bounds, W, S, lam, Lg, LgN, "least-squares").error()
+        if err < best[0]:
+            best = (err, (lam, Lg, LgN))
+        if err <= target:
+            break
+    return best[1] if best[1] is not None else (lam, Lg, LgN)
+
+
+# ---------------------------------------------------------------------------- derivative spot check
+class _Check(NamedTuple):
+    """Outcome of the spot check: the largest relative error, whether a derivative is wrong, and a
+    sentence (the failing derivative, or why the check was skipped)."""
+
+    worst: float | None
+    failed: bool
+    note: str
+
+
+def _values(p, X, U):
+    """The stage functions at (X, U): stage costs (N,), final cost (1,), dynamics (N, n), stage
+    constraints (N, r), final constraints (rN,)."""
+    return {"stage_cost": p.eval_stage_costs(X, U), "final_cost": np.array([p.eval_final_cost(X[-1])]),
+            "dynamics": p.eval_dynamics(X, U), "stage_constraints": p.eval_stage_constraints(X, U),
+            "final_constraints": p.eval_final_constraints(X[-1])}
+
+
+def _directional(pt, Vx, Vu):
+    """The derivatives the problem supplies along v = (Vx, Vu), and the sums of the absolute
+    terms (the size against which an error is measured), per function as in :func:`_values`."""
+    ax, au = np.abs(Vx), np.abs(Vu)
+    ein = lambda M, V: np.einsum("kij,kj->ki", M, V)  # noqa: E731
+    return {
+        "stage_cost": (np.sum(pt.lx * Vx[:-1], axis=1) + np.sum(pt.lu * Vu, axis=1),
+                       np.sum(np.abs(pt.lx) * ax[:-1], axis=1) + np.sum(np.abs(pt.lu) * au, axis=1)),
+        "final_cost": (np.array([pt.lN @ Vx[-1]]), np.array([np.abs(pt.lN) @ ax[-1]])),
+        "dynamics": (ein(pt.A, Vx[:-1]) + ein(pt.B, Vu), ein(np.abs(pt.A), ax[:-1]) + ein(np.abs(pt.B), au)),
+        "stage_constraints": (ein(pt.Cx, Vx[:-1]) + ein(pt.Cu, Vu), ein(np.abs(pt.Cx), ax[:-1]) + ein(np.abs(pt.Cu), au)),
+        "final_constraints": (pt.CN @ Vx[-1], np.abs(pt.CN) @ ax[-1]),
+    }
+
+
+_DERIVATIVE_NAMES = {"stage_cost": "stage_cost_gradient", "final_cost": "final_cost_gradient",
+                     "dynamics": "dynamics_jacobian", "stage_constraints": "stage_constraints_jacobian",
+                     "final_constraints": "final_constraints_jacobian"}
+
+
+def _direction(rng, pt, bounds, W, h):
+    """A random direction, scaled by max(1, |y_i|), zero on x^0 and on components that a step of
+    2h would take out of their bounds."""
+    wx, wu = W
+    Vx = rng.uniform(-1.0, 1.0, pt.X.shape) * wx
+    Vu = rng.uniform(-1.0, 1.0, pt.U.shape) * wu
+    Vx[0] = 0.0
+    with np.errstate(invalid="ignore"):
+        Vx[(pt.X - 2 * h * np.abs(Vx) < bounds.xl) | (pt.X + 2 * h * np.abs(Vx) > bounds.xu)] = 0.0
+        Vu[(pt.U - 2 * h * np.abs(Vu) < bounds.ul) | (pt.U + 2 * h * np.abs(Vu) > bounds.uu)] = 0.0
+    return Vx, Vu
+
+
+def spot_check(p, pt, bounds, W, seed=CHECK_SEED) -> _Check:
+    """Step 4 of the module docstring: five-point central differences of every stage function
+    along CHECK_DIRECTIONS random directions against the derivatives the problem supplies."""
+    rng = np.random.default_rng(seed)
+    h = CHECK_STEP
+    worst, bad = 0.0, None
+    sources = p.derivative_sources()
+    for _ in range(CHECK_DIRECTIONS):
+        Vx, Vu = _direction(rng, pt, bounds, W, h)
+        try:
+            vals = {s: _values(p, pt.X + s * h * Vx, pt.U + s * h * Vu) for s in (1, -1, 2, -2)}
+        except OladoError as exc:
+            return _Check(None, False, f"spot check skipped: the problem cannot be evaluated near the point ({exc})")
+        for name, (an, size) in _directional(pt, Vx, Vu).items():
+            v1, m1, v2, m2 = (vals[s][name] for s in (1, -1, 2, -2))
+            if v1.size == 0:
+                continue
+            d_h = (v1 - m1) / (2 * h)
+            d_2h = (v2 - m2) / (4 * h)
+            d5 = (4 * d_h - d_2h) / 3
+            rounding = _EPS * (np.abs(v1) + np.abs(m1) + np.abs(v2) + np.abs(m2)) / h
+            allowed = CHECK_RTOL * np.maximum(size, np.abs(d5)) + 10 * (np.abs(d_h - d_2h) + rounding) + 1e-300
+            err = np.abs(d5 - an)
+            rel = err / np.maximum(np.maximum(size, np.abs(d5)), 1e-300)
+            worst = max(worst, float(np.max(np.where(err > 10 * rounding, rel, 0.0))))
+            ratio = err / allowed
+            j = int(np.argmax(ratio))
+            if ratio.flat[j] > 1.0 and (bad is None or ratio.flat[j] > bad[0]):
+                idx = np.unravel_index(j, err.shape)
+                bad = (float(ratio.flat[j]), name, idx, float(d5[idx]), float(an[idx]), float(rel[idx]))
+    if bad is None:
+        return _Check(worst, False, "")
+    _, name, idx, d5, an, rel = bad
+    where = f" at stage {idx[0]}" if name in ("stage_cost", "dynamics", "stage_constraints") else ""
+    if len(idx) == 2 or name == "final_constraints":
+        where += f", component {idx[-1]}"
+    source = sources.get(_DERIVATIVE_NAMES[name], "")
+    return _Check(worst, True, (f"the derivative of {name}{where} ({source}) disagrees with a five-point central "
+                                f"difference along a random direction: {an:.6g} vs {d5:.6g} (relative error {rel:.1e})"))
+
+
+# ---------------------------------------------------------------------------- the verdict
+def _verdict(settings, viol, viol_at, fig, check):
+    """(level, reason) from the figures (module docstring); the reason names every condition that
+    fails (at level acceptable: misses the full tolerance), the worst relative to its tolerance first."""
+    if check.failed:
+        return "failed", check.note
+    s = settings
+    tests = [("constraint violation", viol, s.constr_viol_tol, s.acceptable_constr_viol_tol, f" ({viol_at})"),
+             ("scaled stationarity", fig.stationarity_scaled, s.tol, s.acceptable_tol,
+              f" (Lagrangian gradient {fig.residual_at:.2e} at {fig.stationarity_at}, {fig.kind} multipliers)"),
+             ("scaled complementarity", fig.complementarity_scaled, s.tol, s.acceptable_tol,
+              f" (at {fig.complementarity_at}, {fig.kind} multipliers)")]
+    fails = [(name, val, tol, where) for name, val, tol, _, where in tests if not val <= tol]
+    if not fails:
+        return "success", ""
+    level = "acceptable"
+    failed = [(name, val, atol, where) for name, val, _, atol, where in tests if not val <= atol]
+    if failed:
+        level, fails = "failed", failed
+    fails.sort(key=lambda t: -(t[1] / t[2]) if t[1] == t[1] else -np.inf)
+    return level, "; ".join(f"{name} {val:.2e} exceeds {limit:g}{where}" for name, val, limit, where in fails)
+
+
+def certify(problem, X, U, multipliers=None, settings=None) -> Certificate:
+    """The certificate of the point (X, U) (module docstring). ``multipliers`` is a Result's
+    multipliers dict (``dynamics`` (N, n), ``stage_constraints`` (N, r), ``final_constraints``
+    (rN,)) or None. The problem's evaluation counters are left as they were; the certificate
+    records its own evaluations."""
+    settings = settings or CertificateSettings()
+    t0 = time.perf_counter()
+    saved = problem.counters.copy()
+    try:
+        cert = _certify(problem, np.asarray(X, dtype=float), np.asarray(U, dtype=float), multipliers, settings)
+        cert.evaluations = int(sum(problem.counters.values()) - sum(saved.values()))
+    finally:
+        problem.counters.clear()
+        problem.counters.update(saved)
+    cert.time_s = time.perf_counter() - t0
+    return cert
+
+
+def _certify(p, X, U, multipliers, settings):
+    tols = dict(tol=settings.tol, acceptable_tol=settings.acceptable_tol, constr_viol_tol=settings.constr_viol_tol,
+                acceptable_constr_viol_tol=settings.acceptable_constr_viol_tol)
+    try:
+        pt = StagePoint(p, X, U)
+    except OladoError as exc:
+        return Certificate(level="failed", reason=f"the problem cannot be evaluated at the returned point ({exc})", **tols)
+    bounds = StageBounds.of(p)
+    viol, viol_at = _violation(p, pt, bounds)
+    W = (np.maximum(1.0, np.abs(X)), np.maximum(1.0, np.abs(U)))
+    S = max(1.0, abs(pt.J))
+    given = _solver_multipliers(p, multipliers)
+    solver_fig = None if given is None else _figures(p, pt, bounds, W, S, *given, "solver")
+    fig, note = solver_fig, ""
+    if fig is None or fig.error() > settings.tol:
+        ls = least_squares_multipliers(p, pt, bounds, W, given, target=settings.tol)
+        if isinstance(ls, str):
+            note = ls
+        else:
+            ls_fig = _figures(p, pt, bounds, W, S, *ls, "least-squares")
+            if fig is None or ls_fig.error() < fig.error():
+                fig = ls_fig
+    if fig is None:
+        return Certificate(level="failed", reason=note or "no multipliers", violation=viol, **tols)
+    check = spot_check(p, pt, bounds, W) if settings.gradient_check else _Check(None, False, "")
+    level, reason = _verdict(settings, viol, viol_at, fig, check)
+    if level != "success" and note:
+        reason = f"{reason}; {note}"
+    return Certificate(level=level, reason=reason, multipliers=fig.kind, violation=viol,
+                       stationarity=fig.stationarity, complementarity=fig.complementarity,
+                       stationarity_scaled=fig.stationarity_scaled, complementarity_scaled=fig.complementarity_scaled,
+                       solver_stationarity_scaled=float("nan") if solver_fig is None else solver_fig.stationarity_scaled,
+                       gradient_check=check.worst, gradient_check_note=check.note, **tols)
+
+
+def verdict_status(cert, status, message):
+    """(status, message) of a result that stopped with ``status`` (a success) after ``cert``:
+    unchanged at level success; SUCCESS becomes ACCEPTABLE at level acceptable; UNCERTIFIED when
+    the certificate fails, the message naming what does not hold."""
+    if cert.level == "success":
+        return status, message
+    if cert.level == "acceptable":
+        if status == Status.SUCCESS:
+            return Status.ACCEPTABLE, f"{message}; olado's certificate holds at the acceptable level only: {cert.reason}"
+        return status, message
+    return Status.UNCERTIFIED, f"{message}; but olado's independent optimality check fails: {cert.reason}"
+
+
+def certify_result(result, problem, options):
+    """Certify a Result that reports success (unless ``options.certify`` is off or the solver
+    certified it already) and apply the verdict (:func:`verdict_status`)."""
+    if not getattr(options, "certify", False) or not result.status.success or result.certificate is not None:
+        return result
+    cert = certify(problem, result.x, result.u, result.multipliers, CertificateSettings.from_options(options))
+    result.certificate = cert
+    result.status, result.message = verdict_status(cert, result.status, result.message)
+    return result
