@@ -77,7 +77,45 @@ def solve_entry(entry_name, config_name, time_limit) -> dict:
                    verified_kkt=check.kkt_residual, verified_kkt_scaled=check.kkt_residual_scaled)
     except Exception as exc:  # noqa: BLE001 - e.g. a NaN in the returned point
         out.update(verified_violation=math.inf, verify_error=f"{type(exc).__name__}: {exc}"[:200])
+    if result.status.success:
+        out.update(_certificate_figures(problem, result))
     return out
+
+
+def _certificate_figures(problem, result) -> dict:
+    """The certificate the result carries and olado's independent one from the point alone
+    (least-squares multipliers: ``certify(problem, X, U, None)``), for the certificate table."""
+    import numpy as np
+
+    from olado.solvers.certificate import CertificateSettings, certify
+
+    out = {}
+    cert = result.certificate
+    if cert is not None:
+        out.update(certificate=cert.level, certificate_multipliers=cert.multipliers,
+                   certificate_kkt=max(cert.stationarity_scaled, cert.complementarity_scaled))
+    if not (np.all(np.isfinite(result.x)) and np.all(np.isfinite(result.u))):
+        return out
+    try:
+        settings = CertificateSettings.from_options(_solver_options(result))
+        indep = certify(problem, result.x, result.u, None, settings)
+    except Exception as exc:  # noqa: BLE001 - recorded, not hidden
+        return dict(out, independent_error=f"{type(exc).__name__}: {exc}"[:200])
+    tol, viol = ((settings.tol, settings.constr_viol_tol) if result.status.value == "success"
+                 else (settings.acceptable_tol, settings.acceptable_constr_viol_tol))
+    err = max(indep.stationarity_scaled, indep.complementarity_scaled)
+    return dict(out, independent_kkt=float(err), independent_violation=float(indep.violation),
+                independent_holds=bool(err <= tol and indep.violation <= viol and not indep.gradient_check_note))
+
+
+def _solver_options(result):
+    """The solve's tolerances as an options object for CertificateSettings.from_options."""
+    import types
+
+    opts = result.options or {}
+    fields = ("tol", "constr_viol_tol", "certificate_tol", "certificate_acceptable_tol",
+              "certificate_acceptable_constr_viol_tol")
+    return types.SimpleNamespace(**{k: opts[k] for k in fields if k in opts})
 
 
 def _worker(conn, target):

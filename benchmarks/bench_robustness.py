@@ -137,6 +137,7 @@ def table(entries, configs, store, refs, args):
             lines.append(f"- {c}: {shown}")
     if not any_other:
         lines.append("- none")
+    lines += certificate_lines(entries, configs, store)
     lines += ["", "Failures (entry: class / status):", ""]
     for c in configs:
         if rows[c]["fails"]:
@@ -147,6 +148,33 @@ def table(entries, configs, store, refs, args):
                      for k, v in sorted(by.items(), key=lambda kv: -len(kv[1]))]
             lines.append(f"- {c}: " + "; ".join(parts))
     return "\n".join(lines) + "\n"
+
+
+def certificate_lines(entries, configs, store):
+    """Issue 18's check on the robustness set: every success's certificate, and olado's
+    independent certificate of the returned point (least-squares multipliers, nothing from the
+    solver but the point) against the tolerance of the reported status."""
+    lines = ["", "Certificates of the successes (status success or acceptable): the level of the certificate the "
+             "result carries, and the successes whose *independently* recomputed scaled KKT residual "
+             "(`certify(problem, X, U, None)`) or violation exceeds the tolerance of their status (1e-6 or the "
+             "preset's tol, and constr_viol_tol; acceptable: 1e-4, 1e-6); UNCERTIFIED counts the solver "
+             "successes the certificate turned down:", "",
+             "| config | successes | certificate success | acceptable | uncertified | independent check fails |",
+             "|:--|---:|---:|---:|---:|---:|"]
+    bad = []
+    for c in configs:
+        recs = [store.get(_key(e.name, c)) for e in entries]
+        recs = [r for r in recs if r is not None]
+        succ = [r for r in recs if r.get("status") in ("success", "acceptable")]
+        levels = Counter(r.get("certificate", "none") for r in succ)
+        fails = [r for r in succ if r.get("independent_holds") is False]
+        bad += [(c, r) for r in fails]
+        lines.append(f"| {c} | {len(succ)} | {levels.get('success', 0)} | {levels.get('acceptable', 0)} | "
+                     f"{sum(r.get('status') == 'uncertified' for r in recs)} | {len(fails)} |")
+    for c, r in bad:
+        lines.append(f"- {c} {r['entry']}: {r['status']}, independent scaled KKT {r.get('independent_kkt', math.nan):.1e}, "
+                     f"violation {r.get('independent_violation', math.nan):.1e}")
+    return lines
 
 
 def main(argv=None):
