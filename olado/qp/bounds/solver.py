@@ -137,6 +137,7 @@ class _Run:
             if v0 > o.tol * (1 + float(np.max(np.abs(qp.x0), initial=0.0))):
                 raise _GiveUp(f"x0 violates the bounds of x_0 by {v0:.3g}")
         self.dtol = o.tol * (1.0 + max(float(np.max(np.abs(qp.q), initial=0.0)), float(np.max(np.abs(qp.r), initial=0.0))))
+        self.pdata = self._pdata()
         side = self.initial_side(warm)
         seen = set()
         pt = self.eqp(side, first=True)
@@ -201,7 +202,7 @@ class _Run:
         self.it += 1
         try:
             pt = solve_eqp(self.qp, self.boxes, side)
-            ok = np.isfinite(pt.defect) and pt.defect <= 1e3 * self.o.tol * (1.0 + self._pdata())
+            ok = np.isfinite(pt.defect) and pt.defect <= 1e3 * self.o.tol * (1.0 + self.pdata)
             why = f"{_INCONSISTENT} (defect {pt.defect:.3g})"
         except NotPositiveDefiniteError as exc:
             ok, why = False, (f"the reduced Hessian of the working set is not positive definite at stage "
@@ -221,6 +222,7 @@ class _Run:
         return pt
 
     def _pdata(self):
+        """The largest |value| of the data the rows hold (offsets c, x0, finite bounds)."""
         qp = self.qp
         b = np.concatenate([self.boxes.lo, self.boxes.hi])
         return max(float(np.max(np.abs(qp.c), initial=0.0)), float(np.max(np.abs(qp.x0), initial=0.0)),

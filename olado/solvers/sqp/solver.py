@@ -121,8 +121,8 @@ def _apply_qp_options(qp_solver, qp_name, qp_options):
 def _check_bounds_only(problem):
     """``qp = bounds`` (olado.qp.bounds) solves QPs with simple bounds only: a ConfigError naming
     the problem's stage and final constraints when it has any."""
-    general = [f"{k} {what}" for k, what in ((problem.r, "stage constraints g^k"), (problem.rN, "final constraints g^N"))
-               if k]
+    general = [f"{k} {what}{'s' if k > 1 else ''} {sym}" for k, what, sym in
+               ((problem.r, "stage constraint", "g^k"), (problem.rN, "final constraint", "g^N")) if k]
     if general:
         raise ConfigError(f"qp = 'bounds' is the QP method for problems with simple bounds on states and controls "
                           f"only, but {type(problem).__name__} has {' and '.join(general)}; use qp = 'mehrotra' "

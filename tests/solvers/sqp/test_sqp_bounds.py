@@ -78,6 +78,6 @@ def test_presets_refuse_problems_with_general_constraints(preset):
     with pytest.raises(ConfigError) as exc:
         olado.solve(PROBLEMS["rayleigh-mixed"](N=20), config=CONFIGS / f"{preset}.ini")
     msg = str(exc.value)
-    assert "key 'qp'" in msg and "1 stage constraints g^k" in msg and "simple bounds" in msg and "mehrotra" in msg
-    with pytest.raises(ConfigError, match="final constraints g"):
+    assert "key 'qp'" in msg and "1 stage constraint g^k" in msg and "simple bounds" in msg and "mehrotra" in msg
+    with pytest.raises(ConfigError, match="2 final constraints g"):
         olado.solve(PROBLEMS["double-integrator"](N=20), config=CONFIGS / f"{preset}.ini")
