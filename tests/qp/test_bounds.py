@@ -189,3 +189,21 @@ def test_registry_and_options():
         make_qp_solver("bounds", fallback="osqp")
     with pytest.raises(ConfigError, match="state_bounds"):
         PrimalDualActiveSetQP(state_bounds="penalty")
+
+
+def test_limits_are_checked_at_every_iteration():
+    """An interrupt requested before the QP starts ends the active-set iteration at its first
+    factorization inside the solve's catch block (the fallback's check is the interior point's)."""
+    import signal
+
+    from olado.interrupts import InterruptGuard, Limits, request_interrupt
+
+    qp = control_bounds_qp(0)
+    ref = PrimalDualActiveSetQP().solve(qp)
+    assert ref.solver == "bounds" and ref.iterations > 1
+    with InterruptGuard():
+        request_interrupt(signal.SIGINT)
+        limits = Limits()
+        with limits.catch() as stop:
+            PrimalDualActiveSetQP().solve(qp, limits=limits)
+        assert stop.reason == "interrupted"
