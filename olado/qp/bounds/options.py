@@ -30,10 +30,10 @@ class BoundsQPOptions:
                            "(a cycle, no fixed point within pdas_max_iter, a working set whose reduced Hessian is not "
                            "positive definite or whose fixed states are inconsistent, a QP with general rows)",
                            choices=("mehrotra", "gondzio", "weighted", "franke"))
-    nonconvex: str = option("fallback", "a working set whose reduced Hessian is not positive definite (a nonconvex "
-                            "QP): 'fallback' solves the QP by the fallback method (whose barrier terms may "
-                            "convexify it), 'fail' ends with NUMERICAL_ERROR naming the stage, after which the SQP's "
-                            "inertia correction shifts the Hessian (as the active-set method does)",
+    nonconvex: str = option("fail", "a working set whose reduced Hessian is not positive definite (a nonconvex "
+                            "QP): 'fail' ends with NUMERICAL_ERROR naming the stage, after which the SQP's inertia "
+                            "correction shifts the Hessian (as the active-set method does); 'fallback' solves the QP "
+                            "by the fallback method (whose barrier terms may convexify it)",
                             choices=("fallback", "fail"))
     max_iter: int = option(200, "the fallback interior-point method's iteration limit", min=0)
     kkt: str = option("riccati", "KKT back-end of the fallback interior-point method", choices=KKT_SOLVERS)

@@ -22,11 +22,12 @@ factorization, the iteration changes every wrong bound at once: the number of fa
 does not grow with the number of active bounds (typically 2-6 from a cold start, 1-2 from the
 previous SQP iteration's working set). It has no global convergence guarantee for general
 (non-M-matrix) Hessians and can cycle; a QP it gives up on -- a repeated working set, no fixed
-point within ``pdas_max_iter``, a working set whose reduced Hessian is not positive definite or
-whose fixed states cannot all hold -- is solved by the interior-point method ``fallback``
-(Mehrotra's by default), whose status (infeasibility certificates, NUMERICAL_ERROR for the SQP's
-inertia correction) is then the result's. A QP with general rows (E, C rows) goes to the fallback
-directly.
+point within ``pdas_max_iter``, a working set whose fixed states cannot all hold -- is solved by
+the interior-point method ``fallback`` (Mehrotra's by default), whose status (infeasibility
+certificates) is then the result's. A QP with general rows (E, C rows) or, by default, with state
+bounds goes to the fallback directly. A working set whose reduced Hessian is not positive
+definite ends the solve with NUMERICAL_ERROR (``nonconvex = 'fail'``, the SQP's inertia
+correction then shifts the Hessian) or goes to the fallback (``'fallback'``).
 """
 
 from __future__ import annotations
