@@ -107,7 +107,8 @@ def violation_arrays(problem, pt) -> list[ViolationArray]:
     vx[0] = 0.0                                 # x^0 is fixed at x0 (the array x0)
     out.append(ViolationArray("x_bounds", vx, kx, True))
     out.append(ViolationArray("u_bounds", *_bounds(U, p.u_lower, p.u_upper), True))
-    return [a._replace(values=np.where(np.isnan(a.values), np.inf, a.values)) for a in out]
+    return [a._replace(values=np.where(np.isnan(a.values), np.inf, a.values)) if np.isnan(a.values).any() else a
+            for a in out]
 
 
 def violation_at(array: ViolationArray, flat_index) -> Violation:
