@@ -2,7 +2,9 @@
 
 A :class:`Result` carries the status (an enum with a human sentence), the state and control
 trajectories, multipliers, objective, constraint violation, KKT residual, counts, timings and the
-per-iteration history. It prints a summary, plots itself and saves/loads as JSON + npz, written
+per-iteration history; olado's certificate of a success (:class:`Certificate`) and the diagnosis of
+an infeasible result (:class:`Infeasibility`: the constraints that stay violated, array, stage and
+component). It prints a summary, plots itself and saves/loads as JSON + npz, written
 atomically (a crash mid-save never leaves a half-written file).
 """
 
