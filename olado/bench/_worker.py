@@ -1,6 +1,7 @@
 """The worker process of :class:`olado.bench.pool.IsolatedPool` (``python -m olado.bench._worker
-TARGET READ_FD WRITE_FD PARENT_PID MEMORY_LIMIT``): set the memory guard and the parent-death
-signal, import ``TARGET`` ("module:function"), then answer each task received on READ_FD with
+TARGET READ_FD WRITE_FD PARENT_PID MEMORY_LIMIT PRELOAD``): set the memory guard and the
+parent-death signal, import ``TARGET`` ("module:function") and the modules of PRELOAD (comma
+separated), say ``("ready",)``, then answer each task received on READ_FD with
 ``(True, function(task))`` -- or ``(False, message, traceback)`` when the function raised --
 on WRITE_FD until it receives None or the parent is gone."""
 
@@ -8,6 +9,16 @@ from __future__ import annotations
 
 import os
 import sys
+
+_CONN = None
+
+
+def reset_clock(phase: str = "clock") -> None:
+    """Tell the pool that a part of the current task starts now: ``"warmup"`` (an unmeasured
+    warm-up solve: twice the time limit, for imports and compilation) or ``"clock"`` (the
+    measured part: the time limit). A no-op outside a worker."""
+    if _CONN is not None:
+        _CONN.send((phase,))
 
 
 def _guard_memory(limit: int) -> None:
@@ -48,7 +59,8 @@ def _import(target: str):
 
 
 def main(argv) -> int:
-    target, read_fd, write_fd, parent_pid, memory = argv
+    global _CONN
+    target, read_fd, write_fd, parent_pid, memory, preload = argv
     _die_with_parent(int(parent_pid))
     _guard_memory(int(memory))
     import signal
@@ -58,6 +70,17 @@ def main(argv) -> int:
     conn_in = Connection(int(read_fd), writable=False)
     conn_out = Connection(int(write_fd), readable=False)
     function = _import(target)
+    import importlib
+
+    for module in filter(None, preload.split(",")):
+        try:
+            importlib.import_module(module)
+        except ImportError:  # the task reports it, if it needs the module
+            pass
+    _CONN = conn_out
+    if __name__ == "__main__":  # run as a script: the task code imports this module under its real name
+        importlib.import_module("olado.bench._worker")._CONN = conn_out
+    conn_out.send(("ready",))
     while True:
         try:
             task = conn_in.recv()

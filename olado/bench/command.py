@@ -54,7 +54,7 @@ def cmd_bench(args) -> int:
     if args.grace < 0:
         raise ConfigError(f"--grace must be >= 0, got {args.grace:g}", key="--grace", allowed=">= 0")
     memory = default_memory_limit(args.jobs) if args.memory_limit is None else parse_memory(args.memory_limit)
-    limits = Limits(time_limit=args.time_limit, grace=args.grace, memory_limit=memory)
+    limits = Limits(time_limit=args.time_limit, grace=args.grace, memory_limit=memory, warmup=not args.no_warmup)
     configs = load_bench_configs(args.config or [], args.time_limit)
     store = args.store or f"bench-{Path(args.suite).stem}.jsonl"
     from .runner import make_executor
@@ -70,4 +70,73 @@ def cmd_bench(args) -> int:
                  progress=not args.quiet, stream=sys.stderr, limit=args.limit)
     if not args.quiet:
         print(report.summary(), flush=True)
+    return 0
+
+
+def _read_stores(paths) -> list[dict]:
+    from .store import read_records
+
+    records = []
+    for path in paths:
+        records.extend(read_records(path))
+    return records
+
+
+def _table_format(path) -> str:
+    if path == "-":
+        return "md"
+    suffix = Path(path).suffix.lower()
+    if suffix not in (".md", ".csv"):
+        raise ConfigError(f"cannot write a {suffix or 'suffix-less'} table {path!r}", key="--table",
+                          allowed=".md, .csv, - (print)")
+    return suffix[1:]
+
+
+def _plot_format(path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    formats = Figure().canvas.get_supported_filetypes()
+    if Path(path).suffix.lstrip(".").lower() not in formats:
+        raise ConfigError(f"cannot write a {Path(path).suffix or 'suffix-less'} figure {path!r}", key="--plot",
+                          allowed=", ".join(f".{f}" for f in sorted(formats)))
+
+
+def cmd_profile(args) -> int:
+    from ..result import atomic_write_bytes
+    from .profiles import (compare_runs, format_table, per_problem_table, performance_profile, plot_profiles,
+                           select, summary_table)
+
+    fmt = _table_format(args.table) if args.table else None
+    if args.plot:
+        _plot_format(args.plot)
+    records = select(_read_stores(args.store), args.where, args.config)
+    if not records:
+        raise ConfigError("no records" + (f" for which {args.where!r} holds" if args.where else ""), key="--where")
+    metrics = list(dict.fromkeys(args.metric or ["time"]))
+    profiles = [performance_profile(records, m, configs=args.config) for m in metrics]
+    if args.per_problem:
+        header, rows = per_problem_table(records, args.config)
+    else:
+        header, rows = summary_table(records, profiles, args.config)
+    text = format_table(header, rows, fmt or "md")
+    prof = profiles[0]
+    print(f"{len(records)} records, {len(prof.problems)} problems x {len(prof.configs)} configurations"
+          + (f" ({prof.dropped} problems left out: not run by every configuration)" if prof.dropped else ""))
+    if args.table and args.table != "-":
+        atomic_write_bytes(args.table, text.encode("utf-8"))
+        print(f"wrote {args.table}")
+    else:
+        print(text, end="")
+    if args.plot:
+        plot_profiles(profiles, args.plot, title=", ".join(args.store) + (f" where {args.where}" if args.where else ""))
+        print(f"saved {args.plot}")
+    if args.compare:
+        old = select(_read_stores([args.compare]), args.where, None)
+        comparison = compare_runs(records, old, rtol=args.rtol, slower=args.slower)
+        print(f"comparison with {args.compare}:")
+        print(comparison.text())
+        return 1 if comparison.has_regressions else 0
     return 0

@@ -22,12 +22,27 @@ TARGET = "olado.bench.records:solve_case"
 @dataclasses.dataclass(frozen=True)
 class Limits:
     """Per-solve limits: the solver's time limit (seconds; also its ``max_time``), the extra
-    seconds before a hung worker is killed, and the worker's address-space limit in bytes
-    (None: none)."""
+    seconds before a hung worker is killed, the worker's address-space limit in bytes (None:
+    none), and whether a worker warms up (an unmeasured first solve of each configuration and
+    problem, :func:`olado.bench.records.solve_case`; the warm-up and the measured solve each get
+    the time limit plus the grace)."""
 
     time_limit: float = 600.0
     grace: float = GRACE
     memory_limit: int | None = None
+    warmup: bool = True
+
+
+#: modules a worker imports before it says it is ready (not counted in the first task's time limit)
+PRELOAD = ("olado.config", "olado.problems", "olado.solvers.registry")
+
+
+def _preload(tasks) -> tuple:
+    """PRELOAD and the modules of the tasks' solvers."""
+    from ..solvers.registry import SOLVERS
+
+    solvers = {t.config.config.solver for t in tasks}
+    return PRELOAD + tuple(sorted({SOLVERS.target(s).partition(":")[0] for s in solvers if s in SOLVERS}))
 
 
 class LocalExecutor:
@@ -43,9 +58,9 @@ class LocalExecutor:
 
     def run(self, tasks):
         """Yield one record per task, in completion order."""
-        lim = self.limits
+        lim, tasks = self.limits, list(tasks)
         with IsolatedPool(TARGET, jobs=self.jobs, time_limit=lim.time_limit, grace=lim.grace,
-                          memory_limit=lim.memory_limit) as pool:
+                          memory_limit=lim.memory_limit, preload=_preload(tasks)) as pool:
             for task, answer in pool.run(tasks):
                 yield make_record(task, answer)
 
@@ -63,7 +78,7 @@ def dask_solve(task, limits: Limits) -> dict:
         if pool is not None:
             pool.close()
         pool = _LOCAL.pool = IsolatedPool(TARGET, jobs=1, time_limit=limits.time_limit, grace=limits.grace,
-                                          memory_limit=limits.memory_limit)
+                                          memory_limit=limits.memory_limit, preload=_preload([task]))
     (_, answer), = pool.run([task])
     return make_record(task, answer)
 

@@ -9,8 +9,11 @@ worker). Parent and worker talk through two pipes wrapped as
 goes to /dev/null (a solver's verbose printing would otherwise garble the caller's progress
 line) and its standard error to a temporary file whose tail becomes the message of a crash.
 
-* **Time limit.** A task that has not answered ``time_limit + grace`` seconds after it was sent is
-  a hang: the worker is killed (SIGKILL) and replaced, the answer is :class:`Failure` ``timeout``.
+* **Time limit.** A task that has not answered ``time_limit + grace`` seconds after its clock
+  started is a hang (the clock starts when the task is sent to a ready worker -- a new worker first
+  imports its target and the ``preload`` modules and says it is ready -- and again when the task
+  says so, :func:`olado.bench._worker.reset_clock`: a warm-up phase gets twice the time limit,
+  for imports and compilation, the measured phase after it the time limit again): the worker is killed (SIGKILL) and replaced, the answer is :class:`Failure` ``timeout``.
 * **Exception.** A task function that raises gives :class:`Failure` ``exception`` with the
   exception's type and message (and the traceback's tail); the worker goes on.
   (The bench also gives the solver ``max_time = time_limit``, so a solver that honours it stops
@@ -42,6 +45,8 @@ from multiprocessing.connection import Connection, wait
 
 #: extra seconds a worker gets beyond the time limit before it is killed
 GRACE = 15.0
+#: seconds a new worker may take to import its target and preloads (not counted in a task's limit)
+STARTUP = 120.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,7 +70,10 @@ class _Worker:
     stderr: object                # the temporary file holding the worker's standard error
     task: object = None
     busy: bool = False
-    t0: float = 0.0
+    t0: float = 0.0               # when the task's clock started (None: the worker is not ready yet)
+    ready: bool = False
+    started: float = 0.0
+    warmup: bool = False          # the task is in its warm-up phase (twice the time limit)
 
 
 def _child_path() -> str:
@@ -83,8 +91,9 @@ class IsolatedPool:
     worker hung or died. Use as a context manager (or call :meth:`close`)."""
 
     def __init__(self, target: str, jobs: int = 1, time_limit: float = 60.0, grace: float = GRACE,
-                 memory_limit: int | None = None):
+                 memory_limit: int | None = None, preload=()):
         self.target = str(target)
+        self.preload = ",".join(preload)
         self.jobs = max(1, int(jobs))
         self.time_limit = float(time_limit)
         self.grace = float(grace)
@@ -97,7 +106,7 @@ class IsolatedPool:
         from_child_r, from_child_w = os.pipe()
         stderr = tempfile.TemporaryFile()
         cmd = [sys.executable, "-m", "olado.bench._worker", self.target, str(to_child_r), str(from_child_w),
-               str(os.getpid()), str(self.memory_limit or 0)]
+               str(os.getpid()), str(self.memory_limit or 0), self.preload]
         env = dict(os.environ, PYTHONPATH=_child_path())
         try:
             proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=stderr,
@@ -105,7 +114,8 @@ class IsolatedPool:
         finally:
             os.close(to_child_r)
             os.close(from_child_w)
-        return _Worker(proc, Connection(to_child_w, readable=False), Connection(from_child_r, writable=False), stderr)
+        return _Worker(proc, Connection(to_child_w, readable=False), Connection(from_child_r, writable=False), stderr,
+                       started=time.perf_counter())
 
     def _stop(self, w: _Worker) -> None:
         for conn in (w.conn_out, w.conn_in):
@@ -155,7 +165,7 @@ class IsolatedPool:
             self._stop(w)
             w = self._start()
             w.conn_out.send(task)
-        w.task, w.busy, w.t0 = task, True, time.perf_counter()
+        w.task, w.busy, w.t0, w.warmup = task, True, (time.perf_counter() if w.ready else None), False
         return w
 
     def run(self, tasks):
@@ -183,23 +193,34 @@ class IsolatedPool:
                     yield task, answer
 
     def _poll(self, w: _Worker):
-        """The answer of ``w``'s task, a Failure (hang, death), or None (still working)."""
-        elapsed = time.perf_counter() - w.t0
+        """The answer of ``w``'s task, a Failure (hang, death), or None (still working). The
+        task's clock starts when the worker is ready (imports done) and again when the worker
+        says so (after a warm-up: ``_worker.reset_clock``)."""
         try:
-            if w.conn_in.poll(0):
+            while w.conn_in.poll(0):
                 answer = w.conn_in.recv()
-                if answer[0]:
+                if answer[0] in ("ready", "clock", "warmup"):
+                    w.ready, w.t0, w.warmup = True, time.perf_counter(), answer[0] == "warmup"
+                    continue
+                elapsed = time.perf_counter() - w.t0
+                if answer[0] is True:
                     return answer[1]
                 return Failure("exception", answer[1], elapsed, answer[2], restart=False)
         except (EOFError, OSError):
             pass
+        now = time.perf_counter()
+        elapsed = now - (w.t0 if w.t0 is not None else w.started)
         code = w.proc.poll()
         if code is not None:
             how = f"killed by signal {-code}" if code < 0 else f"exit code {code}"
             tail = self._stderr_tail(w)
             return Failure("crash", f"the worker process died ({how})" + (f"; its last output: {tail}" if tail else ""),
                            elapsed)
-        if elapsed > self.time_limit + self.grace:
-            return Failure("timeout", f"killed after {elapsed:.1f} s without an answer (time limit "
-                                      f"{self.time_limit:g} s + {self.grace:g} s grace)", elapsed)
+        if w.t0 is None and elapsed > STARTUP + self.grace:
+            return Failure("timeout", f"the worker was not ready {elapsed:.1f} s after its start (imports)", elapsed)
+        limit = self.time_limit * (2.0 if w.warmup else 1.0)
+        if w.t0 is not None and elapsed > limit + self.grace:
+            what = "in its warm-up solve " if w.warmup else ""
+            return Failure("timeout", f"killed {what}after {elapsed:.1f} s without an answer (time limit "
+                                      f"{limit:g} s + {self.grace:g} s grace)", elapsed)
         return None

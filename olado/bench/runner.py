@@ -101,7 +101,7 @@ def run(suite, configs, store, *, jobs: int = 1, dask: str | None = None, limits
     if not isinstance(configs, list) or not all(isinstance(c, BenchConfig) for c in configs):
         configs = load_bench_configs(list(configs), limits.time_limit)
     executor = make_executor(jobs, dask, limits)
-    tasks = plan(entries, configs, suite_name)
+    tasks = [dataclasses.replace(t, warmup=limits.warmup) for t in plan(entries, configs, suite_name)]
     with ResultStore(store) as st:
         done = st.keys()
         todo = [t for t in tasks if t.key not in done]
