@@ -58,11 +58,15 @@ class RunReport:
     skipped: int
     records: list
     repaired: int = 0
+    rehashed: int = 0       # planned solves whose config name has a record under another hash
 
     def summary(self) -> str:
         """Per configuration: solved, failed by status, the solver's total time."""
         lines = [f"{len(self.records)} solves run, {self.skipped} already in {self.store} "
                  f"({self.planned} planned)"]
+        if self.rehashed:
+            lines.append(f"note: {self.rehashed} planned solves have records of the same configuration name with "
+                         "another hash (other options or another --time-limit); those records were not reused")
         if self.repaired:
             lines.append(f"dropped an incomplete last record ({self.repaired} bytes) left by a killed run")
         by_config = collections.defaultdict(list)
@@ -107,8 +111,9 @@ def run(suite, configs, store, *, jobs: int = 1, dask: str | None = None, limits
         todo = [t for t in tasks if t.key not in done]
         if limit is not None:
             todo = todo[:max(0, int(limit))]
-        report = RunReport(Path(store), len(tasks), len(tasks) - len(todo) if limit is None
-                           else sum(t.key in done for t in tasks), [], st.repaired)
+        named = {(r.get("problem"), r.get("N"), r.get("start"), r.get("config")) for r in st.records}
+        rehashed = sum(t.key not in done and (*t.key[:3], t.config.name) in named for t in tasks)
+        report = RunReport(Path(store), len(tasks), sum(t.key in done for t in tasks), [], st.repaired, rehashed)
         bar = Progress(len(todo), stream=stream, enabled=progress)
         try:
             for record in executor.run(todo) if todo else ():

@@ -1,6 +1,7 @@
-"""The runner goes on through a hanging, a raising and a dying solve (issue 14, "what it must
-show"): the hanging one is killed at its time limit and recorded as a timeout, the raising one
-recorded with its message, the dying one as a crash; the good solve is recorded as usual."""
+"""The runner goes on through a hanging, a raising, a dying and a memory-hungry solve (issue 14,
+"what it must show"): the hanging one is killed at its time limit and recorded as a timeout, the
+raising one recorded with its message, the dying one as a crash, the hungry one stopped by the
+memory guard; the good solve is recorded as usual."""
 
 import pytest
 
@@ -17,6 +18,8 @@ problem = "fixtures.bench_problems:raising"
 problem = "fixtures.bench_problems:hanging"
 [[problem]]
 problem = "fixtures.bench_problems:dying"
+[[problem]]
+problem = "fixtures.bench_problems:hungry"
 """
 
 
@@ -24,16 +27,16 @@ problem = "fixtures.bench_problems:dying"
 def run_records(tmp_path_factory):
     folder = tmp_path_factory.mktemp("isolation")
     suite = write_suite(folder, SUITE)
-    limits = bench.Limits(time_limit=6.0, grace=1.0, memory_limit=None, warmup=False)
+    limits = bench.Limits(time_limit=6.0, grace=1.0, memory_limit=3 * 2**30, warmup=False)
     report = bench.run(suite, [SQP], folder / "store.jsonl", jobs=2, limits=limits, progress=False)
     return {r["problem"].rsplit(":", 1)[-1]: r for r in report.records}, report, folder
 
 
 def test_every_solve_is_recorded(run_records):
     records, report, folder = run_records
-    assert sorted(records) == ["dying", "hanging", "lq", "raising"]
-    assert len(bench.read_records(folder / "store.jsonl")) == 4
-    assert "1 solved, 3 failed" in report.summary()
+    assert sorted(records) == ["dying", "hanging", "hungry", "lq", "raising"]
+    assert len(bench.read_records(folder / "store.jsonl")) == 5
+    assert "1 solved, 4 failed" in report.summary()
 
 
 def test_hang_is_killed_at_its_time_limit(run_records):
@@ -53,6 +56,12 @@ def test_exception_is_recorded_with_its_message(run_records):
 def test_dying_worker_is_a_crash(run_records):
     rec = run_records[0]["dying"]
     assert rec["status"] == "crash" and "killed by signal 9" in rec["message"]
+
+
+def test_memory_guard(run_records):
+    """The worker's address space is limited (3 GiB here): an 8 GiB allocation fails in the worker."""
+    rec = run_records[0]["hungry"]
+    assert rec["status"] == "memory_limit" and rec["message"].startswith("MemoryError")
 
 
 def test_good_solve_after_the_failures(run_records):
