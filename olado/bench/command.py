@@ -66,8 +66,13 @@ def cmd_bench(args) -> int:
               + ", ".join(f"{c.name} [{c.hash}]" for c in configs), flush=True)
         print(f"store {store}; {executor.describe()}; time limit {args.time_limit:g} s per solve "
               f"(+{args.grace:g} s grace), {mem}", flush=True)
-    report = run(args.suite, configs, store, jobs=args.jobs, dask=args.dask, limits=limits,
-                 progress=not args.quiet, stream=sys.stderr, limit=args.limit)
+    try:
+        report = run(args.suite, configs, store, jobs=args.jobs, dask=args.dask, limits=limits,
+                     progress=not args.quiet, stream=sys.stderr, limit=args.limit)
+    except KeyboardInterrupt:
+        print(f"olado bench: stopped; the records written so far are in {store}, and the same command "
+              "resumes the run", file=sys.stderr)
+        raise
     if not args.quiet:
         print(report.summary(), flush=True)
     return 0
