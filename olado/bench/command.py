@@ -114,6 +114,9 @@ def cmd_profile(args) -> int:
     from .profiles import (compare_runs, format_table, per_problem_table, performance_profile, plot_profiles,
                            select, summary_table)
 
+    if not args.rtol >= 0:
+        raise ConfigError(f"--rtol must be >= 0, got {args.rtol:g}", key="--rtol", allowed=">= 0")
+    _positive(args.slower, "--slower")
     fmt = _table_format(args.table) if args.table else None
     if args.plot:
         _plot_format(args.plot)

@@ -75,6 +75,7 @@ def test_profile_outputs(store, capsys, tmp_path):
     (["profile", "{store}", "--plot", "p.xyz"], "key '--plot': cannot write a .xyz figure"),
     (["profile", "{store}", "--config", "nosuch"], "no record of the configuration 'nosuch'"),
     (["profile", "nosuch.jsonl"], "nosuch.jsonl: no such results store"),
+    (["profile", "{store}", "--compare", "{store}", "--rtol", "-1"], "--rtol must be >= 0"),
     (["bench", "nosuch-suite", "-c", SQP], "unknown suite 'nosuch-suite'"),
     (["bench", "table1"], "no configuration given"),
     (["bench", "table1", "-c", "nosuch.ini"], "configuration file not found"),
