@@ -1,20 +1,17 @@
 """What make_robustness_refs.py and bench_robustness.py share: solving one entry of the
 robustness suite in an isolated worker process with a time limit, and classifying the outcome.
 
-Isolation: every solve runs in a worker process (spawned, so it shares nothing with the parent);
-the parent waits for at most the time limit plus a grace period, then kills the worker and
-records a timeout; a worker that dies (a crash in compiled code, an abort) is recorded as a
-crash. Workers are reused between solves (starting one costs imports and numba's cache loads);
-the solver also gets the time limit as its own ``max_time``, so a solver that honours it stops
-by itself and returns its last iterate.
+Isolation: the package's worker pool (:mod:`olado.bench.pool`, the machinery of ``olado bench``):
+every solve runs in a worker process; the parent waits for at most the time limit plus a grace
+period, then kills the worker and records a timeout; a worker that dies (a crash in compiled
+code, an abort) is recorded as a crash. Workers are reused between solves (starting one costs
+imports and numba's cache loads); the solver also gets the time limit as its own ``max_time``,
+so a solver that honours it stops by itself and returns its last iterate.
 """
 
 from __future__ import annotations
 
 import math
-import multiprocessing as mp
-import os
-import subprocess
 import time
 import traceback
 from pathlib import Path
@@ -118,91 +115,40 @@ def _solver_options(result):
     return types.SimpleNamespace(**{k: opts[k] for k in fields if k in opts})
 
 
-def _worker(conn, target):
-    while True:
-        task = conn.recv()
-        if task is None:
-            return
-        conn.send(target(*task))
+def call_target(task):
+    """The package pool's task function: ``task`` = ("module:function", entry, config,
+    time_limit) -> ``function(entry, config, time_limit)``."""
+    import importlib
+
+    target, *args = task
+    module, _, name = target.partition(":")
+    return getattr(importlib.import_module(module), name)(*args)
 
 
 # ---------------------------------------------------------------------------- the parent side
 class IsolatedPool:
-    """``jobs`` worker processes; :meth:`run` yields one answer per task (entry, config), in
-    completion order, with timeouts and crashes recorded instead of raised. A worker answers
-    a task by ``target(entry, config, time_limit)`` (default :func:`solve_entry`; a module-level
-    function, as the spawned worker imports it by name)."""
+    """``jobs`` worker processes of the package's :class:`olado.bench.pool.IsolatedPool`;
+    :meth:`run` yields one answer dict per task (entry, config), in completion order, with
+    timeouts, crashes and exceptions recorded instead of raised. A worker answers a task by
+    ``target(entry, config, time_limit)`` (default :func:`solve_entry`; a module-level function,
+    as the worker imports it by name)."""
 
     def __init__(self, jobs=1, time_limit=60.0, target=solve_entry, grace=GRACE):
         self.jobs = max(1, int(jobs))
         self.time_limit = float(time_limit)
         self.grace = float(grace)
-        self.target = target
-        self._ctx = mp.get_context("spawn")
-        self._workers = []
-
-    def _start(self):
-        parent, child = self._ctx.Pipe()
-        proc = self._ctx.Process(target=_worker, args=(child, self.target), daemon=True)
-        proc.start()
-        child.close()
-        return {"proc": proc, "conn": parent, "task": None, "t0": 0.0}
-
-    def _stop(self, w):
-        try:
-            w["conn"].close()
-        except OSError:
-            pass
-        if w["proc"].is_alive():
-            w["proc"].kill()
-        w["proc"].join(5)
+        self.target = f"{target.__module__}:{target.__name__}"
 
     def run(self, tasks):
-        pending = list(tasks)
-        self._workers = [self._start() for _ in range(min(self.jobs, max(1, len(pending))))]
-        try:
-            while pending or any(w["task"] for w in self._workers):
-                for w in self._workers:
-                    if w["task"] is None and pending:
-                        w["task"], w["t0"] = pending.pop(0), time.perf_counter()
-                        w["conn"].send((*w["task"], self.time_limit))
-                for i, w in enumerate(self._workers):
-                    if w["task"] is None:
-                        continue
-                    answer = self._poll(w)
-                    if answer is None:
-                        continue
-                    if answer.pop("_restart", False):
-                        self._stop(w)
-                        self._workers[i] = self._start()
-                    else:
-                        w["task"] = None
-                    yield answer
-                time.sleep(0.01)
-        finally:
-            for w in self._workers:
-                try:
-                    w["conn"].send(None)
-                except OSError:
-                    pass
-                self._stop(w)
+        from olado.bench.pool import Failure, IsolatedPool as Pool
 
-    def _poll(self, w):
-        entry, config = w["task"]
-        elapsed = time.perf_counter() - w["t0"]
-        try:
-            if w["conn"].poll(0):
-                return w["conn"].recv()
-        except (EOFError, OSError):
-            pass
-        if not w["proc"].is_alive():
-            return {"entry": entry, "config": config, "status": "crash", "_restart": True, "wall_s": elapsed,
-                    "message": f"the worker process died (exit code {w['proc'].exitcode})"}
-        if elapsed > self.time_limit + self.grace:
-            return {"entry": entry, "config": config, "status": "timeout", "_restart": True, "wall_s": elapsed,
-                    "message": f"no answer after {elapsed:.0f} s (time limit {self.time_limit:g} s + "
-                               f"{self.grace:g} s grace)"}
-        return None
+        work = [(self.target, entry, config, self.time_limit) for entry, config in tasks]
+        with Pool("_robustness:call_target", jobs=self.jobs, time_limit=self.time_limit, grace=self.grace) as pool:
+            for (_, entry, config, _), answer in pool.run(work):
+                if isinstance(answer, Failure):
+                    answer = {"entry": entry, "config": config, "status": answer.status, "message": answer.message,
+                              "wall_s": answer.wall_s}
+                yield answer
 
 
 # ---------------------------------------------------------------------------- classification

@@ -23,11 +23,10 @@ import numpy as np
 from _common import HERE, machine, write_section
 
 from olado.config import load_config, make_solver
+from olado.problems.suites.zambezi_testset import GRID  # the set as data (also `olado bench zambezi-testset`)
 from olado.problems.zambezi import zambezi_problem
 
 SECTION = "Zambezi testing set of paper 001 sec. 6 (244 problems, performance profiles)"
-GRID = {"zambezi": range(12, 421, 12), "zambezi8": range(12, 217, 12), "zambezi9": range(12, 73, 12),
-        "zambezi10": range(12, 73, 12), "zambezi11": range(12, 433, 12), "zambezi12": range(12, 253, 12)}
 CONFIGS = ["ipopt", "sqp-ip", "sqp-gondzio", "sqp-weighted", "sqp-sr1", "sqp-bfgs"]
 #: relative objective difference that counts as "the same objective"
 SAME = 1e-6

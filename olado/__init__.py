@@ -40,7 +40,7 @@ _LAZY = {
     "ResultFileError": "olado.errors",
     "ProblemInUseError": "olado.errors",
 }
-_SUBMODULES = ("errors", "interrupts", "result", "config", "options", "api", "problems", "solvers", "linalg", "qp", "cli")
+_SUBMODULES = ("errors", "interrupts", "result", "config", "options", "api", "problems", "solvers", "linalg", "qp", "cli", "bench")
 
 __all__ = ["__version__", "errors", *_LAZY]
 

@@ -3,10 +3,16 @@
     olado solve PROBLEM [--N N] [--start sif|balance] [--year Y] [--config INI]
                         [--set section.key=value ...] [--save FILE.json] [--plot FILE.png] [--quiet]
     olado list
+    olado bench SUITE --config A.ini [--config B.ini ...] [--store FILE.jsonl] [--jobs N | --dask ADDRESS|local]
+                [--time-limit S] [--grace S] [--memory-limit SIZE] [--limit K] [--no-warmup] [--quiet]
+    olado profile STORE [STORE ...] [--metric time|wall|sqp|qp|evaluations] [--where EXPR] [--config NAME]
+                  [--plot FILE.png] [--table FILE.md|.csv|-] [--per-problem] [--compare OLD_STORE]
 
 ``solve`` builds a built-in problem (``olado list`` names them), prints its size (the counts of
 Table 1 of the paper), solves it and prints the result summary; ``--save`` writes the result
-(JSON + npz), ``--plot`` a figure. Problem settings come from the command line, else from the
+(JSON + npz), ``--plot`` a figure. ``bench`` and ``profile`` are the benchmarks
+(:mod:`olado.bench`, docs/benchmarking.md): ``bench`` exits 0 when every planned solve has a
+record (failed solves are records too), ``profile`` 0 unless ``--compare`` found a regression (1). Problem settings come from the command line, else from the
 config's ``[problem]`` section, else the problem's defaults.
 
 Exit codes: 0 the solver converged (status success or acceptable); 1 it did not; 2 bad input (an
@@ -68,7 +74,56 @@ def build_parser() -> argparse.ArgumentParser:
 
     sub.add_parser("list", help="list the built-in problems and the solvers",
                    description="List the built-in problems and the solvers.")
+    _add_bench_parser(sub)
+    _add_profile_parser(sub)
     return parser
+
+
+def _add_bench_parser(sub) -> None:
+    p = sub.add_parser("bench", help="run a suite of problems against solver configurations",
+                       description="Run a suite (problems x sizes x starts) against several configurations, each "
+                       "solve isolated in a worker process; records are appended to a JSON Lines store, and a "
+                       "killed run resumes where it stopped (docs/benchmarking.md).")
+    p.add_argument("suite", metavar="SUITE", help="zambezi-testset, table1, robustness, unconstrained, or a "
+                   "suite file (.toml)")
+    p.add_argument("--config", "-c", action="append", metavar="[NAME=]INI", help="a solver configuration "
+                   "(repeatable); NAME defaults to the file's stem")
+    p.add_argument("--store", "-o", metavar="FILE.jsonl", help="results store (default bench-SUITE.jsonl)")
+    p.add_argument("--jobs", "-j", type=int, default=1, metavar="N", help="worker processes (default 1)")
+    p.add_argument("--dask", metavar="ADDRESS", help="run on the Dask scheduler at ADDRESS, or on a local "
+                   "Dask cluster of --jobs workers with 'local' (needs olado[bench])")
+    p.add_argument("--time-limit", type=float, default=600.0, metavar="S",
+                   help="seconds per solve, given to the solver as max_time (default 600)")
+    p.add_argument("--grace", type=float, default=15.0, metavar="S",
+                   help="extra seconds before a worker that did not stop is killed (default 15)")
+    p.add_argument("--memory-limit", metavar="SIZE", help="address-space limit per worker, e.g. 4G, or none "
+                   "(default: physical memory / jobs, at least 2G)")
+    p.add_argument("--limit", type=int, metavar="K", help="run at most K of the remaining solves")
+    p.add_argument("--no-warmup", action="store_true", help="measure every solve, also a worker's first of a "
+                   "configuration and problem (imports, compilation)")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress display or summary")
+
+
+def _add_profile_parser(sub) -> None:
+    p = sub.add_parser("profile", help="performance profiles, tables and comparisons of bench records",
+                       description="Dolan-More performance profiles (paper 001 eqs. (48)-(51)) of the "
+                       "configurations in a results store, tables of the records, and a comparison with an "
+                       "earlier run (docs/benchmarking.md).")
+    p.add_argument("store", metavar="STORE", nargs="+", help="results store(s) written by 'olado bench'")
+    p.add_argument("--metric", "-m", action="append", metavar="METRIC",
+                   help="time, wall, sqp, qp or evaluations (repeatable; default time)")
+    p.add_argument("--where", "-w", metavar="EXPR", help='keep the records for which EXPR holds, e.g. '
+                   '"N >= 216 and problem == \'zambezi12\'"')
+    p.add_argument("--config", "-c", action="append", metavar="NAME", help="only these configurations "
+                   "(repeatable; default all, in the store's order)")
+    p.add_argument("--plot", metavar="FILE.png", help="save the profiles (PNG, SVG, PDF ...)")
+    p.add_argument("--table", metavar="FILE.md", help="write the table (.md Markdown or .csv); '-' prints it")
+    p.add_argument("--per-problem", action="store_true", help="table of every solve (like paper 001 Table 1) "
+                   "instead of one row per configuration")
+    p.add_argument("--compare", metavar="OLD_STORE", help="compare with an earlier run: regressions in "
+                   "status, objective and time")
+    p.add_argument("--rtol", type=float, default=1e-6, help="objective tolerance of --compare (default 1e-6)")
+    p.add_argument("--slower", type=float, default=1.5, help="time ratio --compare reports (default 1.5)")
 
 
 # ---------------------------------------------------------------------------- problems
@@ -270,6 +325,14 @@ def main(argv=None) -> int:
         parser.print_help(sys.stderr)
         return EXIT_BAD_INPUT
     try:
+        if args.command == "bench":
+            from .bench.command import cmd_bench
+
+            return cmd_bench(args)
+        if args.command == "profile":
+            from .bench.command import cmd_profile
+
+            return cmd_profile(args)
         if args.command == "solve":
             from .interrupts import InterruptGuard
 

@@ -21,6 +21,8 @@ ALLOWED = {
     "olado.solvers": {"olado.qp", "olado.linalg", "olado.problems", "olado.result"},
     "olado.result": set(),
     "olado.config": {"olado.solvers"},   # the solver table (olado.solvers.registry), to map sections to solvers
+    # benchmarks: above the solvers, problems and configs, below only the command line
+    "olado.bench": {"olado.solvers", "olado.problems", "olado.config", "olado.result"},
 }
 
 
@@ -94,6 +96,17 @@ def test_imports_go_downwards(module):
             continue
         assert tl in ALLOWED[layer], f"{module} imports {target} at module level ({layer} may import " \
                                      f"{sorted(ALLOWED[layer]) or 'only the leaves'})"
+
+
+def test_nothing_below_the_top_imports_bench():
+    """olado.bench is used by the command line and by users only (lazy imports included)."""
+    offenders = []
+    for module, path in MODULES.items():
+        if module.startswith("olado.bench") or module in ("olado", "olado.cli", "olado.api", "olado.__main__"):
+            continue
+        if "olado.bench" in path.read_text(encoding="utf-8") or "from ..bench" in path.read_text(encoding="utf-8"):
+            offenders.append(module)
+    assert not offenders, f"modules below olado.bench refer to it: {offenders}"
 
 
 def test_no_import_circle():

@@ -6,8 +6,11 @@ iterate over, with the reference results stored beside them.
         problem, guess = entry.build()          # guess: (X, U) to pass to solver.solve
         ref = load_references("robustness")["entries"][entry.name]
 
-The robustness set (issue 13, item 7) is declared in :mod:`olado.problems.suites.robustness`;
-its IPOPT references (objective, status, violation, KKT residual, olado commit and date) are in
+Suites (:data:`SUITES`): ``robustness`` (issue 13, item 7, :mod:`.robustness`), the Zambezi
+testing set of paper 001 sec. 6 (``zambezi-testset``, :mod:`.zambezi_testset`), Table 1
+(``table1``, :mod:`.table1`) and the unconstrained set (``unconstrained``, :mod:`.unconstrained`);
+a user's suite is a TOML file (:func:`load_suite` with a path, :mod:`.files`). ``olado bench``
+runs any of them (docs/benchmarking.md). The robustness set's IPOPT references (objective, status, violation, KKT residual, olado commit and date) are in
 ``robustness_refs.json`` (written by ``benchmarks/make_robustness_refs.py``).
 :func:`verify_point` checks a returned point independently of the solver that produced it.
 """
@@ -30,34 +33,70 @@ __all__ = ["SuiteEntry", "SUITES", "load_suite", "load_references", "references_
 HERE = Path(__file__).resolve().parent
 
 #: suite name -> module of this package holding its ENTRIES (and PERTURBATION)
-SUITES = {"robustness": "robustness"}
+SUITES = {"robustness": "robustness", "zambezi-testset": "zambezi_testset", "table1": "table1",
+          "unconstrained": "unconstrained"}
 
 
 @dataclasses.dataclass(frozen=True)
 class SuiteEntry:
     """One entry of a suite: which problem, with which settings, from which start; its source,
-    published value (olado's sign convention, None if none is published) and feasibility."""
+    published value (olado's sign convention, None if none is published) and feasibility.
+
+    ``problem`` is a name of :data:`olado.problems.PROBLEMS` or a factory ``"module:function"``
+    (a user's problem); ``settings`` are the factory's keyword arguments. ``start`` is
+    ``"problem"`` (the problem's own initial guess) or ``"perturbed"`` (that guess perturbed with
+    ``seed``). A benchmark identifies an entry by :attr:`key`: (name, size, start label)."""
 
     name: str
     problem: str
     settings: dict
-    start: str
-    seed: int | None
-    source: str
-    published: float | None
-    published_note: str
-    feasible: bool
-    group: str
-    perturbation: dict
+    start: str = "problem"
+    seed: int | None = None
+    source: str = ""
+    published: float | None = None
+    published_note: str = ""
+    feasible: bool = True
+    group: str = ""
+    perturbation: dict = dataclasses.field(default_factory=dict)
 
-    def make_problem(self):
-        """The problem with the entry's settings (from :data:`olado.problems.PROBLEMS`)."""
+    @property
+    def size(self) -> int | None:
+        """The horizon N of the entry's settings (None: the factory's default)."""
+        return self.settings.get("N")
+
+    @property
+    def start_label(self) -> str:
+        """The start as a benchmark records it: the factory's ``start`` setting (e.g. sif,
+        balance) or ``problem``, with ``-p<seed>`` for a perturbed start."""
+        base = str(self.settings.get("start", "problem"))
+        return f"{base}-p{self.seed}" if self.start == "perturbed" else base
+
+    @property
+    def key(self) -> tuple:
+        """(name, size, start label): what tells the entries of a suite apart."""
+        return (self.name, self.size, self.start_label)
+
+    def factory(self):
+        """The callable that builds the problem: :data:`olado.problems.PROBLEMS` [problem], or
+        the function named by ``"module:function"``."""
         from .. import PROBLEMS
 
-        if self.problem not in PROBLEMS:
-            raise ProblemDefinitionError(f"suite entry {self.name!r} names the unknown problem {self.problem!r}",
-                                         function="SuiteEntry.make_problem", array="problem")
-        return PROBLEMS[self.problem](**self.settings)
+        if self.problem in PROBLEMS:
+            return PROBLEMS[self.problem]
+        if ":" in self.problem:
+            module, _, name = self.problem.partition(":")
+            try:
+                return getattr(importlib.import_module(module), name)
+            except (ImportError, AttributeError) as exc:
+                raise ProblemDefinitionError(f"suite entry {self.name!r}: cannot import the problem factory "
+                                             f"{self.problem!r} ({type(exc).__name__}: {exc})",
+                                             function="SuiteEntry.factory", array="problem") from None
+        raise ProblemDefinitionError(f"suite entry {self.name!r} names the unknown problem {self.problem!r}",
+                                     function="SuiteEntry.make_problem", array="problem")
+
+    def make_problem(self):
+        """The problem with the entry's settings (see :meth:`factory`)."""
+        return self.factory()(**self.settings)
 
     def start_point(self, problem):
         """(X (N+1, n) or None, U (N, m)): the problem's own start, or that start perturbed
@@ -82,9 +121,14 @@ class SuiteEntry:
 
 
 def load_suite(name: str = "robustness") -> list[SuiteEntry]:
-    """The entries of the suite ``name`` (see :data:`SUITES`)."""
+    """The entries of the suite ``name`` (see :data:`SUITES`), or of the suite file ``name``
+    (a path ending in .toml: :func:`olado.problems.suites.files.load_suite_file`)."""
+    if str(name).endswith(".toml") or isinstance(name, Path):
+        from .files import load_suite_file
+
+        return load_suite_file(name)
     if name not in SUITES:
-        raise ProblemDefinitionError(f"unknown suite {name!r}; known: {', '.join(SUITES)}",
+        raise ProblemDefinitionError(f"unknown suite {name!r}; known: {', '.join(SUITES)} or a .toml suite file",
                                      function="load_suite", array="name")
     module = importlib.import_module(f"{__name__}.{SUITES[name]}")
     perturbation = dict(getattr(module, "PERTURBATION", {}))
