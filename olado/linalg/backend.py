@@ -74,9 +74,15 @@ class KKTBackend(Protocol):
     factors; ``stage_kw`` are those of :class:`StageData`), usually through
     :func:`make_kkt_solver`. A factorization that finds a stage's reduced Hessian not positive
     definite raises :class:`NotPositiveDefiniteError` (only the Riccati recursion checks the
-    inertia); one that fails otherwise raises a ``numpy.linalg.LinAlgError``."""
+    inertia); one that fails otherwise raises a ``numpy.linalg.LinAlgError``.
+
+    ``limits`` is the :class:`olado.interrupts.Limits` of the solve the system belongs to (None:
+    none; set by :func:`make_kkt_solver`): a back-end whose solve iterates (MINRES, GMRES) checks
+    it at every iteration, so a time limit or an interrupt ends a long Krylov solve there
+    (``StopRequested``); a direct back-end does a bounded amount of work per call and ignores it."""
 
     data: StageData
+    limits: object
 
     def refactor(self, Dx=None, Du=None, sigma=None, regularization=None) -> KKTBackend:
         """Factor again after new diagonal terms (arguments as :meth:`StageData.set_diagonal`);
@@ -93,18 +99,21 @@ class KKTBackend(Protocol):
         equality rows (``LQSolution.x0_residual``)."""
 
 
-def make_kkt_solver(name, Q, S, R, A, B, **kwargs) -> KKTBackend:
+def make_kkt_solver(name, Q, S, R, A, B, *, limits=None, **kwargs) -> KKTBackend:
     """Factor (or precondition) the LQ-DOCP KKT system with the back-end ``name`` (one of
     :data:`KKT_SOLVERS`); the result's ``solve(q, r, c, x0, e=None, eN=None, ci=None)`` returns an
     :class:`LQSolution` with the multiplier conventions of the Riccati solver.
 
     ``kwargs`` are those of :class:`StageData` (E, F, n_eq, EN, Dx, Du, Ci, sigma, n_ineq,
-    regularization) plus the back-end's options (:mod:`olado.linalg.kkt`)."""
+    regularization) plus the back-end's options (:mod:`olado.linalg.kkt`); ``limits`` becomes
+    the back-end's ``limits`` (:class:`KKTBackend`)."""
     try:
         cls = KKT_BACKENDS[name]
     except TypeError:       # an unhashable name
         raise ConfigError(f"unknown KKT solver {name!r}", key=KKT_BACKENDS.key, allowed=", ".join(KKT_SOLVERS)) from None
-    return cls(Q, S, R, A, B, **kwargs)
+    backend = cls(Q, S, R, A, B, **kwargs)
+    backend.limits = limits
+    return backend
 
 
 def _f64(a, shape, name):

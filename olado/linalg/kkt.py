@@ -56,7 +56,18 @@ Back-ends:
 
 Iterative back-ends take ``rtol`` (relative residual, default 1e-10) and ``maxiter``; when they
 stop without meeting ``rtol`` in the true residual ||K y - b|| / ||b||, :class:`KKTSolveError`
-names the back-end, the iteration count and the residual. Unlike the Riccati recursion, the
+names the back-end, the iteration count and the residual. They check the back-end's ``limits``
+(the solve's time limit and interrupts, :class:`~olado.linalg.backend.KKTBackend`) at every
+Krylov iteration: ``maxiter`` defaults to 10 times the system's size, and one solve at that
+bound can take longer than the whole time limit.
+
+A singular matrix whose cause is dependent equality rows (which the Riccati recursion drops,
+reporting their consistency defect) is factored again with the dual block regularized,
+-delta_c I (``DUAL_REGULARIZATION``, relative to the rows' entries), and SuperLU's solution is
+refined on the unregularized system; the residual of the rows (``x0_residual``) then measures
+their consistency as Riccati's does. GMRES's complete-LU preconditioner and the Schur complement
+of MINRES's preconditioner are regularized likewise. A matrix singular in its primal block as
+well still raises :class:`KKTSolveError`. Unlike the Riccati recursion, the
 sparse back-ends do not check the inertia (a reduced Hessian that is not positive definite on
 the null space of the constraints goes unnoticed unless the matrix is singular).
 
@@ -91,6 +102,27 @@ class KKTSolveError(OladoError, np.linalg.LinAlgError):
         super().__init__(text)
 
 
+#: the dual regularization of a singular KKT matrix, relative to the largest entry of its equality
+#: rows: their diagonal block -delta_c I (Waechter & Biegler 2006, sec. 3.1: IPOPT's delta_c =
+#: 1e-8 mu^(1/4) for a rank-deficient constraint Jacobian); the residual of the unregularized
+#: system is refined away (_REFINE_STEPS) where the rows are consistent, and measured
+#: (x0_residual) where they are not
+DUAL_REGULARIZATION = 1e-8
+_REFINE_STEPS = 10
+
+
+def _regularized_lu(K, dual_mask, permc_spec, sign=-1.0, **opts):
+    """SuperLU of K + sign delta_c diag(dual_mask) (a KKT matrix whose equality rows are
+    dependent, so that K itself is singular: sign -1; the preconditioner's Schur complement
+    C |H|^-1 C^T, positive semidefinite: sign +1), and delta_c; RuntimeError if that is singular
+    too. delta_c is relative to the rows' entries, not to max|K|: the interior-point diagonal
+    terms reach 1e14."""
+    rows = K[np.flatnonzero(dual_mask)]
+    delta_c = DUAL_REGULARIZATION * max(float(abs(rows).max()) if rows.nnz else 0.0, 1.0)
+    Kr = (K + sp.diags(np.where(dual_mask, sign * delta_c, 0.0))).tocsc()
+    return spla.splu(Kr, permc_spec=permc_spec, **opts), delta_c
+
+
 def _block_entries(rows, cols, vals):
     """COO triplets of dense blocks: rows (K, a), cols (K, b), vals (K, a, b)."""
     rr = np.broadcast_to(rows[:, :, None], vals.shape)
@@ -103,6 +135,7 @@ class _SparseKKT:
 
     name = "sparse"
     full = False            # True: system (24), inequality and bound rows kept
+    limits = None           # KKTBackend.limits: checked at every Krylov iteration (_IterativeKKT)
 
     def __init__(self, Q, S, R, A, B, *, bounds_as_rows=True, **stage_kw):
         self.data = StageData(Q, S, R, A, B, **stage_kw)
@@ -286,16 +319,43 @@ class SuperLUReducedKKT(_SparseKKT):
 
     def _factorize(self):
         opts = {} if self.diag_pivot_thresh is None else {"diag_pivot_thresh": self.diag_pivot_thresh}
+        self.dual_regularization = 0.0
         try:
             self.lu = spla.splu(self.K, permc_spec=self.permc_spec, **opts)
-        except RuntimeError as exc:   # "Factor is exactly singular"
-            raise KKTSolveError(self.name, f"SuperLU factorization failed ({exc}); the KKT matrix is singular") from None
+        except RuntimeError:   # "Factor is exactly singular": dependent equality rows (the Riccati
+            # recursion drops them and reports their consistency defect; here the dual block is
+            # regularized and the defect measured by _solution's x0_residual)
+            try:
+                self.lu, self.dual_regularization = _regularized_lu(self.K, self.dual_mask, self.permc_spec, **opts)
+            except RuntimeError as exc:
+                raise KKTSolveError(self.name, f"SuperLU factorization failed ({exc}), also with the dual "
+                                    f"regularization {DUAL_REGULARIZATION:g} max|K|; the KKT matrix is singular") from None
         self.nnz_factor = self.lu.L.nnz + self.lu.U.nnz
 
     def _solve_vector(self, b):
         y = self.lu.solve(b)
+        if self.dual_regularization:
+            y = self._refine(y, b)
         if not np.all(np.isfinite(y)):
             raise KKTSolveError(self.name, "non-finite solution (singular or badly scaled KKT matrix)")
+        return y
+
+
+    def _refine(self, y, b):
+        """Iterative refinement with the regularized factors towards a solution of K y = b, while
+        it halves the residual (with consistent rows it converges; inconsistent rows leave a
+        residual that no refinement removes, and the solution is kept where it was smallest)."""
+        res = b - self.K @ y
+        rn, bn = np.linalg.norm(res), np.linalg.norm(b)
+        for _ in range(_REFINE_STEPS):
+            if not rn > 1e-14 * bn:
+                break
+            y_new = y + self.lu.solve(res)
+            res_new = b - self.K @ y_new
+            rn_new = np.linalg.norm(res_new)
+            if not rn_new < 0.5 * rn:
+                break
+            y, res, rn = y_new, res_new, rn_new
         return y
 
 
@@ -352,6 +412,12 @@ class _IterativeKKT(_SparseKKT):
         """One run of the method from zero; returns (y, info, iterations)."""
         raise NotImplementedError
 
+    def _check_limits(self):
+        """Per Krylov iteration (the methods' callbacks): the solve's time limit and interrupts
+        (``limits.check()`` raises StopRequested inside the solve's loop)."""
+        if self.limits is not None:
+            self.limits.check()
+
 
 class MinresKKT(_IterativeKKT):
     """MINRES on the reduced system (25) with the SPD block-diagonal preconditioner
@@ -393,9 +459,13 @@ class MinresKKT(_IterativeKKT):
         schur = (C @ Hinv @ C.T).tocsc()
         try:
             lu = spla.splu(schur, permc_spec="NATURAL")
-        except RuntimeError as exc:
-            raise KKTSolveError(self.name, f"Schur complement of the preconditioner is singular ({exc}); "
-                                "the equality rows are dependent") from None
+        except RuntimeError:        # dependent equality rows: the Schur complement regularized
+            try:
+                lu, _ = _regularized_lu(schur, np.ones(schur.shape[0], dtype=bool), "NATURAL", sign=1.0)
+            except RuntimeError as exc:
+                raise KKTSolveError(self.name, f"Schur complement of the preconditioner is singular ({exc}), also "
+                                    f"with the regularization {DUAL_REGULARIZATION:g} max|S|; the equality rows "
+                                    "are dependent") from None
 
         def apply(v):
             out = np.empty_like(v)
@@ -410,8 +480,12 @@ class MinresKKT(_IterativeKKT):
 
         def cb(_x):
             count[0] += 1
+            self._check_limits()
 
-        y, info = spla.minres(self.K, b, M=self.M, rtol=self.rtol, maxiter=maxiter, callback=cb)
+        try:
+            y, info = spla.minres(self.K, b, M=self.M, rtol=self.rtol, maxiter=maxiter, callback=cb)
+        except ValueError as exc:       # scipy: "indefinite preconditioner" (rounding in |H|^-1, S)
+            raise KKTSolveError(self.name, f"MINRES stopped: {exc}", count[0]) from None
         return y, info, count[0]
 
 
@@ -441,9 +515,13 @@ class GmresKKT(_IterativeKKT):
         else:
             try:
                 self.ilu = spla.splu(self.K, permc_spec="COLAMD")
-            except RuntimeError as exc:
-                raise KKTSolveError(self.name, f"the matrix is singular: its incomplete and complete LU "
-                                    f"factorizations failed ({exc})") from None
+            except RuntimeError:        # dependent equality rows: the dual block regularized
+                try:
+                    self.ilu, _ = _regularized_lu(self.K, self.dual_mask, "COLAMD")
+                except RuntimeError as exc:
+                    raise KKTSolveError(self.name, f"the matrix is singular: its incomplete and complete LU "
+                                        f"factorizations failed, the latter also with the dual regularization "
+                                        f"{DUAL_REGULARIZATION:g} max|K| ({exc})") from None
         self.M = spla.LinearOperator(self.K.shape, matvec=self.ilu.solve, dtype=np.float64)
 
     def _krylov(self, b, maxiter):
@@ -451,6 +529,7 @@ class GmresKKT(_IterativeKKT):
 
         def cb(_r):
             count[0] += 1
+            self._check_limits()
 
         # scipy's gmres counts maxiter in restart cycles
         cycles = max(1, -(-maxiter // self.restart))

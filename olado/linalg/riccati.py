@@ -62,6 +62,8 @@ class RiccatiFactorization:
     recursion. Without equality rows (``unconstrained``) the plain recursion is used, compiled for
     the block sizes when they are small."""
 
+    limits = None       # KKTBackend.limits: not read (a factorization and a solve are O(N) sweeps)
+
     def __init__(self, Q, S, R, A, B, *, E=None, F=None, n_eq=None, EN=None, Dx=None, Du=None,
                  Ci=None, sigma=None, n_ineq=None, regularization=0.0, rank_tol=1e-10):
         d = self.data = StageData(Q, S, R, A, B, E=E, F=F, n_eq=n_eq, EN=EN, Dx=Dx, Du=Du, Ci=Ci, sigma=sigma,

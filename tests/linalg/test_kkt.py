@@ -187,14 +187,53 @@ def test_unpreconditioned_minres_converges_given_enough_iterations():
     assert_same_solution(sol, ref, 1e-6)
 
 
-@pytest.mark.parametrize("name", ["superlu-reduced", "gmres"])
-def test_singular_system_is_reported(name):
+def _identical_rows(consistent):
+    """Two identical equality rows at stage 1 (a singular KKT matrix), with equal constants
+    (consistent) or constants 1 apart (no point satisfies both)."""
     rng = np.random.default_rng(8)
-    mats, rhs = well_conditioned_problem(rng, 3, 2, 2, ne=2)
-    mats["E"][1, 1] = mats["E"][1, 0]     # two identical rows at stage 1
+    mats, rhs = well_conditioned_problem(rng, 3, 2, 2, ne=2, bounds=True)
+    mats["E"][1, 1] = mats["E"][1, 0]
     mats["F"][1, 1] = mats["F"][1, 0]
-    with pytest.raises(KKTSolveError, match=name):
+    rhs["e"][1, 1] = rhs["e"][1, 0] + (0.0 if consistent else 1.0)
+    return mats, rhs
+
+
+@pytest.mark.parametrize("name", KKT_SOLVERS)
+def test_dependent_rows_are_solved_like_riccati(name):
+    """Dependent equality rows make K singular: the sparse back-ends regularize the dual block
+    (-delta_c I, refined away) as the Riccati recursion drops the rows -- the same primal
+    solution and a zero residual of the rows when they are consistent."""
+    mats, rhs = _identical_rows(consistent=True)
+    ref = RiccatiFactorization(**mats).solve(**rhs)
+    sol = make_kkt_solver(name, **mats).solve(**rhs)
+    for a, b in ((sol.X, ref.X), (sol.U, ref.U)):
+        np.testing.assert_allclose(a, b, atol=1e-8 * max(1.0, np.abs(b).max()))
+    assert sol.x0_residual <= 1e-8 and ref.x0_residual <= 1e-8
+
+
+@pytest.mark.parametrize("name", ["superlu-reduced", "superlu-full"])
+def test_inconsistent_dependent_rows_report_their_defect(name):
+    """Rows that contradict each other: the residual of the rows (x0_residual, which the QP turns
+    into INFEASIBLE) is of the order of the contradiction, as Riccati's consistency defect."""
+    mats, rhs = _identical_rows(consistent=False)
+    ref = RiccatiFactorization(**mats).solve(**rhs)
+    sol = make_kkt_solver(name, **mats).solve(**rhs)
+    assert ref.x0_residual > 0.1
+    assert 0.1 < sol.x0_residual <= 1.0 + 1e-8
+
+
+@pytest.mark.parametrize("name", ["superlu-reduced", "superlu-full", "gmres"])
+def test_singular_system_is_reported(name):
+    """A control with no cost, no effect and no row (a zero column of K's primal block): singular
+    also with the dual regularization -- KKTSolveError naming the back-end."""
+    rng = np.random.default_rng(8)
+    mats, rhs = well_conditioned_problem(rng, 3, 2, 2)
+    mats["R"][:, 1, :] = mats["R"][:, :, 1] = 0.0
+    mats["S"][:, :, 1] = 0.0
+    mats["B"][:, :, 1] = 0.0
+    with pytest.raises(KKTSolveError, match=name) as err:
         make_kkt_solver(name, **mats).solve(**rhs)
+    assert "singular" in str(err.value)
 
 
 def test_gmres_preconditioner_falls_back_when_the_incomplete_lu_breaks_down(monkeypatch):

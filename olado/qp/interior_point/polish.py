@@ -15,7 +15,7 @@ from ..stageqp import BOX_FIELDS, box_values, qp_kkt_residuals
 from .presolve import _equal_bounds
 
 
-def polish(solver, qp, res):
+def polish(solver, qp, res, limits=None):
     """Polish an ACCEPTABLE result of ``solver`` (see the ``polish`` option): every side of a box on which
     the multiplier exceeds the slack at ``res`` is taken as active; the QP with the active
     sides as equal bounds (fixed controls are eliminated, fixed states and rows become
@@ -49,7 +49,7 @@ def polish(solver, qp, res):
             if key == "x":
                 kw[lo_name][0], kw[hi_name][0] = lo[0], hi[0]
         try:
-            r2 = inner.solve(dataclasses.replace(qp, **kw))
+            r2 = inner.solve(dataclasses.replace(qp, **kw), limits=limits)
         except (np.linalg.LinAlgError, FloatingPointError, ValueError, ArithmeticError, RiccatiStatusError):
             return None
         if not r2.success:

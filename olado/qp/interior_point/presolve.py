@@ -44,6 +44,7 @@ class _Prepared:
         N, n, m = qp.N, qp.n, qp.m
         self.N, self.n, self.m = N, n, m
         self.qp = qp
+        self.limits = None      # the Limits of the solve (InteriorPointQP._solve), for the KKT back-end
         self.Q = qp.Q.copy(); self.S = qp.S.copy(); self.R = qp.R.copy()
         self.q = qp.q.copy(); self.r = qp.r.copy(); self.A = qp.A; self.B = qp.B.copy()
         self.c = qp.c.copy(); self.x0 = qp.x0.copy()

@@ -30,6 +30,15 @@ _CRAWLED, _MAX_RESTARTS = "crawled", 2
 _CRAWL_W, _CRAWL_A = 10, 0.1   # crawling: _CRAWL_W successive steps (primal and dual) shorter than _CRAWL_A
 
 
+def _failure(opts, exc):
+    """The sentence of a failed Newton solve: the KKT back-end's own message (a
+    :class:`olado.linalg.kkt.KKTSolveError` names the back-end), else the exception with the
+    back-end named."""
+    if getattr(exc, "backend", None):
+        return str(exc)
+    return f"{type(exc).__name__} with KKT back-end '{opts.kkt}': {exc}"
+
+
 class InteriorPointQP:
     """Infeasible primal-dual interior-point method for :class:`StageQP` (docs/qp-interior-point.md).
 
@@ -88,6 +97,7 @@ class InteriorPointQP:
         t0 = time.perf_counter()
         opts = self.options
         P = _Prepared(qp)
+        P.limits = limits
         history = []
         if P.bad_box is not None:
             return self._finish(P, None, Status.INFEASIBLE, f"{Status.INFEASIBLE.sentence} ({P.bad_box})", 0, history, t0)
@@ -108,6 +118,13 @@ class InteriorPointQP:
         except RiccatiStatusError as exc:
             return self._finish(P, None, Status.NUMERICAL_ERROR,
                                 f"{Status.NUMERICAL_ERROR.sentence} (starting point: {exc})", 0, history, t0)
+        except np.linalg.LinAlgError as exc:
+            # a sparse back-end (olado.linalg.kkt.KKTSolveError: a singular matrix, an iterative
+            # solve that did not converge) or numpy: a failed QP like a failed Newton step below,
+            # which the SQP's inertia correction answers with a larger Hessian shift
+            return self._finish(P, None, Status.NUMERICAL_ERROR,
+                                f"{Status.NUMERICAL_ERROR.sentence} (starting point: {_failure(opts, exc)})", 0,
+                                history, t0)
         except _InconsistentRows as exc:
             return self._finish(P, None, Status.INFEASIBLE, f"{Status.INFEASIBLE.sentence} ({exc})", 0, history, t0)
         best, stall, k, last_d = math.inf, 0, 0, None
@@ -210,7 +227,7 @@ class InteriorPointQP:
                 break
             except (np.linalg.LinAlgError, FloatingPointError, ValueError, ZeroDivisionError, RiccatiStatusError) as exc:
                 status = Status.NUMERICAL_ERROR
-                message = f"{status.sentence} (iteration {k + 1}: {type(exc).__name__}: {exc})"
+                message = f"{status.sentence} (iteration {k + 1}: {_failure(opts, exc)})"
                 break
             alpha, alpha_dual = ctx.step_length(d)
             if ctx.first is not None and ctx.n_refine == 0 and min(alpha, alpha_dual) >= 0.1:
@@ -245,7 +262,7 @@ class InteriorPointQP:
         res.regularization = (P.shift + failed_reg if P.shift > 0.0
                               else max([failed_reg] + [h["regularization"] for h in history]))
         if opts.polish and status == Status.ACCEPTABLE and P.shift == 0.0:
-            polished = self._polish(qp, res)
+            polished = self._polish(qp, res, limits)
             if polished is not None:
                 polished.time_s = time.perf_counter() - t0
                 return polished
@@ -254,9 +271,9 @@ class InteriorPointQP:
     # ------------------------------------------------------------------ polishing
 
     # ------------------------------------------------------------------ parts (the package's modules)
-    def _polish(self, qp, res):
+    def _polish(self, qp, res, limits=None):
         """:func:`.polish.polish` of ``res``: the polished result or None."""
-        return polish(self, qp, res)
+        return polish(self, qp, res, limits)
 
     def _direction(self, ctx):
         """The search direction of one iteration: Mehrotra's predictor-corrector with the

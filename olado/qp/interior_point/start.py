@@ -38,7 +38,7 @@ def initial_point(P, options, mu0=None):
         kw.update(E=P.E, F=P.F, n_eq=P.n_eq, EN=P.EN)
         rhs.update(e=P.e, eN=P.eN)
     kw.update(options.kkt_options)
-    sol = make_kkt_solver(options.kkt, Q, P.S, P.R, P.A, P.B, **kw).solve(q, r, P.c, P.x0, **rhs)
+    sol = make_kkt_solver(options.kkt, Q, P.S, P.R, P.A, P.B, limits=P.limits, **kw).solve(q, r, P.c, P.x0, **rhs)
     _check_rows(P, float(sol.x0_residual), None, "starting point")
     X, U = np.array(sol.X, dtype=float), np.array(sol.U, dtype=float)
     w = P.w_of(X, U)

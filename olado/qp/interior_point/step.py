@@ -122,7 +122,7 @@ class _StepContext:
                 options = self.solver.options
                 kw.update(options.kkt_options)
                 P.fact = make_kkt_solver(options.kkt, P.Q_final if P.ncN else P.Q, P.S, P.R, P.A, P.B,
-                                         Dx=Dx, Du=Du, **kw)
+                                         Dx=Dx, Du=Du, limits=P.limits, **kw)
             self.fact = P.fact
             return True
         except NotPositiveDefiniteError as exc:

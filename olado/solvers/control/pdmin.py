@@ -130,8 +130,8 @@ class PDMINSolver(Solver):
         t_start = time.perf_counter()
         U = _box_project(np.array(U0, dtype=float), p.u_lower, p.u_upper)
         why = self.unsupported(p)
-        if why:
-            X = p.simulate(U)
+        if why:     # the guess's states, as they are: the controls clipped need not simulate finitely
+            X = np.asarray(X0, dtype=float)
             return self._result(p, Status.INVALID_PROBLEM, why, X, U, None, None, float("nan"), 0, [], None, t_start)
         limits = Limits(self.options.max_time)
         evals = Evaluations(ReducedProblem(p, limits))

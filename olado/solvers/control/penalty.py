@@ -468,7 +468,10 @@ class PenaltySolver(Solver):
         U = np.asarray(U0, dtype=float).copy()
         if keep_u:
             U = np.clip(U, problem.u_lower, problem.u_upper)
-        X = problem.simulate(U)
+        try:
+            X = problem.simulate(U)
+        except NonFiniteEvaluationError as exc:
+            return self._unevaluable_start(problem, X0, U, keep_u, exc)
         out = _Outer(X=X, U=U, viol=pen.violations(X, U)[0])
         self._log(2, f"{'iter':>4} {'rho':>9} {'violation':>10} {'objective':>16} {'inner':>6}  inner status")
         with limits.catch() as stop:    # a time limit or an interrupt: the last recorded iterate
@@ -559,6 +562,20 @@ class PenaltySolver(Solver):
                        f"(violation {out.viol:.2e}, rho = {rho:.3g})")
 
     # ------------------------------------------------------------------ result
+    def _unevaluable_start(self, problem, X0, U, clipped, exc):
+        """INVALID_PROBLEM when the initial controls simulate to non-finite states: the method
+        is sequential (the states are always x(u), eq. (2)), so it has no point to start from.
+        (The zambezi SIF start clipped into the control bounds lets the volumes diverge.) No
+        other start is made up: which controls keep a given model's simulation finite is the
+        user's knowledge; the guess's own states serve the simultaneous methods."""
+        where = " (clipped into their bounds)" if clipped else ""
+        message = (f"the {self.name} method simulates the states from the controls, and the initial controls{where} "
+                   f"cannot be simulated: {exc}. Start from controls whose simulated states stay finite, or use a "
+                   "simultaneous method (sqp, ipopt), which starts from the guess's states")
+        return Result(status=Status.INVALID_PROBLEM, message=message, objective=float("nan"),
+                      x=np.asarray(X0, dtype=float), u=U, max_constraint_violation=float("nan"),
+                      info={"inner": self.options.inner, "augmented_lagrangian": self.options.augmented_lagrangian})
+
     def _result(self, problem, pen, out, status, message):
         X, U, iterations, inner_total, history, viol = out.X, out.U, out.iters, out.inner_total, out.history, out.viol
         saved = Counter(problem.counters)
