@@ -40,7 +40,8 @@ def test_singular_kkt_matrix_of_an_infeasible_problem_is_diagnosed():
     problem, guess = entry("steering-too-short")
     res = SQPSolver(qp="mehrotra", kkt="superlu-reduced", max_time=60.0).solve(problem, guess=guess)
     assert res.status is Status.INFEASIBLE, res.message
-    assert "final constraint" in res.message
+    assert "final_constraints" in res.message
+    assert res.infeasibility is not None and "final_constraints" in {a.array for a in res.infeasibility.arrays}
 
 
 def test_singular_unreduced_kkt_matrix_ends_with_a_status():
