@@ -34,6 +34,9 @@ KKT_BACKENDS = LazyRegistry("KKT solver", {
 }, key="kkt_solver")
 #: their names (an option's ``choices``)
 KKT_SOLVERS = tuple(KKT_BACKENDS)
+#: the back-ends whose factorization detects a reduced Hessian that is not positive definite
+#: (NotPositiveDefiniteError); the sparse ones do not check the inertia (olado.linalg.kkt)
+INERTIA_CHECKING = ("riccati",)
 
 #: one right-hand side of the KKT system: q (N+1, n), r (N, m), c (N, n), x0 (n,), e (N, ne_max),
 #: eN (neN,) and the constants ci (N, ni_max) of the stage inequality terms

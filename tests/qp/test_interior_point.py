@@ -239,11 +239,13 @@ def test_max_iterations():
 
 
 def test_failed_factorization_is_a_numerical_error_naming_the_stage():
+    """Strongly nonconvex in the free u_2: the cold start grows its weight until it factorizes
+    (test below), the iterations' Newton matrices need more than max_regularization allows."""
     qp = random_qp(0, nc=0, ncN=0)
-    R = qp.R.copy(); R[2] = -1e3 * np.eye(qp.m)                  # strongly nonconvex in the free u_2
+    R = qp.R.copy(); R[2] = -1e3 * np.eye(qp.m)
     ul, uu = qp.u_lower.copy(), qp.u_upper.copy()
     ul[2], uu[2] = -np.inf, np.inf
-    res = MehrotraQP().solve(replace(qp, R=R, u_lower=ul, u_upper=uu))
+    res = MehrotraQP(max_regularization=0.1).solve(replace(qp, R=R, u_lower=ul, u_upper=uu))
     assert res.status is Status.NUMERICAL_ERROR
     assert "stage k=2" in res.message
 
@@ -356,6 +358,31 @@ def test_primal_dual_step_rule_switches_to_common_steps_once_primal_feasible(zam
     common = MehrotraQP(tol=1e-10, step_rule="common").solve(qp)
     assert all(h["alpha"] == h["alpha_dual"] for h in common.history)
     assert res.objective == pytest.approx(common.objective, rel=1e-10)
+
+
+@pytest.mark.parametrize("curvature", [5.0, 20.0, 100.0])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_cold_start_of_a_strongly_nonconvex_boxed_qp(seed, curvature):
+    """R_2 = -c I with u_2 boxed in [-1, 1]: the cold start's least-distance system with unit
+    weights has no minimizer (Q_uu + I not positive definite at stage 2; before, the QP failed
+    there), so its weight grows (1e-2, 1, 1e2 times 1 + max|H|): the starting point exists and
+    satisfies the dynamics and x0, with strictly positive slacks and multipliers."""
+    qp = random_qp(seed, nc=0, ncN=0)
+    R = qp.R.copy(); R[2] = -curvature * np.eye(qp.m)
+    ul, uu = qp.u_lower.copy(), qp.u_upper.copy()
+    ul[2], uu[2] = -1.0, 1.0
+    bad = replace(qp, R=R, u_lower=ul, u_upper=uu)
+    it = MehrotraQP()._initial_point(_Prepared(bad))
+    X, U = it.X, it.U
+    assert np.allclose(X[0], bad.x0, atol=1e-10)
+    dyn = X[1:] - (np.einsum("kij,kj->ki", bad.A, X[:-1]) + np.einsum("kij,kj->ki", bad.B, U) + bad.c)
+    assert np.max(np.abs(dyn)) <= 1e-9 * (1 + np.max(np.abs(X)))
+    assert np.all(it.tl >= 0) and np.all(it.tu >= 0) and np.all(it.zl >= 0) and np.all(it.zu >= 0)
+    assert np.any(it.zl > 0)
+    res = MehrotraQP(tol=1e-10).solve(bad)
+    assert "starting point" not in res.message
+    if res.status is Status.SUCCESS:
+        assert_kkt_small(res, 1e-8)
 
 
 def test_failed_factorization_reports_the_regularization_tried():

@@ -21,7 +21,7 @@ from .direction import predictor_corrector
 from .options import InteriorPointQPOptions
 from .polish import polish
 from .presolve import _Prepared
-from .start import initial_point, warm_point
+from .start import START_WEIGHTS, initial_point, start_weight, warm_point
 from .step import _InconsistentRows, _StepContext
 
 # restart of a cold start whose iterates stall or crawl (InteriorPointQP.solve): the words put
@@ -110,10 +110,11 @@ class InteriorPointQP:
         try:
             it = self._initial_point(P, initial_mu) if warm_start is None else self._warm_point(P, warm_start)
         except NotPositiveDefiniteError as exc:
+            weight = start_weight(P, START_WEIGHTS[-1])
             res = self._finish(P, None, Status.NUMERICAL_ERROR,
-                               f"{Status.NUMERICAL_ERROR.sentence} (starting point: the KKT factorization with unit "
-                               f"diagonal terms failed at stage k={exc.stage}: {exc})", 0, history, t0)
-            res.regularization = 1.0   # the unit diagonal of the starting-point system
+                               f"{Status.NUMERICAL_ERROR.sentence} (starting point: the KKT factorization with "
+                               f"diagonal terms up to {weight:.3g} failed at stage k={exc.stage}: {exc})", 0, history, t0)
+            res.regularization = weight   # the largest diagonal of the starting-point system
             return res
         except RiccatiStatusError as exc:
             return self._finish(P, None, Status.NUMERICAL_ERROR,

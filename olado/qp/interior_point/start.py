@@ -7,39 +7,72 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...linalg.backend import make_kkt_solver
+from ...linalg.backend import NotPositiveDefiniteError, make_kkt_solver
 from ..stageqp import QPResult
 from .step import _check_rows
 
 
+#: weights of the cold start's proximal term |w - w_ref|^2 tried in turn (relative to 1 + max|H|
+#: after the first, the unit weight): a Hessian that is not positive definite on the null space of
+#: the equalities needs a larger one for the starting system to have a minimizer
+START_WEIGHTS = (None, 1e-2, 1.0, 1e2)
+
+
 def initial_point(P, options, mu0=None):
-    """Cold start: (X, U) minimizes f + 1/2 |w - w_ref|^2 (+ 1/2 |z|^2 on unbounded
+    """Cold start: (X, U) minimizes f + D/2 |w - w_ref|^2 (+ D/2 |z|^2 on unbounded
     components) subject to the equality constraints -- one factorization -- with w_ref the
     middle of two-sided boxes and 0 clipped into one-sided ones; its lam, nu are kept; slacks
     t = max(w - lo, 1) (resp. max(hi - w, 1)) and multipliers z = mu0 / t on every finite side
-    (a perfectly centred start, mu = mu0, by default ``initial_mu``)."""
+    (a perfectly centred start, mu = mu0, by default ``initial_mu``). D = 1; when the Hessian of
+    a nonconvex QP leaves that system without a minimizer (a reduced Hessian that is not positive
+    definite), D grows through :data:`START_WEIGHTS` (the starting point is only a centred
+    guess: the iterations regularize their Newton systems themselves). Raises the last
+    NotPositiveDefiniteError when none succeeds."""
+    for weight in START_WEIGHTS:
+        try:
+            sol, ref = _start_solve(P, options, start_weight(P, weight))
+            break
+        except NotPositiveDefiniteError:
+            if weight == START_WEIGHTS[-1]:
+                raise
+    return _centred(P, options, sol, ref, mu0)
+
+
+def start_weight(P, weight):
+    """The diagonal D of the cold-start system for an entry of :data:`START_WEIGHTS`."""
+    return 1.0 if weight is None else weight * (1.0 + P.h_scale)
+
+
+def _start_solve(P, options, D):
+    """The equality-constrained least-distance system of the cold start with weight D."""
     N, n, m, nc = P.N, P.n, P.m, P.nc
     two = P.fl & P.fu
     ref = np.where(two, 0.5 * (P.lo + P.hi),
                    np.clip(np.zeros(P.nw), np.where(P.fl, P.lo, -np.inf), np.where(P.fu, P.hi, np.inf)))
-    Dx = np.ones((N + 1, n)); Du = np.ones((N, m))
+    Dx = np.full((N + 1, n), D); Du = np.full((N, m), D)
     q = P.q.copy(); r = P.r.copy()
-    q[1:] -= ref[P.sl_x].reshape(N, n)
-    r -= ref[P.sl_u].reshape(N, m)
+    q[1:] -= D * ref[P.sl_x].reshape(N, n)
+    r -= D * ref[P.sl_u].reshape(N, m)
     kw, rhs = dict(Dx=Dx, Du=Du), {}
     if nc:
-        kw.update(Ci=P.C, sigma=np.ones((N, nc)))
-        rhs["ci"] = -ref[P.sl_s].reshape(N, nc)
+        kw.update(Ci=P.C, sigma=np.full((N, nc), D))
+        rhs["ci"] = -D * ref[P.sl_s].reshape(N, nc)
     Q = P.Q
     if P.ncN:
-        Q = P.Q.copy(); Q[-1] = Q[-1] + P.CN.T @ P.CN
-        q[-1] -= P.CN.T @ ref[P.sl_sN]
+        Q = P.Q.copy(); Q[-1] = Q[-1] + D * (P.CN.T @ P.CN)
+        q[-1] -= D * (P.CN.T @ ref[P.sl_sN])
     if P.has_eq:
         kw.update(E=P.E, F=P.F, n_eq=P.n_eq, EN=P.EN)
         rhs.update(e=P.e, eN=P.eN)
     kw.update(options.kkt_options)
     sol = make_kkt_solver(options.kkt, Q, P.S, P.R, P.A, P.B, limits=P.limits, **kw).solve(q, r, P.c, P.x0, **rhs)
     _check_rows(P, float(sol.x0_residual), None, "starting point")
+    return sol, ref
+
+
+def _centred(P, options, sol, ref, mu0):
+    """The centred starting point from the solution ``sol`` of the cold-start system."""
+    N = P.N
     X, U = np.array(sol.X, dtype=float), np.array(sol.U, dtype=float)
     w = P.w_of(X, U)
     tl = np.where(P.fl, np.maximum(w - P.lo, 1.0), 0.0)

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import NonFiniteEvaluationError
+from ...linalg.backend import INERTIA_CHECKING
 from ...result import Status
 from ..certificate import certify, verdict_status
 from .line_search import Direction, SearchResult, line_search
@@ -73,10 +74,51 @@ def initial_state(setup, X0, U0, hess, clock):
     X = np.array(X0, dtype=float)
     X[0] = p.x0
     pt = Point(p, X, U, clock=clock)
-    return SQPState(pt=pt, mult=Multipliers.zeros(N, n, r, rN), bounds=BoundMultipliers.zeros(N, n, m),
+    mult, qp_iters = initial_multipliers(setup, pt)
+    return SQPState(pt=pt, mult=mult, qp_iters=qp_iters, bounds=BoundMultipliers.zeros(N, n, m),
                     rho=setup.merit.initial_weights(), hess=hess, clock=clock, shift=np.zeros(N + 1),
                     ascent_relaxed=o.max_ascent_steps,
                     message=f"maximum number of SQP iterations ({o.max_iter}) reached")
+
+
+def strictly_inactive(setup, pt):
+    """True when no bound of x^1..x^N, u and no inequality row is active (or violated) at pt."""
+    p, (_, ineq, _, ineqN) = setup.problem, setup.masks
+    inside = (np.all(pt.X[1:] > p.x_lower[1:]) and np.all(pt.X[1:] < p.x_upper[1:])
+              and np.all(pt.U > p.u_lower) and np.all(pt.U < p.u_upper))
+    return bool(inside and not (p.r and np.any(pt.g[:, ineq] <= 0.0)) and not (p.rN and np.any(pt.gN[ineqN] <= 0.0)))
+
+
+def detects_nonconvexity(setup):
+    """True when the QP subproblems notice a reduced Hessian that is not positive definite, so
+    that the inertia correction shifts it: the exact Hessian with convexify = inertia, on olado's
+    QP methods with a KKT back-end that checks the inertia (the Riccati recursion) or on an
+    external QP (olado.qp.external reports such a QP as failed)."""
+    return setup.inertia and (not setup.interior or setup.options.kkt in INERTIA_CHECKING)
+
+
+def initial_multipliers(setup, pt):
+    """The multipliers of the first iteration's Hessian, and the QP iterations spent on them:
+    with ``initial_multipliers = least-squares``, QPs that detect nonconvexity
+    (:func:`detects_nonconvexity`) and a start at which no bound and no inequality is active, the
+    least-squares estimate (Nocedal & Wright 2006 (18.21); IPOPT's
+    start, Waechter & Biegler 2006 sec. 3.6; :func:`olado.solvers.sqp.step.least_squares_multipliers`)
+    unless its largest exceeds ``multiplier_init_max``; else 0. Without them the first QP sees the
+    objective's curvature only (on cstr its convex model took a step of 2 in u into another
+    minimum's basin). Where bounds or inequalities are active the estimate would have to know
+    their multipliers -- the first QP's business: there the first Hessian stays the objective's
+    (on Zambezi, whose starts have controls at their bounds, the equality-only estimate doubled
+    the iterations from the balance start). The estimate usually makes the first Hessian
+    indefinite: a QP that does not notice (the sparse KKT back-ends, convexify = gerschgorin) took
+    cstr's first step into the other basin with it, so those keep the objective's Hessian."""
+    p, o = setup.problem, setup.options
+    zero = Multipliers.zeros(p.N, p.n, p.r, p.rN)
+    if not (o.initial_multipliers == "least-squares" and detects_nonconvexity(setup) and strictly_inactive(setup, pt)):
+        return zero, 0
+    est = qp_step.least_squares_multipliers(setup, pt)
+    if est is None or not est[1] <= o.multiplier_init_max:
+        return zero, (0 if est is None else est[2])
+    return est[0], est[2]
 
 
 def iterate(setup, st: SQPState) -> bool:

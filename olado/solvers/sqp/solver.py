@@ -190,6 +190,12 @@ class SQPOptions(SolverOptions):
     min_step: float = option(1e-10, "smallest step length before the line search gives up", min=0.0, min_exclusive=True)
     step_tol: float = option(1e-12, "stop when |s| <= step_tol * (1 + |y|) and the point is feasible", min=0.0)
     penalty_min: float = option(1e-8, "lower bound of the exact-penalty weights", min=0.0)
+    initial_multipliers: str = option("least-squares", "multipliers of the first Hessian (exact Hessian): "
+                                      "'least-squares', on problems without bounds and inequalities the multipliers "
+                                      "minimizing the Lagrangian gradient (IPOPT's start; 0 when their largest exceeds "
+                                      "multiplier_init_max), or 'zero'", choices=("least-squares", "zero"))
+    multiplier_init_max: float = option(1e3, "largest least-squares initial multiplier accepted (IPOPT's "
+                                        "constr_mult_init_max)", min=0.0)
     qp_adaptive_tol: bool = option(False, "inexact SQP (Dembo, Eisenstat & Steihaug 1982): the QP tolerance is "
                                    "qp_forcing * (last KKT residual) / (1 + |grad J|), clipped to [qp_tol, qp_tol_max] "
                                    "(olado's interior-point QP methods only)")

@@ -218,6 +218,37 @@ def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=
     return QPSolve(qres, delta, iterations, slacks)
 
 
+def least_squares_multipliers(setup, pt):
+    """IPOPT's initial multiplier estimate (Waechter & Biegler 2006, sec. 3.6, eq. (36)) on the
+    stage structure: the multipliers of the equality constraints (dynamics, equality rows of g and
+    gN) that minimize |grad J + J_eq^T y| -- the multipliers of the QP min 1/2 |s|^2 + grad J.s
+    subject to the homogeneous linearized equalities, one Riccati solve; inequalities and bounds
+    get 0. Returns (Multipliers, max |y|, QP iterations), or None when that QP fails."""
+    p = setup.problem
+    eq, _, eqN, _ = setup.masks
+    N, n, m = p.N, p.n, p.m
+    kw = {}
+    if p.r and eq.any():
+        kw.update(E=pt.Cx[:, eq, :], F=pt.Cu[:, eq, :], e=np.zeros((N, int(eq.sum()))))
+    if p.rN and eqN.any():
+        kw.update(EN=pt.CN[eqN], eN=np.zeros(int(eqN.sum())))
+    qp = StageQP(Q=np.broadcast_to(np.eye(n), (N + 1, n, n)).copy(), R=np.broadcast_to(np.eye(m), (N, m, m)).copy(),
+                 S=np.zeros((N, n, m)), q=np.vstack([pt.lx, pt.lN[None, :]]), r=pt.lu.copy(), A=pt.A, B=pt.B,
+                 c=np.zeros((N, n)), x0=np.zeros(n), **kw)
+    qres = setup.qp_solver.solve(qp)    # before the solve's interrupt guard: no limits (one Newton step)
+    if not qres.success:
+        return None
+    Lg, LgN = np.zeros((N, p.r)), np.zeros(p.rN)
+    if p.r and eq.any():
+        Lg[:, eq] = qres.nu[:N, : int(eq.sum())]
+    if p.rN and eqN.any():
+        LgN[eqN] = qres.nu[N, : int(eqN.sum())]
+    mult = Multipliers(np.array(qres.lam, dtype=float).copy(), Lg, LgN)
+    mult.lam[0] = 0.0
+    size = max(float(np.max(np.abs(a), initial=0.0)) for a in (mult.lam, Lg, LgN))
+    return mult, size, int(qres.iterations)
+
+
 def qp_multipliers(qres, masks, N, r, rN):
     """The QP's multipliers as the new NLP estimates: (Multipliers, BoundMultipliers)."""
     eq, ineq, eqN, ineqN = masks

@@ -40,8 +40,9 @@ def test_sqp_ip_reaches_ipopts_objective_on_the_builtin_ode_problems(name):
 
 
 def test_vanderpol_switches_on_the_hessian_regularization_which_then_decays():
-    # its second QP step (2e4 long) took the L1 merit from 12 to 3.5e76 as a relaxed step
-    r = olado.solve(PROBLEMS["vanderpol"](), config=SQP_IP)
+    # from zero multipliers (the first Hessian the objective's only) its second QP step (2e4 long)
+    # took the L1 merit from 12 to 3.5e76 as a relaxed step
+    r = olado.solve(PROBLEMS["vanderpol"](), config=SQP_IP, initial_multipliers="zero")
     taus = [h["tau"] for h in r.history]
     assert max(taus) > 0.0                   # the untrusted step switched WORHP's tau on ...
     assert taus[-1] <= 1e-3 * max(taus)      # ... and it decayed as the model agreed again
@@ -228,3 +229,84 @@ def test_external_qp_with_the_exact_hessian_reaches_ipopts_objective(qp, name):
     r = olado.solve(PROBLEMS[name](), config=SQP_IP, qp=qp)
     assert r.success, r.message
     assert r.objective == pytest.approx(ref.objective, rel=1e-6)
+
+
+# ---------------------------------------------------------------------------- initial multipliers
+def _start(problem, U=None, **options):
+    """The SQP's setup and initial state for ``problem`` from the controls U (default: its
+    initial guess) and the states they simulate."""
+    from olado.config import load_config
+    from olado.solvers.sqp.solver import make_setup
+    from olado.solvers.sqp.state import Clock
+    o = load_config(SQP_IP, {f"sqp.{k}": v for k, v in options.items()}).options
+    setup, hess = make_setup(o, problem, lambda rec: False)
+    U = np.asarray(problem.initial_guess() if U is None else U, dtype=float)
+    return setup, phases.initial_state(setup, problem.simulate(U), U, hess, Clock(setup.limits))
+
+
+def test_least_squares_initial_multipliers_minimize_the_lagrangian_gradient():
+    """cstr has only the dynamics h_k = f(x_k, u_k) - x_{k+1}: the initial multipliers are the
+    least-squares solution of grad J + J_h^T lam = 0 over (x^1..x^N, u), checked against a dense
+    lstsq of the assembled Jacobian (x^0 fixed)."""
+    setup, st = _start(PROBLEMS["cstr"]())
+    pt, p = st.pt, setup.problem
+    N, n, m = p.N, p.n, p.m
+    nx = N * n
+    Jh = np.zeros((N * n, nx + N * m))
+    for k in range(N):
+        rows = slice(k * n, (k + 1) * n)
+        if k > 0:
+            Jh[rows, (k - 1) * n:k * n] = pt.A[k]
+        Jh[rows, k * n:(k + 1) * n] = -np.eye(n)
+        Jh[rows, nx + k * m:nx + (k + 1) * m] = pt.B[k]
+    g = np.concatenate([pt.lx[1:].ravel(), pt.lN, pt.lu.ravel()])
+    lam = np.linalg.lstsq(Jh.T, -g, rcond=None)[0].reshape(N, n)
+    assert np.max(np.abs(lam)) > 0.1
+    assert np.max(np.abs(st.mult.lam[1:] - lam)) <= 1e-8 * np.max(np.abs(lam))
+    assert st.qp_iters >= 1
+    zero = _start(PROBLEMS["cstr"](), initial_multipliers="zero")[1]
+    assert not np.any(zero.mult.lam) and zero.qp_iters == 0
+
+
+def test_initial_multipliers_are_zero_where_a_bound_is_active_at_the_start():
+    """vanderpol-box starts with u inside -0.3 <= u <= 1 (least squares); with one control on its
+    bound the start is zero (the active bound's multiplier is unknown before the first QP)."""
+    p = PROBLEMS["vanderpol-box"]()
+    setup, st = _start(p)
+    assert phases.strictly_inactive(setup, st.pt) and np.any(st.mult.lam)
+    U = np.asarray(p.initial_guess(), dtype=float).copy()
+    U[3] = p.u_lower[3]
+    setup, st = _start(p, U)
+    assert not phases.strictly_inactive(setup, st.pt) and not np.any(st.mult.lam) and st.qp_iters == 0
+
+
+def test_cstr_euler_reaches_ipopts_minimum():
+    """Robustness entry cstr-euler (N = 100, explicit Euler): from zero multipliers the first
+    (convex) QP stepped u by 2 into the basin of the minimum near 0.24, where the SQP cycled and
+    its multipliers exploded; with the least-squares start it reaches IPOPT's 0.1368144."""
+    from olado.problems.suites import load_suite
+    entry = next(e for e in load_suite("robustness") if e.name == "cstr-euler")
+    problem, guess = entry.build()
+    ref = olado.solve(problem, config=IPOPT, guess=guess)
+    r = olado.solve(entry.build()[0], config=SQP_IP, guess=guess)
+    assert ref.success and r.status is Status.SUCCESS, r.message
+    assert r.objective == pytest.approx(ref.objective, rel=1e-6)
+    assert r.max_constraint_violation < 1e-8
+
+
+def test_alp_rider_converges_now_that_its_qps_start():
+    """Robustness entry alp-rider (N = 100): the path constraints |y|^2 >= q(t) make the
+    Lagrangian Hessian indefinite, every QP's cold start failed (unit-weight start system without
+    a minimizer) and the Hessian shift oscillated for 200 iterations (MAX_ITERATIONS). Now the
+    QPs start (olado.qp.interior_point.start) and the SQP converges to a KKT point olado's
+    certificate accepts: a local minimum at most IPOPT's (3170.06 from this start; sqp-ip finds
+    3155.89, the path constraint's ridges followed differently)."""
+    from olado.problems.suites import load_references, load_suite
+    entry = next(e for e in load_suite("robustness") if e.name == "alp-rider")
+    ref = load_references()["entries"]["alp-rider"]
+    problem, guess = entry.build()
+    r = olado.solve(problem, config=SQP_IP, guess=guess)
+    assert r.status is Status.SUCCESS, r.message
+    assert r.certificate is not None and r.certificate.level == "success"
+    assert r.max_constraint_violation < 1e-8
+    assert r.objective <= ref["objective"] * (1 + 1e-6)

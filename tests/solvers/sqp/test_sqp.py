@@ -355,9 +355,14 @@ def test_converged_iterate_is_recognised_before_another_qp(pendulum_reference):
     """The KKT test at (y_k, multipliers of the QP that produced y_k) ends the solve without a
     further QP (Nocedal & Wright Alg. 18.3): every QP iteration belongs to an accepted step."""
     p, _ = pendulum_reference
-    r = SQPSolver(hessian="exact", proximal=0.0).solve(p)
+    r = SQPSolver(hessian="exact", proximal=0.0, initial_multipliers="zero").solve(p)
     assert r.success and "converged" in r.message
     assert r.qp_iterations == sum(h["qp_iterations"] for h in r.history)
+    # with the least-squares initial multipliers (the pendulum starts inside its bounds) one more:
+    # the estimate's equality-constrained QP, one Newton step
+    r = SQPSolver(hessian="exact", proximal=0.0).solve(p)
+    assert r.success and "converged" in r.message
+    assert r.qp_iterations == sum(h["qp_iterations"] for h in r.history) + 1
 
 
 def test_local_phase_warm_starts_the_qp_without_a_shift():
