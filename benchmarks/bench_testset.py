@@ -282,14 +282,14 @@ def main(argv=None):
         meta, runs = saved["meta"], saved["runs"]
         meta.update(section=section, plot=plot)
     else:
-        load0 = os.getloadavg()[0]
+        load0, at = os.getloadavg()[0], commit()       # the code measured: before the solves
         problems = [(f, N, st) for f in args.families for N in GRID[f] for st in args.starts]
         runs = solve_all(args.configs, problems, args.repeats)
         load1 = os.getloadavg()[0]
         meta = dict(section=section, plot=plot, configs=args.configs, versus=args.versus, split=args.split,
                     families=args.families, starts=args.starts, repeats=args.repeats,
-                    command=shlex.join(["python", "benchmarks/bench_testset.py", *command_args(argv)]),
-                    date=datetime.date.today().isoformat(), commit=commit(),
+                    command=" ".join(map(quote, ["python", "benchmarks/bench_testset.py", *command_args(argv)])),
+                    date=datetime.date.today().isoformat(), commit=at,
                     machine=f"{machine()}; load average (1 min) {load0:.1f} at the start, {load1:.1f} at the end")
         if args.save_runs:
             Path(args.save_runs).write_text(json.dumps({"meta": meta, "runs": runs}, indent=1), encoding="utf-8")
@@ -301,6 +301,14 @@ def main(argv=None):
     save_plot(plot, t.configs, t.tim, t.its, t.solved)
     write_section(section, text)
     print(f"wrote section {section!r}")
+
+
+def quote(arg):
+    """A shell word: as it is, in double quotes when it holds an apostrophe (and nothing a
+    double-quoted word expands), otherwise as shlex quotes it."""
+    if "'" in arg and not any(ch in arg for ch in '"$`\\!'):
+        return f'"{arg}"'
+    return shlex.quote(arg)
 
 
 def command_args(argv):
