@@ -2,7 +2,9 @@
 
 A :class:`Result` carries the status (an enum with a human sentence), the state and control
 trajectories, multipliers, objective, constraint violation, KKT residual, counts, timings and the
-per-iteration history. It prints a summary, plots itself and saves/loads as JSON + npz, written
+per-iteration history; olado's certificate of a success (:class:`Certificate`) and the diagnosis of
+an infeasible result (:class:`Infeasibility`: the constraints that stay violated, array, stage and
+component). It prints a summary, plots itself and saves/loads as JSON + npz, written
 atomically (a crash mid-save never leaves a half-written file).
 """
 
@@ -220,6 +222,100 @@ class Certificate:
 
 
 @dataclasses.dataclass
+class Violation:
+    """One violated constraint component at a point (olado.solvers.diagnosis): ``array`` is the
+    problem's name of the constraint array ("dynamics": f^k(x^k, u^k) - x^{k+1}, "stage_constraints",
+    "final_constraints", "x_bounds", "u_bounds", "x0": the fixed initial state), ``stage`` the
+    stage index k (None for final_constraints and x0), ``component`` the index in the stage's
+    row, ``value`` the violation (> 0: |c| for an equality, -g for g >= 0, the distance to a
+    bound) and ``kind`` one of :data:`Violation.KINDS`."""
+
+    array: str
+    stage: int | None
+    component: int
+    value: float
+    kind: str
+
+    KINDS = ("equality", "inequality", "lower bound", "upper bound")
+
+    def where(self) -> str:
+        """E.g. "stage_constraints[stage 3, component 1]" or "final_constraints[component 0]"."""
+        stage = "" if self.stage is None else f"stage {self.stage}, "
+        return f"{self.array}[{stage}component {self.component}]"
+
+
+@dataclasses.dataclass
+class ViolatedArray:
+    """How much of one constraint array is violated: ``count`` components of ``size`` beyond the
+    tolerance, the ``largest`` violation and their ``total`` (l1 sum), at stages
+    ``first_stage``..``last_stage`` (None for the arrays without stages)."""
+
+    array: str
+    count: int
+    size: int
+    largest: float
+    total: float
+    first_stage: int | None = None
+    last_stage: int | None = None
+
+    def summary(self) -> str:
+        stages = "" if self.first_stage is None else (
+            f" at stage {self.first_stage}" if self.first_stage == self.last_stage
+            else f" at stages {self.first_stage}..{self.last_stage}")
+        return (f"{self.array}: {self.count} of {self.size} components violated{stages}, "
+                f"largest {self.largest:.3g}, sum {self.total:.3g}")
+
+
+@dataclasses.dataclass
+class Infeasibility:
+    """The diagnosis of an infeasible result (olado.solvers.diagnosis; docs/errors.md,
+    "Infeasibility diagnosis"): the constraints that stay violated at the returned point, the
+    least-infeasible point the solver found. ``arrays`` has one :class:`ViolatedArray` per
+    constraint array with a component violated beyond ``tolerance`` (the solver's
+    constr_viol_tol), the largest first; ``violations`` the largest violated components over all
+    arrays (at most ``SHOWN`` of them, largest first); ``largest`` and ``total`` the max-norm and
+    l1 norm of all violations; ``note`` says why there is no listing (the problem could not be
+    evaluated at the point)."""
+
+    tolerance: float
+    largest: float = float("nan")
+    total: float = float("nan")
+    arrays: list = dataclasses.field(default_factory=list)
+    violations: list = dataclasses.field(default_factory=list)
+    note: str = ""
+    time_s: float = 0.0
+
+    #: violated components kept in a Result (and saved) at most; the summary prints LISTED of them
+    SHOWN = 20
+    LISTED = 5
+
+    @property
+    def count(self) -> int:
+        """Components violated beyond the tolerance, over all arrays."""
+        return sum(a.count for a in self.arrays)
+
+    def to_dict(self) -> dict:
+        return _jsonable(dataclasses.asdict(self))
+
+    def summary_lines(self) -> list:
+        """The lines of :meth:`Result.summary` (without the field label)."""
+        if self.note:
+            return [self.note]
+        if not self.arrays:
+            return [f"no constraint violated beyond {self.tolerance:g} at the returned point"]
+        count = self.count
+        lines = [f"{count} constraint component{'s' if count != 1 else ''} violated beyond {self.tolerance:g} at "
+                 f"the returned point (largest {self.largest:.3g}, l1 sum {self.total:.3g}):"]
+        lines += [f"  {a.summary()}" for a in self.arrays]
+        shown = self.violations[:self.LISTED]
+        lines.append("largest violations:" if len(shown) > 1 else "largest violation:")
+        lines += [f"  {v.where()}: {v.value:.3g} ({v.kind})" for v in shown]
+        if count > len(shown):
+            lines.append(f"  ({len(shown)} of {count} shown)")
+        return lines
+
+
+@dataclasses.dataclass
 class Result:
     """Outcome of a solve: see the module docstring for what each field means."""
 
@@ -242,6 +338,7 @@ class Result:
     options: dict = dataclasses.field(default_factory=dict)
     info: dict = dataclasses.field(default_factory=dict)
     certificate: Certificate | None = None
+    infeasibility: Infeasibility | None = None
 
     @property
     def success(self) -> bool:
@@ -262,6 +359,10 @@ class Result:
             lines.append(f"  KKT residual : {self.kkt_residual:.3e}")
         if self.certificate is not None:
             lines.append(f"  certificate  : {self.certificate.summary()}")
+        if self.infeasibility is not None:
+            first, *rest = self.infeasibility.summary_lines()
+            lines.append(f"  infeasible at: {first}")
+            lines += [f"                 {line}" for line in rest]
         counts = f"  iterations   : {self.iterations}"
         if self.qp_iterations:
             counts += f" (QP iterations {self.qp_iterations})"
@@ -324,6 +425,7 @@ class Result:
             "max_constraint_violation": self.max_constraint_violation,
             "kkt_residual": self.kkt_residual,
             "certificate": None if self.certificate is None else self.certificate.to_dict(),
+            "infeasibility": None if self.infeasibility is None else self.infeasibility.to_dict(),
             "iterations": int(self.iterations),
             "qp_iterations": int(self.qp_iterations),
             "evaluations": self.evaluations,
@@ -565,6 +667,87 @@ def _read_certificate(value):
     return Certificate(**kw)
 
 
+def _read_optional_count(value):
+    return None if value is None else _read_count(value)
+
+
+def _read_violation_value(value):
+    v = _read_float(value)
+    if not v >= 0.0:
+        raise _FieldError(f"expected a violation >= 0 (or 'inf'), got {_short(value)}")
+    return v
+
+
+def _read_kind(value):
+    if _read_str(value) not in Violation.KINDS:
+        raise _FieldError(f"expected one of {', '.join(map(repr, Violation.KINDS))}, got {_short(value)}")
+    return value
+
+
+def _read_record(value, cls, readers):
+    """A saved dataclass ``cls`` (a JSON object): every field read by its reader in ``readers``;
+    a field without a default must be there. Keys the class does not have are ignored (files of
+    a newer olado)."""
+    if not isinstance(value, dict):
+        raise _FieldError(f"expected an object, got a JSON {_json_type(value)}")
+    kw = {}
+    for f in dataclasses.fields(cls):
+        if f.name not in value:
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+                raise _FieldError("missing (a result file written by Result.save has it)", where=f".{f.name}")
+            continue
+        try:
+            kw[f.name] = readers[f.name](value[f.name])
+        except _FieldError as exc:
+            raise _FieldError(str(exc), where=f".{f.name}{exc.where}") from None
+    return cls(**kw)
+
+
+def _read_items(value, item_reader):
+    """A JSON array whose items ``item_reader`` reads (the index of a bad one in the field's name)."""
+    out = []
+    for i, item in enumerate(_read_list(value)):
+        try:
+            out.append(item_reader(item))
+        except _FieldError as exc:
+            raise _FieldError(str(exc), where=f"[{i}]{exc.where}") from None
+    return out
+
+
+_VIOLATION_READERS = {"array": _read_str, "stage": _read_optional_count, "component": _read_count,
+                      "value": _read_violation_value, "kind": _read_kind}
+_VIOLATED_ARRAY_READERS = {"array": _read_str, "count": _read_count, "size": _read_count,
+                           "largest": _read_violation_value, "total": _read_violation_value,
+                           "first_stage": _read_optional_count, "last_stage": _read_optional_count}
+
+
+def _read_violated_array(value):
+    a = _read_record(value, ViolatedArray, _VIOLATED_ARRAY_READERS)
+    if a.count > a.size:
+        raise _FieldError(f"{a.count} violated components of {a.size}", where=".count")
+    if (a.first_stage is None) != (a.last_stage is None) or (a.first_stage is not None
+                                                             and a.first_stage > a.last_stage):
+        raise _FieldError(f"stages {a.first_stage}..{a.last_stage} are not a range", where=".first_stage")
+    return a
+
+
+_INFEASIBILITY_READERS = {
+    "tolerance": _read_float, "largest": _read_float, "total": _read_float, "note": _read_str,
+    "time_s": _read_float,
+    "arrays": lambda v: _read_items(v, _read_violated_array),
+    "violations": lambda v: _read_items(v, lambda item: _read_record(item, Violation, _VIOLATION_READERS)),
+}
+
+
+def _read_infeasibility(value):
+    """A saved :class:`Infeasibility` (null for results without one); every field checked."""
+    if value is None:
+        return None
+    if not isinstance(value, dict):
+        raise _FieldError(f"expected an object or null, got a JSON {_json_type(value)}")
+    return _read_record(value, Infeasibility, _INFEASIBILITY_READERS)
+
+
 def _read_dict(value):
     if not isinstance(value, dict):
         raise _FieldError(f"expected a JSON object, got a JSON {_json_type(value)}")
@@ -630,6 +813,7 @@ RESULT_FIELDS = {
     "options": (_read_dict, dict),
     "info": (_read_dict, dict),
     "certificate": (_read_certificate, None),
+    "infeasibility": (_read_infeasibility, None),
 }
 
 

@@ -104,7 +104,7 @@ def test_guard_in_another_thread_is_a_no_op():
     assert out == {"active": False, "handler": signal.default_int_handler}
 
 
-@pytest.mark.parametrize("method", ["mehrotra", "franke", "active-set"])
+@pytest.mark.parametrize("method", ["mehrotra", "franke", "active-set", "bounds"])
 def test_olado_qp_methods_check_the_limits_every_iteration(method):
     """An interrupt requested before the QP starts: the QP raises at its first iteration (or
     working-set change) inside the solve's catch block; outside one it solves to the end (e.g.

@@ -21,9 +21,13 @@ OLADO_METHODS = LazyRegistry("QP method", {
     "weighted": "olado.qp.interior_point:WeightedCorrectorQP",
     "franke": "olado.qp.interior_point:FrankeQP",
     "active-set": "olado.qp.active_set:GoldfarbIdnaniQP",
+    "bounds": "olado.qp.bounds:PrimalDualActiveSetQP",
 }, key="qp")
 #: the interior-point methods among them (their Newton systems go through a KKT back-end, ``kkt``)
 INTERIOR_POINT_METHODS = ("mehrotra", "gondzio", "weighted", "franke")
+#: olado's methods that take a KKT back-end (``kkt``): the interior-point ones, and the simple-bounds
+#: method (``bounds``: stage QPs with simple bounds only), whose fallback is an interior-point method
+KKT_METHODS = (*INTERIOR_POINT_METHODS, "bounds")
 #: external QP solvers reached through qpsolvers (olado.qp.external)
 EXTERNAL_METHODS = ("osqp", "clarabel", "piqp", "proxqp", "highs", "quadprog", "cvxopt")
 #: every QP method name accepted by ``make_qp_solver`` (and the SQP's ``qp`` option)
@@ -36,7 +40,8 @@ ACTIVE_SET_ITER_FACTOR = 100
 def make_qp_solver(name="mehrotra", options=None, *, kkt=None, tol=None, max_iter=None, **overrides):
     """QP method by name: olado's interior-point methods (Newton steps by the KKT back-end
     ``kkt``), the active-set method (``active-set``: ``kkt`` ignored, the Riccati recursion; up
-    to ``ACTIVE_SET_ITER_FACTOR`` (100) times ``max_iter`` working-set changes) or an external
+    to ``ACTIVE_SET_ITER_FACTOR`` (100) times ``max_iter`` working-set changes), the simple-bounds
+    method (``bounds``: ``kkt`` and ``max_iter`` are its interior-point fallback's) or an external
     qpsolvers back-end (OSQP, Clarabel, ...). ``options`` (an options object) and ``overrides``
     are validated like every option; ``kkt``, ``tol`` and ``max_iter`` left at None keep the
     method's defaults. An external back-end ignores ``kkt`` and ``tol`` (its own tolerances are
@@ -44,7 +49,7 @@ def make_qp_solver(name="mehrotra", options=None, *, kkt=None, tol=None, max_ite
     iterations."""
     if name in OLADO_METHODS:
         given = {k: v for k, v in (("kkt", kkt), ("tol", tol), ("max_iter", max_iter)) if v is not None}
-        if name not in INTERIOR_POINT_METHODS:
+        if name not in KKT_METHODS:
             given.pop("kkt", None)
             if "max_iter" in given:
                 given["max_iter"] *= ACTIVE_SET_ITER_FACTOR
@@ -60,4 +65,4 @@ def make_qp_solver(name="mehrotra", options=None, *, kkt=None, tol=None, max_ite
     return ExternalQP(backend=name, options=options, **overrides)
 
 
-__all__ = ["QP_METHODS", "OLADO_METHODS", "INTERIOR_POINT_METHODS", "EXTERNAL_METHODS", "make_qp_solver"]
+__all__ = ["QP_METHODS", "OLADO_METHODS", "INTERIOR_POINT_METHODS", "KKT_METHODS", "EXTERNAL_METHODS", "make_qp_solver"]

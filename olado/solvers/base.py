@@ -91,7 +91,9 @@ class Solver:
     def solve(self, problem, guess=None) -> Result:
         """Solve ``problem`` from ``guess`` (U (N,m), (X, U), a Result, or None for the
         problem's own initial guess) and return a :class:`Result`. A success is certified
-        (olado.solvers.certificate, option ``certify``) unless the solver did so itself."""
+        (olado.solvers.certificate, option ``certify``) unless the solver did so itself; an
+        infeasible result gets the diagnosis of its point (olado.solvers.diagnosis: the
+        constraints that stay violated, ``result.infeasibility``)."""
         with InterruptGuard(), _exclusive(problem):
             X0 = U0 = None
             t0 = time.perf_counter()
@@ -120,6 +122,10 @@ class Solver:
 
                 certify_result(result, problem, self.options)
                 result.time_s += result.certificate.time_s
+            if result.status is Status.INFEASIBLE and result.infeasibility is None:
+                from .diagnosis import diagnose_result  # noqa: PLC0415 - loaded only for an infeasible result
+
+                diagnose_result(result, problem, self.options)
         if self.options.verbose >= 1:
             print(result.summary())
         return result

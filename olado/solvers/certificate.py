@@ -70,6 +70,7 @@ import numpy as np
 from ..errors import OladoError
 from ..result import Certificate, Status
 from .common import stage_gradient_terms
+from .diagnosis import largest_violation, violation_arrays
 
 #: relative step of the derivative spot check (a variable moves by at most 2 CHECK_STEP max(1, |y_i|))
 CHECK_STEP = 1e-3
@@ -164,24 +165,11 @@ class KKTFigures(NamedTuple):
 
 
 # ---------------------------------------------------------------------------- feasibility [6]
-def _violation(p, pt, bounds):
-    """Max-norm violation and where it occurs (a phrase)."""
-    eq, eqN = p.stage_equality_mask, p.final_equality_mask
-    parts = [("dynamics", np.abs(pt.h), True)]
-    if p.r:
-        parts.append(("stage_constraints", np.where(eq, np.abs(pt.g), np.maximum(-pt.g, 0.0)), True))
-    if p.rN:
-        parts.append(("final_constraints", np.where(eqN, np.abs(pt.gN), np.maximum(-pt.gN, 0.0)), False))
-    for name, y, lo, hi in (("x", pt.X, bounds.xl, bounds.xu), ("u", pt.U, bounds.ul, bounds.uu)):
-        with np.errstate(invalid="ignore"):
-            parts.append((f"bounds of {name}", np.maximum(np.maximum(lo - y, 0.0), np.maximum(y - hi, 0.0)), True))
-    best, where = 0.0, ""
-    for name, v, staged in parts:
-        if v.size and float(np.max(v)) > best:
-            idx = np.unravel_index(int(np.argmax(v)), v.shape)
-            best = float(v[idx])
-            where = f"{name}, stage {idx[0]}, component {idx[1]}" if staged and v.ndim == 2 else f"{name}, component {idx[-1]}"
-    return best, where
+def _violation(p, pt):
+    """Max-norm violation and where it occurs (a phrase), from the violations every olado
+    diagnosis shares (:func:`olado.solvers.diagnosis.violation_arrays`)."""
+    best, where = largest_violation(violation_arrays(p, pt))
+    return best, ("" if where is None else where.where())
 
 
 # ---------------------------------------------------------------------------- stationarity [3]-[5]
@@ -510,7 +498,7 @@ def _certify(p, X, U, multipliers, settings):
     except OladoError as exc:
         return Certificate(level="failed", reason=f"the problem cannot be evaluated at the returned point ({exc})", **tols)
     bounds = StageBounds.of(p)
-    viol, viol_at = _violation(p, pt, bounds)
+    viol, viol_at = _violation(p, pt)
     W = (np.maximum(1.0, np.abs(X)), np.maximum(1.0, np.abs(U)))
     S = max(1.0, abs(pt.J))
     given = _solver_multipliers(p, multipliers)

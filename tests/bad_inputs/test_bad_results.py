@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from olado.errors import ResultFileError, ResultFileNotFoundError
-from olado.result import FORMAT_VERSION, Result, Status
+from olado.result import FORMAT_VERSION, Infeasibility, Result, Status, ViolatedArray, Violation
 from fixtures.bad_problems import expect
 
 
@@ -18,6 +18,16 @@ def good_result(N=3):
                   x=np.arange((N + 1) * 2, dtype=float).reshape(N + 1, 2), u=np.ones((N, 1)),
                   multipliers={"dynamics": np.zeros((N, 2))}, max_constraint_violation=0.0,
                   kkt_residual=1e-9, iterations=4, problem="toy", N=N, solver="slsqp")
+
+
+def infeasible_result(N=3):
+    r = good_result(N)
+    r.status, r.message = Status.INFEASIBLE, "locally infeasible"
+    r.infeasibility = Infeasibility(tolerance=1e-8, largest=0.5, total=0.875, arrays=[
+        ViolatedArray("dynamics", 2, 6, 0.5, 0.75, 0, 2), ViolatedArray("final_constraints", 1, 1, 0.125, 0.125)],
+        violations=[Violation("dynamics", 2, 1, 0.5, "equality"), Violation("dynamics", 0, 0, 0.25, "equality"),
+                    Violation("final_constraints", None, 0, 0.125, "inequality")])
+    return r
 
 
 @pytest.fixture
@@ -81,6 +91,53 @@ def test_bad_result_field(saved, case_id, change, names):
     change(doc)
     path.write_text(json.dumps(doc))
     expect(ResultFileError, [str(path), *names], Result.load, path)
+
+
+# (id, change to the "infeasibility" object of an infeasible result's JSON, field named, words of the message)
+DIAGNOSIS_CASES = [
+    ("not-an-object", lambda d: d.__setitem__("infeasibility", [1]), "infeasibility", "object or null"),
+    ("tolerance-text", lambda d: d["infeasibility"].__setitem__("tolerance", "tight"), "infeasibility.tolerance",
+     "expected a number"),
+    ("tolerance-missing", lambda d: d["infeasibility"].pop("tolerance"), "infeasibility.tolerance", "missing"),
+    ("stage-text", lambda d: d["infeasibility"]["violations"][1].__setitem__("stage", "one"),
+     "infeasibility.violations[1].stage", "non-negative integer"),
+    ("unknown-kind", lambda d: d["infeasibility"]["violations"][0].__setitem__("kind", "sideways"),
+     "infeasibility.violations[0].kind", "'sideways'"),
+    ("negative-value", lambda d: d["infeasibility"]["violations"][2].__setitem__("value", -1.0),
+     "infeasibility.violations[2].value", ">= 0"),
+    ("nan-value", lambda d: d["infeasibility"]["violations"][2].__setitem__("value", "nan"),
+     "infeasibility.violations[2].value", ">= 0"),
+    ("array-missing", lambda d: d["infeasibility"]["violations"][1].pop("array"),
+     "infeasibility.violations[1].array", "missing"),
+    ("violation-not-object", lambda d: d["infeasibility"]["violations"].__setitem__(0, 3),
+     "infeasibility.violations[0]", "expected an object"),
+    ("count-above-size", lambda d: d["infeasibility"]["arrays"][0].__setitem__("count", 7),
+     "infeasibility.arrays[0].count", "7 violated components of 6"),
+    ("half-a-range", lambda d: d["infeasibility"]["arrays"][0].__setitem__("last_stage", None),
+     "infeasibility.arrays[0].first_stage", "not a range"),
+    ("reversed-range", lambda d: d["infeasibility"]["arrays"][0].__setitem__("first_stage", 5),
+     "infeasibility.arrays[0].first_stage", "5..2"),
+    ("arrays-object", lambda d: d["infeasibility"].__setitem__("arrays", {"a": 1}), "infeasibility.arrays",
+     "JSON array"),
+]
+
+
+@pytest.mark.parametrize("case_id,change,field,words", DIAGNOSIS_CASES, ids=[c[0] for c in DIAGNOSIS_CASES])
+def test_bad_infeasibility_diagnosis(tmp_path, case_id, change, field, words):
+    path = infeasible_result().save(tmp_path / "res.json")
+    path.with_suffix(".npz").unlink()
+    doc = json.loads(path.read_text())
+    change(doc)
+    path.write_text(json.dumps(doc))
+    err = expect(ResultFileError, [str(path), f"'{field}'", words], Result.load, path)
+    assert err.field == field
+
+
+def test_infeasibility_diagnosis_round_trips(tmp_path):
+    r = infeasible_result()
+    back = Result.load(r.save(tmp_path / "res.json"))
+    assert back.infeasibility == r.infeasibility and back.summary() == r.summary()
+    assert "final_constraints[component 0]: 0.125 (inequality)" in back.summary()
 
 
 WHOLE_FILE_CASES = [

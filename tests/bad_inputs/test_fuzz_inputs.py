@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from olado.config import PROBLEM_KEYS, SolverConfig, config_from_kwargs, load_config
 from olado.errors import ConfigError, ResultFileError
 from olado.options import option_specs
-from olado.result import Result, Status
+from olado.result import Infeasibility, Result, Status, ViolatedArray, Violation
 from olado.solvers.registry import SOLVERS
 
 FUZZ = settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -128,17 +128,21 @@ def test_option_values_from_text_are_checked(solver, data):
 # ---------------------------------------------------------------------------- Result.load
 def _good_document(folder):
     N = 3
-    result = Result(status=Status.MAX_ITERATIONS, message="m", objective=2.5,
+    result = Result(status=Status.INFEASIBLE, message="m", objective=2.5,
                     x=np.linspace(0, 1, (N + 1) * 2).reshape(N + 1, 2), u=np.ones((N, 1)),
                     multipliers={"dynamics": np.zeros((N, 2))}, kkt_residual=None, N=N,
-                    history=[{"iteration": 0}], info={"a": 1})
+                    history=[{"iteration": 0}], info={"a": 1},
+                    infeasibility=Infeasibility(tolerance=1e-8, largest=0.5, total=0.75, arrays=[
+                        ViolatedArray("dynamics", 2, 6, 0.5, 0.75, 0, 2)], violations=[
+                        Violation("dynamics", 2, 1, 0.5, "equality"), Violation("dynamics", 0, 0, 0.25, "equality")]))
     path = result.save(Path(folder) / "res.json")
     return path, json.loads(path.read_text())
 
 
 FIELDS = ["status", "message", "objective", "x", "u", "multipliers", "max_constraint_violation",
           "kkt_residual", "iterations", "qp_iterations", "evaluations", "time_s", "history", "problem",
-          "N", "solver", "options", "info", "success", "save_id", "format", "format_version", "extra"]
+          "N", "solver", "options", "info", "success", "save_id", "format", "format_version", "extra",
+          "certificate", "infeasibility"]
 
 
 def _load_checked(path):
@@ -177,6 +181,34 @@ def test_result_files_with_a_changed_array_entry(field, row, col, value):
         path.write_text(json.dumps(doc))
         path.with_suffix(".npz").unlink()
         _load_checked(path)
+
+
+#: the fields inside a saved infeasibility diagnosis, as paths into its JSON object
+DIAGNOSIS_FIELDS = [("tolerance",), ("largest",), ("total",), ("note",), ("time_s",), ("arrays",), ("violations",),
+                    ("arrays", 0), ("violations", 1), *(("arrays", 0, k) for k in (
+                        "array", "count", "size", "largest", "total", "first_stage", "last_stage")),
+                    *(("violations", 0, k) for k in ("array", "stage", "component", "value", "kind"))]
+
+
+@FUZZ
+@given(st.lists(st.tuples(st.sampled_from(DIAGNOSIS_FIELDS), st.booleans(), JSONISH), min_size=1, max_size=4))
+def test_result_files_with_a_changed_diagnosis(changes):
+    with tempfile.TemporaryDirectory() as folder:
+        path, doc = _good_document(folder)
+        for field, delete, value in changes:
+            parent = doc["infeasibility"]
+            for key in field[:-1]:
+                parent = parent[key] if isinstance(parent, (list, dict)) and (
+                    key in parent if isinstance(parent, dict) else key < len(parent)) else None
+            if isinstance(parent, dict) and delete:
+                parent.pop(field[-1], None)
+            elif isinstance(parent, dict) or (isinstance(parent, list) and field[-1] < len(parent)):
+                parent[field[-1]] = value
+        path.write_text(json.dumps(doc))
+        path.with_suffix(".npz").unlink()
+        result = _load_checked(path)
+        if result is not None and result.infeasibility is not None:
+            result.summary()                # a diagnosis that loads also prints
 
 
 @FUZZ

@@ -65,7 +65,7 @@ def test_figures_match_hand_computed_kkt():
     cert = certify(p, X, U, {"dynamics": np.array([[p1], [p2]])})
     assert cert.violation == pytest.approx(1e-3, rel=1e-9)
     assert cert.solver_stationarity_scaled == pytest.approx(max(scaled) / J, rel=1e-12)
-    assert cert.level == "failed" and "constraint violation 1.00e-03" in cert.reason and "dynamics, stage 1" in cert.reason
+    assert cert.level == "failed" and "constraint violation 1.00e-03" in cert.reason and "dynamics[stage 1, component 0]" in cert.reason
 
 
 def test_kkt_point_is_certified_with_hand_multipliers():

@@ -13,10 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-
-#: the arrays of Merit.violations: (name, indexed by stage)
-_VIOLATION_NAMES = (("dynamics row", True), ("stage constraint", True), ("final constraint", False),
-                    ("bound of state component", True), ("bound of control component", True))
+from ..diagnosis import largest_violation, violation_arrays
 
 
 class Merit:
@@ -37,16 +34,11 @@ class Merit:
         return np.abs(q.h), vg, vgN, vbx, vbu
 
     def worst(self, q):
-        """The largest constraint violation at q, named: (sentence, value), e.g. "final
-        constraint 0 (violation 7)" or "dynamics row 1 at stage 3 (violation 0.2)"."""
-        best = (0.0, "no constraint")
-        for (name, stage_wise), v in zip(_VIOLATION_NAMES, self.violations(q)):
-            if v.size == 0 or not np.max(v) > best[0]:
-                continue
-            idx = np.unravel_index(int(np.argmax(v)), v.shape)
-            where = f"{name} {idx[1]} at stage {idx[0]}" if stage_wise and v.ndim == 2 else f"{name} {idx[0]}"
-            best = (float(v[idx]), where)
-        return f"{best[1]} (violation {best[0]:.3g})", best[0]
+        """The largest constraint violation at q, named as olado's infeasibility diagnosis names
+        it (olado.solvers.diagnosis): (sentence, value), e.g. "final_constraints[component 0]
+        (violation 7)" or "dynamics[stage 3, component 1] (violation 0.2)"."""
+        value, where = largest_violation(violation_arrays(self.problem, q))
+        return (f"{where.where()} (violation {value:.3g})" if where is not None else "no constraint"), value
 
     def max_violation(self, q):
         return max(float(np.max(v, initial=0.0)) for v in self.violations(q))

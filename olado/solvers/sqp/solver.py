@@ -85,7 +85,8 @@ import time
 
 import numpy as np
 
-from ...qp import INTERIOR_POINT_METHODS, OLADO_METHODS, QP_METHODS, make_qp_solver
+from ...errors import ConfigError
+from ...qp import KKT_METHODS, OLADO_METHODS, QP_METHODS, make_qp_solver
 from ...qp.stageqp import StageQP
 from .augmented import AugmentedLagrangian
 from .merit import Merit
@@ -115,6 +116,17 @@ def _apply_qp_options(qp_solver, qp_name, qp_options):
             opts.backend_options = {**opts.backend_options, key: value}
         else:   # validate_value also names an unknown key and the allowed ones
             setattr(opts, key, validate_value(type(opts), key, value, section="sqp.raw (qp_options)"))
+
+
+def _check_bounds_only(problem):
+    """``qp = bounds`` (olado.qp.bounds) solves QPs with simple bounds only: a ConfigError naming
+    the problem's stage and final constraints when it has any."""
+    general = [f"{k} {what}{'s' if k > 1 else ''} {sym}" for k, what, sym in
+               ((problem.r, "stage constraint", "g^k"), (problem.rN, "final constraint", "g^N")) if k]
+    if general:
+        raise ConfigError(f"qp = 'bounds' is the QP method for problems with simple bounds on states and controls "
+                          f"only, but {type(problem).__name__} has {' and '.join(general)}; use qp = 'mehrotra' "
+                          f"(configs/sqp-ip.ini) or another QP method", section="sqp", key="qp")
 
 
 def convex_step_qp(problem, shift=1e-4, U=None):
@@ -306,12 +318,14 @@ def make_setup(options, problem, callback):
     o = options
     t_start = time.perf_counter()
     limits = Limits(o.max_time)
+    if o.qp == "bounds":
+        _check_bounds_only(problem)
     qp_solver = make_qp_solver(o.qp, kkt=o.kkt, tol=o.qp_tol, max_iter=o.qp_max_iter)
     # olado's own QP methods (interior point, active set) take qp_tol and report a failed
     # factorization (a reduced Hessian not positive definite) as NUMERICAL_ERROR: the inertia
     # correction below works with them
     interior = o.qp in OLADO_METHODS
-    if o.qp in INTERIOR_POINT_METHODS:
+    if o.qp in KKT_METHODS:
         qp_solver.options.warm_start_push = o.qp_warm_start_push
     _apply_qp_options(qp_solver, o.qp, o.qp_options)
     convexify = o.convexify

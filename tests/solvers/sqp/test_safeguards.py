@@ -110,8 +110,9 @@ def test_an_untrusted_full_step_is_never_relaxed_and_stops_the_search_when_asked
 
 
 # ---------------------------------------------------------------------------- infeasibility
-@pytest.mark.parametrize("problem, where, configs", [(Annulus, "stage constraint", ("sqp-ip", "sqp-sr1")),
-                                                     (DegenerateFinalConstraint, "final constraint 0", ("sqp-ip",))])
+@pytest.mark.parametrize("problem, where, configs", [(Annulus, "stage_constraints[stage ", ("sqp-ip", "sqp-sr1")),
+                                                     (DegenerateFinalConstraint, "final_constraints[component 0]",
+                                                      ("sqp-ip",))])
 def test_locally_infeasible_problems_end_infeasible_naming_the_largest_violation(problem, where, configs):
     # (DegenerateFinalConstraint with the quasi-Newton presets: their first iterates take the
     # states to ~1e10, where the restoration crawls in the rounding noise of the dynamics rows
