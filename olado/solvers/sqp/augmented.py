@@ -109,6 +109,15 @@ class AugmentedLagrangian(Merit):
     def largest_weight(self, weights):
         return max(float(np.max(weights.r_e, initial=0.0)), float(np.max(weights.r_c, initial=0.0)))
 
+    def elastic_floor(self, weights):
+        """The least penalty eta of a relaxed QP: the largest multiplier estimate |v|. An elastic
+        penalty stands for a multiplier (the relaxed QP is the QP once eta exceeds its
+        multipliers), as Powell's L1 weights do; the penalties r weigh squared violations and grow
+        with (u - v)^2, and as a floor of eta (whose slack rows' multipliers u are eta) they made
+        eta grow like eta^2 from one relaxed QP to the next on an infeasible problem
+        (vanderpol-contradict: 15, 1.6e4, 4.9e8, 6.4e20)."""
+        return max(float(np.max(np.abs(weights.lam), initial=0.0)), float(np.max(weights.y, initial=0.0)))
+
     def update(self, weights, step, bounds, options, iteration, sHs):
         """Schittkowski's penalty update (module docstring) with the step's QP multipliers u."""
         lam_u, y_u = self.multipliers(step.mult_new, bounds)

@@ -58,6 +58,11 @@ class Merit:
     def largest_weight(self, weights):
         return max(float(np.max(w, initial=0.0)) for w in weights)
 
+    def elastic_floor(self, weights):
+        """The least penalty eta of a relaxed QP (olado.solvers.sqp.relaxation) for these
+        weights: the largest weight, so that Powell's update gives rho <= eta."""
+        return self.largest_weight(weights)
+
     def update(self, weights, step, bounds, options, iteration, sHs):
         """The weights for this step: Powell's rule with the step's QP multipliers."""
         return powell_weights(weights, step.mult_new, bounds, options.penalty_min)

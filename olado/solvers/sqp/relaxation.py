@@ -73,10 +73,10 @@ def linearized_violation0(violations):
 
 def start_penalty(setup, st):
     """eta of the first relaxed QP at this iterate: elastic_penalty (1 + |grad J|), the last eta
-    used, and at least the largest exact-penalty weight."""
+    used, and at least what the merit function's weights ask for (the largest exact-penalty
+    weight; the largest multiplier estimate of the augmented Lagrangian: Merit.elastic_floor)."""
     o = setup.options
-    rho_max = setup.merit.largest_weight(st.rho)
-    return max(o.elastic_penalty * (1.0 + gradient_norm(st.pt)), st.eta, rho_max)
+    return max(o.elastic_penalty * (1.0 + gradient_norm(st.pt)), st.eta, setup.merit.elastic_floor(st.rho))
 
 
 def largest_penalty(setup, st):

@@ -58,7 +58,7 @@ def test_vanderpol_path_starts_from_a_relaxed_qp():
     assert r.success
 
 
-@pytest.mark.parametrize("cfg", ["sqp-as", "sqp-gondzio", "sqp-sr1", "sqp-schittkowski"])
+@pytest.mark.parametrize("cfg", ["sqp-as", "sqp-gondzio", "sqp-sr1", "sqp-schittkowski", "sqp-schittkowski-as"])
 def test_vanderpol_path_with_other_presets(cfg):
     """The relaxed QP with every QP method (its slacks have a little curvature, which the dual
     active-set method needs: a strictly convex QP)."""
@@ -210,11 +210,45 @@ def test_augmented_lagrangian_directional_derivative_matches_finite_differences(
     assert psi(pt, 0.0) == pytest.approx(merit.value(pt, w))
 
 
+def test_the_relaxed_qp_penalty_of_the_augmented_lagrangian_is_its_largest_multiplier_estimate():
+    """An elastic penalty stands for a multiplier: the floor of eta is the largest |v|, not the
+    penalties r (which weigh squared violations and grow with (u - v)^2)."""
+    from olado.solvers.sqp.augmented import AugmentedLagrangian
+    from olado.solvers.sqp.merit import Merit
+    from olado.solvers.sqp.state import ConstraintMasks
+
+    p = Pendulum(N=5)
+    al = AugmentedLagrangian(p, ConstraintMasks.of(p))
+    w = al.initial_weights()
+    lam = np.zeros_like(w.lam); lam[3] = -3.0; lam[7] = 1.0
+    y = np.zeros_like(w.y); y[0] = 2.5
+    w = w._replace(r_e=np.full_like(w.r_e, 1e12), r_c=np.full_like(w.r_c, 1e12), lam=lam, y=y)
+    assert al.elastic_floor(w) == 3.0 and al.largest_weight(w) == 1e12
+    l1 = Merit(p, ConstraintMasks.of(p))
+    rho = tuple(np.full_like(a, 0.5) for a in l1.initial_weights()); rho[1][2, 0] = 7.0
+    assert l1.elastic_floor(rho) == 7.0 == l1.largest_weight(rho)
+
+
+@pytest.mark.slow
+def test_schittkowskis_sqp_on_an_infeasible_problem_keeps_the_elastic_penalty_bounded():
+    """vanderpol-contradict (contradicting path constraints): with r as the floor of eta, eta grew
+    like eta^2 from one relaxed QP to the next (15, 1.6e4, 4.9e8, 6.4e20; the active-set QP then
+    ran 20 000 working-set changes on one QP); with the multiplier estimates it stays at the
+    L1 merit's level and the SQP ends INFEASIBLE at sqp-ip's least-infeasible point."""
+    ip = olado.solve(PROBLEMS["vanderpol-contradict"](), config=SQP_IP)
+    r = olado.solve(PROBLEMS["vanderpol-contradict"](), config=CONFIGS / "sqp-schittkowski.ini")
+    assert ip.status == r.status == Status.INFEASIBLE, r.message
+    etas = [h["eta"] for h in r.history if np.isfinite(h["eta"])]
+    assert etas and max(etas) <= 10.0 * max(h["eta"] for h in ip.history if np.isfinite(h["eta"]))
+    assert r.objective == pytest.approx(ip.objective, rel=1e-6)
+
+
+@pytest.mark.parametrize("cfg, qp", [("sqp-schittkowski", "mehrotra"), ("sqp-schittkowski-as", "active-set")])
 @pytest.mark.parametrize("name", ["vanderpol", "rayleigh", "vanderpol-path"])
-def test_schittkowski_preset_reaches_ipopts_objective(name):
+def test_schittkowski_preset_reaches_ipopts_objective(name, cfg, qp):
     ref = _ipopt(PROBLEMS[name]())
-    r = olado.solve(PROBLEMS[name](), config=CONFIGS / "sqp-schittkowski.ini")
-    assert r.success and r.options["merit"] == "augmented-lagrangian"
+    r = olado.solve(PROBLEMS[name](), config=CONFIGS / f"{cfg}.ini")
+    assert r.success and r.options["merit"] == "augmented-lagrangian" and r.options["qp"] == qp
     assert r.objective == pytest.approx(ref.objective, rel=1e-6)
 
 

@@ -1,6 +1,7 @@
-"""Powell's SQP with the active-set QP (SQP-AS, paper 001 sec. 4.2.2 and Figs. 7-8) and with
-Franke's interior-point QP (the paper's SQP-IP): their presets on zambezi12 against IPOPT, and
-the inertia correction of a nonconvex QP subproblem that Goldfarb-Idnani's method refuses."""
+"""Powell's and Schittkowski's SQP with the active-set QP (SQP-AS, paper 001 sec. 4.2.2 and
+Figs. 7-8) and Powell's with Franke's interior-point QP (the paper's SQP-IP): their presets on
+zambezi12 against IPOPT, and the inertia correction of a nonconvex QP subproblem that
+Goldfarb-Idnani's method refuses."""
 
 from pathlib import Path
 
@@ -35,6 +36,17 @@ def test_sqp_active_set_reaches_ipopt_on_zambezi12(N, ipopt_objectives):
     r = olado.solve(zambezi_problem("zambezi12", N=N), config=CONFIGS / "sqp-as.ini")
     assert r.status is Status.SUCCESS, r.message
     assert r.info["qp"] == "active-set" and r.qp_iterations > 0
+    ref = ipopt_objectives(N)
+    assert abs(r.objective - ref) <= 1e-6 * abs(ref)
+    assert r.max_constraint_violation < 1e-8
+
+
+@pytest.mark.parametrize("N", [12, 36])
+def test_schittkowski_sqp_with_the_active_set_qp_reaches_ipopt_on_zambezi12(N, ipopt_objectives):
+    """configs/sqp-schittkowski-as.ini: the augmented Lagrangian merit with the active-set QP."""
+    r = olado.solve(zambezi_problem("zambezi12", N=N), config=CONFIGS / "sqp-schittkowski-as.ini")
+    assert r.status is Status.SUCCESS, r.message
+    assert r.info["qp"] == "active-set" and r.options["merit"] == "augmented-lagrangian" and r.qp_iterations > 0
     ref = ipopt_objectives(N)
     assert abs(r.objective - ref) <= 1e-6 * abs(ref)
     assert r.max_constraint_violation < 1e-8
