@@ -43,7 +43,7 @@ point a stationary theta is a degeneracy of the constraints: NUMERICAL_ERROR, :f
 when the relaxed-dynamics step's predicted decrease is below 1e-6 theta, the best linear decrease
 with the control steps in the box |du| <= 1 + |u|_inf (a near-LP: mu = 1e-8; scale-free, unlike
 the identity metric) is computed, and if that too is below 1e-6 theta or the rounding level of
-theta, the solve ends, the sentence naming the largest violation left; otherwise the box step is
+theta, the solve ends, the sentence naming the largest violation left; otherwise the mu-step is
 taken and mu divided by 10. A failed line search along a feasibility step is NUMERICAL_ERROR
 (the linearization promised a reduction, so this proves nothing about feasibility).
 """
@@ -209,9 +209,7 @@ def restoration_step(setup, st, delta, complete):
                 return infeasible(setup, st, "the l1 constraint violation is stationary (no step with the control "
                                   f"steps within the box |du| <= 1 + |u| reduces its linearization by more than "
                                   f"{best:.3g})")
-            # not stationary: the box step is the step, and longer steps from here on
-            fs = test
-            st.restoration_mu = max(MU_MIN, 0.1 * st.restoration_mu)
+            st.restoration_mu = max(MU_MIN, 0.1 * st.restoration_mu)    # not stationary: longer steps
     st.qp_iters += iterations
     if not fs.result.success:
         return st.stop(Status.NUMERICAL_ERROR, (f"the feasibility QP of SQP iteration {st.it} (restoration "

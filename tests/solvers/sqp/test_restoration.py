@@ -48,9 +48,10 @@ def test_orbit_raising_is_solved_from_a_zero_hessian_start():
 
 
 def test_steering_too_short_is_still_infeasible():
-    """The deliberately infeasible entry (IPOPT: infeasible too) -- it used to crawl through 200
-    first-order restoration steps to MAX_ITERATIONS; the relaxed QP's stationarity test, now with
-    the dynamics relaxed too, ends it INFEASIBLE, naming the final constraint left violated."""
+    """The deliberately infeasible entry (IPOPT: infeasible too) -- it used to crawl through 190
+    first-order restoration steps to MAX_ITERATIONS; now its QPs that fail numerically are relaxed,
+    and the relaxed QP's stationarity test, at the states simulated from the controls, ends it
+    INFEASIBLE, naming the final constraint left violated."""
     entry, problem, guess = _entry("steering-too-short")
     assert not entry.feasible
     assert load_references()["entries"][entry.name]["status"] == "infeasible"
