@@ -243,7 +243,8 @@ def qp_phase(setup, st, hscale):
         # the optimality phase resumes with this QP's step; at a feasible point also when the QP
         # failed (the relaxed QP, else the failure is the optimality phase's: no restoration helps)
         st.restoring = False
-    if not qres.success and qres.status in RELAXABLE and o.elastic:
+    if not qres.success and o.elastic and (qres.status == Status.INFEASIBLE or (
+            qres.status in RELAXABLE and not (st.watch is not None and setup.inertia))):
         # inconsistent linearization: the relaxed (elastic) QP instead (olado.solvers.sqp.relaxation),
         # from the starting shift (a failed QP's shift was raised by the inertia correction in vain)
         shift = qs.delta if qres.status == Status.INFEASIBLE else delta0
@@ -273,7 +274,8 @@ def qp_phase(setup, st, hscale):
 #: QP failures after which the relaxed QP is tried: an inconsistent linearization is reported as
 #: INFEASIBLE by a QP method that detects it, but an interior-point QP without an infeasibility
 #: test stops on a numerical difficulty or its iteration limit instead (the relaxed QP is always
-#: feasible, so it decides: its slacks measure the inconsistency)
+#: feasible, so it decides: its slacks measure the inconsistency). Not during a watch (exact
+#: Hessian): there a failed QP means a bad relaxed step, and qp_failed returns to the watched point
 RELAXABLE = (Status.INFEASIBLE, Status.NUMERICAL_ERROR, Status.MAX_ITERATIONS)
 
 
