@@ -49,6 +49,7 @@ class Slacks(NamedTuple):
     x: np.ndarray
     eN: np.ndarray
     cN: np.ndarray
+    h: np.ndarray = np.zeros((0, 0))    # dynamics rows (N, n), with relax_dynamics only
 
     def total(self) -> float:
         """The l1 norm of the linearized violation."""
@@ -68,11 +69,17 @@ class ElasticQP:
     """The relaxed form of ``qp`` (module docstring) with penalty ``eta``; ``relaxed`` is the
     StageQP to solve, :meth:`restore` maps its result back. ``curvature`` > 0 adds
     curvature/2 |slacks|^2 to the objective: a strictly convex QP in the slacks, which dual
-    active-set methods (Goldfarb-Idnani) and quadprog need (the l1 penalty alone has none)."""
+    active-set methods (Goldfarb-Idnani) and quadprog need (the l1 penalty alone has none).
+    ``relax_dynamics`` relaxes the dynamics rows too, x_{k+1} = A_k x_k + B_k u_k + c_k + p_k - n_k
+    (p_k, n_k >= 0 more controls of stage k, charged at eta): the QP then minimizes the l1 model of
+    the violation of *every* constraint, which the feasibility restoration's step and its
+    stationarity test need (with exact dynamics rows the step must remove the dynamics residual
+    at any cost to the other rows, so it need not reduce the l1 model at all)."""
 
     qp: StageQP
     eta: float
     curvature: float = 0.0
+    relax_dynamics: bool = False
     relaxed: StageQP = dataclasses.field(init=False)
 
     def __post_init__(self):
@@ -87,6 +94,7 @@ class ElasticQP:
         xNcols = np.nonzero(np.isfinite(xl[N]) | np.isfinite(xu[N]))[0]
         AB = np.concatenate([qp.A[-1], qp.B[-1]], axis=1)   # x_N = AB z_{N-1} + c_{N-1}
         rows, lo, hi = [qp.C], [qp.c_lower], [qp.c_upper]
+        moved = []      # (first row, G) of the final rows moved to stage N-1: x_N enters through G
         nxb = len(xcols)
         if nxb:
             Cx = np.zeros((N, nxb, n + m))
@@ -95,6 +103,7 @@ class ElasticQP:
         for G, glo, ghi in ((qp.CN, qp.cN_lower, qp.cN_upper), (np.eye(n)[xNcols], xl[N, xNcols], xu[N, xNcols])):
             if G.shape[0] == 0:
                 continue
+            moved.append((sum(a.shape[1] for a in rows), G))
             rN = np.zeros((N, G.shape[0], n + m))
             rN[-1] = G @ AB
             off = G @ qp.c[-1]
@@ -116,25 +125,37 @@ class ElasticQP:
         s_rows, t_rows = np.nonzero(lo_side)[0], np.nonzero(hi_side)[0]
         ns, nt = len(s_rows), len(t_rows)
         msl = 2 * ner + ns + nt
-        ma = m + msl
+        nd = 2 * n if self.relax_dynamics else 0     # dynamics slacks p, n: the last columns
+        ma = m + msl + nd
         Fa = np.zeros((N, ner, ma)); Fa[:, :, :m] = F
         Fa[:, np.arange(ner), m + np.arange(ner)] = 1.0
         Fa[:, np.arange(ner), m + ner + np.arange(ner)] = -1.0
         Ca = np.zeros((N, ncr, n + ma)); Ca[:, :, :n + m] = C
         Ca[:, s_rows, n + m + 2 * ner + np.arange(ns)] = 1.0
         Ca[:, t_rows, n + m + 2 * ner + ns + np.arange(nt)] = -1.0
+        dcol = m + msl                               # first dynamics slack column (controls)
+        if nd:   # the final rows moved to stage N-1 see x_N's dynamics slacks
+            for row, G in moved:
+                Ca[-1, row: row + G.shape[0], n + dcol: n + dcol + n] = G
+                Ca[-1, row: row + G.shape[0], n + dcol + n: n + dcol + nd] = -G
+            if neN:
+                Fa[-1, ne:ner, dcol: dcol + n] = qp.EN
+                Fa[-1, ne:ner, dcol + n: dcol + nd] = -qp.EN
         # slack bounds: >= 0; a side that is infinite at a stage has its slack fixed at 0
-        sl_hi = np.full((N, msl), np.inf)
+        sl_hi = np.full((N, msl + nd), np.inf)
         sl_hi[:, 2 * ner: 2 * ner + ns] = np.where(np.isfinite(clo[:, s_rows]), np.inf, 0.0)
-        sl_hi[:, 2 * ner + ns:] = np.where(np.isfinite(chi[:, t_rows]), np.inf, 0.0)
+        sl_hi[:, 2 * ner + ns: msl] = np.where(np.isfinite(chi[:, t_rows]), np.inf, 0.0)
         if neN:   # the final rows' slacks exist at stage N-1 only
             sl_hi[:-1, ne:ner] = 0.0
             sl_hi[:-1, ner + ne: 2 * ner] = 0.0
         R = np.zeros((N, ma, ma)); R[:, :m, :m] = qp.R
         R[:, np.arange(m, ma), np.arange(m, ma)] = float(self.curvature)
         S = np.zeros((N, n, ma)); S[:, :, :m] = qp.S
-        r = np.concatenate([qp.r, np.full((N, msl), float(self.eta))], axis=1)
+        r = np.concatenate([qp.r, np.full((N, msl + nd), float(self.eta))], axis=1)
         B = np.zeros((N, n, ma)); B[:, :, :m] = qp.B
+        if nd:
+            B[:, np.arange(n), dcol + np.arange(n)] = 1.0
+            B[:, np.arange(n), dcol + n + np.arange(n)] = -1.0
         xl_a, xu_a = qp.x_lower.copy(), qp.x_upper.copy()
         xl_a[:, :] = -np.inf; xu_a[:, :] = np.inf
         xl_a[0], xu_a[0] = qp.x_lower[0], qp.x_upper[0]
@@ -144,7 +165,7 @@ class ElasticQP:
             E=E if ner else None, F=Fa if ner else None, e=e if ner else None,
             C=Ca if ncr else None, c_lower=clo if ncr else None, c_upper=chi if ncr else None,
             x_lower=xl_a, x_upper=xu_a,
-            u_lower=np.concatenate([qp.u_lower, np.zeros((N, msl))], axis=1),
+            u_lower=np.concatenate([qp.u_lower, np.zeros((N, msl + nd))], axis=1),
             u_upper=np.concatenate([qp.u_upper, sl_hi], axis=1))
 
     @property
@@ -165,7 +186,7 @@ class ElasticQP:
         p_, n_ = sl[:, :ner], sl[:, ner: 2 * ner]
         s_ = np.zeros((N, ncr)); t_ = np.zeros((N, ncr))
         s_[:, s_rows] = sl[:, 2 * ner: 2 * ner + ns]
-        t_[:, t_rows] = sl[:, 2 * ner + ns:]
+        t_[:, t_rows] = sl[:, 2 * ner + ns: 2 * ner + ns + nt]
         viol_rows = np.maximum(s_, 0.0) + np.maximum(t_, 0.0)
         nu_rows = res.nu[:N, :ner] if res.nu.shape[1] >= ner else np.zeros((N, ner))
         ycl, ycu = res.yc_lower, res.yc_upper
@@ -190,6 +211,9 @@ class ElasticQP:
         slacks = Slacks(e=np.abs(p_[:, :ne]) + np.abs(n_[:, :ne]), c=viol_rows[:, :nc],
                         x=np.zeros((N + 1, n)), eN=np.abs(p_[-1, ne:ner]) + np.abs(n_[-1, ne:ner]),
                         cN=viol_rows[-1, nc + nxb: nc + nxb + ncN])
+        if self.relax_dynamics:
+            dyn = sl[:, sl.shape[1] - 2 * n:]
+            slacks = slacks._replace(h=np.abs(dyn[:, :n]) + np.abs(dyn[:, n:]))
         slacks.x[:N, xcols] = viol_rows[:, nc: nc + nxb]
         slacks.x[N, xNcols] = viol_rows[-1, nc + nxb + ncN:]
         out = dataclasses.replace(res, X=X, U=U, lam=lam, nu=nu, zx_lower=zxl, zx_upper=zxu,

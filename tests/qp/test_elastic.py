@@ -45,13 +45,14 @@ def test_elastic_qp_of_a_consistent_qp_is_that_qp(seed, fixed):
     assert np.allclose(res.lam, ref.lam, atol=1e-5) and np.allclose(res.nu, ref.nu, atol=1e-5)
 
 
-def _least_violation_lp(qp):
-    """min sum of slacks over the linearized constraints of qp with the dynamics, x_0 and the
-    control bounds exact (the elastic QP's relaxation), as an LP in the sparse form."""
+def _least_violation_lp(qp, relax_dynamics=False):
+    """min sum of slacks over the linearized constraints of qp with the dynamics (unless
+    ``relax_dynamics``), x_0 and the control bounds exact (the elastic QP's relaxation), as an LP
+    in the sparse form."""
     d = qp.to_sparse()
     nv = qp.n_vars
     N, n, m = qp.N, qp.n, qp.m
-    n_exact = n + N * n                          # x_0 and dynamics rows come first in A_eq
+    n_exact = n if relax_dynamics else n + N * n     # x_0 and dynamics rows come first in A_eq
     A_eq, b_eq = d["A_eq"].tocsr(), d["b_eq"]
     n_rel = A_eq.shape[0] - n_exact
     G, hl, hu = d["G"].tocsr(), d["h_lower"], d["h_upper"]
@@ -107,3 +108,41 @@ def test_elastic_qp_of_an_inconsistent_qp_leaves_the_least_l1_violation(method):
     assert np.all(res.U >= qp.u_lower - 1e-8) and np.all(res.U <= qp.u_upper + 1e-8)
     dyn = np.einsum("kij,kj->ki", qp.A, res.X[:-1]) + np.einsum("kij,kj->ki", qp.B, res.U) + qp.c - res.X[1:]
     assert np.max(np.abs(dyn)) < 1e-7
+
+
+@pytest.mark.parametrize("case", ["bound3", "boundN", "final-row"])
+def test_elastic_qp_with_relaxed_dynamics_leaves_the_least_l1_violation_of_every_row(case):
+    """relax_dynamics (the feasibility restoration's QP): the dynamics rows get slacks too, so the
+    QP minimizes the l1 model of every row's violation -- never more than with exact dynamics,
+    and equal to the LP that relaxes them. An unreachable bound on x_3 or on x_N (the final rows
+    moved to stage N-1 see that stage's dynamics slacks), or a final equality row 10 times the
+    scale of the states out of reach (then a dynamics slack removes its violation at a tenth of
+    the cost, and relaxing the dynamics is strictly better; the controls bounded so that they
+    cannot reach it)."""
+    qp = _with_final_rows(random_qp(3, eq=True), 3)
+    xl, xu = qp.x_lower.copy(), qp.x_upper.copy()
+    kw = {}
+    if case == "final-row":
+        kw.update(EN=10.0 * qp.EN, eN=10.0 * qp.eN + 50.0, u_upper=np.minimum(qp.u_upper, 1.0))
+    else:
+        stage = 3 if case == "bound3" else qp.N
+        xl[stage, 0], xu[stage, 0] = 40.0, np.inf
+    qp = replace(qp, x_lower=xl, x_upper=xu, q=np.zeros_like(qp.q), r=np.zeros_like(qp.r), **kw)
+    best = _least_violation_lp(qp, relax_dynamics=True)
+    exact = _least_violation_lp(qp)
+    assert 0.1 < best <= exact + 1e-9
+    if case == "final-row":
+        assert best < exact - 0.1
+    el = ElasticQP(qp, eta=1e4, relax_dynamics=True)
+    assert el.n_slacks == ElasticQP(qp, eta=1e3).n_slacks + 2 * qp.n
+    res, slacks = el.restore(make_qp_solver("mehrotra", tol=1e-10).solve(el.relaxed))
+    assert res.success, res.message
+    assert slacks.total() == pytest.approx(best, rel=1e-6)
+    # the slacks are the linearized violations at the step: the dynamics residuals, the final
+    # row's and the x bounds' recomputed
+    dyn = np.einsum("kij,kj->ki", qp.A, res.X[:-1]) + np.einsum("kij,kj->ki", qp.B, res.U) + qp.c - res.X[1:]
+    assert np.allclose(slacks.h, np.abs(dyn), atol=1e-6)
+    assert np.allclose(slacks.eN, np.abs(qp.EN @ res.X[-1] + qp.eN), atol=1e-6)
+    bound = np.maximum(qp.x_lower - res.X, 0.0) + np.maximum(res.X - qp.x_upper, 0.0)
+    assert np.allclose(slacks.x[1:], bound[1:], atol=1e-6)
+    assert np.all(res.U >= qp.u_lower - 1e-8) and np.all(res.U <= qp.u_upper + 1e-8)

@@ -280,16 +280,29 @@ def qp_phase(setup, st, hscale):
     st.qp_iters += qs.iterations
     qres = qs.result
     if st.restoring:
-        if not (qres.success and restoration.may_leave(setup, st)):
+        if not ((qres.success and restoration.may_leave(setup, st)) or restoration.feasible(setup, st.pt)):
             return restoration_iteration(setup, st, qs.delta)
-        st.restoring = False    # the optimality phase resumes with this QP's step
-    if not qres.success and qres.status == Status.INFEASIBLE and o.elastic:
-        # inconsistent linearization: the relaxed (elastic) QP instead (olado.solvers.sqp.relaxation)
-        rel = relaxation.solve_relaxed(setup, st, st.Bk, st.BN, qs.delta)
+        # the optimality phase resumes with this QP's step; at a feasible point also when the QP
+        # failed (the relaxed QP, else the failure is the optimality phase's: no restoration helps)
+        st.restoring = False
+    if not qres.success and o.elastic and (qres.status == Status.INFEASIBLE or (
+            qres.status in RELAXABLE and not (st.watch is not None and setup.inertia))):
+        # inconsistent linearization: the relaxed (elastic) QP instead (olado.solvers.sqp.relaxation),
+        # from the starting shift (a failed QP's shift was raised by the inertia correction in vain)
+        shift = qs.delta if qres.status == Status.INFEASIBLE else delta0
+        rel = relaxation.solve_relaxed(setup, st, st.Bk, st.BN, shift)
         st.qp_iters += rel.solve.iterations
         if rel.stationary:
             return restoration.infeasible(setup, st, "the linearized constraints are inconsistent and no step "
                                           "reduces their l1 violation")
+        if rel.irreducible and not st.restoring:
+            # irreducible with a dynamics residual: the states simulated from the controls (where
+            # the relaxed QP's stationarity test is honest), else the restoration phase decides
+            if restoration.simulate_states(setup, st):
+                return NEXT
+            if o.restoration:
+                restoration.start(setup, st)
+                return NEXT
         if rel.solve.result.success:
             st.eta = rel.eta
             qs, qres = rel.solve, rel.solve.result
@@ -298,6 +311,14 @@ def qp_phase(setup, st, hscale):
     mult_new, st.bounds = qp_multipliers(qres, setup.masks, p.N, p.r, p.rN)
     return Step(qres=qres, delta=qs.delta, dX=qres.X, dU=qres.U, mult_new=mult_new, hscale=hscale,
                 warm=warm is not None, slacks=qs.slacks, bounds=st.bounds)
+
+
+#: QP failures after which the relaxed QP is tried: an inconsistent linearization is reported as
+#: INFEASIBLE by a QP method that detects it, but an interior-point QP without an infeasibility
+#: test stops on a numerical difficulty or its iteration limit instead (the relaxed QP is always
+#: feasible, so it decides: its slacks measure the inconsistency). Not during a watch (exact
+#: Hessian): there a failed QP means a bad relaxed step, and qp_failed returns to the watched point
+RELAXABLE = (Status.INFEASIBLE, Status.NUMERICAL_ERROR, Status.MAX_ITERATIONS)
 
 
 def restoration_iteration(setup, st, delta):

@@ -23,8 +23,12 @@ eta grows tenfold while the step removes less than ``elastic_progress`` of the l
 violation -- or, when that is more than any step can remove, of what the feasibility QP (no
 gradient, the largest penalty ``elastic_penalty_max`` (1 + |grad J|)) removes: the steering rule
 of Byrd, Nocedal & Waltz (2008) in the place of delta_max. When not even the feasibility QP
-reduces the linearized violation, the iterate is a stationary point of the l1 violation and the
-SQP ends INFEASIBLE (olado.solvers.sqp.restoration.infeasible).
+reduces the linearized violation at a point whose dynamics hold, the iterate is a stationary point
+of the l1 violation of the other constraints as a function of the controls, and the SQP ends
+INFEASIBLE (olado.solvers.sqp.restoration.infeasible, which also asks for a positive violation).
+With a dynamics residual this proves nothing (the step must remove that residual whatever it costs
+the other rows): the SQP simulates the states from the controls, or starts the restoration phase
+(olado.solvers.sqp.phases.qp_phase).
 """
 
 from __future__ import annotations
@@ -48,10 +52,21 @@ class Relaxed(NamedTuple):
     progress: float
     best: float = float("nan")
 
+    dynamics_residual: float = 0.0
+
+    @property
+    def irreducible(self) -> bool:
+        """No step with exact linearized dynamics reduces the linearized violation."""
+        return self.best == self.best and self.best <= STATIONARY_RTOL * self.violation0
+
     @property
     def stationary(self) -> bool:
-        """No step reduces the linearized violation: a stationary point of the l1 violation."""
-        return self.best == self.best and self.best <= STATIONARY_RTOL * self.violation0
+        """No step reduces the linearized violation, at a point whose dynamics hold (to
+        STATIONARY_RTOL of the violation): a stationary point of the l1 violation of the path,
+        final and bound constraints along the simulated states (the states are functions of the
+        controls there, and the relaxed QP's linearization is that function's). With a dynamics
+        residual, irreducibility proves nothing (the restoration phase decides)."""
+        return self.irreducible and self.dynamics_residual <= STATIONARY_RTOL * self.violation0
 
 
 #: the linearized l1 violation counts as irreducible when the best step removes at most this
@@ -83,13 +98,17 @@ def largest_penalty(setup, st):
     return max(start_penalty(setup, st), setup.options.elastic_penalty_max * (1.0 + gradient_norm(st.pt)))
 
 
-def feasibility_qp(setup, st, Bk, BN, delta, eta=None, inertia=None, u_box=None):
+def feasibility_qp(setup, st, Bk, BN, delta, eta=None, inertia=None, u_box=None, relax_dynamics=False):
     """The feasibility QP: the relaxed QP without the objective's gradient, min eta sum(slacks) +
     1/2 s.H s; at the largest penalty (default) the step that removes the most linearized
-    violation (the shortest such step in the Hessian's norm)."""
+    violation (the shortest such step in the Hessian's norm). With ``relax_dynamics`` the dynamics
+    rows are relaxed too: its slacks are then the l1 model of *every* constraint's violation, so
+    "no step reduces it" is a first-order stationary point of the l1 violation theta (with exact
+    dynamics rows and a dynamics residual at the point, the best step may make the model worse
+    than s = 0, which proves nothing)."""
     return qp_step.solve_qp(setup, st, st.pt, Bk, BN, delta, inertia=setup.inertia if inertia is None else inertia,
                             eta=largest_penalty(setup, st) if eta is None else eta, zero_gradient=True,
-                            u_box=u_box)
+                            u_box=u_box, relax_dynamics=relax_dynamics)
 
 
 def solve_relaxed(setup, st, Bk, BN, delta):
@@ -116,7 +135,8 @@ def solve_relaxed(setup, st, Bk, BN, delta):
                 return Relaxed(fs._replace(iterations=iterations), eta_max, v0, 0.0, best)
             best = v0 - fs.slacks.total()
             if best <= STATIONARY_RTOL * v0:
-                return Relaxed(fs._replace(iterations=iterations), eta_max, v0, best, best)
+                return Relaxed(fs._replace(iterations=iterations), eta_max, v0, best, best,
+                               float(np.sum(np.abs(st.pt.h))))
             target = min(target, o.elastic_progress * best)
             if progress >= target:
                 return Relaxed(qs._replace(iterations=iterations), eta, v0, progress, best)

@@ -90,6 +90,20 @@ class Point:
         self._hessian = (mult, blocks, HN)
         return blocks, HN
 
+    def constraint_hessian(self, p, mult):
+        """The Hessian blocks of the constraint terms of the Lagrangian alone (objective weight 0),
+        sum lam_{k+1}.f^k + Lg.g^k + LgN.g^N: the Hessian of the feasibility problem's Lagrangian
+        (olado.solvers.sqp.restoration). Not cached."""
+        N, n, m = p.N, p.n, p.m
+        t0 = time.perf_counter()
+        Hxx, Hxu, Huu = p.eval_stage_hessians(self.X, self.U, 0.0, mult.lam[1:], mult.Lg)
+        HN = p.eval_final_hessian(self.X[-1], 0.0, mult.LgN)
+        self.clock.add(("hessian",), t0)
+        blocks = np.empty((N, n + m, n + m))
+        blocks[:, :n, :n] = Hxx; blocks[:, :n, n:] = Hxu
+        blocks[:, n:, :n] = np.transpose(Hxu, (0, 2, 1)); blocks[:, n:, n:] = Huu
+        return blocks, HN
+
     def lagrangian_gradients(self, mult):
         """Per-block gradients of the stage Lagrangians f0 + lam_{k+1}.f + Lg.g (z-blocks) and
         of F + LgN.gN (final block); the terms linear in x_{k+1} cancel in differences."""
@@ -223,6 +237,8 @@ class SQPState:
     restoration_theta: float = 0.0  # l1 violation where the restoration phase started
     restoration_steps: int = 0      # restoration steps since then
     restoration_mu: float = 1.0     # the restoration steps' metric mu I
+    restoration_mult: Any = None    # multipliers of the last feasibility QP (its Hessian's weights), or None
+    simulated_at: int = -1          # iteration at which the states were last simulated from the controls
     tau_kkt: float = 0.0            # KKT residual at the last step's start (rho_3 of the tau update)
     certificate: Any = None         # olado's certificate of the point the solve stopped at (olado.solvers.certificate)
     certificates: int = 0           # certificates computed in this solve

@@ -52,6 +52,15 @@ def hessian_scale(Bk, BN):
     return max(1e-300, float(np.max(np.abs(Bk), initial=0.0)), float(np.max(np.abs(BN), initial=0.0)))
 
 
+def shift_scale(scale):
+    """The scale of the inertia correction's shifts after a failed QP: max|H|, or 1 when H = 0 (a
+    linear objective with zero multipliers, e.g. at the start of a free-time or Mayer problem):
+    shifts of shift_init * 1e-300 * 10^k could never bound such a QP -- orbit-raising's first QP
+    stayed unbounded through all 30 of them (IPOPT's first inertia correction is likewise an
+    absolute 1e-4, Waechter & Biegler 2006 sec. 3.1)."""
+    return scale if scale > 1e-300 else 1.0
+
+
 def curvature(Bk, BN, dX, dU):
     """(s.H s, s.s) for s = (dX, dU) and the block-diagonal H of the stage blocks Bk and BN."""
     z = np.concatenate([dX[:-1], dU], axis=1)
@@ -163,14 +172,15 @@ ELASTIC_CURVATURE = 1e-6
 
 
 def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=False, offsets=None, eta=None,
-             u_box=None):
+             u_box=None, relax_dynamics=False):
     """Solve the QP subproblem at pt with delta*I (+ the proximal term) added to the Hessian.
     With ``inertia`` a QP whose KKT factorization fails -- a reduced Hessian that is not positive
     definite -- is solved again with a larger delta (:class:`ShiftRule`); with ``curvature_tol``
     so is a QP step along which the Hessian has almost no positive curvature (inertia-free test,
     Chiang & Zavala 2016). ``warm`` is a QPResult to start the QP from. With ``eta`` the elastic
     form of the QP (olado.qp.elastic, penalty eta) is solved instead, cold; ``u_box`` bounds the
-    control steps, |du| <= u_box (a trust region). Reads the local-phase flag and the relative KKT
+    control steps, |du| <= u_box (a trust region); ``relax_dynamics`` relaxes the dynamics rows of the
+    elastic QP too (olado.qp.elastic). Reads the local-phase flag and the relative KKT
     residual of ``st``; returns a :class:`QPSolve`."""
     o, p, qp_solver = setup.options, setup.problem, setup.qp_solver
     rule = ShiftRule(o)
@@ -198,7 +208,7 @@ def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=
         if eta is None:
             qres = qp_solver.solve(qp, warm_start=warm, limits=setup.limits)
         else:
-            elastic = ElasticQP(qp, eta, curvature=ELASTIC_CURVATURE * scale)
+            elastic = ElasticQP(qp, eta, curvature=ELASTIC_CURVATURE * scale, relax_dynamics=relax_dynamics)
             qres, slacks = elastic.restore(qp_solver.solve(elastic.relaxed, limits=setup.limits))
         iterations += int(qres.iterations)
         if inertia and o.curvature_tol > 0 and qres.success:
@@ -212,9 +222,9 @@ def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=
         # a failed QP: raise the shift (with shift_mode = 'stage' on the blocks without positive
         # curvature along its last iterate, when it has one)
         if qres.X is not None and np.all(np.isfinite(qres.X)) and np.all(np.isfinite(qres.U)):
-            delta = rule.raise_along(delta, scale, Bk, BN, qres.X, qres.U, st.qp_local)
+            delta = rule.raise_along(delta, shift_scale(scale), Bk, BN, qres.X, qres.U, st.qp_local)
         else:
-            delta = rule.raise_(delta, scale)
+            delta = rule.raise_(delta, shift_scale(scale))
     return QPSolve(qres, delta, iterations, slacks)
 
 
