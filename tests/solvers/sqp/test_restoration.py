@@ -57,7 +57,7 @@ def test_steering_too_short_is_still_infeasible():
     assert load_references()["entries"][entry.name]["status"] == "infeasible"
     r = olado.solve(problem, config=SQP_IP, guess=guess)
     assert r.status == Status.INFEASIBLE, r.message
-    assert "locally infeasible" in r.message and "final constraint" in r.message
+    assert "locally infeasible" in r.message and "final_constraints" in r.message
     assert r.max_constraint_violation > 1.0
 
 
