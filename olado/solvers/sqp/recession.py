@@ -9,11 +9,22 @@ MAX_ITERATIONS). The SQP therefore tests the same certificate on the model of th
 QP at the iterate, along its normalized step d = s / |s|_inf:
 
     g.d < 0   and   max(|H d|, |A d_x + B d_u - d_x+|, |E d|, |d_x0|, (C d)^-, bound violations of d)
-                    <= ``recession_tol`` * |g.d|
+                    <= ``recession_tol`` * |g.d|,  and with the exact Hessian also
+                    <= |g.d| / (REACH (1 + |y|_inf))
 
 (H the Lagrangian Hessian blocks without shift or proximal term, E the equality rows, C the
 inequality rows g >= 0, a bound violated when d points out of a finite bound: the recession cone
-of the linearized feasible set). When it holds at ``unbounded_steps`` consecutive accepted steps
+of the linearized feasible set). The second bound is the scale-aware one: with |H d| ~ d'Hd the
+model's minimizer along d lies at a distance |g.d| / d'Hd >= REACH (1 + |y|_inf), far beyond the
+iterate's own size. The relative test alone called the badly scaled lq-box at N = 200 (unstable
+dynamics, J ~ 1e19 at the start, |y| ~ 1.6e9, |g.d| ~ 3e10 against |H d| ~ 10: the model's
+minimum two iterate sizes away) UNBOUNDED although it is a convex QP bounded below; a truly
+unbounded problem has |H d| at rounding level (1e-12 at |y| ~ 1e6 in tests/fixtures'
+UnboundedBelow), which a bound relative to |y| with recession_tol itself (1e-6 / |y|) would
+reject. A quasi-Newton Hessian's curvature along a direction the iterates have only just explored
+is no evidence either way (block SR1 on UnboundedBelow: |H d| ~ 1e-8 at |y| ~ 1e8, so the model's
+minimum sits one iterate size away at every step), so the second bound needs the exact Hessian.
+When it holds at ``unbounded_steps`` consecutive accepted steps
 from feasible iterates (violation <= constr_viol_tol (1 + |y|_inf): the iterates grow, and the
 QP's accuracy with them), each of which decreased the objective, the SQP ends with status UNBOUNDED
 and a sentence; so does a QP that reports UNBOUNDED itself at a feasible iterate after a step that
@@ -23,6 +34,10 @@ decreased the objective.
 from __future__ import annotations
 
 import numpy as np
+
+#: the QP model's minimizer along a direction of recession lies at least this many times the
+#: iterate's size (1 + |y|_inf) away (module docstring)
+REACH = 100.0
 
 
 def certificate(p, pt, Bk, BN, masks, dX, dU):
@@ -53,10 +68,14 @@ def certificate(p, pt, Bk, BN, masks, dX, dU):
     return slope, worst
 
 
+def size(pt):
+    """|y|_inf of the iterate."""
+    return max(float(np.max(np.abs(pt.X))), float(np.max(np.abs(pt.U))))
+
+
 def feasible(setup, pt, viol):
     """Feasible for this test: violation <= constr_viol_tol (1 + |y|_inf) (the iterates grow)."""
-    size = max(float(np.max(np.abs(pt.X))), float(np.max(np.abs(pt.U))))
-    return viol <= setup.options.constr_viol_tol * (1.0 + size)
+    return viol <= setup.options.constr_viol_tol * (1.0 + size(pt))
 
 
 def count(setup, st, step, J_new):
@@ -67,6 +86,8 @@ def count(setup, st, step, J_new):
     if feasible(setup, st.pt, step.viol) and J_new < st.pt.J:
         cert = certificate(p, st.pt, st.Bk, st.BN, setup.masks, step.dX, step.dU)
         holds = cert is not None and cert[0] < 0.0 and cert[1] <= o.recession_tol * -cert[0]
+        if holds and st.hess.needs_exact:
+            holds = cert[1] * REACH * (1.0 + size(st.pt)) <= -cert[0]
     st.recession_steps = st.recession_steps + 1 if holds else 0
     if holds and st.recession_steps >= o.unbounded_steps:
         slope, worst = cert

@@ -271,7 +271,7 @@ class SQPOptions(SolverOptions):
                                   "QP model (docs/structure-exploiting-sqp.md)", min=1)
     recession_tol: float = option(1e-6, "a step direction d is one of recession of the QP model when |H d|, the "
                                   "linearized constraint residuals and the bound violations along d are at most this "
-                                  "times the objective's slope |g.d|", min=0.0)
+                                  "times the objective's slope |g.d| / (1 + |y|_inf)", min=0.0)
     elastic: bool = option(True, "a QP found infeasible (inconsistent linearized constraints) is replaced by its "
                            "relaxed (elastic) form, every constraint but the dynamics relaxed by slacks charged at the "
                            "penalty eta (WORHP's relaxed QP, docs/structure-exploiting-sqp.md); off: the SQP ends "

@@ -173,6 +173,17 @@ def test_an_unbounded_problem_ends_unbounded(cfg):
     assert r.objective < -1e4
 
 
+def test_a_badly_scaled_convex_problem_is_not_called_unbounded():
+    """lq-box at N = 200 (unstable dynamics: J ~ 1e19 at the start) is a convex QP bounded below;
+    the QP model's minimum along the steps lies two iterate sizes away, so the steps are no
+    directions of recession (olado.solvers.sqp.recession.REACH); it was UNBOUNDED at iteration 5."""
+    from olado.problems.testproblems import PROBLEMS
+
+    r = olado.solve(PROBLEMS["lq-box"](N=200), config=SQP_IP, max_iter=30)
+    assert r.status is not Status.UNBOUNDED, r.message
+    assert r.iterations == 30
+
+
 def test_a_bounded_problem_is_not_called_unbounded():
     r = olado.solve(UnboundedBelow(u_bounds=(-1.0, 100.0)), config=SQP_IP)
     assert r.success and r.u[-1, 0] == pytest.approx(100.0, abs=1e-6)
