@@ -6,7 +6,7 @@ statuses."""
 import numpy as np
 import pytest
 
-from fixtures.qp_problems import clarabel_solution, random_qp, replace
+from fixtures.qp_problems import assert_multipliers_match, clarabel_solution, random_qp, replace
 from olado.errors import ConfigError
 from olado.qp import KKT_METHODS, OLADO_METHODS, QP_METHODS, make_qp_solver
 from olado.qp.bounds import PrimalDualActiveSetQP, general_rows
@@ -36,10 +36,7 @@ def agrees(qp, res, tol=1e-6):
     assert np.max(np.abs(res.X - Xr)) < tol and np.max(np.abs(res.U - Ur)) < tol
     ref = MehrotraQP(tol=1e-12).solve(qp)
     assert ref.success
-    for name in MULTIPLIERS:
-        a, b = getattr(res, name), getattr(ref, name)
-        assert a.shape == b.shape, name
-        assert np.max(np.abs(a - b), initial=0.0) < 1e-6 * (1 + np.max(np.abs(b), initial=0.0)), name
+    assert_multipliers_match(res, ref, MULTIPLIERS)
 
 
 # ============================================================================= the active-set iteration

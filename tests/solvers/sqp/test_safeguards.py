@@ -12,10 +12,11 @@ import olado
 from olado.problems import PROBLEMS
 from olado.result import Status
 from olado.solvers.sqp import phases, regularization
-from olado.solvers.sqp.line_search import Direction, SearchResult, line_search
+from olado.solvers.sqp.line_search import Direction, line_search
 from olado.solvers.sqp.solver import SQPOptions
 
-from fixtures.safeguard_problems import Annulus, DegenerateFinalConstraint, NarrowDomain, UnboundedBelow
+from fixtures.safeguard_problems import (Annulus, DegenerateFinalConstraint, NarrowDomain, UnboundedBelow,
+                                         fail_first_line_search)
 from fixtures.toy_problems import Pendulum
 
 pytest.importorskip("cyipopt")
@@ -128,15 +129,7 @@ def test_locally_infeasible_problems_end_infeasible_naming_the_largest_violation
 def test_restoration_returns_to_the_optimality_phase(monkeypatch):
     """A line search that fails once at an infeasible point starts the restoration phase; its
     steps reduce the l1 violation and the SQP then converges to IPOPT's solution."""
-    failed = []
-
-    def failing_once(options, problem, direction, merit, watch, **kw):
-        if not failed and kw.get("soc", None) is None and "untrusted" in kw:
-            failed.append(True)
-            return SearchResult(1e-11, None, 30, "failed")
-        return line_search(options, problem, direction, merit, watch, **kw)
-
-    monkeypatch.setattr(phases, "line_search", failing_once)
+    failed = fail_first_line_search(monkeypatch)
     p = PROBLEMS["vanderpol-path"]()
     r = olado.solve(p, config=SQP_IP)
     modes = [h["mode"] for h in r.history]
