@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from olado.config import PROBLEM_KEYS, SolverConfig, config_from_kwargs, load_config
@@ -190,19 +190,27 @@ DIAGNOSIS_FIELDS = [("tolerance",), ("largest",), ("total",), ("note",), ("time_
                     *(("violations", 0, k) for k in ("array", "stage", "component", "value", "kind"))]
 
 
+def _has(parent, key) -> bool:
+    """parent[key] exists: a key of a dict, or an int index of a list (an earlier change may have
+    replaced a dict by a list or the other way round)."""
+    if isinstance(parent, dict):
+        return key in parent
+    return isinstance(parent, list) and isinstance(key, int) and key < len(parent)
+
+
 @FUZZ
 @given(st.lists(st.tuples(st.sampled_from(DIAGNOSIS_FIELDS), st.booleans(), JSONISH), min_size=1, max_size=4))
+@example([(("arrays", 0), False, []), (("arrays", 0, "array"), False, None)])   # a dict replaced by a list first
 def test_result_files_with_a_changed_diagnosis(changes):
     with tempfile.TemporaryDirectory() as folder:
         path, doc = _good_document(folder)
         for field, delete, value in changes:
             parent = doc["infeasibility"]
             for key in field[:-1]:
-                parent = parent[key] if isinstance(parent, (list, dict)) and (
-                    key in parent if isinstance(parent, dict) else key < len(parent)) else None
+                parent = parent[key] if _has(parent, key) else None
             if isinstance(parent, dict) and delete:
                 parent.pop(field[-1], None)
-            elif isinstance(parent, dict) or (isinstance(parent, list) and field[-1] < len(parent)):
+            elif isinstance(parent, dict) or _has(parent, field[-1]):
                 parent[field[-1]] = value
         path.write_text(json.dumps(doc))
         path.with_suffix(".npz").unlink()
