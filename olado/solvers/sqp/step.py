@@ -20,6 +20,7 @@ import numpy as np
 
 from ...qp.elastic import ElasticQP
 from ...qp.stageqp import StageQP
+from ..certificate import weighted_qp
 from ...result import Status
 from .state import BoundMultipliers, Multipliers
 
@@ -236,15 +237,10 @@ def least_squares_multipliers(setup, pt):
     get 0. Returns (Multipliers, max |y|, QP iterations), or None when that QP fails."""
     p = setup.problem
     eq, _, eqN, _ = setup.masks
-    N, n, m = p.N, p.n, p.m
-    kw = {}
-    if p.r and eq.any():
-        kw.update(E=pt.Cx[:, eq, :], F=pt.Cu[:, eq, :], e=np.zeros((N, int(eq.sum()))))
-    if p.rN and eqN.any():
-        kw.update(EN=pt.CN[eqN], eN=np.zeros(int(eqN.sum())))
-    qp = StageQP(Q=np.broadcast_to(np.eye(n), (N + 1, n, n)).copy(), R=np.broadcast_to(np.eye(m), (N, m, m)).copy(),
-                 S=np.zeros((N, n, m)), q=np.vstack([pt.lx, pt.lN[None, :]]), r=pt.lu.copy(), A=pt.A, B=pt.B,
-                 c=np.zeros((N, n)), x0=np.zeros(n), **kw)
+    N = p.N
+    # the certificate's weighted least-squares QP with unit weights and no inequality row active
+    qp = weighted_qp(p, pt, np.ones((N + 1, p.n)), np.ones((N, p.m)), np.zeros((N, int((~eq).sum())), dtype=bool),
+                     np.zeros(int((~eqN).sum()), dtype=bool))
     qres = setup.qp_solver.solve(qp)    # before the solve's interrupt guard: no limits (one Newton step)
     if not qres.success:
         return None
