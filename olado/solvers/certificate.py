@@ -35,12 +35,17 @@ The check, in stages, each cheap against a solve (all O(N), stage by stage):
        D_i = w_i^2 s_i^2 / (w_i^2 + s_i^2) on the side where a bound at slack s_i can cancel r_i,
              w_i^2 elsewhere,
 
-   over the multipliers of the dynamics and the equality rows (free) and of the rows g >= 0 (<= 0,
-   active-set: a row whose multiplier comes out positive is released). Semismooth Newton: with
+   over the multipliers of the dynamics and the equality rows (free) and of the rows g >= 0
+   (<= 0). A stage row g_j >= 0 pays its complementarity in the same sum: Phi + sum_j (g_j mu_j)^2,
+   i.e. a row at slack g_j is a soft equality C_j d = t_j with a slack control weighted 1/g_j^2
+   (a row whose multiplier comes out positive is released: mu_j = 0); a final row is an equality
+   where its slack is ~0 (active set, released likewise). Semismooth Newton: with
    the weights D of the current residual frozen, the minimiser is the multiplier vector of the
    equality-constrained stage QP  min 1/2 d' D^-1 d + grad J . d  s.t. the linearized dynamics and
    rows (its KKT conditions give d = -D r and J D r = 0, the normal equations), solved in O(N) by
-   olado's interior-point QP with the Riccati back-end; the weights are then recomputed, until
+   olado's interior-point QP with the Riccati back-end (where the Riccati recursion's projection
+   of the terminal rows breaks down, by the sparse LU of the whole KKT matrix); the weights are
+   then recomputed, until
    they repeat (at most LSQ_STEPS) or the figures of step 2 meet the tolerance. At the fixed
    point the gradient of Phi vanishes: the multipliers are its exact minimiser. It starts from
    the solver's multipliers when there are some, else from 0; the step with the best figures
@@ -86,6 +91,8 @@ LSQ_TOL = 1e-12
 LSQ_FLOOR = 1e-12
 #: semismooth Newton steps of step 3 at most (the weights usually repeat after 2-12)
 LSQ_STEPS = 30
+#: KKT back-ends of the weighted least-squares QPs of step 3, in the order tried
+LSQ_KKT = ("riccati", "superlu-full")
 
 _EPS = np.finfo(float).eps
 
@@ -277,21 +284,37 @@ def _lsq_weights(r, y, lo, hi, w):
     return np.maximum(D, LSQ_FLOOR * w ** 2)
 
 
-def weighted_qp(p, pt, Dx, Du, active, activeN):
+def weighted_qp(p, pt, Dx, Du, active, activeN, soft=None):
     """The equality-constrained stage QP  min 1/2 d' D^-1 d + grad J . d  s.t. the linearized
     dynamics, the equality rows and the rows g >= 0 flagged active (as equalities), whose
-    multipliers minimise |D^(1/2) (grad J + Jc' lam)|_2 (module docstring, step 3)."""
+    multipliers minimise |D^(1/2) (grad J + Jc' lam)|_2 (module docstring, step 3).
+
+    With ``soft`` (N, rows g >= 0), the stage rows g >= 0 are instead soft equalities
+    C d - t = 0 with a slack control t per row weighted 1/2 soft t^2: their multipliers mu then
+    also pay |mu g| in the least squares when soft = 1/g^2, and are held at 0 where soft = 0
+    (``active`` is ignored). Every stage row's multiplier is then nu[:N, :r] in the rows' order."""
     from ..qp.stageqp import StageQP
 
     N, n = p.N, p.n
     eq, eqN = p.stage_equality_mask, p.final_equality_mask
     ineq, ineqN = ~eq, ~eqN
+    R, B, r = _diagonal(1.0 / Du), pt.B, pt.lu
     kw = {}
-    if p.r and eq.any():
-        kw.update(E=pt.Cx[:, eq, :], F=pt.Cu[:, eq, :], e=np.zeros((N, int(eq.sum()))))
-    if p.r and ineq.any():
-        free = np.where(active, 0.0, np.inf)
-        kw.update(C=np.concatenate([pt.Cx[:, ineq, :], pt.Cu[:, ineq, :]], axis=2), c_lower=-free, c_upper=free)
+    if p.r and ineq.any() and soft is not None:
+        ni = int(ineq.sum())
+        T = np.zeros((N, p.r, ni))
+        T[:, np.flatnonzero(ineq), np.arange(ni)] = -1.0
+        R = _block_diagonal(R, _diagonal(soft))
+        B = np.concatenate([B, np.zeros((N, n, ni))], axis=2)
+        r = np.hstack([r, np.zeros((N, ni))])
+        kw.update(E=pt.Cx, F=np.concatenate([pt.Cu, T], axis=2), e=np.zeros((N, p.r)))
+    else:
+        if p.r and eq.any():
+            kw.update(E=pt.Cx[:, eq, :], F=pt.Cu[:, eq, :], e=np.zeros((N, int(eq.sum()))))
+        if p.r and ineq.any():
+            free = np.where(active, 0.0, np.inf)
+            kw.update(C=np.concatenate([pt.Cx[:, ineq, :], pt.Cu[:, ineq, :]], axis=2), c_lower=-free,
+                      c_upper=free)
     if p.rN and eqN.any():
         kw.update(EN=pt.CN[eqN], eN=np.zeros(int(eqN.sum())))
     if p.rN and ineqN.any():
@@ -299,8 +322,45 @@ def weighted_qp(p, pt, Dx, Du, active, activeN):
         kw.update(CN=pt.CN[ineqN], cN_lower=-free, cN_upper=free)
     Dx = Dx.copy()
     Dx[0] = 1.0                                 # x^0 is fixed by the x0 row
-    return StageQP(Q=_diagonal(1.0 / Dx), R=_diagonal(1.0 / Du), q=np.vstack([pt.lx, pt.lN[None, :]]), r=pt.lu,
-                   A=pt.A, B=pt.B, c=np.zeros((N, n)), x0=np.zeros(n), **kw)
+    return StageQP(Q=_diagonal(1.0 / Dx), R=R, q=np.vstack([pt.lx, pt.lN[None, :]]), r=r,
+                   A=pt.A, B=B, c=np.zeros((N, n)), x0=np.zeros(n), **kw)
+
+
+def _block_diagonal(P, Q):
+    """Stacked block-diagonal matrices diag(P_k, Q_k) from (K, a, a) and (K, b, b)."""
+    K, a, _ = P.shape
+    b = Q.shape[1]
+    out = np.zeros((K, a + b, a + b))
+    out[:, :a, :a] = P
+    out[:, a:, a:] = Q
+    return out
+
+
+def _row_weights(g, released):
+    """Weights soft = 1/g^2 of the slacks of the rows g >= 0 in the least squares (module
+    docstring, step 3; at least 1/LSQ_FLOOR), 0 where the row's multiplier is released."""
+    with np.errstate(divide="ignore"):
+        soft = 1.0 / np.maximum(g ** 2, LSQ_FLOOR)
+    return np.where(released, 0.0, soft)
+
+
+def _solve_weighted(qp):
+    """Solve a weighted least-squares QP by olado's interior-point QP with the Riccati back-end,
+    or, when that fails (a rank-deficient projection of the terminal rows, say), with the sparse
+    LU of the whole KKT matrix. Returns the QP result or a sentence saying why neither solved it."""
+    from ..qp import make_qp_solver
+
+    why = ""
+    for kkt in LSQ_KKT:
+        try:
+            res = make_qp_solver("mehrotra", kkt=kkt, tol=LSQ_TOL, max_iter=50).solve(qp)
+        except (OladoError, ValueError, np.linalg.LinAlgError, ArithmeticError) as exc:
+            why = str(exc)
+            continue
+        if res.success:
+            return res
+        why = f"weighted QP: {res.message}"
+    return f"the least-squares multipliers could not be computed ({why})"
 
 
 def least_squares_multipliers(p, pt, bounds, W, start=None, target=0.0):
@@ -309,39 +369,34 @@ def least_squares_multipliers(p, pt, bounds, W, start=None, target=0.0):
     weighted least-squares problem (:func:`weighted_qp`, O(N)), until the weights repeat, or the
     step's figures (:func:`_figures`) meet ``target``. Returns the multipliers of the step with
     the best figures (lam, Lg, LgN), or a sentence saying why they could not be computed."""
-    from ..qp import make_qp_solver
-
     ineq, ineqN = ~p.stage_equality_mask, ~p.final_equality_mask
     if start is None:
         start = (np.zeros((p.N, p.n)), np.zeros((p.N, p.r)), np.zeros(p.rN))
     lam, Lg, LgN = (np.array(a, dtype=float) for a in start)
-    # rows g >= 0 start active where their multiplier is negative or their slack ~0
-    active = (Lg[:, ineq] < 0) | (pt.g[:, ineq] <= LSQ_FLOOR ** 0.5)
+    # stage rows g >= 0 are soft (weighted by their slack), released once their least-squares
+    # multiplier comes out > 0; final rows start active where their multiplier is negative or
+    # their slack ~0
+    released = np.zeros((p.N, int(ineq.sum())), dtype=bool)
     activeN = (LgN[ineqN] < 0) | (pt.gN[ineqN] <= LSQ_FLOOR ** 0.5)
     wx, wu = W
     S = max(1.0, abs(pt.J))
-    solver = make_qp_solver("mehrotra", tol=LSQ_TOL, max_iter=50)
     seen, best = [], (np.inf, None)
     for _ in range(LSQ_STEPS):
         rx, ru = stage_gradient_terms(p, pt, lam, Lg, LgN)
         Dx = _lsq_weights(rx, pt.X, bounds.xl, bounds.xu, wx)
         Du = _lsq_weights(ru, pt.U, bounds.ul, bounds.uu, wu)
-        key = (Dx.tobytes(), Du.tobytes(), active.tobytes(), activeN.tobytes())
+        key = (Dx.tobytes(), Du.tobytes(), released.tobytes(), activeN.tobytes())
         if key in seen:
             break
         seen.append(key)
-        try:
-            res = solver.solve(weighted_qp(p, pt, Dx, Du, active, activeN))
-        except (OladoError, ValueError, np.linalg.LinAlgError, ArithmeticError) as exc:
-            return f"the least-squares multipliers could not be computed ({exc})"
-        if not res.success:
-            return f"the least-squares multipliers could not be computed (weighted QP: {res.message})"
+        soft = _row_weights(pt.g[:, ineq], released) if p.r else None
+        res = _solve_weighted(weighted_qp(p, pt, Dx, Du, None, activeN, soft=soft))
+        if isinstance(res, str):
+            return res
         lam = res.lam[1:].copy()
         if p.r:
-            Lg = np.zeros((p.N, p.r))
-            Lg[:, ~ineq] = res.nu[:p.N, :int((~ineq).sum())]
-            Lg[:, ineq] = res.yc_upper - res.yc_lower
-            active &= ~(Lg[:, ineq] > 0)        # a row whose multiplier has the wrong sign is released
+            Lg = res.nu[:p.N, :p.r].copy()
+            released |= Lg[:, ineq] > 0         # a row whose multiplier has the wrong sign is released
             Lg[:, ineq] = np.minimum(Lg[:, ineq], 0.0)
         if p.rN:
             LgN = np.zeros(p.rN)
