@@ -244,14 +244,11 @@ def least_squares_multipliers(setup, pt):
     qres = setup.qp_solver.solve(qp)    # before the solve's interrupt guard: no limits (one Newton step)
     if not qres.success:
         return None
-    Lg, LgN = np.zeros((N, p.r)), np.zeros(p.rN)
-    if p.r and eq.any():
-        Lg[:, eq] = qres.nu[:N, : int(eq.sum())]
-    if p.rN and eqN.any():
-        LgN[eqN] = qres.nu[N, : int(eqN.sum())]
-    mult = Multipliers(np.array(qres.lam, dtype=float).copy(), Lg, LgN)
+    mult, _ = qp_multipliers(qres, setup.masks, N, p.r, p.rN)
+    mult.Lg[:, ~eq] = 0.0                 # the rows g >= 0 were free in that QP
+    mult.LgN[~eqN] = 0.0
     mult.lam[0] = 0.0
-    size = max(float(np.max(np.abs(a), initial=0.0)) for a in (mult.lam, Lg, LgN))
+    size = max(float(np.max(np.abs(a), initial=0.0)) for a in (mult.lam, mult.Lg, mult.LgN))
     return mult, size, int(qres.iterations)
 
 
