@@ -18,11 +18,10 @@ from __future__ import annotations
 import argparse
 import datetime
 import math
-import subprocess
 import time
 
 import numpy as np
-from _common import HERE, machine, write_section
+from _common import HERE, commit, machine, write_section
 
 from olado.config import load_config, make_solver
 from olado.problems import get_problems
@@ -33,17 +32,6 @@ from olado.solvers.certificate import (CertificateSettings, StageBounds, StagePo
 TABLE = "Certificate of every success (built-in problems x presets)"
 COST = "Certificate cost (zambezi, sqp-ip)"
 ZAMBEZI_N = 12
-
-
-def commit() -> str:
-    try:
-        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=HERE, capture_output=True, text=True,
-                             check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--", "olado", "configs"], cwd=HERE.parent,
-                               capture_output=True, text=True, check=True).stdout.strip()
-        return rev + (" (with uncommitted changes)" if dirty else "")
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
 
 
 def header(section, command):
