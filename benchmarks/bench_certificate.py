@@ -25,6 +25,7 @@ from _common import HERE, commit, machine, write_section
 
 from olado.config import load_config, make_solver
 from olado.problems import get_problems
+from olado.problems.catalog import CATALOG
 from olado.problems.zambezi import zambezi_problem
 from olado.solvers.certificate import (CertificateSettings, StageBounds, StagePoint, certify, kkt_figures,
                                        least_squares_multipliers, spot_check)
@@ -44,8 +45,12 @@ def fmt(v, spec=".1e"):
 
 
 def problems():
+    """The built-in problems (Zambezi families at N = ZAMBEZI_N): not the robustness set's
+    literature problems (olado.problems.catalog), whose certificates bench_robustness.py tables."""
     out = {}
     for name, factory in get_problems().items():
+        if name in CATALOG:
+            continue
         out[name] = (lambda f=factory: f(N=ZAMBEZI_N)) if name.startswith("zambezi") else factory
     return out
 
