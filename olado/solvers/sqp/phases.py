@@ -5,7 +5,8 @@
    it (the pair (y_k, lambda_k) of Nocedal & Wright 2006, Alg. 18.3: no QP after convergence);
 2. the Hessian blocks (12): exact (inertia-corrected in the QP) or the quasi-Newton matrices;
 3. the QP (8)-(10) and its multipliers (olado.solvers.sqp.step);
-4. the convergence test with the new multipliers, and an optional feasibility step;
+4. the convergence test with the new multipliers, the first step's trust region
+   (olado.solvers.sqp.trust), and an optional feasibility step;
 5. Powell's penalty update, the directional derivative D of the merit function, and the
    decision to re-solve the QP (a step that is no descent direction: larger Hessian shift, or
    with quasi-Newton Hessians a more accurate QP);

@@ -76,7 +76,8 @@ Code layout (one solve's state is an object of its own, the solver holds only op
 * the safeguards of WORHP (seed 000; docs/structure-exploiting-sqp.md, "Safeguards"):
   ``regularization.py`` (Hessian regularization after untrusted steps), ``relaxation.py`` (the
   relaxed QP for inconsistent linearizations), ``restoration.py`` (feasibility restoration and
-  local infeasibility), ``recession.py`` (UNBOUNDED).
+  local infeasibility), ``recession.py`` (UNBOUNDED), ``trust.py`` (a trust region for a first
+  step whose QP is an LP in effect).
 """
 from __future__ import annotations
 
