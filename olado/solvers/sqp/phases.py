@@ -194,7 +194,7 @@ def certified_stop(setup, st, status, message, mult, promote=False):
 def converged_at_iterate(setup, st):
     """The KKT test at a new iterate with the multipliers of the QP that produced it (not after a
     QP re-solve at the same point)."""
-    if not (st.it > 0 and st.retries == 0 and st.force_delta is None and st.force_qp_tol is None):
+    if not (st.it > st.start_it and st.retries == 0 and st.force_delta is None and st.force_qp_tol is None):
         return False
     kkt0, gscale = kkt_residual(setup.problem, st.pt, st.mult, st.bounds)
     st.grad_scale = max(st.grad_scale, gscale)
@@ -277,7 +277,7 @@ def qp_phase(setup, st, hscale):
     st.qp_local = st.local
     if st.restoring and st.restoration_steps == 0:      # entering the restoration phase
         return restoration_iteration(setup, st, delta0)
-    box = st.trust_box if st.it == 0 else None      # the first step's trust region (olado.solvers.sqp.trust)
+    box = st.trust_box if st.it == st.start_it else None    # the first step's trust region (olado.solvers.sqp.trust)
     qs = qp_step.solve_qp(setup, st, st.pt, st.Bk, st.BN, delta0, inertia=setup.inertia, warm=warm, u_box=box)
     st.qp_iters += qs.iterations
     qres = qs.result
@@ -390,11 +390,13 @@ def test_with_new_multipliers(setup, st, step):
 
 
 def first_step_trust(setup, st, step):
-    """The first step's trust region (olado.solvers.sqp.trust): a linear first step (an LP step)
+    """The first step's trust region (olado.solvers.sqp.trust). A linear first step (an LP step)
     whose reduction of the l1 violation falls short of trust.AGREEMENT times the predicted one is
-    solved again at the same point with the control steps boxed (NEXT); once the agreement holds,
-    or the step is not linear, the first step is trusted."""
-    if st.it > 0 or st.first_trusted or st.restoring:
+    taken but remembered (``first_suspect``: an INFEASIBLE end is then tried again from the start,
+    :func:`olado.solvers.sqp.trust.second_attempt`); in that second attempt it is solved again at
+    the same point with the control steps boxed (NEXT) until the agreement holds. A step that is
+    not linear, or agrees, is trusted."""
+    if st.it > st.start_it or st.first_trusted or st.restoring:
         return None
     if st.trust_box is None and not trust.linear_step(st, step):
         st.first_trusted = True
@@ -402,8 +404,9 @@ def first_step_trust(setup, st, step):
     if trust.agreement(setup, st, step, restoration.theta(setup)) >= trust.AGREEMENT:
         st.first_trusted = True
         return None
-    box = trust.next_box(st, step)
+    box = trust.next_box(st, step) if st.trust_armed else None
     if box is None:
+        st.first_suspect = st.trust_box is None
         st.first_trusted = True
         return None
     st.trust_box = box

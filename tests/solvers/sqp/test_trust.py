@@ -130,3 +130,34 @@ def test_the_box_rows_multipliers_are_dropped():
                                      np.full((2, 1), 0.5))
     assert out.zl_u.tolist() == [[0.0], [0.0]]
     assert out.zu_u.tolist() == [[0.0], [5.0]]
+
+
+def test_a_suspect_first_step_is_boxed_only_after_an_infeasible_end(monkeypatch):
+    """zambezi12 N = 24 from its balance start has an LP first step the functions do not follow
+    (agreement 0.14); the SQP recovers and converges, so no QP is ever boxed (boxing it doubled
+    the QP iterations, 49 -> 95). bang-bang-cart's first attempt ends INFEASIBLE: the second
+    attempt from the start boxes its first step, and the iterations of both attempts are counted
+    and numbered on."""
+    from olado.problems.zambezi import zambezi_problem
+    from olado.solvers.sqp import phases
+
+    boxes = []
+    real_next_box = trust.next_box
+    monkeypatch.setattr(trust, "next_box", lambda st, step: boxes.append(st.it) or real_next_box(st, step))
+    suspects = []
+    real_first = phases.first_step_trust
+
+    def spy(setup, st, step):
+        out = real_first(setup, st, step)
+        if st.first_suspect and not suspects:
+            suspects.append(st.it)
+        return out
+
+    monkeypatch.setattr(phases, "first_step_trust", spy)
+    r = olado.solve(zambezi_problem("zambezi12", N=24), config=CONFIGS / "sqp-ip.ini")
+    assert r.success and suspects == [0] and boxes == []
+    entry, problem, guess = _entry("bang-bang-cart")
+    r = olado.solve(problem, config=CONFIGS / "sqp-ip.ini", guess=guess)
+    assert r.success
+    assert boxes and min(boxes) > 0                     # boxed in the second attempt only
+    assert [h["iter"] for h in r.history] == list(range(1, r.iterations + 1))
