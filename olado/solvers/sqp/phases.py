@@ -5,7 +5,8 @@
    it (the pair (y_k, lambda_k) of Nocedal & Wright 2006, Alg. 18.3: no QP after convergence);
 2. the Hessian blocks (12): exact (inertia-corrected in the QP) or the quasi-Newton matrices;
 3. the QP (8)-(10) and its multipliers (olado.solvers.sqp.step);
-4. the convergence test with the new multipliers, and an optional feasibility step;
+4. the convergence test with the new multipliers, the first step's trust region
+   (olado.solvers.sqp.trust), and an optional feasibility step;
 5. Powell's penalty update, the directional derivative D of the merit function, and the
    decision to re-solve the QP (a step that is no descent direction: larger Hessian shift, or
    with quasi-Newton Hessians a more accurate QP);
@@ -33,7 +34,7 @@ from .line_search import Direction, SearchResult, line_search
 from .merit import descent_tolerance, watch_target
 from .residuals import kkt_residual, stage_complementarity
 from .state import BoundMultipliers, Multipliers, Point, SQPState, Watch
-from . import recession, regularization, relaxation, restoration
+from . import recession, regularization, relaxation, restoration, trust
 from . import step as qp_step
 from .step import ShiftRule, hessian_scale, qp_multipliers, qp_tolerance, soc_offsets
 
@@ -129,7 +130,7 @@ def iterate(setup, st: SQPState) -> bool:
     step = qp_phase(setup, st, hscale)
     if not isinstance(step, Step):
         return step
-    for phase in (test_with_new_multipliers, feasibility_step, merit_phase, search_phase):
+    for phase in (test_with_new_multipliers, first_step_trust, feasibility_step, merit_phase, search_phase):
         end = phase(setup, st, step)
         if end is not None:
             return end
@@ -193,7 +194,7 @@ def certified_stop(setup, st, status, message, mult, promote=False):
 def converged_at_iterate(setup, st):
     """The KKT test at a new iterate with the multipliers of the QP that produced it (not after a
     QP re-solve at the same point)."""
-    if not (st.it > 0 and st.retries == 0 and st.force_delta is None and st.force_qp_tol is None):
+    if not (st.it > st.start_it and st.retries == 0 and st.force_delta is None and st.force_qp_tol is None):
         return False
     kkt0, gscale = kkt_residual(setup.problem, st.pt, st.mult, st.bounds)
     st.grad_scale = max(st.grad_scale, gscale)
@@ -276,7 +277,8 @@ def qp_phase(setup, st, hscale):
     st.qp_local = st.local
     if st.restoring and st.restoration_steps == 0:      # entering the restoration phase
         return restoration_iteration(setup, st, delta0)
-    qs = qp_step.solve_qp(setup, st, st.pt, st.Bk, st.BN, delta0, inertia=setup.inertia, warm=warm)
+    box = st.trust_box if st.it == st.start_it else None    # the first step's trust region (olado.solvers.sqp.trust)
+    qs = qp_step.solve_qp(setup, st, st.pt, st.Bk, st.BN, delta0, inertia=setup.inertia, warm=warm, u_box=box)
     st.qp_iters += qs.iterations
     qres = qs.result
     if st.restoring:
@@ -290,7 +292,7 @@ def qp_phase(setup, st, hscale):
         # inconsistent linearization: the relaxed (elastic) QP instead (olado.solvers.sqp.relaxation),
         # from the starting shift (a failed QP's shift was raised by the inertia correction in vain)
         shift = qs.delta if qres.status == Status.INFEASIBLE else delta0
-        rel = relaxation.solve_relaxed(setup, st, st.Bk, st.BN, shift)
+        rel = relaxation.solve_relaxed(setup, st, st.Bk, st.BN, shift, u_box=box)
         st.qp_iters += rel.solve.iterations
         if rel.stationary:
             return restoration.infeasible(setup, st, "the linearized constraints are inconsistent and no step "
@@ -309,6 +311,8 @@ def qp_phase(setup, st, hscale):
     if not qres.success:
         return qp_failed(setup, st, qres)
     mult_new, st.bounds = qp_multipliers(qres, setup.masks, p.N, p.r, p.rN)
+    if box is not None:
+        st.bounds = trust.drop_box_multipliers(st.bounds, st.pt.U, p.u_lower, p.u_upper, box)
     return Step(qres=qres, delta=qs.delta, dX=qres.X, dU=qres.U, mult_new=mult_new, hscale=hscale,
                 warm=warm is not None, slacks=qs.slacks, bounds=st.bounds)
 
@@ -383,6 +387,31 @@ def test_with_new_multipliers(setup, st, step):
                                            f"KKT residual {st.kkt_res:.2e}"), step.mult_new):
         return STOP
     return None
+
+
+def first_step_trust(setup, st, step):
+    """The first step's trust region (olado.solvers.sqp.trust). A linear first step (an LP step)
+    whose reduction of the l1 violation falls short of trust.AGREEMENT times the predicted one is
+    taken but remembered (``first_suspect``: an INFEASIBLE end is then tried again from the start,
+    :func:`olado.solvers.sqp.trust.second_attempt`); in that second attempt it is solved again at
+    the same point with the control steps boxed (NEXT) until the agreement holds. A step that is
+    not linear, or agrees, is trusted."""
+    if st.it > st.start_it or st.first_trusted or st.restoring:
+        return None
+    if st.trust_box is None and not trust.linear_step(st, step):
+        st.first_trusted = True
+        return None
+    if trust.agreement(setup, st, step, restoration.theta(setup)) >= trust.AGREEMENT:
+        st.first_trusted = True
+        return None
+    box = trust.next_box(st, step) if st.trust_armed else None
+    if box is None:
+        st.first_suspect = st.trust_box is None
+        st.first_trusted = True
+        return None
+    st.trust_box = box
+    st.force_delta = step.delta
+    return NEXT
 
 
 def feasibility_step(setup, st, step):

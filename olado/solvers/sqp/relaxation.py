@@ -111,17 +111,19 @@ def feasibility_qp(setup, st, Bk, BN, delta, eta=None, inertia=None, u_box=None,
                             u_box=u_box, relax_dynamics=relax_dynamics)
 
 
-def solve_relaxed(setup, st, Bk, BN, delta):
+def solve_relaxed(setup, st, Bk, BN, delta, u_box=None):
     """The relaxed QP at the iterate with the penalty update of the module docstring (WORHP
     A-6.1 with the steering rule of Byrd, Nocedal & Waltz 2008: eta grows until the step removes
     ``elastic_progress`` of the linearized violation, or of what the feasibility QP removes when
-    that is less); returns a :class:`Relaxed`."""
+    that is less); returns a :class:`Relaxed`. ``u_box``: the control steps' trust region
+    (olado.solvers.sqp.trust; the l1 model is convex, so "no step in the box reduces it" is
+    still its stationarity)."""
     o = setup.options
     v0 = linearized_violation0(setup.merit.violations(st.pt))
     eta, eta_max = start_penalty(setup, st), largest_penalty(setup, st)
     target, best, iterations = o.elastic_progress * v0, float("nan"), 0
     while True:
-        qs = qp_step.solve_qp(setup, st, st.pt, Bk, BN, delta, inertia=setup.inertia, eta=eta)
+        qs = qp_step.solve_qp(setup, st, st.pt, Bk, BN, delta, inertia=setup.inertia, eta=eta, u_box=u_box)
         iterations += qs.iterations
         if not qs.result.success:
             return Relaxed(qs._replace(iterations=iterations), eta, v0, 0.0, best)
@@ -129,7 +131,7 @@ def solve_relaxed(setup, st, Bk, BN, delta):
         if progress >= target or eta >= eta_max or qs.slacks.largest() <= o.constr_viol_tol:
             return Relaxed(qs._replace(iterations=iterations), eta, v0, progress, best)
         if best != best:   # too little progress: what is possible at all?
-            fs = feasibility_qp(setup, st, Bk, BN, qs.delta)
+            fs = feasibility_qp(setup, st, Bk, BN, qs.delta, u_box=u_box)
             iterations += fs.iterations
             if not fs.result.success:
                 return Relaxed(fs._replace(iterations=iterations), eta_max, v0, 0.0, best)

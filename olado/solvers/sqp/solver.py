@@ -76,7 +76,8 @@ Code layout (one solve's state is an object of its own, the solver holds only op
 * the safeguards of WORHP (seed 000; docs/structure-exploiting-sqp.md, "Safeguards"):
   ``regularization.py`` (Hessian regularization after untrusted steps), ``relaxation.py`` (the
   relaxed QP for inconsistent linearizations), ``restoration.py`` (feasibility restoration and
-  local infeasibility), ``recession.py`` (UNBOUNDED).
+  local infeasibility), ``recession.py`` (UNBOUNDED), ``trust.py`` (a trust region for a first
+  step whose QP is an LP in effect).
 """
 from __future__ import annotations
 
@@ -91,6 +92,7 @@ from ...qp.stageqp import StageQP
 from .augmented import AugmentedLagrangian
 from .merit import Merit
 from .phases import initial_state, iterate
+from . import trust
 from .residuals import finish
 from .state import Clock, ConstraintMasks, SQPSetup
 from ..common import stop_outcome
@@ -340,15 +342,21 @@ def make_setup(options, problem, callback):
         # (the same solution where the reduced Hessian is positive definite), and a QP whose reduced
         # Hessian is not is reported as failed, so that the inertia correction shifts it
         qp_solver.options.convexify = "augmented"
-    hess = make_hessian(o.hessian, convexify=convexify, initial_scale=o.initial_hessian_scale,
-                        min_eig=o.min_eigenvalue, max_condition=o.max_condition)
-    hess.initial(problem.N, problem.n, problem.m)
+    hess = new_hessian(o, problem, convexify)
     masks = ConstraintMasks.of(problem)
     setup = SQPSetup(options=o, problem=problem, qp_solver=qp_solver, interior=interior, convexify=convexify,
                      inertia=hess.needs_exact and convexify == "inertia", masks=masks,
                      merit=MERITS[o.merit](problem, masks), callback=callback, limits=limits, t_start=t_start,
                      certificate=CertificateSettings.from_options(o) if o.certify else None)
     return setup, hess
+
+
+def new_hessian(o, problem, convexify):
+    """The Hessian approximation of a solve (exact, or a quasi-Newton matrix at its start)."""
+    hess = make_hessian(o.hessian, convexify=convexify, initial_scale=o.initial_hessian_scale,
+                        min_eig=o.min_eigenvalue, max_condition=o.max_condition)
+    hess.initial(problem.N, problem.n, problem.m)
+    return hess
 
 
 class SQPSolver(Solver):
@@ -363,8 +371,17 @@ class SQPSolver(Solver):
         with setup.limits.catch() as stop:      # a time limit or an interrupt: the last accepted iterate
             while not iterate(setup, st):
                 pass
+            if trust.retry_boxed(st):
+                # INFEASIBLE after an LP first step the functions did not follow: once more from
+                # the start with that step boxed (olado.solvers.sqp.trust)
+                first = st
+                st = initial_state(setup, X0, U0, new_hessian(self.options, problem, setup.convexify), st.clock)
+                st = trust.second_attempt(first, st)
+                while not iterate(setup, st):
+                    pass
+                st = trust.better_attempt(first, st)
         if stop.reason:
             st.stop(*stop_outcome(stop.reason, setup.limits, f"after {st.it} SQP iterations"))
         return finish(setup, st, {"qp": self.options.qp, "kkt": self.options.kkt, "hessian": self.options.hessian,
-                                  "convexify": setup.convexify, "hessian_updates": hess.updates,
-                                  "hessian_skipped": hess.skipped})
+                                  "convexify": setup.convexify, "hessian_updates": st.hess.updates,
+                                  "hessian_skipped": st.hess.skipped})

@@ -233,6 +233,11 @@ class SQPState:
     recession_steps: int = 0        # consecutive accepted steps along directions of recession (olado.solvers.sqp.recession)
     unbounded: str | None = None    # the sentence of an UNBOUNDED end
     decreased: bool = False         # the last accepted step decreased the objective
+    trust_box: Any = None           # |du| bound of the first step's QPs (olado.solvers.sqp.trust), or None
+    first_trusted: bool = False     # the first step's trust region has been decided
+    first_suspect: bool = False     # the first step was an LP step the functions did not follow
+    trust_armed: bool = False       # this attempt boxes such a first step (olado.solvers.sqp.trust)
+    start_it: int = 0               # the iteration this attempt started at (0, or the first attempt's count)
     restoring: bool = False         # in the feasibility restoration phase (olado.solvers.sqp.restoration)
     restoration_theta: float = 0.0  # l1 violation where the restoration phase started
     restoration_steps: int = 0      # restoration steps since then
