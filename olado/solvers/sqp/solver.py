@@ -196,6 +196,10 @@ class SQPOptions(SolverOptions):
                                       "multiplier_init_max), or 'zero'", choices=("least-squares", "zero"))
     multiplier_init_max: float = option(1e3, "largest least-squares initial multiplier accepted (IPOPT's "
                                         "constr_mult_init_max)", min=0.0)
+    multiplier_reset: bool = option(True, "exact Hessian: when the QP's multipliers at a new iterate exceed "
+                                    "multiplier_init_max and the least-squares estimate there does not, the next "
+                                    "Hessian uses the estimate (docs/structure-exploiting-sqp.md, 'Multiplier "
+                                    "growth')")
     qp_adaptive_tol: bool = option(False, "inexact SQP (Dembo, Eisenstat & Steihaug 1982): the QP tolerance is "
                                    "qp_forcing * (last KKT residual) / (1 + |grad J|), clipped to [qp_tol, qp_tol_max] "
                                    "(olado's interior-point QP methods only)")

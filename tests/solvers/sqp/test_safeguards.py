@@ -326,6 +326,26 @@ def test_the_optimality_phase_resumes_after_restoration_with_reset_multipliers(i
     assert st.tau == 0.0 and not np.any(st.shift) and st.Bk is None
 
 
+@pytest.mark.parametrize("reset, init_max, replaced", [(True, 1e3, True), (False, 1e3, False), (True, 1e-12, False)])
+def test_qp_multipliers_above_the_bound_give_way_to_the_least_squares_estimate(reset, init_max, replaced):
+    """``multiplier_reset``: QP multipliers whose largest exceeds multiplier_init_max are replaced
+    by the least-squares estimate at the iterate when it stays below the bound (cstr's: < 1e3);
+    kept when the option is off or the estimate exceeds the bound too."""
+    from olado.solvers.sqp import step as qp_step
+    setup, st = _start(PROBLEMS["cstr"](), multiplier_reset=reset, multiplier_init_max=init_max)
+    p = setup.problem
+    huge = type(st.mult)(np.full((p.N + 1, p.n), 5e13), np.full((p.N, p.r), 5e13), np.full(p.rN, 5e13))
+    kept = phases.bounded_multipliers(setup, st, huge)
+    est = qp_step.least_squares_multipliers(setup, st.pt)[0]
+    if replaced:
+        np.testing.assert_allclose(kept.lam, est.lam, rtol=1e-12, atol=0.0)
+        assert phases.largest(kept) < 1e3
+    else:
+        assert kept is huge
+    small = type(st.mult)(np.full((p.N + 1, p.n), 0.5 * init_max), np.zeros((p.N, p.r)), np.zeros(p.rN))
+    assert phases.bounded_multipliers(setup, st, small) is small     # below the bound: the QP's
+
+
 def test_initial_multipliers_are_zero_where_a_bound_is_active_at_the_start():
     """vanderpol-box starts with u inside -0.3 <= u <= 1 (least squares); with one control on its
     bound the start is zero (the active bound's multiplier is unknown before the first QP)."""
