@@ -612,7 +612,7 @@ def accept(setup, st, step):
     st.unbounded = recession.count(setup, st, step, new_pt.J)
     st.decreased = new_pt.J < st.pt.J
     st.pt = new_pt
-    st.mult = step.mult_new
+    st.mult = bounded_multipliers(setup, st, step.mult_new)
     st.Bk = None
     st.shift = step.delta
     st.last_qp = dataclasses.replace(step.qres, X=np.zeros_like(step.qres.X), U=np.zeros_like(step.qres.U))
@@ -620,6 +620,31 @@ def accept(setup, st, step):
     st.was_local = st.local
     st.local = mode == "full" and st.kkt_rel <= o.local_tol
     st.it += 1
+
+
+def largest(mult):
+    """max |multiplier| over the dynamics, stage and final constraints."""
+    return max(float(np.max(np.abs(a), initial=0.0)) for a in (mult.lam, mult.Lg, mult.LgN))
+
+
+def bounded_multipliers(setup, st, mult):
+    """The multipliers the new iterate carries into its Hessian: the QP's, or with
+    ``multiplier_reset`` (exact Hessian), when their largest exceeds ``multiplier_init_max`` and
+    the least-squares estimate at the iterate (IPOPT's initial estimate, Waechter & Biegler 2006
+    sec. 3.6, with the same bound constr_mult_init_max) stays below it, the estimate. Far from a
+    solution the QP multipliers -(J^T)^+ (grad J + (H(lambda) + delta I) s) of a long step grow
+    with the last multipliers through H(lambda) s, and the next Hessian with them: hang-glider's
+    grew 14 -> 5e13 in nine full steps, cart-pole's 1.3e3 -> 1.4e7 in five (every step alpha = 1,
+    so WORHP's damped update lambda + alpha (lambda_QP - lambda) is the same run); near a solution
+    whose multipliers exceed the bound the estimate does too, and the QP's are kept."""
+    o = setup.options
+    if not (o.multiplier_reset and st.hess.needs_exact and largest(mult) > o.multiplier_init_max):
+        return mult
+    est = qp_step.least_squares_multipliers(setup, st.pt)
+    if est is None:
+        return mult
+    st.qp_iters += est[2]
+    return est[0] if est[1] <= o.multiplier_init_max else mult
 
 
 def tau_update(setup, st, step, new_pt):

@@ -55,7 +55,7 @@ import numpy as np
 from ...errors import NonFiniteEvaluationError
 from ...result import Status
 from .line_search import Direction, line_search
-from .state import Point
+from .state import Multipliers, Point
 from . import relaxation
 from . import step as qp_step
 
@@ -136,6 +136,30 @@ def start(setup, st):
     st.restoration_mult = None
     st.watch = None
     st.local = False
+
+
+def reset_multipliers(setup, st):
+    """The multipliers and the Hessian regularization the optimality phase resumes with: IPOPT's
+    reset after its restoration phase (Waechter & Biegler 2006 sec. 3.3; its option
+    constr_mult_reset_threshold): the least-squares estimate of the equality multipliers at the
+    restored point (olado.solvers.sqp.step.least_squares_multipliers; inequalities and bounds 0),
+    or 0 when it fails or its largest exceeds ``multiplier_init_max``; the inertia correction's
+    shift and WORHP's tau start again from 0. The multipliers, shift and tau of the point where
+    the phase started belong to the steps that failed there: on hang-glider the QP multipliers
+    had grown to 5e13 (each QP's |lambda| ~ |(H(lambda) + delta I) s| with the last lambda and
+    |s| ~ 5), and with them max|H| and the shift tau (|sigma| + max|H|) ~ 1e13, so that the
+    resumed optimality phase took steps of 1e-12 and stopped on step_tol far from the minimum."""
+    p, o = setup.problem, setup.options
+    est = qp_step.least_squares_multipliers(setup, st.pt)
+    if est is not None:
+        st.qp_iters += est[2]
+    if est is not None and est[1] <= o.multiplier_init_max:
+        st.mult = est[0]
+    else:
+        st.mult = Multipliers.zeros(p.N, p.n, p.r, p.rN)
+    st.Bk = None
+    st.tau = 0.0
+    st.shift = np.zeros_like(st.shift)
 
 
 def may_leave(setup, st):
@@ -237,6 +261,8 @@ def restoration_step(setup, st, delta, complete):
     st.restoration_mult = qp_step.qp_multipliers(res, setup.masks, p.N, p.r, p.rN)[0]
     st.restoration_steps += 1
     st.it += 1
+    if may_leave(setup, st):
+        reset_multipliers(setup, st)
     return {"step": found.alpha, "step_norm": step_norm, "merit": th(st.pt), "D": D,
             "qp_iterations": iterations, "ls_trials": found.trials, "mode": "restoration",
             "shift": st.restoration_mu}

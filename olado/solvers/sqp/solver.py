@@ -17,7 +17,9 @@ Wright 2006, (18.29)). The watchdog technique of Chamberlain, Powell, Lemarechal
 point when phi has not decreased sufficiently below it within ``watchdog_steps`` iterations. With
 ``second_order_correction`` a rejected full step is first corrected by the QP with the constraint
 values c(y + s) - J s (Fletcher 1982; Nocedal & Wright sec. 18.3). The QP multipliers are the new
-multiplier estimates. The Hessian is one of :mod:`olado.solvers.sqp.hessian` (block BFGS, block SR1,
+multiplier estimates -- with the exact Hessian and ``multiplier_reset``, QP multipliers above
+``multiplier_init_max`` give way to the least-squares estimate at the new iterate when it stays
+below that bound (olado.solvers.sqp.phases.bounded_multipliers). The Hessian is one of :mod:`olado.solvers.sqp.hessian` (block BFGS, block SR1,
 exact with Gerschgorin or Levenberg convexification, Powell's BFGS with the gangster operator),
 always block diagonal (12).
 
@@ -198,6 +200,10 @@ class SQPOptions(SolverOptions):
                                       "multiplier_init_max), or 'zero'", choices=("least-squares", "zero"))
     multiplier_init_max: float = option(1e3, "largest least-squares initial multiplier accepted (IPOPT's "
                                         "constr_mult_init_max)", min=0.0)
+    multiplier_reset: bool = option(True, "exact Hessian: when the QP's multipliers at a new iterate exceed "
+                                    "multiplier_init_max and the least-squares estimate there does not, the next "
+                                    "Hessian uses the estimate (docs/structure-exploiting-sqp.md, 'Multiplier "
+                                    "growth')")
     qp_adaptive_tol: bool = option(False, "inexact SQP (Dembo, Eisenstat & Steihaug 1982): the QP tolerance is "
                                    "qp_forcing * (last KKT residual) / (1 + |grad J|), clipped to [qp_tol, qp_tol_max] "
                                    "(olado's interior-point QP methods only)")

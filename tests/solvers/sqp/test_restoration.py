@@ -91,3 +91,39 @@ def test_the_infeasible_verdict_needs_a_positive_violation(violation, status):
     assert restoration.infeasible(setup, st, "the l1 constraint violation is stationary") is True
     assert st.status == status
     assert ("locally infeasible" in st.message) == (status == Status.INFEASIBLE)
+
+
+@pytest.mark.slow
+def test_hang_glider_resumes_after_restoration_with_reset_multipliers():
+    """hang-glider's QP multipliers grow to 5e13 in its first nine iterations; the restoration
+    phase used to hand them (and a Hessian shift of 8e13) back to the optimality phase, which then
+    stopped on step_tol at -1232.65 (UNCERTIFIED). With IPOPT's reset after restoration
+    (olado.solvers.sqp.restoration.reset_multipliers) it reaches IPOPT's objective -- with
+    local_tol = 0.1: at the default 1e-2 the proximal term's linear tail needs more than 200
+    iterations (docs/structure-exploiting-sqp.md, "Known limitations"). multiplier_reset off: with
+    it the multipliers never grow and the restoration phase is not entered. ~50 s."""
+    entry, problem, guess = _entry("hang-glider")
+    ref = load_references()["entries"][entry.name]
+    assert ref["status"] == "success"
+    r = olado.solve(problem, config=SQP_IP, guess=guess, local_tol=0.1, multiplier_reset=False)
+    modes = [h["mode"] for h in r.history]
+    assert "restoration" in modes
+    assert r.success, r.message
+    assert r.objective == pytest.approx(ref["objective"], rel=1e-6)
+    assert r.max_constraint_violation < 1e-8
+
+
+@pytest.mark.slow
+def test_cart_pole_reaches_ipopts_objective():
+    """cart-pole's QP multipliers grew 1.3e3 -> 1.4e7 in five full steps, the line search then
+    failed and the restoration phase crawled to max_time. With ``multiplier_reset`` (the
+    least-squares estimate replaces QP multipliers above multiplier_init_max) it converges without
+    restoration. ~20 s."""
+    entry, problem, guess = _entry("cart-pole")
+    ref = load_references()["entries"][entry.name]
+    assert ref["status"] == "success"
+    r = olado.solve(problem, config=SQP_IP, guess=guess)
+    assert r.success, r.message
+    assert "restoration" not in [h["mode"] for h in r.history]
+    assert r.objective == pytest.approx(ref["objective"], rel=1e-6)
+    assert r.max_constraint_violation < 1e-8

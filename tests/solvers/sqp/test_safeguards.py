@@ -11,7 +11,7 @@ import pytest
 import olado
 from olado.problems import PROBLEMS
 from olado.result import Status
-from olado.solvers.sqp import phases, regularization
+from olado.solvers.sqp import phases, regularization, restoration
 from olado.solvers.sqp.line_search import Direction, line_search
 from olado.solvers.sqp.solver import SQPOptions
 
@@ -304,6 +304,46 @@ def test_least_squares_initial_multipliers_minimize_the_lagrangian_gradient():
     assert st.qp_iters >= 1
     zero = _start(PROBLEMS["cstr"](), initial_multipliers="zero")[1]
     assert not np.any(zero.mult.lam) and zero.qp_iters == 0
+
+
+@pytest.mark.parametrize("init_max, least_squares", [(1e3, True), (1e-12, False)])
+def test_the_optimality_phase_resumes_after_restoration_with_reset_multipliers(init_max, least_squares):
+    """IPOPT's reset after restoration (olado.solvers.sqp.restoration.reset_multipliers): the
+    multipliers, shift and tau of the point where the phase started (on hang-glider |lambda| 5e13
+    and a shift 8e13) are replaced by the least-squares estimate -- the one the test above checks
+    against a dense lstsq -- or by 0 when its largest exceeds multiplier_init_max."""
+    from olado.solvers.sqp import step as qp_step
+    setup, st = _start(PROBLEMS["cstr"](), multiplier_init_max=init_max)
+    p = setup.problem
+    st.mult = type(st.mult)(np.full((p.N + 1, p.n), 5e13), np.full((p.N, p.r), 5e13), np.full(p.rN, 5e13))
+    st.tau, st.shift = 0.5, np.full(p.N + 1, 8e13)
+    st.Bk = np.zeros(1)
+    restoration.reset_multipliers(setup, st)
+    est, size, _ = qp_step.least_squares_multipliers(setup, st.pt)
+    assert 0.0 < size < 1e3                  # cstr's estimate: accepted with the default bound only
+    expected = est.lam if least_squares else np.zeros_like(est.lam)
+    np.testing.assert_allclose(st.mult.lam, expected, rtol=1e-12, atol=0.0)
+    assert st.tau == 0.0 and not np.any(st.shift) and st.Bk is None
+
+
+@pytest.mark.parametrize("reset, init_max, replaced", [(True, 1e3, True), (False, 1e3, False), (True, 1e-12, False)])
+def test_qp_multipliers_above_the_bound_give_way_to_the_least_squares_estimate(reset, init_max, replaced):
+    """``multiplier_reset``: QP multipliers whose largest exceeds multiplier_init_max are replaced
+    by the least-squares estimate at the iterate when it stays below the bound (cstr's: < 1e3);
+    kept when the option is off or the estimate exceeds the bound too."""
+    from olado.solvers.sqp import step as qp_step
+    setup, st = _start(PROBLEMS["cstr"](), multiplier_reset=reset, multiplier_init_max=init_max)
+    p = setup.problem
+    huge = type(st.mult)(np.full((p.N + 1, p.n), 5e13), np.full((p.N, p.r), 5e13), np.full(p.rN, 5e13))
+    kept = phases.bounded_multipliers(setup, st, huge)
+    est = qp_step.least_squares_multipliers(setup, st.pt)[0]
+    if replaced:
+        np.testing.assert_allclose(kept.lam, est.lam, rtol=1e-12, atol=0.0)
+        assert phases.largest(kept) < 1e3
+    else:
+        assert kept is huge
+    small = type(st.mult)(np.full((p.N + 1, p.n), 0.5 * init_max), np.zeros((p.N, p.r)), np.zeros(p.rN))
+    assert phases.bounded_multipliers(setup, st, small) is small     # below the bound: the QP's
 
 
 def test_initial_multipliers_are_zero_where_a_bound_is_active_at_the_start():
