@@ -130,3 +130,12 @@ def test_figure_composition_end_to_end(tmp_path):
     assert "| MA27, MA47 (HSL) | **not in olado** (slot) |" in text
     assert "| LQ-DOCP | sqp-ip | time | phi(0), share of wins | 0.98 |" in text
     assert "profiled: 2 problems (zambezi12; N = 12..24; starts balance)" in text
+
+
+def test_bench_command_line_where(tmp_path, capsys):
+    from olado.cli import main
+
+    code = main(["bench", "table1", "-c", str(REPO / "configs/sqp-ip.ini"), "--store", str(tmp_path / "s.jsonl"),
+                 "--where", "N < 0", "--quiet"])
+    assert code == 2 and "no entry of the suite for which 'N < 0' holds" in capsys.readouterr().err
+    assert not (tmp_path / "s.jsonl").exists() or not (tmp_path / "s.jsonl").read_text()
