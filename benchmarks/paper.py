@@ -294,9 +294,8 @@ def describe_subset(profiles) -> str:
     probs = profiles[0].problems
     if not probs:
         return "no problem"
-    Ns = sorted({p[1] for p in probs})
-    fams = sorted({p[0] for p in probs})
-    text = f"{len(probs)} problems ({', '.join(fams)}; N = {Ns[0]}..{Ns[-1]}; starts {', '.join(sorted({p[2] for p in probs}))})"
+    Ns, fams, starts = (sorted({p[i] for p in probs}) for i in range(3))
+    text = f"{len(probs)} problems ({', '.join(fams)}; N = {Ns[0]}..{Ns[-1]}; starts {', '.join(starts)})"
     if profiles[0].dropped:
         text += f"; {profiles[0].dropped} more in the store were left out (not run by every configuration)"
     return text
