@@ -294,7 +294,7 @@ def describe_subset(profiles) -> str:
     probs = profiles[0].problems
     if not probs:
         return "no problem"
-    Ns, fams, starts = (sorted({p[i] for p in probs}) for i in range(3))
+    fams, Ns, starts = (sorted({p[i] for p in probs}) for i in range(3))
     text = f"{len(probs)} problems ({', '.join(fams)}; N = {Ns[0]}..{Ns[-1]}; starts {', '.join(starts)})"
     if profiles[0].dropped:
         text += f"; {profiles[0].dropped} more in the store were left out (not run by every configuration)"
