@@ -301,6 +301,11 @@ def describe_subset(profiles) -> str:
     return text
 
 
+def _span(records) -> str:
+    stamps = sorted(str(r.get("finished")) for r in records if r.get("finished"))
+    return f"{stamps[0][:16]}..{stamps[-1][:16]} UTC" if stamps else "(no date)"
+
+
 def section_text(exp: Experiment, records, profiles, args, where, load, store: Path, plot: Path) -> str:
     names = exp.names
     commits = sorted({str(r.get("commit")) for r in records})
@@ -308,10 +313,12 @@ def section_text(exp: Experiment, records, profiles, args, where, load, store: P
     lines = [f"## {exp.section}", "",
              f"Command: `{command}`  ",
              f"The same as: `{equivalent_commands(exp, where, args.time_limit, store, plot)}`  ",
-             f"Date: {datetime.date.today().isoformat()}; records made at commit {', '.join(commits)} "
-             f"(checkout {commit()})  ",
-             f"Machine: {machine()}; load average (1 min) {load[0]} at the start, {load[1]} at the end -- "
-             "**times measured on a loaded machine** (the machine is shared): compare iterations, solved "
+             f"Date: {datetime.date.today().isoformat()}; records made {_span(records)} at commit "
+             f"{', '.join(commits)} (section written at {commit()})  ",
+             f"Machine: {machine()}; "
+             + (f"load average (1 min) {load[0]} at the start, {load[1]} at the end -- " if load else
+                "section rewritten from the stored records (--no-run) -- ")
+             + "**times measured on a loaded machine** (the machine is shared): compare iterations, solved "
              "shares and objectives; time ratios are orders of magnitude only", "",
              f"The paper compares {exp.compares}", "",
              f"Run: {'the whole suite `' + exp.suite + '`' if not where else f'suite `{exp.suite}` where `{where}`'}"
@@ -347,13 +354,13 @@ def run_experiment(exp: Experiment, args) -> str:
     """Run (unless --no-run) and profile ``exp``; write its plot and section. -> the section text."""
     where = combined_where(exp.where, args.where)
     store, plot = exp.store(args.store_dir or STORES), exp.plot(args.plot_dir or HERE)
-    load = [load_average(), None]
+    load = None if args.no_run else [load_average(), None]
     if not args.no_run:
         limits = bench.Limits(time_limit=args.time_limit)
         report = bench.run(exp.suite, exp.config_paths(), store, jobs=args.jobs, limits=limits,
                            progress=not args.quiet, stream=sys.stderr, where=where)
         print(report.summary(), flush=True)
-    load[1] = load_average()
+        load[1] = load_average()
     records = select(bench.read_records(store), where, exp.names)
     profiles = [bench.performance_profile(records, m, configs=exp.names) for m in exp.metrics]
     keep = set(profiles[0].problems)
