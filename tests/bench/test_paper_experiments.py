@@ -139,3 +139,23 @@ def test_bench_command_line_where(tmp_path, capsys):
                  "--where", "N < 0", "--quiet"])
     assert code == 2 and "no entry of the suite for which 'N < 0' holds" in capsys.readouterr().err
     assert not (tmp_path / "s.jsonl").exists() or not (tmp_path / "s.jsonl").read_text()
+
+
+def test_a_configuration_without_counts_is_left_out_of_that_profile():
+    # IPOPT has no QP iterations (0 in its records): floored to 1 it would win every QP profile
+    recs = [dict(config=c, problem="p", N=N, start="s", success=True, solve_s=t, sqp_iterations=it, qp_iterations=qp)
+            for c, N, t, it, qp in (("a", 1, 1.0, 5, 50), ("b", 1, 2.0, 9, 0), ("a", 2, 3.0, 6, 60), ("b", 2, 1.0, 4, 0))]
+    assert P.counted(recs, ["a", "b"], "qp") == ["a"] and P.counted(recs, ["a", "b"], "sqp") == ["a", "b"]
+    exp = P.EXPERIMENTS["table1"]
+    profiles = [P.bench.performance_profile(recs, m, configs=P.counted(recs, ["a", "b"], m)) for m in ("sqp", "qp")]
+    assert P.left_out(dataclasses_replace(exp, ["a", "b"]), profiles) == [
+        "Left out of the QP iterations profile: b (no record with a count)."]
+    header, rows = P.summary_table(recs, profiles, ["a", "b"])
+    assert rows[0][2:8] == ["0.50", "1.00", "1.00", "1.00", "1.00", "1.00"]   # a: sqp wins 1 of 2; qp alone
+    assert rows[1][2:8] == ["0.50", "1.00", "1.00", "", "", ""]
+
+
+def dataclasses_replace(exp, names):
+    import dataclasses
+
+    return dataclasses.replace(exp, configs=tuple((n, f"configs/{n}.ini") for n in names))
