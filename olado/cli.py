@@ -4,7 +4,7 @@
                         [--set section.key=value ...] [--save FILE.json] [--plot FILE.png] [--quiet]
     olado list
     olado bench SUITE --config A.ini [--config B.ini ...] [--store FILE.jsonl] [--jobs N | --dask ADDRESS|local]
-                [--time-limit S] [--grace S] [--memory-limit SIZE] [--limit K] [--no-warmup] [--quiet]
+                [--where EXPR] [--time-limit S] [--grace S] [--memory-limit SIZE] [--limit K] [--no-warmup] [--quiet]
     olado profile STORE [STORE ...] [--metric time|wall|sqp|qp|evaluations] [--where EXPR] [--config NAME]
                   [--plot FILE.png] [--table FILE.md|.csv|-] [--per-problem] [--compare OLD_STORE]
 
