@@ -13,7 +13,7 @@ KKT back-end factory, the interior-point QP), looked up under their old and new 
 Workloads: ``kkt-N`` (Riccati factor + one solve, n = 6, m = 7, random bound terms: bench_kkt's
 system), ``qp-N`` (the Mehrotra QP on the convexified first SQP step of Zambezi: bench_qp's
 problem), ``table1`` (configs/sqp-ip.ini on zambezi12 N = 12..252, balance start: the sum of the
-21 solve times, bench_table1's SQP column) and ``large-1200`` (sqp-ip on zambezi N = 1 200).
+21 solve times, the SQP-IP column of paper 001 Table 1) and ``large-1200`` (sqp-ip on zambezi N = 1 200).
 """
 
 from __future__ import annotations

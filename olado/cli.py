@@ -4,7 +4,7 @@
                         [--set section.key=value ...] [--save FILE.json] [--plot FILE.png] [--quiet]
     olado list
     olado bench SUITE --config A.ini [--config B.ini ...] [--store FILE.jsonl] [--jobs N | --dask ADDRESS|local]
-                [--time-limit S] [--grace S] [--memory-limit SIZE] [--limit K] [--no-warmup] [--quiet]
+                [--where EXPR] [--time-limit S] [--grace S] [--memory-limit SIZE] [--limit K] [--no-warmup] [--quiet]
     olado profile STORE [STORE ...] [--metric time|wall|sqp|qp|evaluations] [--where EXPR] [--config NAME]
                   [--plot FILE.png] [--table FILE.md|.csv|-] [--per-problem] [--compare OLD_STORE]
 
@@ -99,6 +99,8 @@ def _add_bench_parser(sub) -> None:
     p.add_argument("--memory-limit", metavar="SIZE", help="address-space limit per worker, e.g. 4G, or none "
                    "(default: physical memory / jobs, at least 2G)")
     p.add_argument("--limit", type=int, metavar="K", help="run at most K of the remaining solves")
+    p.add_argument("--where", "-w", metavar="EXPR", help="only the suite entries for which EXPR holds (fields "
+                   "problem, N, start, factory, group, settings.KEY), e.g. \"N <= 72\"")
     p.add_argument("--no-warmup", action="store_true", help="measure every solve, also a worker's first of a "
                    "configuration and problem (imports, compilation)")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress display or summary")

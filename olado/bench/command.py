@@ -68,7 +68,7 @@ def cmd_bench(args) -> int:
               f"(+{args.grace:g} s grace), {mem}", flush=True)
     try:
         report = run(args.suite, configs, store, jobs=args.jobs, dask=args.dask, limits=limits,
-                     progress=not args.quiet, stream=sys.stderr, limit=args.limit)
+                     progress=not args.quiet, stream=sys.stderr, limit=args.limit, where=args.where)
     except KeyboardInterrupt:
         print(f"olado bench: stopped; the records written so far are in {store}, and the same command "
               "resumes the run", file=sys.stderr)

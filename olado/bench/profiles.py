@@ -174,21 +174,24 @@ def _fmt(value, digits=4) -> str:
 
 def summary_table(records, profiles, configs=None) -> tuple[list, list]:
     """(header, rows): one row per configuration -- solved / problems, for each profile the wins
-    phi(0), phi(1), phi(2) and the solved share (51), the total solver time, and the median SQP and
-    QP iterations of its solved problems."""
-    names = profiles[0].configs if profiles else (configs or config_names(records))
+    phi(0), phi(1), phi(2) (blank for a configuration the profile leaves out), the total solver
+    time, and the median SQP and QP iterations of its solved problems."""
+    names = list(configs) if configs else (profiles[0].configs if profiles else config_names(records))
     keep = set(profiles[0].problems) if profiles else None
     header = ["config", "solved"]
     for p in profiles:
         header += [f"{p.metric} phi(0)", f"{p.metric} phi(1)", f"{p.metric} phi(2)"]
     header += ["total time (s)", "median SQP iter", "median QP iter"]
     rows = []
-    for j, name in enumerate(names):
+    for name in names:
         mine = [r for r in records if r["config"] == name and (keep is None or _problem(r) in keep)]
         ok = [r for r in mine if r.get("success")]
         row = [name, f"{len(ok)} / {len(mine)}"]
         for p in profiles:
-            phi = p.phi([0.0, 1.0, 2.0])[j]
+            if name not in p.configs:
+                row += ["", "", ""]
+                continue
+            phi = p.phi([0.0, 1.0, 2.0])[p.configs.index(name)]
             row += [f"{v:.2f}" for v in phi]
         row += [f"{sum(r.get('solve_s') or 0.0 for r in mine):.2f}",
                 _fmt(float(np.median([r["sqp_iterations"] for r in ok])) if ok else None),

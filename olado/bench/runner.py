@@ -86,22 +86,49 @@ def plan(entries, configs, suite: str = "") -> list[Task]:
     return [Task(entry=e, config=c, suite=suite) for e in entries for c in configs]
 
 
+def entry_fields(entry) -> dict:
+    """The fields of a suite entry that ``--where`` of ``olado bench`` reads: those a record
+    will have (problem, N, start, factory, settings) and the entry's group."""
+    return {"problem": entry.name, "N": entry.size, "start": entry.start_label, "factory": entry.problem,
+            "settings": dict(entry.settings), "group": entry.group}
+
+
+def select_entries(entries, where) -> list:
+    """The entries for which ``where`` (text or :class:`~olado.bench.where.Where`; None: all)
+    holds, e.g. ``"N <= 72"`` (a subset of a suite, run with the full suite's keys, so that a
+    later run of the whole suite into the same store reuses these solves)."""
+    from .where import Where
+
+    entries = list(entries)
+    if not where:
+        return entries
+    cond = where if isinstance(where, Where) else Where(where)
+    fields = [entry_fields(e) for e in entries]
+    cond.check_fields(fields)
+    kept = [e for e, f in zip(entries, fields) if cond(f)]
+    if entries and not kept:
+        raise ConfigError(f"no entry of the suite for which {cond.text!r} holds", key="--where")
+    return kept
+
+
 def make_executor(jobs: int = 1, dask: str | None = None, limits: Limits = Limits()):
     return DaskExecutor(dask, jobs, limits) if dask else LocalExecutor(jobs, limits)
 
 
 def run(suite, configs, store, *, jobs: int = 1, dask: str | None = None, limits: Limits = Limits(),
-        progress: bool = True, stream=None, limit: int | None = None) -> RunReport:
+        progress: bool = True, stream=None, limit: int | None = None, where=None) -> RunReport:
     """Run ``suite`` (a suite name, a .toml path or a list of SuiteEntry) against ``configs``
     (see :func:`load_bench_configs`), appending one record per solve to the JSON Lines ``store``;
     solves whose key is already in the store are skipped (resume). ``limit``: run at most this
-    many of the remaining solves."""
+    many of the remaining solves; ``where``: only the entries for which it holds
+    (:func:`select_entries`)."""
     from ..problems.suites import load_suite
 
     if isinstance(suite, (str, os.PathLike)):
         suite_name, entries = str(suite), load_suite(suite)
     else:
         suite_name, entries = "<entries>", list(suite)
+    entries = select_entries(entries, where)
     if not isinstance(configs, list) or not all(isinstance(c, BenchConfig) for c in configs):
         configs = load_bench_configs(list(configs), limits.time_limit)
     executor = make_executor(jobs, dask, limits)

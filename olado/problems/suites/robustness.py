@@ -10,7 +10,7 @@ feasible. IPOPT's values for every entry are stored beside this file
 
 Zambezi: families zambezi8..zambezi12 of paper 001 sec. 5, each at one modest N, from the SIF
 start point (the project's reading of the paper's start (45): outflow = inflow, every volume at
-V0; see benchmarks/bench_testset.py), from the balance start (46)-(47), and from ten seeded
+V0; see :mod:`.zambezi_testset`), from the balance start (46)-(47), and from ten seeded
 perturbations of the SIF start (:func:`olado.problems.suites.perturbed_start`: controls moved by
 ``PERTURBATION['controls']`` times their bound range, volumes by ``PERTURBATION['states']`` times
 theirs, normal draws of ``numpy.random.default_rng(seed)``, clipped to the bounds).

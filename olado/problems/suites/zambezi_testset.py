@@ -2,8 +2,9 @@
 horizons of the paper -- zambezi N = 12:12:420, zambezi8 12:12:216, zambezi9 and zambezi10
 12:12:72, zambezi11 12:12:432, zambezi12 12:12:252 (122 problems) -- each from two starts: the
 balance controls (46)-(47) with simulated states, and the SIF start point (outflow = inflow, every
-volume at V0; the project's reading of the paper's start (45), see benchmarks/bench_testset.py).
-The inflow record only (``extend=None``: no cyclic extension beyond the record).
+volume at V0; the project's reading of the paper's start (45), which is the same kind of
+"outflow = inflow" trajectory). The inflow record only (``extend=None``: no cyclic extension
+beyond the record). Paper 001's Figs. 4-8 on this set: ``python benchmarks/paper.py fig4`` ... ``fig8``.
 """
 
 from __future__ import annotations
