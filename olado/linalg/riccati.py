@@ -256,10 +256,12 @@ class RiccatiFactorization:
                 a += b
         if best <= REFINE_ACCEPT:
             return infeas
-        # the static pivots are too coarse for this system: exact pivots (a fresh solve)
+        # the static pivots are too coarse for this system: exact pivots (a fresh solve); if
+        # those fail, the static ones again and the refined solution stands
         code = self._exact_pivots()
         if code >= 0:
-            raise NotPositiveDefiniteError(code)
+            self._factorize()
+            return infeas
         out[_NU].fill(0.0)
         return float(k.solve(self._costs, self._dyn, self._eq, self._ipt, self._factors, tuple(rhs), tuple(out)))
 
