@@ -33,12 +33,12 @@ from .codegen import fixed_size_tags, kernel_set
 from .riccati_fixed import (_STRAIGHT_N_MAX, _factor_unconstrained_fixed, _factor_unconstrained_fixed_loops,
                             _solve_unconstrained_fixed)
 from .riccati_kernels import (Costs, Dynamics, EqualityRows, GeneralFactors, IPTerms, PlainFactors, _factor,
-                              _factor_unconstrained, _solve, _solve_unconstrained)
+                              _factor_unconstrained, _kkt_residual, _solve, _solve_unconstrained)
 
 #: the kernels of the recursion, called through a KernelSet (codegen.kernel_set: the stage arrays
 #: are C-contiguous float64, so the argument types depend only on the size tags)
 _KERNELS = {"factor": _factor, "solve": _solve, "factor_plain": _factor_unconstrained,
-            "solve_plain": _solve_unconstrained, "factor_fixed": _factor_unconstrained_fixed,
+            "solve_plain": _solve_unconstrained, "residual": _kkt_residual, "factor_fixed": _factor_unconstrained_fixed,
             "factor_fixed_loops": _factor_unconstrained_fixed_loops, "solve_fixed": _solve_unconstrained_fixed}
 
 _NU = Solution._fields.index("nu")
@@ -269,38 +269,12 @@ class RiccatiFactorization:
         """The residual of the KKT rows of the factored system (with its regularization) at
         ``sol`` = (X, U, lam, nu), as a right-hand side (RHS: the stationarity rows in q, r, the
         dynamics rows in c, the equality rows in e, eN; x0 and ci zero -- X[0] = x0 holds
-        exactly), with the size of the rows' terms and the max-norm of the equality rows."""
-        d, N, n = self.data, self.N, self.n
-        q, r, c, x0, e, eN, ci = rhs
-        X, U, lam, nu = sol
-        Xk, lk = X[:N], lam[1:]
-        terms = [np.einsum("kij,kj->ki", d.Q[:N], Xk), np.einsum("kij,kj->ki", d.S, U), d.Dx[:N] * Xk,
-                 np.einsum("kji,kj->ki", d.A, lk), lam[:N], q[:N]]
-        uterms = [np.einsum("kji,kj->ki", d.S, Xk), np.einsum("kij,kj->ki", d.R, U), (d.Du + d.regularization) * U,
-                  np.einsum("kji,kj->ki", d.B, lk), r]
-        dyn = [np.einsum("kij,kj->ki", d.A, Xk), np.einsum("kij,kj->ki", d.B, U), c, X[1:]]
-        rx = terms[0] + terms[1] + terms[2] + terms[3] - terms[4] + terms[5]
-        ru = uterms[0] + uterms[1] + uterms[2] + uterms[3] + uterms[4]
-        rc = dyn[0] + dyn[1] + dyn[2] - dyn[3]
-        re = np.zeros_like(e)
-        if d.ne_max:
-            mask = np.arange(d.ne_max)[None, :] < d.ne[:, None]
-            nuk = np.where(mask, nu[:N, :d.ne_max], 0.0)
-            rx += np.einsum("kji,kj->ki", d.E, nuk)
-            ru += np.einsum("kji,kj->ki", d.F, nuk)
-            re = np.where(mask, np.einsum("kij,kj->ki", d.E, Xk) + np.einsum("kij,kj->ki", d.F, U) + e, 0.0)
-        if d.ni_max:
-            wi = np.where(np.arange(d.ni_max)[None, :] < d.ni[:, None], d.sig, 0.0)
-            w = wi * (np.einsum("kij,kj->ki", d.Ci[:, :, :n], Xk) + np.einsum("kij,kj->ki", d.Ci[:, :, n:], U) + ci)
-            rx += np.einsum("kji,kj->ki", d.Ci[:, :, :n], w)
-            ru += np.einsum("kji,kj->ki", d.Ci[:, :, n:], w)
-        rN = d.Q[N] @ X[N] + d.Dx[N] * X[N] + q[N] - lam[N] + d.EN.T @ nu[N, :d.neN]
-        reN = d.EN @ X[N] + eN
-        size = max(1.0, *(float(np.abs(a).max(initial=0.0)) for a in terms + uterms + dyn + [x0, e, eN]))
-        infeas = max(float(np.abs(re).max(initial=0.0)), float(np.abs(reN).max(initial=0.0)))
-        resid = RHS(np.vstack([rx, rN[None, :]]), ru, rc, np.zeros(n), re, reN, np.zeros_like(ci))
-        return resid, size, infeas
-
+        exactly), with the size of the rows' terms and the max-norm of the equality rows
+        (:func:`~olado.linalg.riccati_kernels._kkt_residual`)."""
+        resid = RHS(*(np.empty_like(a) for a in rhs))
+        size, infeas = self._kernels.residual(self._costs, self._dyn, self._eq, self._ip_terms(),
+                                              self.data.regularization, tuple(rhs), tuple(sol), tuple(resid))
+        return resid, float(size), float(infeas)
 
 def solve_lq_docp(Q, S, R, q, r, A, B, c, x0, **kw) -> LQSolution:
     """Factorize and solve in one call (see :class:`RiccatiFactorization`)."""
