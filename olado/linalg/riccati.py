@@ -33,7 +33,8 @@ from .codegen import fixed_size_tags, kernel_set
 from .riccati_fixed import (_STRAIGHT_N_MAX, _factor_unconstrained_fixed, _factor_unconstrained_fixed_loops,
                             _solve_unconstrained_fixed)
 from .riccati_kernels import (Costs, Dynamics, EqualityRows, GeneralFactors, IPTerms, PlainFactors, _factor,
-                              _factor_unconstrained, _kkt_residual, _solve, _solve_unconstrained)
+                              _factor_unconstrained, _solve, _solve_unconstrained)
+from .riccati_residual import _kkt_residual
 
 #: the kernels of the recursion, called through a KernelSet (codegen.kernel_set: the stage arrays
 #: are C-contiguous float64, so the argument types depend only on the size tags)
@@ -270,7 +271,7 @@ class RiccatiFactorization:
         ``sol`` = (X, U, lam, nu), as a right-hand side (RHS: the stationarity rows in q, r, the
         dynamics rows in c, the equality rows in e, eN; x0 and ci zero -- X[0] = x0 holds
         exactly), with the size of the rows' terms and the max-norm of the equality rows
-        (:func:`~olado.linalg.riccati_kernels._kkt_residual`)."""
+        (:func:`~olado.linalg.riccati_residual._kkt_residual`)."""
         resid = RHS(*(np.empty_like(a) for a in rhs))
         size, infeas = self._kernels.residual(self._costs, self._dyn, self._eq, self._ip_terms(),
                                               self.data.regularization, tuple(rhs), tuple(sol), tuple(resid))
