@@ -170,8 +170,8 @@ class RiccatiFactorization:
             w[:k_start + 1].fill(0)   # the general kernel expects zeroed padding (a refactor reuses the arrays)
         code = k.factor(costs, dyn, self._eq, ipt, reg, self.rank_tol, self.pivot_tol, self._factors, k_start)
         self.perturbed = code < 0 and bool(self.dropped.any())
-        if code >= 0 and self.pivot_tol > self.rank_tol:
-            # a failure with static pivots: the exact pivots (old behaviour) decide
+        if code >= 0 and self.pivot_tol > self.rank_tol and self.dropped.any():
+            # a failure after a static pivot: the exact pivots (old behaviour) decide
             code = self._exact_pivots()
         if code >= 0:
             raise NotPositiveDefiniteError(code)
