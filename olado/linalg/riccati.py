@@ -48,7 +48,7 @@ _NU = Solution._fields.index("nu")
 #: norm is not used as a pivot -- its elimination would put gains up to 1/PIVOT_TOL into K_k and
 #: their square into P_k, whose rounding then swamps the cost-to-go -- but passed back with the
 #: dependent rows; its left-out u-coupling is put back by iterative refinement
-PIVOT_TOL = 1e-8
+PIVOT_TOL = 1e-6
 #: refinement steps at most, the relative residual at which they stop, and the largest relative
 #: residual accepted before the exact pivots are used instead
 REFINE_STEPS = 10
