@@ -34,14 +34,26 @@ from .riccati_fixed import (_STRAIGHT_N_MAX, _factor_unconstrained_fixed, _facto
                             _solve_unconstrained_fixed)
 from .riccati_kernels import (Costs, Dynamics, EqualityRows, GeneralFactors, IPTerms, PlainFactors, _factor,
                               _factor_unconstrained, _solve, _solve_unconstrained)
+from .riccati_residual import _kkt_residual
 
 #: the kernels of the recursion, called through a KernelSet (codegen.kernel_set: the stage arrays
 #: are C-contiguous float64, so the argument types depend only on the size tags)
 _KERNELS = {"factor": _factor, "solve": _solve, "factor_plain": _factor_unconstrained,
-            "solve_plain": _solve_unconstrained, "factor_fixed": _factor_unconstrained_fixed,
+            "solve_plain": _solve_unconstrained, "residual": _kkt_residual, "factor_fixed": _factor_unconstrained_fixed,
             "factor_fixed_loops": _factor_unconstrained_fixed_loops, "solve_fixed": _solve_unconstrained_fixed}
 
 _NU = Solution._fields.index("nu")
+
+#: static pivots (module docstring): a combined row whose u-part is below PIVOT_TOL times the row's
+#: norm is not used as a pivot -- its elimination would put gains up to 1/PIVOT_TOL into K_k and
+#: their square into P_k, whose rounding then swamps the cost-to-go -- but passed back with the
+#: dependent rows; its left-out u-coupling is put back by iterative refinement
+PIVOT_TOL = 1e-6
+#: refinement steps at most, the relative residual at which they stop, and the largest relative
+#: residual accepted before the exact pivots are used instead
+REFINE_STEPS = 10
+REFINE_TOL = 1e-14
+REFINE_ACCEPT = 1e-9
 
 __all__ = ["RiccatiFactorization", "solve_lq_docp", "LQSolution", "StageData", "NotPositiveDefiniteError",
            "RiccatiStatusError"]
@@ -65,11 +77,14 @@ class RiccatiFactorization:
     limits = None       # KKTBackend.limits: not read (a factorization and a solve are O(N) sweeps)
 
     def __init__(self, Q, S, R, A, B, *, E=None, F=None, n_eq=None, EN=None, Dx=None, Du=None,
-                 Ci=None, sigma=None, n_ineq=None, regularization=0.0, rank_tol=1e-10):
+                 Ci=None, sigma=None, n_ineq=None, regularization=0.0, rank_tol=1e-10, pivot_tol=PIVOT_TOL):
         d = self.data = StageData(Q, S, R, A, B, E=E, F=F, n_eq=n_eq, EN=EN, Dx=Dx, Du=Du, Ci=Ci, sigma=sigma,
                                   n_ineq=n_ineq, regularization=regularization)
         N, n, m = self.N, self.n, self.m = d.N, d.n, d.m
         self.rank_tol = float(rank_tol)
+        self.pivot_tol = max(float(pivot_tol), self.rank_tol)
+        #: whether the last factorization left out a u-coupling (static pivots, see _refine)
+        self.perturbed = False
         # the stage arrays as the kernels take them (plain tuples, codegen.as_bundle), by role
         self._costs = tuple(Costs(Q=d.Q, S=d.S, R=d.R))
         self._dyn = tuple(Dynamics(A=d.A, B=d.B))
@@ -97,9 +112,11 @@ class RiccatiFactorization:
             self.Wx = np.zeros((N, ncmax, n)); self.Dmat = np.zeros((N, ncmax, ncmax))
             # compression of the passed-back rows: row permutation, dropped rows in terms of the kept
             self.pg = np.zeros((N, ncmax), dtype=np.int64); self.Zg = np.zeros((N, max(n, 1), ncmax))
+            self.dropped = np.zeros(N)
             self._factors = tuple(GeneralFactors(P=self.P, K=self.K, Quu=self.Quu, Qux=self.Qux, Lww=self.Lww, Qm=self.Qm,
                                                  Rm=self.Rm, perm=self.perm, rank=self.rank, nc=self.nc, Cx=self.Cx, G=self.G,
-                                                 ng=self.ng, Wx=self.Wx, Dmat=self.Dmat, pg=self.pg, Zg=self.Zg))
+                                                 ng=self.ng, Wx=self.Wx, Dmat=self.Dmat, pg=self.pg, Zg=self.Zg,
+                                                 dropped=self.dropped))
             self._size_tags = None
         self._kernels = kernel_set(_KERNELS, None if self._size_tags is None else (n, m))
         self._factorize()
@@ -149,14 +166,30 @@ class RiccatiFactorization:
             return
         k_start = self.N - 1 if k_start is None else k_start
         for w in (self.Lww, self.Rm, self.perm, self.rank, self.nc, self.Cx, self.G, self.ng, self.Wx, self.Dmat,
-                  self.pg, self.Zg):
+                  self.pg, self.Zg, self.dropped):
             w[:k_start + 1].fill(0)   # the general kernel expects zeroed padding (a refactor reuses the arrays)
-        code = k.factor(costs, dyn, self._eq, ipt, reg, self.rank_tol, self._factors, k_start)
+        code = k.factor(costs, dyn, self._eq, ipt, reg, self.rank_tol, self.pivot_tol, self._factors, k_start)
+        self.perturbed = code < 0 and bool(self.dropped.any())
+        if code >= 0 and self.pivot_tol > self.rank_tol and self.dropped.any():
+            # a failure after a static pivot: the exact pivots (old behaviour) decide
+            code = self._exact_pivots()
         if code >= 0:
             raise NotPositiveDefiniteError(code)
         if code <= -1000:
             raise RiccatiStatusError(f"more than {self.ncmax} equality rows reach stage k={-code - 1000} "
                                      "(more than the row buffers hold)")
+
+    def _exact_pivots(self):
+        """Factor the whole sweep again with every pivot above rank_tol used (no static pivots);
+        returns the kernel's code."""
+        ipt, k = self._ip_terms(), self._kernels
+        for w in (self.Lww, self.Rm, self.perm, self.rank, self.nc, self.Cx, self.G, self.ng, self.Wx, self.Dmat,
+                  self.pg, self.Zg, self.dropped):
+            w.fill(0)
+        code = k.factor(self._costs, self._dyn, self._eq, ipt, self.data.regularization, self.rank_tol, self.rank_tol,
+                        self._factors, self.N - 1)
+        self.perturbed = False
+        return code
 
     def solve(self, q, r, c, x0, e=None, eN=None, ci=None, out=None) -> LQSolution:
         """Solve for one right-hand side: linear cost terms q (N+1, n), r (N, m); dynamics
@@ -187,13 +220,62 @@ class RiccatiFactorization:
         rhs, out = tuple(rhs), tuple(out)       # the kernels take plain tuples (codegen.as_bundle)
         k = self._kernels
         if not self.unconstrained:
-            return float(k.solve(self._costs, self._dyn, self._eq, self._ipt, self._factors, rhs, out))
+            res = float(k.solve(self._costs, self._dyn, self._eq, self._ipt, self._factors, rhs, out))
+            if self.perturbed:
+                res = self._refine(rhs, out)
+            return res
         if self._size_tags is None:
             k.solve_plain(self._costs, self._dyn, self._ipt, self._factors, rhs, out)
         else:
             k.solve_fixed(self._size_tags, self._dyn, self._ipt, self._factors, rhs, out)
         return 0.0
 
+    def _refine(self, rhs, out):
+        """Iterative refinement of a solution of the factorization with static pivots (the
+        module docstring; Li and Demmel 1998): the KKT residual (:meth:`kkt_residual`) of the
+        exact system is solved for with the same factors and the correction added, until the
+        residual is at rounding level (relative to the size of the KKT rows' terms) or stops
+        decreasing.  If it stays above REFINE_ACCEPT, the static pivots made the factored matrix
+        too far from the exact one (a row the earlier stages cannot reach): the whole sweep is
+        factored again with the exact pivots and the right-hand side solved with those.
+        Returns the equality-row infeasibility (``LQSolution.x0_residual``)."""
+        X, U, lam, nu = out
+        corr = Solution(np.empty_like(X), np.empty_like(U), np.empty_like(lam), np.empty_like(nu))
+        k = self._kernels
+        best = None
+        for _ in range(REFINE_STEPS + 1):
+            resid, size, infeas = self.kkt_residual(rhs, out)
+            err = max(float(np.abs(a).max(initial=0.0)) for a in resid) / size
+            if best is not None and err >= 0.5 * best:
+                break
+            best = err
+            if err <= REFINE_TOL:
+                break
+            corr[_NU].fill(0.0)
+            k.solve(self._costs, self._dyn, self._eq, self._ipt, self._factors, tuple(resid), tuple(corr))
+            for a, b in zip(out, corr):
+                a += b
+        if best <= REFINE_ACCEPT:
+            return infeas
+        # the static pivots are too coarse for this system: exact pivots (a fresh solve); if
+        # those fail, the static ones again and the refined solution stands
+        code = self._exact_pivots()
+        if code >= 0:
+            self._factorize()
+            return infeas
+        out[_NU].fill(0.0)
+        return float(k.solve(self._costs, self._dyn, self._eq, self._ipt, self._factors, tuple(rhs), tuple(out)))
+
+    def kkt_residual(self, rhs, sol):
+        """The residual of the KKT rows of the factored system (with its regularization) at
+        ``sol`` = (X, U, lam, nu), as a right-hand side (RHS: the stationarity rows in q, r, the
+        dynamics rows in c, the equality rows in e, eN; x0 and ci zero -- X[0] = x0 holds
+        exactly), with the size of the rows' terms and the max-norm of the equality rows
+        (:func:`~olado.linalg.riccati_residual._kkt_residual`)."""
+        resid = RHS(*(np.empty_like(a) for a in rhs))
+        size, infeas = self._kernels.residual(self._costs, self._dyn, self._eq, self._ip_terms(),
+                                              self.data.regularization, tuple(rhs), tuple(sol), tuple(resid))
+        return resid, float(size), float(infeas)
 
 def solve_lq_docp(Q, S, R, q, r, A, B, c, x0, **kw) -> LQSolution:
     """Factorize and solve in one call (see :class:`RiccatiFactorization`)."""

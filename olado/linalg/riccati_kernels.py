@@ -52,7 +52,10 @@ EqualityRows = collections.namedtuple("EqualityRows", "E F ne EN")
 #: first ni[k] count
 IPTerms = collections.namedtuple("IPTerms", "Dx Du Ci sig ni")
 #: the factors of the general recursion (see _factor)
-GeneralFactors = collections.namedtuple("GeneralFactors", "P K Quu Qux Lww Qm Rm perm rank nc Cx G ng Wx Dmat pg Zg")
+#: (``dropped`` (N,): per stage the largest relative u-part of a combined row that was not used as
+#: a pivot although it exceeds rank_tol -- the static pivots of :func:`_factor`)
+GeneralFactors = collections.namedtuple("GeneralFactors",
+                                        "P K Quu Qux Lww Qm Rm perm rank nc Cx G ng Wx Dmat pg Zg dropped")
 #: the factors of the plain recursion: P_k (N+1, n, n), K_k (N, m, n) and the Cholesky factor L_k
 #: (N, m, m) of Q_uu
 PlainFactors = collections.namedtuple("PlainFactors", "P K L")
@@ -209,7 +212,7 @@ def _closed_loop(A, B, c, K, kff, X, U):
 
 
 @nb.njit(cache=True)
-def _factor(costs, dyn, eq, ipt, reg, rank_tol, fac, k_start):
+def _factor(costs, dyn, eq, ipt, reg, rank_tol, pivot_tol, fac, k_start):
     """Backward factorization sweep (paper 001 sec. 4.2.3, Arnold's elimination in the
     constraint-propagating form). Returns -1 on success, the stage index of a failure
     (non-positive-definite reduced Hessian), or -(1000 + k) when more rows than the buffers hold
@@ -246,7 +249,7 @@ def _factor(costs, dyn, eq, ipt, reg, rank_tol, fac, k_start):
     fac = as_bundle(fac, GeneralFactors)
     P, K, Quu_s, Qux_s, Lww, Qm, Rm = fac.P, fac.K, fac.Quu, fac.Qux, fac.Lww, fac.Qm, fac.Rm
     perm, rank, nc, Cx_s, G, ng = fac.perm, fac.rank, fac.nc, fac.Cx, fac.G, fac.ng
-    Wx, Dmat, pg, Zg = fac.Wx, fac.Dmat, fac.pg, fac.Zg
+    Wx, Dmat, pg, Zg, dropped = fac.Wx, fac.Dmat, fac.pg, fac.Zg, fac.dropped
     N = A.shape[0]
     n = A.shape[1]
     m = B.shape[2]
@@ -357,10 +360,19 @@ def _factor(costs, dyn, eq, ipt, reg, rank_tol, fac, k_start):
                 for j in range(m):
                     s += Cu[c, j] * Cu[c, j]
                 wu[c] = 1.0 / np.sqrt(s) if s > 0.0 else 1.0
-            rk = _qr_pivot(M, m, nck, Qm[k], perm[k], vt, nr, rank_tol, 1.0, True, wu[:nck])
+            rk = _qr_pivot(M, m, nck, Qm[k], perm[k], vt, nr, pivot_tol, 1.0, True, wu[:nck])
             for i in range(m):
                 for j in range(nck):
                     Rm[k, i, j] = M[i, j]
+            # static pivots: the largest relative u-part left in the rows passed back (R22);
+            # above rank_tol it is a coupling the factorization leaves out (pivot_tol > rank_tol)
+            big = 0.0
+            for c in range(rk, nck):
+                s = 0.0
+                for i in range(rk, m):
+                    s += M[i, c] * M[i, c]
+                big = max(big, np.sqrt(s) * wu[perm[k, c]])
+            dropped[k] = big if big > rank_tol else 0.0
         else:
             for i in range(m):
                 for j in range(m):
@@ -941,3 +953,4 @@ def _solve_unconstrained(costs, dyn, ipt, fac, rhs, sol):
                     a_cur[i] += Ci[k, cc, i] * wgt
         for i in range(n):
             lam[k, i] = a_cur[i]
+

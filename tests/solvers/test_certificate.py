@@ -269,7 +269,9 @@ def test_least_squares_multipliers_from_the_point_alone(entry):
     a hard activity threshold on the slack left it out (scaled stationarity 6.9e-5); the soft
     rows weighted by 1/g^2 take it. particle-steering's controls sit at their bounds (weights
     1e-12) next to three terminal equalities: the Riccati projection of the last stages broke
-    down and the sparse LU of the whole KKT matrix solves the weighted QP."""
+    down (a u-part of 1e-9 of its row used as a pivot) until the static pivots of
+    olado.linalg.riccati; the sparse LU of the whole KKT matrix stays the certificate's fallback
+    (tests/linalg/test_riccati_static_pivots.py solves these QPs on the Riccati back-end alone)."""
     pytest.importorskip("cyipopt")
     from olado.problems.suites import load_suite
 

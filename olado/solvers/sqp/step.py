@@ -190,7 +190,11 @@ def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=
     # Levenberg-Marquardt-like: delta shrinks with the relative KKT residual of the last
     # iterate (kept superlinear), but never exceeds proximal * max|H|
     prox_factor = proximal_factor(o, st.qp_local)
-    prox = min(prox_factor, st.kkt_rel) * scale if o.adaptive_proximal else prox_factor * scale
+    # (relative to shift_scale: with H = 0, e.g. a linear objective at zero multipliers, a term
+    # relative to max|H| = 1e-300 would make a QP whose Hessian is 1e-304 I -- "positive
+    # definite" to a Cholesky factorization, and the active-set QP's points then reach 1e307)
+    ref = shift_scale(scale)
+    prox = min(prox_factor, st.kkt_rel) * ref if o.adaptive_proximal else prox_factor * ref
     n, m = p.n, p.m
     for _ in range(30):
         if np.any(delta + prox > 0):
@@ -209,7 +213,7 @@ def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=
         if eta is None:
             qres = qp_solver.solve(qp, warm_start=warm, limits=setup.limits)
         else:
-            elastic = ElasticQP(qp, eta, curvature=ELASTIC_CURVATURE * scale, relax_dynamics=relax_dynamics)
+            elastic = ElasticQP(qp, eta, curvature=ELASTIC_CURVATURE * ref, relax_dynamics=relax_dynamics)
             qres, slacks = elastic.restore(qp_solver.solve(elastic.relaxed, limits=setup.limits))
         iterations += int(qres.iterations)
         if inertia and o.curvature_tol > 0 and qres.success:
