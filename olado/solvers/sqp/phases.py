@@ -148,7 +148,7 @@ def limits_reached(setup, st):
     """The iteration limit; the time limit and interrupts raise (olado.interrupts: the solver's
     loop ends with the last accepted iterate)."""
     setup.limits.check()
-    return st.it >= setup.options.max_iter
+    return st.it >= min(setup.options.max_iter, st.it_limit)
 
 
 def kkt_test(setup, st, kkt_res, mult, bounds, viol):

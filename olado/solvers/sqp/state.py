@@ -238,6 +238,7 @@ class SQPState:
     first_suspect: bool = False     # the first step was an LP step the functions did not follow
     trust_armed: bool = False       # this attempt boxes such a first step (olado.solvers.sqp.trust)
     start_it: int = 0               # the iteration this attempt started at (0, or the first attempt's count)
+    it_limit: float = float("inf")  # this attempt's own iteration limit (a second attempt's budget)
     restoring: bool = False         # in the feasibility restoration phase (olado.solvers.sqp.restoration)
     restoration_theta: float = 0.0  # l1 violation where the restoration phase started
     restoration_steps: int = 0      # restoration steps since then

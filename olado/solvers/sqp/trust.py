@@ -25,7 +25,10 @@ same for its first step only (later steps have the QP's multipliers, and their c
   kappa half the largest relative control step of the rejected QP, until the agreement holds (or
   kappa falls below KAPPA_MIN: then the step is taken as the QP gives it). The second attempt's
   answer is kept when it is a success, else the first attempt's verdict (:func:`better_attempt`);
-  iterations and history count both attempts.
+  iterations and history count both attempts. The second attempt has a budget of its own,
+  max(50, 3 x the first attempt's iterations): on a problem that is infeasible indeed
+  (steering-too-short, after the multiplier reset of the restoration phase) it can wander where
+  the first attempt had reached its verdict in 15 iterations.
 
 The box is relative to the controls' size, as the restoration phase's stationarity test's box
 |du| <= 1 + |u| (olado.solvers.sqp.restoration). It is the QP's business only: the box rows'
@@ -53,6 +56,10 @@ LINEAR_CURVATURE = 0.1
 AGREEMENT = 0.25
 #: no box narrower than this (relative to 1 + |u|): the step is then taken unboxed
 KAPPA_MIN = 1e-3
+#: the second attempt's iterations at most: SECOND_ATTEMPT_FACTOR times the first attempt's, and
+#: at least SECOND_ATTEMPT_MIN (a second opinion on a verdict, not a second solve without end)
+SECOND_ATTEMPT_FACTOR = 3
+SECOND_ATTEMPT_MIN = 50
 
 
 def linear_step(st, step):
@@ -106,9 +113,11 @@ def retry_boxed(st):
 def second_attempt(first, st):
     """The state ``st`` (fresh, at the start) as the second attempt after ``first``: the first
     step boxed, the iterations, QP iterations and history counted on from the first attempt's
-    (so max_iter and the callback's iteration numbers hold for the whole solve)."""
+    (so max_iter and the callback's iteration numbers hold for the whole solve), with a budget of
+    max(SECOND_ATTEMPT_MIN, SECOND_ATTEMPT_FACTOR x the first attempt's) iterations of its own."""
     st.trust_armed = True
     st.it = st.start_it = first.it
+    st.it_limit = first.it + max(SECOND_ATTEMPT_MIN, SECOND_ATTEMPT_FACTOR * first.it)
     st.qp_iters += first.qp_iters
     st.history = list(first.history)
     return st
