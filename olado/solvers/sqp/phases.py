@@ -116,10 +116,8 @@ def initial_multipliers(setup, pt):
     zero = Multipliers.zeros(p.N, p.n, p.r, p.rN)
     if not (o.initial_multipliers == "least-squares" and detects_nonconvexity(setup) and strictly_inactive(setup, pt)):
         return zero, 0
-    est = qp_step.least_squares_multipliers(setup, pt)
-    if est is None or not est[1] <= o.multiplier_init_max:
-        return zero, (0 if est is None else est[2])
-    return est[0], est[2]
+    est, iterations = qp_step.bounded_estimate(setup, pt)
+    return (zero if est is None else est), iterations
 
 
 def iterate(setup, st: SQPState) -> bool:
@@ -622,11 +620,6 @@ def accept(setup, st, step):
     st.it += 1
 
 
-def largest(mult):
-    """max |multiplier| over the dynamics, stage and final constraints."""
-    return max(float(np.max(np.abs(a), initial=0.0)) for a in (mult.lam, mult.Lg, mult.LgN))
-
-
 def bounded_multipliers(setup, st, mult):
     """The multipliers the new iterate carries into its Hessian: the QP's, or with
     ``multiplier_reset`` (exact Hessian), when their largest exceeds ``multiplier_init_max`` and
@@ -638,13 +631,11 @@ def bounded_multipliers(setup, st, mult):
     so WORHP's damped update lambda + alpha (lambda_QP - lambda) is the same run); near a solution
     whose multipliers exceed the bound the estimate does too, and the QP's are kept."""
     o = setup.options
-    if not (o.multiplier_reset and st.hess.needs_exact and largest(mult) > o.multiplier_init_max):
+    if not (o.multiplier_reset and st.hess.needs_exact and mult.largest() > o.multiplier_init_max):
         return mult
-    est = qp_step.least_squares_multipliers(setup, st.pt)
-    if est is None:
-        return mult
-    st.qp_iters += est[2]
-    return est[0] if est[1] <= o.multiplier_init_max else mult
+    est, iterations = qp_step.bounded_estimate(setup, st.pt)
+    st.qp_iters += iterations
+    return mult if est is None else est
 
 
 def tau_update(setup, st, step, new_pt):

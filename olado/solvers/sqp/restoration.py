@@ -149,14 +149,10 @@ def reset_multipliers(setup, st):
     had grown to 5e13 (each QP's |lambda| ~ |(H(lambda) + delta I) s| with the last lambda and
     |s| ~ 5), and with them max|H| and the shift tau (|sigma| + max|H|) ~ 1e13, so that the
     resumed optimality phase took steps of 1e-12 and stopped on step_tol far from the minimum."""
-    p, o = setup.problem, setup.options
-    est = qp_step.least_squares_multipliers(setup, st.pt)
-    if est is not None:
-        st.qp_iters += est[2]
-    if est is not None and est[1] <= o.multiplier_init_max:
-        st.mult = est[0]
-    else:
-        st.mult = Multipliers.zeros(p.N, p.n, p.r, p.rN)
+    p = setup.problem
+    est, iterations = qp_step.bounded_estimate(setup, st.pt)
+    st.qp_iters += iterations
+    st.mult = Multipliers.zeros(p.N, p.n, p.r, p.rN) if est is None else est
     st.Bk = None
     st.tau = 0.0
     st.shift = np.zeros_like(st.shift)

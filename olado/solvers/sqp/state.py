@@ -128,6 +128,10 @@ class Multipliers(NamedTuple):
     def zeros(cls, N, n, r, rN):
         return cls(np.zeros((N + 1, n)), np.zeros((N, r)), np.zeros(rN))
 
+    def largest(self):
+        """max |multiplier| over the dynamics, stage and final constraints."""
+        return max(float(np.max(np.abs(a), initial=0.0)) for a in (self.lam, self.Lg, self.LgN))
+
 
 class BoundMultipliers(NamedTuple):
     """Multipliers z_L, z_U >= 0 of the simple bounds (4)-(5), shaped like X and U."""

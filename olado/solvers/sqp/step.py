@@ -252,8 +252,17 @@ def least_squares_multipliers(setup, pt):
     mult.Lg[:, ~eq] = 0.0                 # the rows g >= 0 were free in that QP
     mult.LgN[~eqN] = 0.0
     mult.lam[0] = 0.0
-    size = max(float(np.max(np.abs(a), initial=0.0)) for a in (mult.lam, mult.Lg, mult.LgN))
-    return mult, size, int(qres.iterations)
+    return mult, mult.largest(), int(qres.iterations)
+
+
+def bounded_estimate(setup, pt):
+    """The least-squares estimate at pt (:func:`least_squares_multipliers`) when its largest
+    multiplier is at most ``multiplier_init_max`` (IPOPT's constr_mult_init_max), else None; with
+    the QP iterations it cost."""
+    est = least_squares_multipliers(setup, pt)
+    if est is None:
+        return None, 0
+    return (est[0] if est[1] <= setup.options.multiplier_init_max else None), est[2]
 
 
 def qp_multipliers(qres, masks, N, r, rN):
