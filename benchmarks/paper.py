@@ -292,8 +292,8 @@ def table1_rows(records, names) -> list:
 
 def counted(records, names, metric) -> list:
     """The configurations with a count of ``metric``: one whose records all have 0 (IPOPT's QP
-    iterations; Clarabel's, which qpsolvers does not report) is left out of that profile, where
-    the floor of 1 would make it win every problem."""
+    iterations: it solves no QPs) is left out of that profile, where the floor of 1 would make it
+    win every problem."""
     field = METRICS[metric][0]
     return [n for n in names if any((r.get(field) or 0) > 0 for r in records if r["config"] == n)]
 
