@@ -8,6 +8,7 @@ benchmarks/RESULTS.md beside the paper's own numbers.
     python benchmarks/paper.py fig6 --where "N <= 72"    # QP methods on a subset of the testing set
     python benchmarks/paper.py fig7 fig8                 # SQP-IP vs SQP-AS vs IPOPT, all / N >= 216
     python benchmarks/paper.py fig4 --no-run             # the section and figure from the stored records
+    python benchmarks/paper.py parallel                  # the testing set, 4 configurations, on 1 and 2 workers
 
 An experiment is data (:data:`EXPERIMENTS`): a suite, the configuration files, the profile metrics,
 the figure's own subset (Fig. 8: ``N >= 216``) and what the paper reports. Running one is
@@ -17,6 +18,12 @@ not in git), so a configuration that several figures compare (sqp-ip) is solved 
 runs and profiles a subset of the suite (the same command without it runs the rest: the stored
 solves are kept). A paper configuration olado does not have is a row of the experiment's
 ``mapping`` with no preset: the section says so, and adding a preset there fills the slot.
+
+``parallel`` (issue 14) is not one of the paper's experiments but the bench's own: the testing
+set with the four fast configurations (:data:`PARALLEL`), run once on one worker process and once
+on two (``--jobs J`` for another count), each from an empty store, with its wall time: speed-up,
+parallel efficiency T1 / (J T_J), the load average, the check that both runs give the same
+statuses and objectives, and the profiles. ``all`` leaves it out (it solves everything twice).
 """
 
 from __future__ import annotations
@@ -25,8 +32,10 @@ import argparse
 import dataclasses
 import datetime
 import os
+import json
 import shlex
 import sys
+import time
 from pathlib import Path
 
 from _common import HERE, commit, machine, write_section
@@ -292,8 +301,8 @@ def table1_rows(records, names) -> list:
 
 def counted(records, names, metric) -> list:
     """The configurations with a count of ``metric``: one whose records all have 0 (IPOPT's QP
-    iterations; Clarabel's, which qpsolvers does not report) is left out of that profile, where
-    the floor of 1 would make it win every problem."""
+    iterations: it solves no QPs) is left out of that profile, where the floor of 1 would make it
+    win every problem."""
     field = METRICS[metric][0]
     return [n for n in names if any((r.get(field) or 0) > 0 for r in records if r["config"] == n)]
 
@@ -389,11 +398,193 @@ def run_experiment(exp: Experiment, args) -> str:
     return text
 
 
+# ---------------------------------------------------------------------------- parallel efficiency
+#: the parallel-efficiency experiment: the testing set with the fast configurations (not sqp-as:
+#: PARALLEL_WHY_NOT)
+PARALLEL = Experiment(
+    key="parallel", title="Parallel efficiency: the Zambezi testing set on 1 and 2 workers (olado bench)",
+    suite="zambezi-testset", configs=_presets("sqp-ip", "sqp-schittkowski", "sqp-gondzio", "ipopt"),
+    metrics=("time", "sqp", "qp"), compares="", mapping=())
+PARALLEL_SECTION = "Parallel efficiency: the Zambezi testing set on 1 and 2 workers (olado bench)"
+PARALLEL_WHY_NOT = ("sqp-as is left out: on one worker it takes about 28 of the 32 minutes of Fig. 7's run "
+                    "(its working-set changes grow with N: 10-30 s per solve at N >= 216), so the experiment "
+                    "would measure a handful of long active-set solves -- and how they happen to fall on the "
+                    "two workers at the end of the run -- rather than the pool")
+
+
+def parallel_store(folder: Path, jobs: int) -> Path:
+    return Path(folder) / f"parallel-jobs{jobs}.jsonl"
+
+
+def parallel_log(folder: Path) -> Path:
+    """The runs' wall times and load averages (the stores hold per-solve records only)."""
+    return Path(folder) / "parallel.json"
+
+
+def parallel_run(jobs: int, args, where, folder: Path) -> dict:
+    """One run of :data:`PARALLEL` on ``jobs`` workers into its own store, emptied first (a
+    previous store is kept as ``*.previous``) so that every solve runs: its wall time (from
+    the call to the last record, workers' start-up and warm-ups included) and load averages."""
+    store = parallel_store(folder, jobs)
+    store.parent.mkdir(parents=True, exist_ok=True)
+    if store.exists():
+        store.replace(Path(f"{store}.previous"))
+    load0, started = load_average(), datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+    t0 = time.perf_counter()
+    report = bench.run(PARALLEL.suite, PARALLEL.config_paths(), store, jobs=jobs,
+                       limits=bench.Limits(time_limit=args.time_limit), progress=not args.quiet, stream=sys.stderr,
+                       where=where)
+    wall = time.perf_counter() - t0
+    if not args.quiet:
+        print(f"{jobs} worker(s): {wall:.1f} s wall\n{report.summary()}", flush=True)
+    return {"jobs": jobs, "wall_s": wall, "load_start": load0, "load_end": load_average(), "started": started,
+            "solves": len(report.records), "where": where, "time_limit": args.time_limit, "commit": commit()}
+
+
+def same_results(one, other, rtol=SAME) -> dict:
+    """The solves of two runs side by side (by problem, N, start, configuration): how many are in
+    both, have the same status, the same objective (relative ``rtol``; both null counts as the
+    same), the same SQP iterations; and the differing ones (a line each)."""
+    def keyed(records):
+        return {(r["problem"], r["N"], r["start"], r["config"]): r for r in records}
+
+    a, b = keyed(one), keyed(other)
+    common = sorted(set(a) & set(b), key=str)
+    out = {"common": len(common), "only_one": len(set(a) ^ set(b)), "status": 0, "objective": 0, "identical": 0,
+           "iterations": 0, "differ": []}
+    for key in common:
+        ra, rb = a[key], b[key]
+        fa, fb = ra.get("objective"), rb.get("objective")
+        same_obj = (fa is None and fb is None) or (
+            fa is not None and fb is not None and abs(fa - fb) <= rtol * max(abs(fa), abs(fb), 1e-12))
+        out["status"] += ra["status"] == rb["status"]
+        out["objective"] += same_obj
+        out["identical"] += fa == fb
+        out["iterations"] += ra.get("sqp_iterations") == rb.get("sqp_iterations")
+        if ra["status"] != rb["status"] or not same_obj:
+            out["differ"].append(f"{key[3]} on {key[0]} N = {key[1]} {key[2]}: {ra['status']} {fa} against "
+                                 f"{rb['status']} {fb}")
+    return out
+
+
+def parallel_table(runs) -> list:
+    """Markdown lines: per run its wall time, solves, summed solver time, load averages, speed-up
+    T1 / T_J and efficiency T1 / (J T_J) against the 1-worker run."""
+    t1 = runs[0]["wall_s"]
+    lines = ["| workers | wall time (s) | solves | solver time, sum (s) | warm-ups, their time (s) | load average at "
+             "start / end | speed-up T1 / T_J | efficiency T1 / (J T_J) |", "|--:|--:|--:|--:|--:|:-:|--:|--:|"]
+    for r in runs:
+        speed = t1 / r["wall_s"]
+        lines.append(f"| {r['jobs']} | {r['wall_s']:.1f} | {r['solves']} | {r['solver_s']:.1f} | {r['warmups']}, "
+                     f"{r['warmup_s']:.1f} | {r['load_start']} / {r['load_end']} | {speed:.2f} | {speed / r['jobs']:.2f} |")
+    return lines
+
+
+def parallel_commands(runs, time_limit, plot: Path) -> str:
+    q = shlex.quote
+    where = runs[0].get("where")
+    cmds = []
+    for r in runs:
+        cmds.append(["olado", "bench", PARALLEL.suite, *(a for n, p in PARALLEL.configs for a in ("-c", p)), "--store",
+                     _shown(Path(r["store"])), "--jobs", str(r["jobs"]), "--time-limit", f"{time_limit:g}"]
+                    + (["--where", where] if where else []))
+    cmds.append(["olado", "profile", _shown(Path(runs[0]["store"])), *(a for n in PARALLEL.names for a in ("-c", n)),
+                 *(a for m in PARALLEL.metrics for a in ("-m", m)), "--plot", _shown(plot), "--table", "-"])
+    return " && ".join(" ".join(map(q, c)) for c in cmds)
+
+
+def parallel_section(runs, per_run, profiles, args, plot: Path) -> str:
+    """The RESULTS.md section of the parallel experiment (``runs``: the log's entries, 1 worker
+    first; ``per_run``: their records; ``profiles``: per run, the profiles of its records)."""
+    names, J = PARALLEL.names, runs[-1]["jobs"]
+    where = runs[0].get("where")
+    check = same_results(per_run[0], per_run[-1])
+    records = [r for recs in per_run for r in recs]
+    commits = sorted({str(r.get("commit")) for r in records})
+    busy = runs[0]["load_start"] != "?" and float(runs[0]["load_start"]) >= 0.5
+    command = "python benchmarks/paper.py parallel" + (f" --jobs {J}" if J != 2 else "") + \
+        (f" --where {shlex.quote(where)}" if where else "")
+    n = check["common"]
+    lines = [f"## {PARALLEL_SECTION}", "",
+             f"Command: `{command}`  ",
+             f"The same as: `{parallel_commands(runs, args.time_limit, plot)}`, each `olado bench` timed  ",
+             f"Date: {datetime.date.today().isoformat()}; runs started "
+             f"{', '.join(r['started'][:16].replace('T', ' ') for r in runs)} UTC, "
+             f"records at commit {', '.join(commits)} (section written at {commit()})  ",
+             f"Machine: {machine()}"
+             + ("; **the machine was busy** (load average >= 0.5 before the first run): the wall times, and so "
+                "the efficiency, are orders of magnitude only" if busy else ""), "",
+             f"Run: {'the whole suite `' + PARALLEL.suite + '`' if not where else f'suite `{PARALLEL.suite}` where `{where}`'}"
+             f" with {', '.join(names)}, once on one worker process and once on {J} (`--jobs`), each from an empty "
+             f"store (every solve runs), time limit {args.time_limit:g} s per solve. {PARALLEL_WHY_NOT}. The wall time "
+             "runs from the start of `olado.bench.run` to its last record: it includes the workers' start-up and "
+             "their warm-ups (one per worker, configuration and problem family, so the parallel run warms up "
+             f"{J} times as often).", "",
+             ] + parallel_table(runs) + ["",
+             f"Efficiency T1 / ({J} T{J}) = 1 would be a perfect split; the solver-time sum shows how much the solves "
+             f"slowed each other down ({J} solves sharing the machine's cores, memory bandwidth and caches). The "
+             "load average (1 minute) at the start of the second run still holds the first run's own load (it "
+             "decays over minutes); the one before the first run says whether anything else was running.", "",
+             f"The same results: of the {n} solves in both runs, {check['status']} have the same status, "
+             f"{check['objective']} the same objective (relative {SAME:g}; {check['identical']} identical to the last "
+             f"digit) and {check['iterations']} the same iteration count"
+             + (f"; {check['only_one']} solves are in one run only" if check["only_one"] else "") + "."]
+    if check["differ"]:
+        lines += ["", "Differences:", ""] + [f"- {d}" for d in check["differ"][:20]] + \
+            ([f"- ... ({len(check['differ']) - 20} more)"] if len(check["differ"]) > 20 else [])
+    for run, recs, profs in zip(runs, per_run, profiles):
+        lines += ["", f"Profiles of the {run['jobs']}-worker run ({describe_subset(profs)}; phi(0): share of wins, "
+                      "phi(1): within 2x of the best, phi(2): within 4x; paper eq. (50)):", "",
+                  format_table(*summary_table(recs, profs, names)).rstrip("\n")]
+        notes = left_out(PARALLEL, profs)
+        lines += [""] + notes if notes else []
+    fails = failures(per_run[0], names)
+    lines += [""] + (["Failures (1 worker):", ""] + fails if fails else ["No failures (1 worker)."])
+    lines += ["", f"Plot: `{_shown(plot)}` (the 1-worker run: {', '.join(METRICS[m][1] for m in PARALLEL.metrics)}).", ""]
+    return "\n".join(lines)
+
+
+def run_parallel(args) -> str:
+    """Run (unless --no-run) :data:`PARALLEL` on 1 and J workers (J = --jobs, 2 when it is 1) and
+    write its section and plot; -> the section text."""
+    folder = Path(args.store_dir or STORES)
+    plot = PARALLEL.plot(args.plot_dir or HERE)
+    J = args.jobs if args.jobs > 1 else 2
+    log = parallel_log(folder)
+    if args.no_run:
+        if not log.exists():
+            raise SystemExit(f"paper.py parallel --no-run: no runs logged in {log}; run without --no-run first")
+        runs = json.loads(log.read_text(encoding="utf-8"))["runs"]
+    else:
+        runs = [parallel_run(jobs, args, args.where, folder) for jobs in (1, J)]
+        for r in runs:
+            r["store"] = str(parallel_store(folder, r["jobs"]))
+        from olado.result import atomic_write_bytes
+
+        atomic_write_bytes(log, json.dumps({"runs": runs}, indent=1).encode("utf-8"))
+    per_run = [select(bench.read_records(r["store"]), None, PARALLEL.names) for r in runs]
+    for r, recs in zip(runs, per_run):
+        r["solver_s"] = sum(x.get("solve_s") or 0.0 for x in recs)
+        warm = [x["warmup_s"] for x in recs if x.get("warmup_s") is not None]
+        r["warmups"], r["warmup_s"] = len(warm), sum(warm)
+    profiles = [[bench.performance_profile(recs, m, configs=counted(recs, PARALLEL.names, m)) for m in PARALLEL.metrics]
+                for recs in per_run]
+    text = parallel_section(runs, per_run, profiles, args, plot)
+    if not args.no_plot:
+        bench.plot_profiles(profiles[0], plot, title="Zambezi testing set, 1 worker"
+                            + (f", {runs[0]['where']}" if runs[0].get("where") else ""))
+    if not args.no_write:
+        write_section(PARALLEL_SECTION, text, **({"path": Path(args.results)} if args.results else {}))
+    return text
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("experiments", nargs="+", metavar="EXPERIMENT", help=f"{', '.join(EXPERIMENTS)}, all, or list")
+    ap.add_argument("experiments", nargs="+", metavar="EXPERIMENT",
+                    help=f"{', '.join(EXPERIMENTS)}, all (these), parallel, or list")
     ap.add_argument("--where", "-w", help='only the suite entries (and records) for which EXPR holds, e.g. "N <= 72"')
-    ap.add_argument("--jobs", "-j", type=int, default=1, help="worker processes (default 1)")
+    ap.add_argument("--jobs", "-j", type=int, default=1, help="worker processes (default 1); parallel: the run "
+                    "compared with the 1-worker run (default 2)")
     ap.add_argument("--time-limit", type=float, default=TIME_LIMIT, help=f"seconds per solve (default {TIME_LIMIT:g})")
     ap.add_argument("--no-run", action="store_true", help="no solves: the section and plot from the stored records")
     ap.add_argument("--no-write", action="store_true", help="print the section instead of writing RESULTS.md")
@@ -404,16 +595,19 @@ def main(argv=None) -> int:
     ap.add_argument("--quiet", "-q", action="store_true")
     args = ap.parse_args(argv)
     if args.experiments == ["list"]:
-        for e in EXPERIMENTS.values():
-            print(f"{e.key:7s} {e.title}\n        suite {e.suite}{', where ' + e.where if e.where else ''}; "
+        for e in (*EXPERIMENTS.values(), PARALLEL):
+            print(f"{e.key:8s} {e.title}\n         suite {e.suite}{', where ' + e.where if e.where else ''}; "
                   f"configs {', '.join(e.names)}; metrics {', '.join(e.metrics)}")
         return 0
     keys = list(EXPERIMENTS) if args.experiments == ["all"] else args.experiments
-    unknown = [k for k in keys if k not in EXPERIMENTS]
+    unknown = [k for k in keys if k not in EXPERIMENTS and k != PARALLEL.key]
     if unknown:
-        ap.error(f"unknown experiment(s) {', '.join(unknown)}; choose from {', '.join(EXPERIMENTS)}, all, list")
+        ap.error(f"unknown experiment(s) {', '.join(unknown)}; choose from {', '.join(EXPERIMENTS)}, all, "
+                 f"{PARALLEL.key}, list")
+    if args.jobs < 1:
+        ap.error(f"--jobs must be >= 1, got {args.jobs}")
     for k in keys:
-        text = run_experiment(EXPERIMENTS[k], args)
+        text = run_parallel(args) if k == PARALLEL.key else run_experiment(EXPERIMENTS[k], args)
         if args.no_write:
             print(text)
     return 0

@@ -102,7 +102,8 @@ def _add_bench_parser(sub) -> None:
     p.add_argument("--where", "-w", metavar="EXPR", help="only the suite entries for which EXPR holds (fields "
                    "problem, N, start, factory, group, settings.KEY), e.g. \"N <= 72\"")
     p.add_argument("--no-warmup", action="store_true", help="measure every solve, also a worker's first of a "
-                   "configuration and problem (imports, compilation)")
+                   "configuration and problem family (imports, compilation); by default a worker first solves "
+                   "each family's smallest horizon unmeasured")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress display or summary")
 
 

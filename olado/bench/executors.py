@@ -23,9 +23,10 @@ TARGET = "olado.bench.records:solve_case"
 class Limits:
     """Per-solve limits: the solver's time limit (seconds; also its ``max_time``), the extra
     seconds before a hung worker is killed, the worker's address-space limit in bytes (None:
-    none), and whether a worker warms up (an unmeasured first solve of each configuration and
-    problem, :func:`olado.bench.records.solve_case`; the warm-up and the measured solve each get
-    the time limit plus the grace)."""
+    none), and whether a worker warms up (an unmeasured solve of each configuration and problem
+    family's smallest horizon before its first measured solve of that family,
+    :func:`olado.bench.records.solve_case`; the warm-up gets twice the time limit, the measured
+    solve the time limit, each plus the grace)."""
 
     time_limit: float = 600.0
     grace: float = GRACE

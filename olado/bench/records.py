@@ -52,11 +52,41 @@ class Task:
     entry: object           # olado.problems.suites.SuiteEntry
     config: BenchConfig
     suite: str = ""
-    warmup: bool = True     # solve once unmeasured first when the worker has not run this config and problem
+    warmup: bool = True     # solve once unmeasured first when the worker has not run this config and family
+    warmup_entry: object = None   # the entry that warm-up solves (None: the task's own; see warmup_entries)
 
     @property
     def key(self) -> tuple:
         return (self.entry.name, self.entry.size, self.entry.start_label, self.config.hash)
+
+    @property
+    def warm_key(self) -> tuple:
+        """(configuration hash, problem family): what a worker warms up once."""
+        return (self.config.hash, family(self.entry))
+
+
+def family(entry) -> tuple:
+    """The problem family of a suite entry: its factory and its settings other than the horizon
+    ``N`` -- the entries that run the same code (the problem's kernels, numba's compilations, the
+    solver's paths from that start), whatever their size. The start setting is part of it: a
+    warm-up from another start left a first solve from this one slower (zambezi N = 48 from the
+    SIF start after a warm-up from the balance start: 0.13 s, against 0.07-0.10 s after one
+    from the SIF start); a perturbed start (a seed) is not."""
+    settings = {k: v for k, v in dict(entry.settings).items() if k != "N"}
+    return (entry.problem, json.dumps(_plain(settings), sort_keys=True))
+
+
+def warmup_entries(entries) -> dict:
+    """{family: the entry a worker warms up with}: per :func:`family`, its entry of the smallest
+    horizon (the cheapest solve of that code; an entry without ``N`` counts as the largest),
+    from the problem's own start where there is one, else the first in suite order."""
+    best: dict = {}
+    for i, e in enumerate(entries):
+        rank = (e.size is None, e.size or 0, e.start != "problem", i)
+        fam = family(e)
+        if fam not in best or rank < best[fam][0]:
+            best[fam] = (rank, e)
+    return {fam: e for fam, (_, e) in best.items()}
 
 
 def _plain(value):
@@ -141,45 +171,58 @@ def _measure(result) -> dict:
             "solve_s": float(result.time_s)}
 
 
-#: (config hash, problem factory) pairs this process has solved: warm (imports done, kernels compiled)
+#: (config hash, problem family) pairs this process has solved: warm (imports done, kernels compiled)
 _WARM: set = set()
 
 
-def _warm_up(task: Task) -> float | None:
-    """The first time this process meets ``task``'s (configuration, problem factory): solve the
-    task once, unmeasured, so that imports, numba's compilation or cache loads and the problem's
-    own set-up are not counted in the measured solve (the paper's scripts warmed up the same way).
-    Its wall time, or None when the pair was warm already."""
+def _warm_up(task: Task) -> dict:
+    """The first time this process meets ``task``'s (configuration, problem family): solve the
+    family's warm-up entry (``task.warmup_entry``, its smallest horizon; the task's own entry
+    when none is given) once, unmeasured, so that imports, numba's compilation or cache loads and
+    the problem's own set-up are not counted in the measured solve (the paper's scripts warmed
+    up the same way). Returns the record fields ``warmup_s`` (its wall time), ``warmup_N`` (its
+    horizon), both None when there was no warm-up, and ``warmup_error`` when the warm-up raised
+    (the measured solve then runs cold)."""
     from olado.config import make_solver
 
-    pair = (task.config.hash, task.entry.problem)
-    if not task.warmup or pair in _WARM:
-        return None
+    if not task.warmup or task.warm_key in _WARM:
+        return {"warmup_s": None, "warmup_N": None}
     from ._worker import reset_clock
 
+    entry = task.warmup_entry or task.entry
     reset_clock("warmup")
     t0 = time.perf_counter()
-    problem, guess = task.entry.build()
-    make_solver(task.config.config).solve(problem, guess=guess)
-    _WARM.add(pair)
+    out = {"warmup_N": entry.size}
+    try:
+        problem, guess = entry.build()
+        make_solver(task.config.config).solve(problem, guess=guess)
+        _WARM.add(task.warm_key)
+    except Exception as exc:  # noqa: BLE001 - the measured solve decides the task's status
+        out["warmup_error"] = f"{type(exc).__name__}: {exc}"[:300]
+    out["warmup_s"] = time.perf_counter() - t0
     reset_clock()  # the time limit of the measured solve starts now
-    return time.perf_counter() - t0
+    return out
 
 
 def solve_case(task: Task) -> dict:
     """Build ``task``'s problem and start, solve it with its configuration; the measurements as
-    a dict of plain values. Runs in a worker process; never raises for a problem's or solver's
-    exception (recorded with status ``exception`` or ``memory_limit`` and the message)."""
+    a dict of plain values, with ``warm``: whether this process had solved the configuration's
+    problem family before the measured solve started (by a warm-up or an earlier task), i.e.
+    whether its time is free of imports and compilation. Runs in a worker process; never raises
+    for a problem's or solver's exception (recorded with status ``exception`` or
+    ``memory_limit`` and the message)."""
     from olado.config import make_solver
 
     t0 = time.perf_counter()
-    warmup_s = None
+    warm = {"warmup_s": None, "warmup_N": None}
     try:
-        warmup_s = _warm_up(task)
+        warm = _warm_up(task)
+        warm["warm"] = task.warm_key in _WARM
         t0 = time.perf_counter()
         problem, guess = task.entry.build()
         build_s = time.perf_counter() - t0
         result = make_solver(task.config.config).solve(problem, guess=guess)
+        _WARM.add(task.warm_key)
         out = _measure(result)
     except MemoryError as exc:
         out = {"status": "memory_limit", "success": False, "message": f"MemoryError: {exc}"[:500]}
@@ -188,7 +231,7 @@ def solve_case(task: Task) -> dict:
         out = {"status": "exception", "success": False, "message": f"{type(exc).__name__}: {exc}"[:500],
                "traceback": traceback.format_exc()[-1500:]}
         build_s = None
-    out.update(wall_s=time.perf_counter() - t0, build_s=build_s, warmup_s=warmup_s)
+    out.update(wall_s=time.perf_counter() - t0, build_s=build_s, **warm)
     return out
 
 
@@ -213,7 +256,7 @@ def make_record(task: Task, answer) -> dict:
                   **({"traceback": answer.traceback} if answer.traceback else {})}
     record = {"schema": SCHEMA, **identity(task)}
     defaults = dict.fromkeys(("objective", "violation", "kkt_residual", "certificate", "sqp_iterations",
-                              "qp_iterations", "function_evaluations", "solve_s"))
+                              "qp_iterations", "function_evaluations", "solve_s", "warm", "warmup_s", "warmup_N"))
     record.update(defaults)
     record.update(answer)
     limit = getattr(task.config.config.options, "max_time", None)

@@ -12,7 +12,7 @@ from pathlib import Path
 from ..errors import ConfigError
 from .executors import DaskExecutor, Limits, LocalExecutor
 from .progress import Progress
-from .records import BenchConfig, Task, config_hash
+from .records import BenchConfig, Task, config_hash, family, warmup_entries
 from .store import ResultStore
 
 
@@ -81,9 +81,13 @@ class RunReport:
         return "\n".join(lines)
 
 
-def plan(entries, configs, suite: str = "") -> list[Task]:
-    """Every (entry, configuration) pair, entries outer (a partial run covers whole problems)."""
-    return [Task(entry=e, config=c, suite=suite) for e in entries for c in configs]
+def plan(entries, configs, suite: str = "", warmup_from=None) -> list[Task]:
+    """Every (entry, configuration) pair, entries outer (a partial run covers whole problems);
+    each task names the entry a worker warms up with for its family: the family's smallest
+    horizon among ``warmup_from`` (default ``entries``; the whole suite when ``entries`` is a
+    subset of it, :func:`olado.bench.records.warmup_entries`)."""
+    warm = warmup_entries(list(entries if warmup_from is None else warmup_from) + list(entries))
+    return [Task(entry=e, config=c, suite=suite, warmup_entry=warm[family(e)]) for e in entries for c in configs]
 
 
 def entry_fields(entry) -> dict:
@@ -128,11 +132,11 @@ def run(suite, configs, store, *, jobs: int = 1, dask: str | None = None, limits
         suite_name, entries = str(suite), load_suite(suite)
     else:
         suite_name, entries = "<entries>", list(suite)
-    entries = select_entries(entries, where)
+    whole, entries = entries, select_entries(entries, where)
     if not isinstance(configs, list) or not all(isinstance(c, BenchConfig) for c in configs):
         configs = load_bench_configs(list(configs), limits.time_limit)
     executor = make_executor(jobs, dask, limits)
-    tasks = [dataclasses.replace(t, warmup=limits.warmup) for t in plan(entries, configs, suite_name)]
+    tasks = [dataclasses.replace(t, warmup=limits.warmup) for t in plan(entries, configs, suite_name, whole)]
     with ResultStore(store) as st:
         done = st.keys()
         todo = [t for t in tasks if t.key not in done]

@@ -31,6 +31,9 @@ The backend status is mapped to :class:`olado.result.Status` (solved -> SUCCESS,
 inaccurate / almost solved -> ACCEPTABLE, iteration limit -> MAX_ITERATIONS, time limit ->
 MAX_TIME, primal infeasible -> INFEASIBLE, dual infeasible -> UNBOUNDED, numerical error ->
 NUMERICAL_ERROR, anything else -> FAILED); the message names the backend and its own status.
+The iteration count is the backend's own (OSQP's ``info.iter``; Clarabel's ``iterations``, for
+which Clarabel is called directly with qpsolvers' cones -- qpsolvers' Solution drops it), so the
+SQP's cumulative QP iterations and ``olado bench``'s ``qp_iterations`` count external QPs too.
 Non-convergence is a status, never an exception; a missing backend is a
 :class:`olado.errors.SolverNotAvailableError`.
 """
@@ -410,6 +413,45 @@ def _solve_osqp(problem, x0, duals, verbose, kwargs):
     return sol
 
 
+def _solve_clarabel(problem, verbose, kwargs):
+    """Clarabel on the qpsolvers problem, called directly with the same cones as qpsolvers' own
+    interface (a zero cone for A y = b, a nonnegative cone for G y <= h) but keeping the
+    solver's iteration count, which qpsolvers' Solution drops (``extras`` holds only s, status
+    and solve time). Variable bounds never reach here: Clarabel gets them as rows of G."""
+    import clarabel
+    import qpsolvers
+
+    P, q, G, h, A, b, lb, ub = problem.unpack()
+    if lb is not None or ub is not None or (A is None and G is None):   # not a stage QP's form
+        return qpsolvers.solve_problem(problem, solver="clarabel", verbose=verbose, **kwargs)
+    mats, rhs, cones = [], [], []
+    if A is not None:
+        mats.append(sp.csc_matrix(A)); rhs.append(b); cones.append(clarabel.ZeroConeT(b.shape[0]))
+    if G is not None:
+        mats.append(sp.csc_matrix(G)); rhs.append(h); cones.append(clarabel.NonnegativeConeT(h.shape[0]))
+    settings = clarabel.DefaultSettings()
+    settings.verbose = verbose
+    for key, value in kwargs.items():
+        setattr(settings, key, value)
+    try:
+        solver = clarabel.DefaultSolver(sp.csc_matrix(P), q, sp.vstack(mats, format="csc"), np.concatenate(rhs),
+                                        cones, settings)
+    except (KeyboardInterrupt, SystemExit):
+        raise
+    except BaseException as exc:   # noqa: BLE001 - Clarabel's Rust panic (pyo3 PanicException) at set-up
+        raise qpsolvers.ProblemError(f"Clarabel failed to build the problem ({type(exc).__name__}: {exc})") from exc
+    out = solver.solve()
+    sol = qpsolvers.Solution(problem)
+    sol.extras = {"status": out.status, "iterations": int(out.iterations), "solve_time": out.solve_time, "s": out.s}
+    sol.found = out.status == clarabel.SolverStatus.Solved
+    sol.obj = out.obj_val
+    sol.x = np.array(out.x)
+    z = np.asarray(out.z, dtype=float)
+    meq = 0 if A is None else A.shape[0]
+    sol.y, sol.z, sol.z_box = z[:meq], z[meq:], np.zeros(0)
+    return sol
+
+
 def _nan_result(qp: StageQP, status, message, backend, time_s, iterations=0) -> QPResult:
     N, n, m = qp.N, qp.n, qp.m
     ne, neN, nc, ncN = qp.E.shape[1], qp.EN.shape[0], qp.C.shape[1], qp.CN.shape[0]
@@ -480,6 +522,8 @@ class ExternalQP:
                 warnings.simplefilter("ignore", RuntimeWarning)
                 if backend == "osqp" and _osqp_polish_key() == "polishing":
                     sol = _solve_osqp(rows.problem, initvals, duals, bool(o.verbose), kwargs)
+                elif backend == "clarabel":
+                    sol = _solve_clarabel(rows.problem, bool(o.verbose), kwargs)
                 else:
                     sol = qpsolvers.solve_problem(rows.problem, solver=backend, initvals=initvals,
                                                   verbose=bool(o.verbose), **kwargs)

@@ -159,3 +159,81 @@ def dataclasses_replace(exp, names):
     import dataclasses
 
     return dataclasses.replace(exp, configs=tuple((n, f"configs/{n}.ini") for n in names))
+
+
+# ---------------------------------------------------------------------------- parallel efficiency
+def test_the_parallel_experiment_is_the_testing_set_with_the_four_fast_configurations():
+    assert P.PARALLEL.suite == "zambezi-testset" and P.PARALLEL.names == ["sqp-ip", "sqp-schittkowski", "sqp-gondzio",
+                                                                          "ipopt"]
+    assert all((REPO / path).is_file() for _, path in P.PARALLEL.configs)
+    assert "sqp-as" in P.PARALLEL_WHY_NOT and "parallel" not in P.EXPERIMENTS   # not in "all"
+
+
+def _fake(config, N, status, objective, iterations=5):
+    return dict(problem="zambezi12", N=N, start="sif", config=config, status=status, objective=objective,
+                sqp_iterations=iterations)
+
+
+def test_same_results_counts_and_names_the_differences():
+    one = [_fake("a", 12, "success", 1.0), _fake("a", 24, "success", 2.0), _fake("b", 12, "success", 3.0),
+           _fake("b", 24, "max_time", None), _fake("b", 36, "success", 1.0)]
+    two = [_fake("a", 12, "success", 1.0), _fake("a", 24, "success", 2.0 * (1 + 1e-9), 6),
+           _fake("b", 12, "success", 3.1), _fake("b", 24, "success", 4.0)]
+    check = P.same_results(one, two)
+    assert (check["common"], check["only_one"], check["status"], check["objective"], check["identical"],
+            check["iterations"]) == (4, 1, 3, 2, 1, 3)
+    assert check["differ"] == ["b on zambezi12 N = 12 sif: success 3.0 against success 3.1",
+                               "b on zambezi12 N = 24 sif: max_time None against success 4.0"]
+
+
+def test_parallel_table_speed_up_and_efficiency():
+    runs = [dict(jobs=1, wall_s=10.0, solves=8, solver_s=6.0, warmups=4, warmup_s=1.0, load_start="0.1",
+                 load_end="1.0"),
+            dict(jobs=2, wall_s=6.25, solves=8, solver_s=7.0, warmups=8, warmup_s=2.0, load_start="1.0",
+                 load_end="2.0")]
+    rows = P.parallel_table(runs)
+    assert rows[2] == "| 1 | 10.0 | 8 | 6.0 | 4, 1.0 | 0.1 / 1.0 | 1.00 | 1.00 |"
+    assert rows[3] == "| 2 | 6.2 | 8 | 7.0 | 8, 2.0 | 1.0 / 2.0 | 1.60 | 0.80 |"      # T1 / (2 T2) = 10 / 12.5
+
+
+@pytest.fixture(scope="module")
+def parallel_run(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("parallel")
+    results = folder / "RESULTS.md"
+    # a store left by an earlier run: moved aside, not resumed (every solve of the run is timed)
+    stale = dict(_fake("sqp-ip", 12, "stale", 0.0), start="balance", schema=1,
+                 config_hash=P.bench.load_bench_configs([f"sqp-ip={REPO / 'configs/sqp-ip.ini'}"], 300.0)[0].hash)
+    (folder / "parallel-jobs1.jsonl").write_text(json.dumps(stale) + "\n")
+    where = "problem == 'zambezi12' and N == 12"
+    assert P.main(["parallel", "--where", where, "--store-dir", str(folder), "--plot-dir", str(folder),
+                   "--results", str(results), "--quiet"]) == 0
+    return folder, results, where
+
+
+def test_parallel_runs_both_and_writes_the_efficiency(parallel_run):
+    folder, results, where = parallel_run
+    one, two = _records(folder / "parallel-jobs1.jsonl"), _records(folder / "parallel-jobs2.jsonl")
+    assert _records(folder / "parallel-jobs1.jsonl.previous")[0]["status"] == "stale"
+    keys = sorted((r["start"], r["config"]) for r in one)
+    assert keys == sorted((s, c) for s in ("balance", "sif") for c in P.PARALLEL.names)
+    assert sorted((r["start"], r["config"]) for r in two) == keys
+    assert all(r["success"] and r["warm"] for r in one + two)
+    log = json.loads((folder / "parallel.json").read_text())["runs"]
+    assert [r["jobs"] for r in log] == [1, 2] and all(r["wall_s"] > 0 and r["where"] == where for r in log)
+    t1, t2 = log[0]["wall_s"], log[1]["wall_s"]
+    text = results.read_text()
+    assert text.count("## " + P.PARALLEL_SECTION) == 1
+    assert "Command: `python benchmarks/paper.py parallel --where" in text
+    assert f"| 2 | {t2:.1f} | 8 | " in text and f" | {t1 / t2:.2f} | {t1 / (2 * t2):.2f} |" in text
+    assert "of the 8 solves in both runs, 8 have the same status, 8 the same objective" in text
+    assert "sqp-as is left out" in text and "Left out of the QP iterations profile: ipopt" in text
+    assert (folder / "paper_parallel.png").stat().st_size > 10_000
+
+
+def test_parallel_section_rewritten_from_the_stores(parallel_run):
+    folder, results, _ = parallel_run
+    before = results.read_text()
+    assert P.main(["parallel", "--store-dir", str(folder), "--plot-dir", str(folder), "--results", str(results),
+                   "--no-run", "--no-plot"]) == 0
+    after = results.read_text()
+    assert after.count("## " + P.PARALLEL_SECTION) == 1 and len(after.splitlines()) == len(before.splitlines())

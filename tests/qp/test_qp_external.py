@@ -12,7 +12,8 @@ from olado.errors import ConfigError, SolverNotAvailableError
 from olado.linalg import RiccatiFactorization
 from olado.qp.stageqp import StageQP, qp_kkt_residuals
 from olado.result import Status
-from olado.qp.external import ExternalQP, available_qp_backends, map_backend_status
+from fixtures.clarabel_spy import spy_on_clarabel
+from olado.qp.external import ExternalQP, _build_rows, _osqp_polish_key, available_qp_backends, map_backend_status
 
 qpsolvers = pytest.importorskip("qpsolvers")
 
@@ -359,6 +360,44 @@ def test_backend_options_are_passed_through():
         pytest.skip("osqp not installed")
     res = ExternalQP("osqp", backend_options={"max_iter": 2}, polish=False, eps_abs=1e-12).solve(random_ineq_qp(0))
     assert res.status == Status.MAX_ITERATIONS and res.iterations == 2
+
+
+@pytest.fixture
+def clarabel_spy(monkeypatch):
+    return spy_on_clarabel(monkeypatch)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_clarabel_iterations_are_clarabels_own_count(clarabel_spy, seed):
+    """qpsolvers' Clarabel interface drops the iteration count (its Solution.extras holds s,
+    status and solve time only); ExternalQP reports Clarabel's own: the same count as Clarabel
+    gives for the very problem qpsolvers builds, and the same solution."""
+    if "clarabel" not in BACKENDS:
+        pytest.skip("clarabel not installed")
+    qp = random_ineq_qp(seed)
+    rows = _build_rows(qp, "clarabel")
+    ref = qpsolvers.solve_problem(rows.problem, solver="clarabel", tol_gap_abs=1e-8, tol_gap_rel=1e-8, tol_feas=1e-8)
+    assert "iterations" not in ref.extras and len(clarabel_spy) == 1
+    res = ExternalQP("clarabel").solve(qp)
+    assert res.status == Status.SUCCESS, res.message
+    assert len(clarabel_spy) == 2 and res.iterations == clarabel_spy[0] == clarabel_spy[1] > 0
+    assert np.allclose(qp.pack(res.X, res.U), ref.x, rtol=0, atol=1e-12)
+
+
+def test_osqp_iterations_are_osqps_own_count():
+    if "osqp" not in BACKENDS:
+        pytest.skip("osqp not installed")
+    import osqp
+
+    qp = random_ineq_qp(0)
+    res = ExternalQP("osqp").solve(qp)
+    P, q, G, h, A, b, lb, ub = _build_rows(qp, "osqp").problem.unpack()
+    solver = osqp.OSQP()
+    solver.setup(P=sp.csc_matrix(P), q=q, A=sp.vstack([G, A, sp.identity(len(q))], format="csc"),
+                 l=np.concatenate([np.full(len(h), -np.inf), b, lb]), u=np.concatenate([h, b, ub]), verbose=False,
+                 eps_abs=1e-7, eps_rel=1e-7, **{_osqp_polish_key(): True})
+    out = solver.solve(**({"raise_error": False} if _osqp_polish_key() == "polishing" else {}))
+    assert res.status == Status.SUCCESS and res.iterations == out.info.iter > 0
 
 
 # ----------------------------------------------------------------------------- missing backends
