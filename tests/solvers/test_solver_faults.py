@@ -32,6 +32,7 @@ def entry(name):
 
 
 # ---------------------------------------------------------------------------- KKT back-ends in the SQP
+@pytest.mark.slow
 def test_singular_kkt_matrix_of_an_infeasible_problem_is_diagnosed():
     """steering-too-short (a final state out of reach in N steps): the final rows are dependent
     on the dynamics, the sparse KKT matrix exactly singular ("the KKT matrix is singular" was
@@ -44,6 +45,7 @@ def test_singular_kkt_matrix_of_an_infeasible_problem_is_diagnosed():
     assert res.infeasibility is not None and "final_constraints" in {a.array for a in res.infeasibility.arrays}
 
 
+@pytest.mark.slow
 def test_singular_unreduced_kkt_matrix_ends_with_a_status():
     """The same with the unreduced system (24) (superlu-full): its regularized solves of the
     relaxed QP leave a defect near the rounding test of the equality rows. Since the

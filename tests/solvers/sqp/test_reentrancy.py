@@ -30,7 +30,8 @@ PROBLEMS = {"zambezi12": lambda: zambezi_problem("zambezi12", N=48),
             "zambezi9": lambda: zambezi_problem("zambezi9", N=24, start="sif")}
 
 
-@pytest.mark.parametrize("options", [{}, {"adaptive_proximal": True, "hessian": "sr1"}], ids=["exact", "sr1-adaptive"])
+@pytest.mark.parametrize("options", [{}, pytest.param({"adaptive_proximal": True, "hessian": "sr1"}, marks=pytest.mark.slow)],
+                         ids=["exact", "sr1-adaptive"])
 def test_one_instance_solves_different_problems_in_threads(options):
     """Three threads share one solver instance and each solves its own problem twice; every
     result equals the one of a separate instance."""

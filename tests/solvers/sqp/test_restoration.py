@@ -47,6 +47,7 @@ def test_orbit_raising_is_solved_from_a_zero_hessian_start():
     assert r.max_constraint_violation < 1e-8
 
 
+@pytest.mark.slow
 def test_steering_too_short_is_still_infeasible():
     """The deliberately infeasible entry (IPOPT: infeasible too) -- it used to crawl through 190
     first-order restoration steps to MAX_ITERATIONS; now its QPs that fail numerically are relaxed,

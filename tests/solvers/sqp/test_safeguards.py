@@ -372,6 +372,7 @@ def test_cstr_euler_reaches_ipopts_minimum():
     assert r.max_constraint_violation < 1e-8
 
 
+@pytest.mark.slow
 def test_alp_rider_converges_now_that_its_qps_start():
     """Robustness entry alp-rider (N = 100): the path constraints |y|^2 >= q(t) make the
     Lagrangian Hessian indefinite, every QP's cold start failed (unit-weight start system without

@@ -79,6 +79,7 @@ def test_quasi_newton_sqp_solves_zambezi12(hessian):
     assert abs(r.objective - ref.objective) <= (1e-6 if hessian == "sr1" else 1e-3) * abs(ref.objective)
 
 
+@pytest.mark.slow
 def test_block_bfgs_restart_solves_a_horizon_where_it_stalled():
     """zambezi N = 60 (balance start), block BFGS: without the restart of ill-conditioned blocks
     the run stopped at 200 iterations (and, with the low-pass filter termination, ends as a
