@@ -59,6 +59,19 @@ def test_the_check_names_the_arguments_whose_types_differ(monkeypatch):
         ks.weighted_sum((strided, np.ones(4)), 1.0)
 
 
+def test_the_check_tells_scalars_of_other_numba_types_from_equal_ones(monkeypatch):
+    """The scalar keys of the check: a Python int where the kernel was bound to a float is another
+    numba type (int64, not float64) and is named; numpy's float64 for a Python float is the same
+    type and passes."""
+    monkeypatch.setenv(codegen.CHECK_TYPES_ENV, "1")
+    ks = codegen.KernelSet(_TABLE)
+    pair = (np.ones(4), np.ones(4))
+    ks.weighted_sum(pair, 1.0)
+    assert ks.weighted_sum(pair, np.float64(2.0)) == 24.0   # 2 (4 + 2 x 4)
+    with pytest.raises(codegen.KernelTypeError, match=r"weighted_sum .* arguments \[1\]: \[int64\]"):
+        ks.weighted_sum(pair, 2)
+
+
 def test_kernel_sets_are_shared_per_table_and_key():
     assert codegen.kernel_set(_TABLE, (2, 3)) is codegen.kernel_set(_TABLE, (2, 3))
     assert codegen.kernel_set(_TABLE, (2, 3)) is not codegen.kernel_set(_TABLE, (3, 2))
