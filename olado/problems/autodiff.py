@@ -1,0 +1,477 @@
+"""Exact derivatives by automatic differentiation: a DOCP written once, symbolically
+(docs/autodiff.md).
+
+The user subclasses :class:`AutoDiffDOCP` and writes one function per stage and one for the
+final stage, in terms of the DOCP of paper 001, eqs. (1)-(3)::
+
+    stage(x, u, d) -> (f^k(x, u), f_0^k(x, u))  or  (f^k, f_0^k, g^k)
+    final(x)       -> F^N(x)  or  (F^N(x), g^N(x))
+
+``x`` (n,), ``u`` (m,) and ``d`` (q,) are symbolic vectors (index them: ``x[0]``, ``d[4]``);
+``d`` is the stage's row of the per-stage numeric data :meth:`AutoDiffDOCP.stage_data` (N, q)
+(inflows, time, reference values: whatever the stage index selected in a hand-written model).
+The functions use + - * / ** and the elementary functions of this module (:func:`sin`,
+:func:`exp`, ... which also accept numbers); they return sequences of scalar expressions.
+
+From this one model the class supplies every DOCP function and derivative, vectorized over the
+stages: the values, the first derivatives (f_x, f_u, l_x, l_u, g_x, g_u, F^N_x, g^N_x) and the
+Lagrangian's stage and final Hessian blocks (the blocks of eq. (12)),
+
+    d^2/dz^2 [sigma f_0^k + p.f^k + lam.g^k],  z = (x, u);      d^2/dx^2 [sigma F^N + lam.g^N].
+
+Back-ends (measured in docs/autodiff.md and benchmarks/RESULTS.md):
+
+* ``"casadi"`` (default): CasADi SX expressions differentiated by CasADi's algorithmic
+  differentiation, each function mapped over the stages (``Function.map``) and evaluated by
+  CasADi's virtual machine through its buffer interface (no copies of the stage arrays).
+  ``casadi_jit=True`` compiles the functions with the system's C compiler instead.
+* ``"sympy"``: SymPy expressions differentiated symbolically, common subexpressions eliminated,
+  printed as one loop over the stages per function and compiled by numba.
+
+Both are optional extras (``pip install olado[ad]`` installs CasADi, ``olado[ad-sympy]`` SymPy);
+without them the class raises :class:`~olado.errors.AutoDiffNotAvailableError` naming the
+extra, and every other problem keeps its analytic or finite-difference derivatives.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import time
+
+import numpy as np
+
+from ..errors import AutoDiffNotAvailableError, ProblemDefinitionError
+from .docp import DOCP
+
+__all__ = ["AutoDiffDOCP", "BACKENDS", "sin", "cos", "tan", "exp", "log", "sqrt", "tanh",
+           "atan", "atan2", "asin", "acos", "sinh", "cosh", "fabs", "fmax", "fmin"]
+
+#: back-end -> (module it needs, the extra that installs it)
+BACKENDS = {"casadi": ("casadi", "olado[ad]"), "sympy": ("sympy", "olado[ad-sympy]")}
+
+
+# ============================================================================ elementary functions
+def _elementary(name, casadi_name=None, sympy_name=None, numpy_name=None):
+    """An elementary function that works on numbers and arrays (numpy), CasADi SX and SymPy
+    expressions alike, so that a model's code is the same for every back-end."""
+    casadi_name = casadi_name or name
+    sympy_name = sympy_name or name
+    numpy_fn = getattr(np, numpy_name or name)
+
+    def fn(*args):
+        mod = type(args[0]).__module__ if args else ""
+        for a in args:
+            mod = type(a).__module__
+            if mod.startswith(("casadi", "sympy")):
+                break
+        if mod.startswith("casadi"):
+            import casadi   # noqa: PLC0415 - the extra is imported on use
+            return getattr(casadi, casadi_name)(*args)
+        if mod.startswith("sympy"):
+            import sympy    # noqa: PLC0415
+            return getattr(sympy, sympy_name)(*args)
+        return numpy_fn(*args)
+
+    fn.__name__ = name
+    fn.__doc__ = f"{name} of a number, array, CasADi or SymPy expression."
+    return fn
+
+
+sin, cos, tan, exp, log, sqrt, tanh = (_elementary(nm) for nm in ("sin", "cos", "tan", "exp", "log", "sqrt", "tanh"))
+sinh, cosh = _elementary("sinh"), _elementary("cosh")
+atan = _elementary("atan", numpy_name="arctan")
+asin = _elementary("asin", numpy_name="arcsin")
+acos = _elementary("acos", numpy_name="arccos")
+atan2 = _elementary("atan2", numpy_name="arctan2")
+fabs = _elementary("fabs", sympy_name="Abs", numpy_name="abs")
+fmax = _elementary("fmax", sympy_name="Max", numpy_name="fmax")
+fmin = _elementary("fmin", sympy_name="Min", numpy_name="fmin")
+
+
+# ============================================================================ the traced model
+class StageModel:
+    """The user's model as symbolic expressions: per stage f (n), l (scalar), g (r); at the end
+    F (scalar) and gN (rN), in the symbols x, u, d (and xN); built by a back-end's symbols."""
+
+    def __init__(self, problem, backend):
+        self.n, self.m, self.q = problem.n, problem.m, problem.q
+        self.r, self.rN = problem.r, problem.rN
+        self.x, self.u, self.d = backend.vector("x", self.n), backend.vector("u", self.m), backend.vector("d", self.q)
+        self.xN = backend.vector("xN", self.n)
+        out = problem.stage(self.x, self.u, self.d)
+        if not isinstance(out, (tuple, list)) or len(out) not in (2, 3):
+            raise ProblemDefinitionError("must return (x_next, cost) or (x_next, cost, g)", function="stage")
+        self.f = self._vector(out[0], self.n, "stage", "x_next")
+        self.l = self._scalar(out[1], "stage", "cost")
+        self.g = self._vector(out[2] if len(out) == 3 else (), self.r, "stage", "g")
+        fin = problem.final(self.xN)
+        if isinstance(fin, (tuple, list)):
+            if len(fin) != 2:
+                raise ProblemDefinitionError("must return cost or (cost, gN)", function="final")
+            fin, gN = fin
+        else:
+            gN = ()
+        self.F = self._scalar(fin, "final", "cost")
+        self.gN = self._vector(gN, self.rN, "final", "gN")
+
+    @staticmethod
+    def _entries(value):
+        if hasattr(value, "shape") and not isinstance(value, np.ndarray) and hasattr(value, "nnz"):
+            # a CasADi SX/MX/DM vector: its entries
+            return [value[i] for i in range(value.numel())]
+        if isinstance(value, (list, tuple, np.ndarray)) or type(value).__module__.startswith("sympy.matrices"):
+            return list(np.asarray(value, dtype=object).reshape(-1)) if isinstance(value, np.ndarray) else list(value)
+        return [value]
+
+    def _vector(self, value, size, function, array):
+        entries = self._entries(value)
+        if len(entries) != size:
+            raise ProblemDefinitionError(f"returned {len(entries)} entries, the problem declares {size}",
+                                         function=function, array=array)
+        return entries
+
+    def _scalar(self, value, function, array):
+        entries = self._entries(value)
+        if len(entries) != 1:
+            raise ProblemDefinitionError(f"expected one scalar expression, got {len(entries)}",
+                                         function=function, array=array)
+        return entries[0]
+
+
+# ============================================================================ CasADi back-end
+class _CasadiMapped:
+    """One CasADi function mapped over K stages and bound to the buffer interface: the inputs and
+    outputs are the caller's C-contiguous (K, ...) arrays, which are CasADi's column-major
+    (..., K) layout, so nothing is copied."""
+
+    def __init__(self, fun, K, out_shapes):
+        self.fun = fun.map(K) if K > 1 else fun
+        self.buf, self.trigger = self.fun.buffer()
+        self.K, self.out_shapes = K, out_shapes
+
+    def __call__(self, *args):
+        outs = tuple(np.empty((self.K,) + s) for s in self.out_shapes)
+        for i, a in enumerate(args):
+            self.buf.set_arg(i, memoryview(a))
+        for i, o in enumerate(outs):
+            self.buf.set_res(i, memoryview(o))
+        self.trigger()
+        return outs
+
+
+class CasadiBackend:
+    """CasADi SX: algorithmic differentiation, ``Function.map`` over stages, the SX virtual machine
+    (or, with ``jit=True``, C code compiled by the system compiler)."""
+
+    name = "casadi"
+
+    def __init__(self, jit=False):
+        import casadi   # noqa: PLC0415 - the optional extra
+        self.ca = casadi
+        self.jit = bool(jit)
+
+    def vector(self, name, size):
+        return self.ca.SX.sym(name, size)
+
+    def build(self, model):
+        """The stage and final functions of ``model`` (a :class:`StageModel`) with their
+        derivatives: name -> (casadi.Function, output shapes per stage)."""
+        ca = self.ca
+        x, u, d, xN = model.x, model.u, model.d, model.xN
+        n, m, r, rN = model.n, model.m, model.r, model.rN
+        sx = lambda entries: ca.vertcat(*[ca.SX(e) for e in entries]) if entries else ca.SX(0, 1)  # noqa: E731
+        f, l, g = sx(model.f), ca.SX(model.l), sx(model.g)
+        sigma, p, lam = ca.SX.sym("sigma"), ca.SX.sym("p", n), ca.SX.sym("lam", r)
+        z = ca.vertcat(x, u)
+        opts = {"jit": True, "compiler": "shell", "jit_options": {"flags": ["-O2"]}} if self.jit else {}
+
+        def fn(name, ins, outs):
+            # dense outputs: the buffer interface writes the structural nonzeros only
+            return ca.Function(name, ins, [ca.densify(o) for o in outs], opts)
+
+        # C order of a per-stage (a, b) block == CasADi's column-major (b, a): transposes below
+        fx, fu = ca.jacobian(f, x), ca.jacobian(f, u)
+        funs = {
+            "dynamics": (fn("f", [x, u, d], [f]), [(n,)]),
+            "stage_cost": (fn("l", [x, u, d], [l]), [()]),
+            "dynamics_jacobian": (fn("fj", [x, u, d], [fx.T, fu.T]), [(n, n), (n, m)]),
+            "stage_cost_gradient": (fn("lj", [x, u, d], [ca.gradient(l, x), ca.gradient(l, u)]), [(n,), (m,)]),
+        }
+        lag = sigma * l + ca.dot(p, f) + (ca.dot(lam, g) if r else 0)
+        H = ca.hessian(lag, z)[0]
+        funs["stage_hessian"] = (fn("h", [x, u, d, sigma, p, lam], [H[:n, :n], H[:n, n:].T, H[n:, n:]]),
+                                 [(n, n), (n, m), (m, m)])
+        if r:
+            funs["stage_constraints"] = (fn("g", [x, u, d], [g]), [(r,)])
+            funs["stage_constraints_jacobian"] = (fn("gj", [x, u, d], [ca.jacobian(g, x).T, ca.jacobian(g, u).T]),
+                                                  [(r, n), (r, m)])
+        F, gN = ca.SX(model.F), sx(model.gN)
+        lamN = ca.SX.sym("lamN", rN)
+        final_lag = sigma * F + (ca.dot(lamN, gN) if rN else 0)
+        funs["final"] = (fn("F", [xN], [F, ca.gradient(F, xN), gN, ca.jacobian(gN, xN).T]),
+                         [(), (n,), (rN,), (rN, n)])
+        funs["final_hessian"] = (fn("FH", [xN, sigma, lamN], [ca.hessian(final_lag, xN)[0]]), [(n, n)])
+        return {name: _CasadiEvaluator(fun, shapes) for name, (fun, shapes) in funs.items()}
+
+
+class _CasadiEvaluator:
+    """A CasADi function of per-stage arguments, evaluated on K rows (mapped functions cached
+    per K)."""
+
+    def __init__(self, fun, shapes):
+        self.fun, self.shapes, self._mapped = fun, shapes, {}
+
+    def __call__(self, *args):
+        K = args[0].shape[0] if np.ndim(args[0]) else 1
+        mapped = self._mapped.get(K)
+        if mapped is None:
+            mapped = self._mapped[K] = _CasadiMapped(self.fun, K, self.shapes)
+        return mapped(*args)
+
+
+# ============================================================================ SymPy + numba back-end
+class SympyBackend:
+    """SymPy: symbolic derivatives, common subexpressions eliminated, one numba-compiled loop over
+    the stages per function."""
+
+    name = "sympy"
+
+    def __init__(self):
+        import sympy   # noqa: PLC0415 - the optional extra
+        self.sp = sympy
+
+    def vector(self, name, size):
+        return self.sp.Matrix(self.sp.symbols(f"{name}0:{size}", real=True)) if size else self.sp.zeros(0, 1)
+
+    def build(self, model):
+        sp = self.sp
+        x, u, d, xN = list(model.x), list(model.u), list(model.d), list(model.xN)
+        n, m, r, rN = model.n, model.m, model.r, model.rN
+        z = x + u
+        sigma = sp.Symbol("sigma", real=True)
+        p = list(sp.symbols(f"p0:{n}", real=True))
+        lam = list(sp.symbols(f"lam0:{r}", real=True)) if r else []
+        lamN = list(sp.symbols(f"lamN0:{rN}", real=True)) if rN else []
+        f, l, g = [sp.sympify(e) for e in model.f], sp.sympify(model.l), [sp.sympify(e) for e in model.g]
+        jac = lambda exprs, vs: [[sp.diff(e, v) for v in vs] for e in exprs]  # noqa: E731
+        lag = sigma * l + sum(pi * fi for pi, fi in zip(p, f)) + sum(li * gi for li, gi in zip(lam, g))
+        grad = [sp.diff(lag, v) for v in z]
+        H = [[sp.diff(grad[i], z[j]) if j >= i else None for j in range(n + m)] for i in range(n + m)]
+        Hs = lambda i, j: H[min(i, j)][max(i, j)]  # noqa: E731
+        stage_in = [("X", x), ("U", u), ("D", d)]
+        specs = {
+            "dynamics": (stage_in, [f]),
+            "stage_cost": (stage_in, [l]),
+            "dynamics_jacobian": (stage_in, [jac(f, x), jac(f, u)]),
+            "stage_cost_gradient": (stage_in, [[sp.diff(l, v) for v in x], [sp.diff(l, v) for v in u]]),
+            "stage_hessian": (stage_in + [("S", sigma), ("P", p), ("L", lam)],
+                              [[[Hs(i, j) for j in range(n)] for i in range(n)],
+                               [[Hs(i, n + j) for j in range(m)] for i in range(n)],
+                               [[Hs(n + i, n + j) for j in range(m)] for i in range(m)]]),
+        }
+        if r:
+            specs["stage_constraints"] = (stage_in, [g])
+            specs["stage_constraints_jacobian"] = (stage_in, [jac(g, x), jac(g, u)])
+        F, gN = sp.sympify(model.F), [sp.sympify(e) for e in model.gN]
+        specs["final"] = ([("X", xN)], [F, [sp.diff(F, v) for v in xN], gN, jac(gN, xN)])
+        flag = sigma * F + sum(li * gi for li, gi in zip(lamN, gN))
+        specs["final_hessian"] = ([("X", xN), ("S", sigma), ("L", lamN)], [jac([sp.diff(flag, v) for v in xN], xN)])
+        return {name: self._compile(name, ins, outs) for name, (ins, outs) in specs.items()}
+
+    def _compile(self, name, inputs, outputs):
+        """Python source of one loop over the stages writing every output entry, compiled by
+        numba (the inputs are (K, size) arrays, sigma (K,); each output (K, ...))."""
+        from sympy.printing.pycode import PythonCodePrinter   # noqa: PLC0415
+        import numba as nb   # noqa: PLC0415
+        sp = self.sp
+        flat, targets, shapes = [], [], []
+        for o, out in enumerate(outputs):
+            arr = np.array(out, dtype=object)
+            shapes.append(arr.shape)
+            for idx in np.ndindex(arr.shape):
+                flat.append(sp.sympify(arr[idx]))
+                targets.append(f"o{o}[i{''.join(', ' + str(j) for j in idx)}]")
+        subs, reduced = sp.cse(flat, symbols=sp.numbered_symbols("t"), optimizations="basic")
+        printer = PythonCodePrinter({"standard": "python3", "fully_qualified_modules": True})
+        args = [nm for nm, _ in inputs]
+        lines = [f"def kernel({', '.join(args + [f'o{o}' for o in range(len(outputs))])}):",
+                 f"    for i in range({args[0]}.shape[0]):"]
+        for nm, syms in inputs:
+            if nm == "S":
+                lines.append(f"        {syms} = S[i]")
+                continue
+            for j, s in enumerate(syms):
+                lines.append(f"        {s} = {nm}[i, {j}]")
+        for sym, expr in subs:
+            lines.append(f"        {sym} = {printer.doprint(expr)}")
+        for tgt, expr in zip(targets, reduced):
+            lines.append(f"        {tgt} = {printer.doprint(expr)}")
+        if not targets:
+            lines.append("        pass")
+        namespace = {"math": math}
+        exec("\n".join(lines), namespace)   # noqa: S102 - source generated above from the model
+        kernel = nb.njit(namespace["kernel"])
+        return _NumbaEvaluator(kernel, shapes)
+
+
+class _NumbaEvaluator:
+    def __init__(self, kernel, shapes):
+        self.kernel, self.shapes = kernel, shapes
+
+    def __call__(self, *args):
+        K = args[0].shape[0]
+        outs = tuple(np.empty((K,) + s) for s in self.shapes)
+        self.kernel(*args, *outs)
+        return outs
+
+
+def require_backend(name):
+    """Check that the back-end ``name`` ("casadi" or "sympy") is installed, without importing it:
+    AutoDiffNotAvailableError naming the optional extra otherwise."""
+    if name not in BACKENDS:
+        raise ProblemDefinitionError(f"unknown automatic-differentiation back-end {name!r}; choose one of "
+                                     f"{', '.join(BACKENDS)}", function="autodiff", array="backend")
+    module, extra = BACKENDS[name]
+    if importlib.util.find_spec(module) is None:
+        raise AutoDiffNotAvailableError(
+            f"exact derivatives with the {name} back-end need the optional package '{module}': "
+            f"pip install {extra} (or write the derivatives by hand, or use finite differences: "
+            "a plain DOCP subclass)", function="autodiff", array="backend")
+
+
+def make_backend(name, **options):
+    """The back-end ``name`` with its ``options`` (:func:`require_backend` first)."""
+    require_backend(name)
+    return CasadiBackend(**options) if name == "casadi" else SympyBackend(**options)
+
+
+# ============================================================================ the DOCP
+class AutoDiffDOCP(DOCP):
+    """A DOCP written once as :meth:`stage` and :meth:`final` (module docstring); every DOCP
+    function and derivative, the Lagrangian Hessian blocks included, comes from the back-end
+    :attr:`ad_backend` ("casadi" or "sympy"), vectorized over the stages.
+
+    The model is traced and compiled on first use (so a subclass may set its data after
+    ``super().__init__``); :attr:`setup_time` holds the seconds that took. A missing back-end
+    raises :class:`~olado.errors.AutoDiffNotAvailableError` at construction.
+    """
+
+    vectorized = True
+    #: "casadi" or "sympy"
+    ad_backend = "casadi"
+    #: back-end options, e.g. ``{"jit": True}`` (CasADi: compile with the C compiler)
+    ad_options: dict = {}
+
+    # ------------------------------------------------------------------ the user's model
+    def stage(self, x, u, d):
+        """(f^k, f_0^k) or (f^k, f_0^k, g^k) of eqs. (1)-(3) in symbolic x (n,), u (m,), d (q,)."""
+        raise ProblemDefinitionError(f"{type(self).__name__} must define stage(x, u, d)", function="stage")
+
+    def final(self, x):
+        """F^N(x) or (F^N(x), g^N(x)) in symbolic x (n,); default no final cost."""
+        return 0
+
+    def stage_data(self):
+        """Per-stage numeric data (N, q) passed to :meth:`stage` as ``d`` (default none, q = 0)."""
+        return np.zeros((self.N, 0))
+
+    # ------------------------------------------------------------------ compilation
+    @property
+    def q(self):
+        """Number of per-stage data entries (columns of :meth:`stage_data`)."""
+        return self._data().shape[1]
+
+    def _data(self):
+        data = self.__dict__.get("_ad_data")
+        if data is None:
+            raw = self.stage_data()
+            cols = np.shape(raw)[1] if np.ndim(raw) == 2 else -1
+            data = np.ascontiguousarray(self.check_array(raw, (self.N, cols), "stage_data", "d"))
+            self._ad_data = data
+        return data
+
+    def check_functions(self):
+        """DOCP's check, and the back-end is installed (AutoDiffNotAvailableError otherwise)."""
+        super().check_functions()
+        require_backend(self.ad_backend)
+
+    def ad_functions(self):
+        """The compiled functions (built on first call; :attr:`setup_time` seconds)."""
+        funs = self.__dict__.get("_ad_functions")
+        if funs is None:
+            t0 = time.perf_counter()
+            backend = make_backend(self.ad_backend, **self.ad_options)
+            funs = backend.build(StageModel(self, backend))
+            self._ad_functions = funs
+            self.setup_time = time.perf_counter() - t0
+        return funs
+
+    def _stage_args(self, k, x, u):
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        u = np.ascontiguousarray(u, dtype=np.float64)
+        if x.ndim == 1:
+            x, u = x[None, :], u[None, :]
+        D = self._data()
+        if not (k is self._K or (np.ndim(k) == 1 and len(k) == self.N and x.shape[0] == self.N
+                                 and np.array_equal(k, self._K))):
+            D = np.ascontiguousarray(D[np.asarray(k, dtype=np.int64).reshape(-1)])
+            if D.shape[0] == 1 and x.shape[0] > 1:
+                D = np.ascontiguousarray(np.broadcast_to(D, (x.shape[0], D.shape[1])))
+        return x, u, D
+
+    def _eval(self, name, k, x, u, *extra):
+        return self.ad_functions()[name](*self._stage_args(k, x, u), *extra)
+
+    # ------------------------------------------------------------------ DOCP functions
+    def dynamics(self, k, x, u):
+        return self._eval("dynamics", k, x, u)[0]
+
+    def stage_cost(self, k, x, u):
+        return self._eval("stage_cost", k, x, u)[0]
+
+    def stage_constraints(self, k, x, u):
+        if not self.r:
+            return np.zeros((np.size(k), 0))
+        return self._eval("stage_constraints", k, x, u)[0]
+
+    def dynamics_jacobian(self, k, x, u):
+        return self._eval("dynamics_jacobian", k, x, u)
+
+    def stage_cost_gradient(self, k, x, u):
+        return self._eval("stage_cost_gradient", k, x, u)
+
+    def stage_constraints_jacobian(self, k, x, u):
+        return self._eval("stage_constraints_jacobian", k, x, u)
+
+    def stage_hessian(self, k, x, u, sigma, p, lam):
+        K = np.shape(x)[0]
+        sig = np.ascontiguousarray(np.broadcast_to(np.asarray(sigma, dtype=np.float64).reshape(-1), (K,)))
+        p = np.ascontiguousarray(p, dtype=np.float64)
+        lam = np.ascontiguousarray(lam, dtype=np.float64).reshape(K, self.r)
+        return self._eval("stage_hessian", k, x, u, sig, p, lam)
+
+    def _final(self, x):
+        x = np.ascontiguousarray(np.asarray(x, dtype=np.float64).reshape(1, self.n))
+        return [o[0] for o in self.ad_functions()["final"](x)]
+
+    def final_cost(self, x):
+        return float(self._final(x)[0])
+
+    def final_cost_gradient(self, x):
+        return self._final(x)[1]
+
+    def final_constraints(self, x):
+        return self._final(x)[2] if self.rN else np.zeros(0)
+
+    def final_constraints_jacobian(self, x):
+        return self._final(x)[3]
+
+    def final_hessian(self, x, sigma, lam):
+        x = np.ascontiguousarray(np.asarray(x, dtype=np.float64).reshape(1, self.n))
+        sig = np.full(1, float(sigma))
+        lam = np.ascontiguousarray(np.asarray(lam, dtype=np.float64).reshape(1, self.rN))
+        return self.ad_functions()["final_hessian"](x, sig, lam)[0][0]
+
+    def describe(self):
+        return super().describe() + f"\n  derivatives by automatic differentiation ({self.ad_backend})"
