@@ -35,8 +35,11 @@ extra, and every other problem keeps its analytic or finite-difference derivativ
 
 from __future__ import annotations
 
+import hashlib
 import importlib.util
 import math
+import os
+import sys
 import time
 
 import numpy as np
@@ -161,15 +164,28 @@ class _CasadiMapped:
 
 
 class CasadiBackend:
-    """CasADi SX: algorithmic differentiation, ``Function.map`` over stages, the SX virtual machine
-    (or, with ``jit=True``, C code compiled by the system compiler)."""
+    """CasADi SX: algorithmic differentiation of the traced model, then one of three evaluators
+    for each function (``mode``):
+
+    * ``"numba"`` (default): the SX function's instruction list translated to one straight-line
+      Python loop body over the stages and compiled by numba (:func:`sx_to_numba`);
+    * ``"vm"``: ``Function.map`` over the stages, evaluated by CasADi's virtual machine;
+    * ``"jit"``: ``Function.map`` of the function compiled by the system's C compiler
+      (CasADi's ``jit`` option; needs gcc or cc).
+    """
 
     name = "casadi"
+    MODES = ("numba", "vm", "jit")
 
-    def __init__(self, jit=False):
+    def __init__(self, mode="numba", jit=None):
         import casadi   # noqa: PLC0415 - the optional extra
         self.ca = casadi
-        self.jit = bool(jit)
+        if jit:                      # older spelling of mode="jit"
+            mode = "jit"
+        if mode not in self.MODES:
+            raise ProblemDefinitionError(f"CasADi back-end mode must be one of {', '.join(self.MODES)}, got {mode!r}",
+                                         function="autodiff", array="mode")
+        self.mode = mode
 
     def vector(self, name, size):
         return self.ca.SX.sym(name, size)
@@ -184,7 +200,7 @@ class CasadiBackend:
         f, l, g = sx(model.f), ca.SX(model.l), sx(model.g)
         sigma, p, lam = ca.SX.sym("sigma"), ca.SX.sym("p", n), ca.SX.sym("lam", r)
         z = ca.vertcat(x, u)
-        opts = {"jit": True, "compiler": "shell", "jit_options": {"flags": ["-O2"]}} if self.jit else {}
+        opts = {"jit": True, "compiler": "shell", "jit_options": {"flags": ["-O2"]}} if self.mode == "jit" else {}
 
         def fn(name, ins, outs):
             # dense outputs: the buffer interface writes the structural nonzeros only
@@ -212,6 +228,8 @@ class CasadiBackend:
         funs["final"] = (fn("F", [xN], [F, ca.gradient(F, xN), gN, ca.jacobian(gN, xN).T]),
                          [(), (n,), (rN,), (rN, n)])
         funs["final_hessian"] = (fn("FH", [xN, sigma, lamN], [ca.hessian(final_lag, xN)[0]]), [(n, n)])
+        if self.mode == "numba":
+            return {name: _NumbaEvaluator(sx_to_numba(fun), shapes, flat=True) for name, (fun, shapes) in funs.items()}
         return {name: _CasadiEvaluator(fun, shapes) for name, (fun, shapes) in funs.items()}
 
 
@@ -228,6 +246,123 @@ class _CasadiEvaluator:
         if mapped is None:
             mapped = self._mapped[K] = _CasadiMapped(self.fun, K, self.shapes)
         return mapped(*args)
+
+
+# ============================================================================ CasADi SX -> numba
+_UNARY = {"ASSIGN": "{0}", "NEG": "-{0}", "EXP": "math.exp({0})", "LOG": "math.log({0})",
+          "SQRT": "math.sqrt({0})", "SQ": "{0} * {0}", "TWICE": "2.0 * {0}", "INV": "1.0 / {0}",
+          "SIN": "math.sin({0})", "COS": "math.cos({0})", "TAN": "math.tan({0})",
+          "ASIN": "math.asin({0})", "ACOS": "math.acos({0})", "ATAN": "math.atan({0})",
+          "SINH": "math.sinh({0})", "COSH": "math.cosh({0})", "TANH": "math.tanh({0})",
+          "ASINH": "math.asinh({0})", "ACOSH": "math.acosh({0})", "ATANH": "math.atanh({0})",
+          "FABS": "abs({0})", "FLOOR": "float(math.floor({0}))", "CEIL": "float(math.ceil({0}))",
+          "ERF": "math.erf({0})", "LOG1P": "math.log1p({0})", "EXPM1": "math.expm1({0})",
+          "SIGN": "(1.0 if {0} > 0 else (-1.0 if {0} < 0 else 0.0))",
+          "NOT": "(1.0 if {0} == 0 else 0.0)"}
+_BINARY = {"ADD": "{0} + {1}", "SUB": "{0} - {1}", "MUL": "{0} * {1}", "DIV": "{0} / {1}",
+           "POW": "{0} ** {1}", "CONSTPOW": "{0} ** {1}", "ATAN2": "math.atan2({0}, {1})",
+           "FMIN": "min({0}, {1})", "FMAX": "max({0}, {1})", "FMOD": "math.fmod({0}, {1})",
+           "COPYSIGN": "math.copysign({0}, {1})", "HYPOT": "math.hypot({0}, {1})",
+           "LT": "(1.0 if {0} < {1} else 0.0)", "LE": "(1.0 if {0} <= {1} else 0.0)",
+           "EQ": "(1.0 if {0} == {1} else 0.0)", "NE": "(1.0 if {0} != {1} else 0.0)",
+           "AND": "(1.0 if ({0} != 0 and {1} != 0) else 0.0)",
+           "OR": "(1.0 if ({0} != 0 or {1} != 0) else 0.0)",
+           "IF_ELSE_ZERO": "({1} if {0} != 0 else 0.0)"}
+
+
+def _constant(value):
+    if math.isfinite(value):
+        return repr(float(value))
+    return "math.nan" if math.isnan(value) else ("math.inf" if value > 0 else "-math.inf")
+
+
+def sx_source(fun, name="kernel"):
+    """Python source of a loop over the stages evaluating the CasADi SX function ``fun``: the
+    function's instruction list (its algorithm, the same one CasADi's code generator prints as
+    C) as straight-line scalar code. Argument j is a (K, nnz_in(j)) array, result j a
+    (K, nnz_out(j)) array, entries in CasADi's column-major nonzero order."""
+    import casadi as ca   # noqa: PLC0415
+    ops = {getattr(ca, f"OP_{nm}"): nm for nm in list(_UNARY) + list(_BINARY) + ["CONST", "INPUT", "OUTPUT"]}
+    n_in, n_out = fun.n_in(), fun.n_out()
+    args = [f"a{j}" for j in range(n_in)] + [f"r{j}" for j in range(n_out)]
+    lines = [f"def {name}({', '.join(args)}):", "    for i in range(a0.shape[0]):"]
+    for k in range(fun.n_instructions()):
+        op = ops.get(fun.instruction_id(k))
+        if op is None:
+            raise ProblemDefinitionError(f"the CasADi operation {fun.instruction_id(k)} has no numba translation; "
+                                         "use the back-end option mode='vm'", function="autodiff")
+        ins, outs = fun.instruction_input(k), fun.instruction_output(k)
+        if op == "OUTPUT":
+            lines.append(f"        r{outs[0]}[i, {outs[1]}] = w{ins[0]}")
+            continue
+        if op == "INPUT":
+            rhs = f"a{ins[0]}[i, {ins[1]}]"
+        elif op == "CONST":
+            rhs = _constant(fun.instruction_constant(k))
+        elif op in _UNARY:
+            rhs = _UNARY[op].format(f"w{ins[0]}")
+        else:
+            rhs = _BINARY[op].format(f"w{ins[0]}", f"w{ins[1]}")
+        lines.append(f"        w{outs[0]} = {rhs}")
+    if len(lines) == 2:
+        lines.append("        pass")
+    return "\n".join(lines) + "\n"
+
+
+def cache_directory():
+    """Where the compiled kernels of AD models are kept between runs: ``$OLADO_CACHE_DIR/autodiff``
+    or ``~/.cache/olado/autodiff``; None (no disk cache) when neither can be written."""
+    root = os.environ.get("OLADO_CACHE_DIR") or os.path.join(os.path.expanduser("~"), ".cache", "olado")
+    path = os.path.join(root, "autodiff")
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError:
+        return None
+    return path if os.access(path, os.W_OK) else None
+
+
+def compile_kernel(source, n_args):
+    """Compile the loop ``kernel`` of ``source`` (arguments: ``n_args`` C-contiguous float64
+    matrices) with numba, now (an explicit signature: the set-up time holds the compilation).
+
+    The source is written to a file of the cache directory named by its hash and imported from
+    there, so that numba's disk cache serves the next run of the same model (the same source)
+    in milliseconds; without a writable cache directory it is compiled in memory every time."""
+    import numba as nb   # noqa: PLC0415
+    signature = nb.void(*([nb.float64[:, ::1]] * n_args))
+    directory = cache_directory()
+    if directory is None:
+        namespace = {"math": math}
+        exec(source, namespace)   # noqa: S102 - source generated from the model
+        return nb.njit(signature)(namespace["kernel"])
+    digest = hashlib.sha1(source.encode("utf-8")).hexdigest()[:20]
+    name = f"olado_ad_{digest}"
+    path = os.path.join(directory, name + ".py")
+    if not os.path.exists(path):
+        text = ("# generated by olado.problems.autodiff from a model's SX algorithm\n"
+                "import math\nimport numba as nb\n\n" + source.replace("def kernel(", "def _kernel(", 1)
+                + "\n\nmatrix = nb.float64[:, ::1]\n"
+                f"kernel = nb.njit(nb.void(*([matrix] * {n_args})), cache=True)(_kernel)\n")
+        tmp = f"{path}.{os.getpid()}.tmp"
+        with open(tmp, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    module = sys.modules.get(name)
+    if module is None:
+        spec = importlib.util.spec_from_file_location(name, path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module    # before running it: numba's cache names the module
+        try:
+            spec.loader.exec_module(module)
+        except BaseException:
+            del sys.modules[name]
+            raise
+    return module.kernel
+
+
+def sx_to_numba(fun):
+    """The CasADi SX function ``fun`` compiled by numba as a loop over stages (:func:`sx_source`)."""
+    return compile_kernel(sx_source(fun), fun.n_in() + fun.n_out())
 
 
 # ============================================================================ SymPy + numba back-end
@@ -316,13 +451,19 @@ class SympyBackend:
 
 
 class _NumbaEvaluator:
-    def __init__(self, kernel, shapes):
-        self.kernel, self.shapes = kernel, shapes
+    """A compiled loop over the stages: inputs (K, size) (sigma (K,)), outputs (K,) + shape; with
+    ``flat`` the kernel sees every argument as (K, size) (CasADi's column-major entry order)."""
+
+    def __init__(self, kernel, shapes, flat=False):
+        self.kernel, self.shapes, self.flat = kernel, shapes, flat
 
     def __call__(self, *args):
         K = args[0].shape[0]
         outs = tuple(np.empty((K,) + s) for s in self.shapes)
-        self.kernel(*args, *outs)
+        if self.flat:
+            self.kernel(*(a.reshape(K, -1) for a in args), *(o.reshape(K, -1) for o in outs))
+        else:
+            self.kernel(*args, *outs)
         return outs
 
 

@@ -1,0 +1,141 @@
+"""Automatic differentiation back-ends against the hand-written Zambezi kernels (issue 15 item 1).
+
+Zambezi (zambezi12) is built twice: the hand-written model (olado.problems.zambezi, numba kernels
+for every derivative) and the same equations written once for automatic differentiation
+(olado.problems.zambezi_ad.ZambeziAD) with each back-end:
+
+* ``casadi``      CasADi SX derivatives, each function's SX algorithm translated to a numba loop
+                  over the stages (the default back-end)
+* ``casadi-vm``   the same functions, Function.map over the stages, CasADi's virtual machine
+* ``casadi-jit``  Function.map of the functions compiled by the system's C compiler (CasADi's jit)
+* ``sympy``       SymPy derivatives + common subexpressions, one numba loop per function
+
+For every horizon N the script times, round robin (every variant called once per round, so a
+loaded machine slows them alike), the user-level stage methods of the model (``dynamics``,
+``dynamics_jacobian``, ``stage_cost_gradient``, ``stage_hessian``: what the DOCP layer's
+``eval_*`` call) and reports the median per call, per stage (ns) and the ratio to the
+hand-written kernel. The set-up time is the AD model's trace + differentiation + compilation
+(``AutoDiffDOCP.setup_time``, first evaluation); the hand-written kernels load from numba's
+disk cache.
+
+    python benchmarks/bench_autodiff.py                 # N = 252, 12000; prints the table
+    python benchmarks/bench_autodiff.py --write         # and writes the RESULTS.md section
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
+
+from _common import commit, machine, write_section  # noqa: E402
+
+from olado.problems.zambezi import Zambezi  # noqa: E402
+from olado.problems.zambezi_ad import ZambeziAD  # noqa: E402
+
+SECTION = "Automatic differentiation vs hand-written Zambezi kernels"
+VARIANTS = {
+    "hand-written": lambda N: Zambezi("zambezi12", N=N),
+    "casadi": lambda N: ZambeziAD("zambezi12", N=N, backend="casadi"),
+    "casadi-vm": lambda N: ZambeziAD("zambezi12", N=N, backend="casadi", backend_options={"mode": "vm"}),
+    "casadi-jit": lambda N: ZambeziAD("zambezi12", N=N, backend="casadi", backend_options={"mode": "jit"}),
+    "sympy": lambda N: ZambeziAD("zambezi12", N=N, backend="sympy"),
+}
+METHODS = ("dynamics", "dynamics_jacobian", "stage_cost_gradient", "stage_hessian")
+
+
+def _calls(problem, X, U, P):
+    K = problem._K
+    x = np.ascontiguousarray(X[:-1])
+    lam = np.zeros((problem.N, 0))
+    return {
+        "dynamics": lambda: problem.dynamics(K, x, U),
+        "dynamics_jacobian": lambda: problem.dynamics_jacobian(K, x, U),
+        "stage_cost_gradient": lambda: problem.stage_cost_gradient(K, x, U),
+        "stage_hessian": lambda: problem.stage_hessian(K, x, U, 1.0, P, lam),
+    }
+
+
+def measure(N, variants, rounds, seed=0):
+    """Median seconds per call {variant: {method: s}} and set-up seconds {variant: s}."""
+    problems, setup = {}, {}
+    for name in variants:
+        t0 = time.perf_counter()
+        p = VARIANTS[name](N)
+        if hasattr(p, "ad_functions"):
+            p.ad_functions()
+            setup[name] = p.setup_time
+        else:
+            p.stage_hessian(p._K[:1], np.zeros((1, 6)), np.zeros((1, 7)), 1.0, np.zeros((1, 6)), np.zeros((1, 0)))
+            setup[name] = time.perf_counter() - t0
+        problems[name] = p
+    rng = np.random.default_rng(seed)
+    ref = problems[variants[0]]
+    U = ref.initial_guess() + 0.1 * rng.standard_normal((N, 7))
+    X = ref.simulate(U)
+    P = rng.standard_normal((N, 6))
+    calls = {name: _calls(p, X, U, P) for name, p in problems.items()}
+    times = {name: {m: [] for m in METHODS} for name in variants}
+    for name in variants:                     # warm-up: first map / first call
+        for m in METHODS:
+            calls[name][m]()
+    for _ in range(rounds):
+        for m in METHODS:
+            for name in variants:
+                t0 = time.perf_counter()
+                calls[name][m]()
+                times[name][m].append(time.perf_counter() - t0)
+    return {name: {m: statistics.median(v) for m, v in d.items()} for name, d in times.items()}, setup
+
+
+def table(results, horizons, variants):
+    lines = ["| N | method | " + " | ".join(variants) + " |",
+             "|--:|:--|" + "--:|" * len(variants)]
+    for N in horizons:
+        med, setup = results[N]
+        base = med[variants[0]]
+        for m in METHODS:
+            cells = []
+            for name in variants:
+                ns = med[name][m] / N * 1e9
+                ratio = med[name][m] / base[m]
+                cells.append(f"{ns:,.0f}" + ("" if name == variants[0] else f" ({ratio:.1f}x)"))
+            lines.append(f"| {N} | `{m}` | " + " | ".join(cells) + " |")
+        lines.append(f"| {N} | set-up (s) | " + " | ".join(f"{setup[name]:.2f}" for name in variants) + " |")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--N", type=int, nargs="+", default=[252, 12000])
+    ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    ap.add_argument("--rounds", type=int, default=0, help="rounds per horizon (default: 400 at N <= 1000, 40 above)")
+    ap.add_argument("--write", action="store_true", help=f"write the '{SECTION}' section of RESULTS.md")
+    args = ap.parse_args(argv)
+    results = {}
+    for N in args.N:
+        rounds = args.rounds or (400 if N <= 1000 else 40)
+        results[N] = measure(N, args.variants, rounds)
+    text = table(results, args.N, args.variants)
+    print(text)
+    if args.write:
+        cmd = "python benchmarks/bench_autodiff.py --write" + (f" --N {' '.join(map(str, args.N))}" if args.N != [252, 12000] else "")
+        write_section(SECTION, f"## {SECTION}\n\nCommand: `{cmd}`  \nCommit: {commit()}  \n"
+                      f"Date: {time.strftime('%Y-%m-%d')}  \nMachine: {machine(with_ipopt=False)}\n\n"
+                      "Median time per stage (ns) of each user-level stage method on zambezi12, and in "
+                      "parentheses its ratio to the hand-written numba kernel, all variants measured "
+                      "round robin in one process (the ratios are the figures to read: the machine "
+                      "was shared with other jobs). Set-up: trace, differentiation and compilation of "
+                      "the AD model (the hand-written kernels: first call, loaded from numba's disk "
+                      "cache).\n\n" + text + "\n")
+
+
+if __name__ == "__main__":
+    main()
