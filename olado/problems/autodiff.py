@@ -203,8 +203,9 @@ class CasadiBackend:
         opts = {"jit": True, "compiler": "shell", "jit_options": {"flags": ["-O2"]}} if self.mode == "jit" else {}
 
         def fn(name, ins, outs):
-            # dense outputs: the buffer interface writes the structural nonzeros only
-            return ca.Function(name, ins, [ca.densify(o) for o in outs], opts)
+            # dense outputs (the buffer interface and the translation write structural nonzeros
+            # only), common subexpressions shared (5-10 % fewer instructions)
+            return ca.Function(name, ins, ca.cse([ca.densify(o) for o in outs]), opts)
 
         # C order of a per-stage (a, b) block == CasADi's column-major (b, a): transposes below
         fx, fu = ca.jacobian(f, x), ca.jacobian(f, u)
