@@ -18,7 +18,13 @@ hand-written kernel. The set-up time is the AD model's trace + differentiation +
 (``AutoDiffDOCP.setup_time``, first evaluation); the hand-written kernels load from numba's
 disk cache.
 
-    python benchmarks/bench_autodiff.py                 # N = 252, 12000; prints the table
+A second table does the same for an ODE transcription, where the expression graphs are deeper:
+the cart-pole of tests/problems/test_autodiff.py (RK4 with sin, cos and divisions, a path and a
+final constraint), ``stage_hessian`` per stage and set-up, for the AD back-ends only (there is no
+hand-written version). SymPy is left out of it by default (``--ode-sympy``): its symbolic
+Hessian of one RK4 step took 436 s to build here.
+
+    python benchmarks/bench_autodiff.py                 # N = 252, 12000; prints the tables
     python benchmarks/bench_autodiff.py --write         # and writes the RESULTS.md section
 """
 
@@ -95,6 +101,38 @@ def measure(N, variants, rounds, seed=0):
     return {name: {m: statistics.median(v) for m, v in d.items()} for name, d in times.items()}, setup
 
 
+def measure_ode(N, modes, rounds):
+    """{variant: (setup s, stage_hessian s per call)} for the RK4 cart-pole."""
+    sys.path.insert(0, str(HERE.parent / "tests" / "problems"))
+    from test_autodiff import CartPoleRK4   # noqa: PLC0415 - the test suite's model
+
+    problems = {}
+    for name in modes:
+        backend, _, mode = name.partition("-")
+        p = CartPoleRK4(N=N, mode=mode or "numba")
+        if backend == "sympy":
+            p.ad_backend, p.ad_options = "sympy", {}
+        p.ad_functions()
+        problems[name] = p
+    rng = np.random.default_rng(0)
+    X, U = rng.standard_normal((N + 1, 4)) * 0.3, rng.standard_normal((N, 1))
+    P, L = rng.standard_normal((N, 4)), rng.standard_normal((N, 2))
+    times = {name: [] for name in modes}
+    for _ in range(rounds):
+        for name, p in problems.items():
+            t0 = time.perf_counter()
+            p.stage_hessian(p._K, X[:-1], U, 1.0, P, L)
+            times[name].append(time.perf_counter() - t0)
+    return {name: (problems[name].setup_time, statistics.median(times[name])) for name in modes}
+
+
+def ode_table(result, N):
+    lines = ["| back-end | set-up (s) | `stage_hessian` (ns per stage) |", "|:--|--:|--:|"]
+    for name, (setup, t) in result.items():
+        lines.append(f"| {name} | {setup:.2f} | {t / N * 1e9:,.0f} |")
+    return "\n".join(lines)
+
+
 def table(results, horizons, variants):
     lines = ["| N | method | " + " | ".join(variants) + " |",
              "|--:|:--|" + "--:|" * len(variants)]
@@ -117,6 +155,7 @@ def main(argv=None):
     ap.add_argument("--N", type=int, nargs="+", default=[252, 12000])
     ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     ap.add_argument("--rounds", type=int, default=0, help="rounds per horizon (default: 400 at N <= 1000, 40 above)")
+    ap.add_argument("--ode-sympy", action="store_true", help="include SymPy in the RK4 table (minutes of set-up)")
     ap.add_argument("--write", action="store_true", help=f"write the '{SECTION}' section of RESULTS.md")
     args = ap.parse_args(argv)
     results = {}
@@ -125,6 +164,10 @@ def main(argv=None):
         results[N] = measure(N, args.variants, rounds)
     text = table(results, args.N, args.variants)
     print(text)
+    ode_N = 252
+    ode = measure_ode(ode_N, ["casadi-numba", "casadi-vm", "casadi-jit"] + (["sympy"] if args.ode_sympy else []), 100)
+    ode_text = ode_table(ode, ode_N)
+    print(ode_text)
     if args.write:
         cmd = "python benchmarks/bench_autodiff.py --write" + (f" --N {' '.join(map(str, args.N))}" if args.N != [252, 12000] else "")
         write_section(SECTION, f"## {SECTION}\n\nCommand: `{cmd}`  \nCommit: {commit()}  \n"
@@ -134,7 +177,9 @@ def main(argv=None):
                       "round robin in one process (the ratios are the figures to read: the machine "
                       "was shared with other jobs). Set-up: trace, differentiation and compilation of "
                       "the AD model (the hand-written kernels: first call, loaded from numba's disk "
-                      "cache).\n\n" + text + "\n")
+                      "cache).\n\n" + text + "\n\n"
+                      f"RK4 cart-pole (tests/problems/test_autodiff.py, n = 4, m = 1, r = 2, N = {ode_N}), "
+                      "Lagrangian Hessian per stage, same process:\n\n" + ode_text + "\n")
 
 
 if __name__ == "__main__":
