@@ -417,38 +417,33 @@ class SympyBackend:
 
     def _compile(self, name, inputs, outputs):
         """Python source of one loop over the stages writing every output entry, compiled by
-        numba (the inputs are (K, size) arrays, sigma (K,); each output (K, ...))."""
+        numba like the CasADi translation (:func:`compile_kernel`: every argument a (K, size)
+        matrix, sigma (K, 1), an output's entries in C order)."""
         from sympy.printing.pycode import PythonCodePrinter   # noqa: PLC0415
-        import numba as nb   # noqa: PLC0415
         sp = self.sp
         flat, targets, shapes = [], [], []
         for o, out in enumerate(outputs):
             arr = np.array(out, dtype=object)
             shapes.append(arr.shape)
-            for idx in np.ndindex(arr.shape):
+            for j, idx in enumerate(np.ndindex(arr.shape)):
                 flat.append(sp.sympify(arr[idx]))
-                targets.append(f"o{o}[i{''.join(', ' + str(j) for j in idx)}]")
+                targets.append(f"o{o}[i, {j}]")
         subs, reduced = sp.cse(flat, symbols=sp.numbered_symbols("t"), optimizations="basic")
         printer = PythonCodePrinter({"standard": "python3", "fully_qualified_modules": True})
         args = [nm for nm, _ in inputs]
         lines = [f"def kernel({', '.join(args + [f'o{o}' for o in range(len(outputs))])}):",
                  f"    for i in range({args[0]}.shape[0]):"]
         for nm, syms in inputs:
-            if nm == "S":
-                lines.append(f"        {syms} = S[i]")
-                continue
-            for j, s in enumerate(syms):
-                lines.append(f"        {s} = {nm}[i, {j}]")
+            for j, sym in enumerate([syms] if nm == "S" else syms):
+                lines.append(f"        {sym} = {nm}[i, {j}]")
         for sym, expr in subs:
             lines.append(f"        {sym} = {printer.doprint(expr)}")
         for tgt, expr in zip(targets, reduced):
             lines.append(f"        {tgt} = {printer.doprint(expr)}")
         if not targets:
             lines.append("        pass")
-        namespace = {"math": math}
-        exec("\n".join(lines), namespace)   # noqa: S102 - source generated above from the model
-        kernel = nb.njit(namespace["kernel"])
-        return _NumbaEvaluator(kernel, shapes)
+        kernel = compile_kernel("\n".join(lines) + "\n", len(inputs) + len(outputs))
+        return _NumbaEvaluator(kernel, shapes, flat=True)
 
 
 class _NumbaEvaluator:
