@@ -50,6 +50,7 @@ SECTION = "Automatic differentiation vs hand-written Zambezi kernels"
 VARIANTS = {
     "hand-written": lambda N: Zambezi("zambezi12", N=N),
     "casadi": lambda N: ZambeziAD("zambezi12", N=N, backend="casadi"),
+    "casadi-numba": lambda N: ZambeziAD("zambezi12", N=N, backend="casadi", backend_options={"mode": "numba"}),
     "casadi-vm": lambda N: ZambeziAD("zambezi12", N=N, backend="casadi", backend_options={"mode": "vm"}),
     "casadi-jit": lambda N: ZambeziAD("zambezi12", N=N, backend="casadi", backend_options={"mode": "jit"}),
     "sympy": lambda N: ZambeziAD("zambezi12", N=N, backend="sympy"),
@@ -109,7 +110,7 @@ def measure_ode(N, modes, rounds):
     problems = {}
     for name in modes:
         backend, _, mode = name.partition("-")
-        p = CartPoleRK4(N=N, mode=mode or "numba")
+        p = CartPoleRK4(N=N, mode=mode or "llvm")
         if backend == "sympy":
             p.ad_backend, p.ad_options = "sympy", {}
         p.ad_functions()
@@ -165,7 +166,7 @@ def main(argv=None):
     text = table(results, args.N, args.variants)
     print(text)
     ode_N = 252
-    ode = measure_ode(ode_N, ["casadi-numba", "casadi-vm", "casadi-jit"] + (["sympy"] if args.ode_sympy else []), 100)
+    ode = measure_ode(ode_N, ["casadi-llvm", "casadi-numba", "casadi-vm", "casadi-jit"] + (["sympy"] if args.ode_sympy else []), 100)
     ode_text = ode_table(ode, ode_N)
     print(ode_text)
     if args.write:

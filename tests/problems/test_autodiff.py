@@ -35,7 +35,7 @@ class CartPoleRK4(AutoDiffDOCP):
     """Cart-pole swing-down by RK4 steps of varying length (the step is stage data), a nonlinear
     path constraint and final equality constraints: every function of the DOCP is exercised."""
 
-    def __init__(self, N=8, mode="vm"):
+    def __init__(self, N=8, mode="llvm"):
         self.ad_options = {"mode": mode}
         super().__init__(4, 1, N, np.array([0.0, 0.3, 0.0, 0.0]), u_bounds=(-20, 20),
                          n_stage_constraints=2, n_final_constraints=2, final_equalities=[0])
@@ -92,7 +92,7 @@ def casadi():
     return pytest.importorskip("casadi")
 
 
-@pytest.mark.parametrize("mode", ["vm", "numba"])
+@pytest.mark.parametrize("mode", ["llvm", "vm", pytest.param("numba", marks=pytest.mark.slow)])
 def test_zambezi_ad_equals_hand_written_kernels(casadi, mode):
     """Values, Jacobians, gradients and Lagrangian Hessians of the AD model equal the hand-written
     numba kernels to rounding, at random points with random multipliers."""
@@ -110,7 +110,7 @@ def test_zambezi_ad_same_sqp_iterates(casadi):
     objective as the hand-written one."""
     import olado
 
-    hand, ad = Zambezi(N=24), ZambeziAD(N=24, backend_options={"mode": "vm"})
+    hand, ad = Zambezi(N=24), ZambeziAD(N=24)
     r_hand = olado.solve(hand, config="configs/sqp-ip.ini")
     r_ad = olado.solve(ad, config="configs/sqp-ip.ini")
     assert r_hand.success and r_ad.success, (r_hand.message, r_ad.message)
@@ -155,12 +155,13 @@ class Operations(AutoDiffDOCP):
         return x[0] * x[0] - autodiff.exp(x[1]) * x[0], [x[0] ** 2 + x[1] ** 2 - 1]
 
 
-def test_numba_translation_equals_casadi_evaluation(casadi):
-    """The SX algorithm compiled by numba gives CasADi's own values (virtual machine) for every
-    elementary function and every DOCP function and derivative."""
-    vm, nb = Operations("vm"), Operations("numba")
+@pytest.mark.parametrize("mode", ["llvm", pytest.param("numba", marks=pytest.mark.slow)])
+def test_compiled_translation_equals_casadi_evaluation(casadi, mode):
+    """The SX algorithm compiled by LLVM (or numba) gives CasADi's own values (its virtual
+    machine) for every elementary function and every DOCP function and derivative."""
+    vm, compiled = Operations("vm"), Operations(mode)
     X, U = _point(vm, seed=3, scale=0.2)
-    report = check_derivatives(nb, vm, X, U, rtol=1e-13, atol=1e-14)
+    report = check_derivatives(compiled, vm, X, U, rtol=1e-13, atol=1e-14)
     assert report.ok, str(report)
     assert {"stage_constraints", "final_constraints", "stage_hessian huu"} <= {c.name for c in report.checks}
 
@@ -168,7 +169,7 @@ def test_numba_translation_equals_casadi_evaluation(casadi):
 def test_stage_subsets_take_their_own_data(casadi):
     """A call on some stages (a line search's, DOCP.simulate's one stage) uses those stages'
     data rows, as the hand-written model does."""
-    hand, ad = Zambezi(N=24), ZambeziAD(N=24, backend_options={"mode": "vm"})
+    hand, ad = Zambezi(N=24), ZambeziAD(N=24)
     X, U = _point(hand)
     k = np.array([3, 17, 5])
     np.testing.assert_allclose(ad.dynamics(k, X[k], U[k]), hand.dynamics(k, X[k], U[k]), rtol=1e-14)
