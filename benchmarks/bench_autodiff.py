@@ -4,8 +4,9 @@ Zambezi (zambezi12) is built twice: the hand-written model (olado.problems.zambe
 for every derivative) and the same equations written once for automatic differentiation
 (olado.problems.zambezi_ad.ZambeziAD) with each back-end:
 
-* ``casadi``      CasADi SX derivatives, each function's SX algorithm translated to a numba loop
-                  over the stages (the default back-end)
+* ``casadi``      CasADi SX derivatives, each function's SX algorithm translated to LLVM IR (a
+                  loop over the stages) compiled by llvmlite (the default back-end)
+* ``casadi-numba`` the same algorithm as Python compiled by numba (disk-cached)
 * ``casadi-vm``   the same functions, Function.map over the stages, CasADi's virtual machine
 * ``casadi-jit``  Function.map of the functions compiled by the system's C compiler (CasADi's jit)
 * ``sympy``       SymPy derivatives + common subexpressions, one numba loop per function
@@ -16,7 +17,8 @@ loaded machine slows them alike), the user-level stage methods of the model (``d
 ``eval_*`` call) and reports the median per call, per stage (ns) and the ratio to the
 hand-written kernel. The set-up time is the AD model's trace + differentiation + compilation
 (``AutoDiffDOCP.setup_time``, first evaluation); the hand-written kernels load from numba's
-disk cache.
+disk cache. The second horizon's AD set-up reuses the first one's compiled code (LLVM: in the
+process; numba: its disk cache): the stage data are arguments, the code does not depend on N.
 
 A second table does the same for an ODE transcription, where the expression graphs are deeper:
 the cart-pole of tests/problems/test_autodiff.py (RK4 with sin, cos and divisions, a path and a
