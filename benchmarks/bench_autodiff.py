@@ -26,8 +26,15 @@ final constraint), ``stage_hessian`` per stage and set-up, for the AD back-ends 
 hand-written version). SymPy is left out of it by default (``--ode-sympy``): its symbolic
 Hessian of one RK4 step took 436 s to build here.
 
+A third table (``--solve``) solves zambezi12 with sqp-ip (configs/sqp-ip.ini) through both
+models: iterations, objective, the largest difference of the final controls, and as a yardstick
+the same difference between two solves of the hand-written model whose start differs by one
+part in 10^15 (zambezi12's solution is not unique in some spillages: rounding-level differences
+move the final point along that face).
+
     python benchmarks/bench_autodiff.py                 # N = 252, 12000; prints the tables
     python benchmarks/bench_autodiff.py --write         # and writes the RESULTS.md section
+    python benchmarks/bench_autodiff.py --solve-only --write-solve   # only the solve table
 """
 
 from __future__ import annotations
@@ -49,6 +56,7 @@ from olado.problems.zambezi import Zambezi  # noqa: E402
 from olado.problems.zambezi_ad import ZambeziAD  # noqa: E402
 
 SECTION = "Automatic differentiation vs hand-written Zambezi kernels"
+SOLVE_SECTION = "Zambezi through automatic differentiation: the same SQP iterates"
 VARIANTS = {
     "hand-written": lambda N: Zambezi("zambezi12", N=N),
     "casadi": lambda N: ZambeziAD("zambezi12", N=N, backend="casadi"),
@@ -136,6 +144,28 @@ def ode_table(result, N):
     return "\n".join(lines)
 
 
+def solve_table(horizons):
+    """sqp-ip through the hand-written and the AD model, and the hand-written model from a start
+    perturbed by 1e-15 (relative), per horizon."""
+    import olado   # noqa: PLC0415
+
+    config = str(HERE.parent / "configs" / "sqp-ip.ini")
+    lines = ["| N | model | status | iterations | objective | solve (s) | max abs diff. of U from the hand-written solve |",
+             "|--:|:--|:--|--:|--:|--:|--:|"]
+    for N in horizons:
+        hand = olado.solve(Zambezi("zambezi12", N=N), config=config)
+        ad_problem = ZambeziAD("zambezi12", N=N)
+        ad = olado.solve(ad_problem, config=config)
+        p = Zambezi("zambezi12", N=N)
+        moved = olado.solve(p, config=config, guess=p.initial_guess() * (1 + 1e-15))
+        for label, r in (("hand-written", hand), (f"AD (set-up {ad_problem.setup_time:.2f} s)", ad),
+                         ("hand-written, start x (1 + 1e-15)", moved)):
+            diff = "-" if r is hand else f"{np.abs(r.u - hand.u).max():.1e}"
+            lines.append(f"| {N} | {label} | {r.status.name} | {r.iterations} | {r.objective:.15g} | "
+                         f"{r.time_s:.1f} | {diff} |")
+    return "\n".join(lines)
+
+
 def table(results, horizons, variants):
     lines = ["| N | method | " + " | ".join(variants) + " |",
              "|--:|:--|" + "--:|" * len(variants)]
@@ -160,7 +190,19 @@ def main(argv=None):
     ap.add_argument("--rounds", type=int, default=0, help="rounds per horizon (default: 400 at N <= 1000, 40 above)")
     ap.add_argument("--ode-sympy", action="store_true", help="include SymPy in the RK4 table (minutes of set-up)")
     ap.add_argument("--write", action="store_true", help=f"write the '{SECTION}' section of RESULTS.md")
+    ap.add_argument("--solve-only", action="store_true", help="only the sqp-ip solves (third table)")
+    ap.add_argument("--write-solve", action="store_true", help=f"write the solve table as '{SOLVE_SECTION}'")
     args = ap.parse_args(argv)
+    if args.solve_only:
+        text = solve_table(args.N)
+        print(text)
+        if args.write_solve:
+            write_section(SOLVE_SECTION, f"## {SOLVE_SECTION}\n\nCommand: `python benchmarks/bench_autodiff.py "
+                          f"--solve-only --write-solve`  \nCommit: {commit()}  \nDate: {time.strftime('%Y-%m-%d')}  \n"
+                          f"Machine: {machine(with_ipopt=False)} (shared with other jobs: solve times are "
+                          "orders of magnitude)\n\nzambezi12, sqp-ip (configs/sqp-ip.ini), balance start.\n\n"
+                          + text + "\n")
+        return
     results = {}
     for N in args.N:
         rounds = args.rounds or (400 if N <= 1000 else 40)
