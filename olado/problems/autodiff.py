@@ -99,7 +99,7 @@ class StageModel:
     F (scalar) and gN (rN), in the symbols x, u, d (and xN); built by a back-end's symbols."""
 
     def __init__(self, problem, backend):
-        self.n, self.m, self.q = problem.n, problem.m, problem.q
+        self.n, self.m, self.q = problem.n, problem.m, problem.n_stage_data
         self.r, self.rN = problem.r, problem.rN
         self.x, self.u, self.d = backend.vector("x", self.n), backend.vector("u", self.m), backend.vector("d", self.q)
         self.xN = backend.vector("xN", self.n)
@@ -652,8 +652,8 @@ class AutoDiffDOCP(DOCP):
 
     # ------------------------------------------------------------------ compilation
     @property
-    def q(self):
-        """Number of per-stage data entries (columns of :meth:`stage_data`)."""
+    def n_stage_data(self):
+        """Number of per-stage data entries q (columns of :meth:`stage_data`, read once)."""
         return self._data().shape[1]
 
     def _data(self):
