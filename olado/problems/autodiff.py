@@ -747,5 +747,8 @@ class AutoDiffDOCP(DOCP):
         lam = np.ascontiguousarray(np.asarray(lam, dtype=np.float64).reshape(1, self.rN))
         return self.ad_functions()["final_hessian"](x, sig, lam)[0][0]
 
-    def describe(self):
-        return super().describe() + f"\n  derivatives by automatic differentiation ({self.ad_backend})"
+    def derivative_sources(self) -> dict:
+        """As :meth:`DOCP.derivative_sources`, naming the AD back-end instead of "analytic"."""
+        what = f"automatic differentiation ({self.ad_backend}, {self.ad_options.get('mode', 'llvm')})" \
+            if self.ad_backend == "casadi" else f"automatic differentiation ({self.ad_backend})"
+        return {meth: what if src == "analytic" else src for meth, src in super().derivative_sources().items()}

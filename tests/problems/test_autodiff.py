@@ -102,7 +102,7 @@ def test_zambezi_ad_equals_hand_written_kernels(casadi, mode):
         report = check_derivatives(ad, hand, X, U, sigma=0.7, rtol=1e-12, atol=1e-14, seed=seed)
         assert report.ok, str(report)
     assert ad.setup_time > 0
-    assert "automatic differentiation (casadi)" in ad.describe()
+    assert f"automatic differentiation (casadi, {mode})" in ad.describe()
 
 
 def test_zambezi_ad_same_sqp_iterates(casadi):
