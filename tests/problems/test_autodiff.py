@@ -155,6 +155,35 @@ class Operations(AutoDiffDOCP):
         return x[0] * x[0] - autodiff.exp(x[1]) * x[0], [x[0] ** 2 + x[1] ** 2 - 1]
 
 
+def test_continuous_model_by_ad_equals_the_hand_written_model(casadi):
+    """ADModel supplies ContinuousDOCP.model's (F, J, H): LotkaFishing's right-hand side written
+    once gives its hand-written model, and the DOCP built on it (RK4 through the model) the same
+    derivatives and exact Hessians."""
+    from olado.problems.autodiff import ADModel
+    from olado.problems.literature import LotkaFishing
+
+    c0, c1 = LotkaFishing.C0, LotkaFishing.C1
+
+    class LotkaAD(LotkaFishing):
+        _ad_model = ADModel(lambda x, u: ([x[0] - x[0] * x[1] - c0 * x[0] * u[0], -x[1] + x[0] * x[1] - c1 * x[1] * u[0]],
+                                     (x[0] - 1) ** 2 + (x[1] - 1) ** 2), 2, 1)
+
+        def model(self, X, U, order):
+            return self._ad_model(X, U, order)
+
+    hand, ad = LotkaFishing(N=20), LotkaAD(N=20)
+    rng = np.random.default_rng(4)
+    X, U = rng.random((7, 2)) + 0.2, rng.random((7, 1))
+    for order in (0, 1, 2):
+        for a, b in zip(ad.model(X, U, order), hand.model(X, U, order)):
+            assert (a is None) == (b is None)
+            if a is not None:
+                np.testing.assert_allclose(a, b, rtol=1e-14, atol=1e-15)
+    Xs, Us = _point(hand, scale=0.2)
+    report = check_derivatives(ad, hand, Xs, Us, rtol=1e-12, atol=1e-14)
+    assert report.ok, str(report)
+
+
 @pytest.mark.parametrize("mode", ["llvm", pytest.param("numba", marks=pytest.mark.slow)])
 def test_compiled_translation_equals_casadi_evaluation(casadi, mode):
     """The SX algorithm compiled by LLVM (or numba) gives CasADi's own values (its virtual
