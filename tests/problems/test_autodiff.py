@@ -120,6 +120,19 @@ def test_zambezi_ad_same_sqp_iterates(casadi):
     np.testing.assert_allclose(r_ad.x, r_hand.x, rtol=1e-8, atol=1e-9)
 
 
+def test_constrained_ad_problem_solved_by_sqp_and_ipopt(casadi):
+    """The RK4 cart-pole with its path and final constraints, derivatives by AD only: sqp-ip and
+    IPOPT (through the NLP view) reach the same optimum, and olado's certificate holds."""
+    import olado
+
+    pytest.importorskip("cyipopt")
+    ref = olado.solve(CartPoleRK4(N=30), solver="ipopt")
+    r = olado.solve(CartPoleRK4(N=30), config="configs/sqp-ip.ini")
+    assert ref.success and r.success, (ref.message, r.message)
+    assert abs(r.objective - ref.objective) <= 1e-6 * max(1.0, abs(ref.objective))
+    np.testing.assert_allclose(r.u, ref.u, atol=1e-3)    # u is weighted 0.01 h: a flat objective
+
+
 def test_ode_problem_derivatives_against_finite_differences(casadi):
     """An RK4 transcription with sin/cos, divisions, stage data, path and final constraints: the
     AD derivatives and Lagrangian Hessians (stage and final) against central differences."""
