@@ -777,7 +777,7 @@ class AutoDiffDOCP(DOCP):
         return self._eval("stage_constraints_jacobian", k, x, u)
 
     def stage_hessian(self, k, x, u, sigma, p, lam):
-        K = np.shape(x)[0]
+        K = np.atleast_2d(x).shape[0]
         sig = np.ascontiguousarray(np.broadcast_to(np.asarray(sigma, dtype=np.float64).reshape(-1), (K,)))
         p = np.ascontiguousarray(p, dtype=np.float64)
         lam = np.ascontiguousarray(lam, dtype=np.float64).reshape(K, self.r)
