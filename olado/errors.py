@@ -71,6 +71,11 @@ class SolverNotAvailableError(SolverError, ImportError):
     """An optional solver backend is not installed; the message says how to install it."""
 
 
+class AutoDiffNotAvailableError(ProblemDefinitionError, ImportError):
+    """A problem written for automatic differentiation (:mod:`olado.problems.autodiff`) needs a
+    back-end that is not installed; the message names the optional extra that installs it."""
+
+
 class ResultFileError(OladoError, ValueError):
     """A saved result (the JSON written by :meth:`olado.result.Result.save`, or the ``.npz``
     beside it) cannot be read: not valid JSON, a newer format version, a missing field or one of
