@@ -66,8 +66,8 @@ def _point(p, seed=1, scale=0.3):
 
 # ============================================================================ without the extra
 def test_missing_backend_names_the_extra(monkeypatch):
-    real = autodiff.importlib.util.find_spec
-    monkeypatch.setattr(autodiff.importlib.util, "find_spec",
+    real = autodiff.backends.importlib.util.find_spec
+    monkeypatch.setattr(autodiff.backends.importlib.util, "find_spec",
                         lambda name, *a: None if name in ("casadi", "sympy") else real(name, *a))
     with pytest.raises(AutoDiffNotAvailableError, match=r"pip install olado\[ad\]") as info:
         ZambeziAD(N=12)
