@@ -145,7 +145,7 @@ class OCP(AutoDiffDOCP):
             raise ProblemDefinitionError("rhs must be a function rhs(t, x, u, p)", function="OCP", array="rhs")
         if method not in ("rk4", "euler"):
             raise ProblemDefinitionError(f"method must be 'rk4' or 'euler', got {method!r}", function="OCP", array="method")
-        for val, nm, lo in ((N, "N", 1), (substeps, "substeps", 1), (controls, "controls", 1), (parameters, "parameters", 0)):
+        for val, nm, lo in ((N, "N", 1), (substeps, "substeps", 1), (controls, "controls", 0), (parameters, "parameters", 0)):
             if isinstance(val, bool) or not isinstance(val, (int, np.integer)) or val < lo:
                 raise ProblemDefinitionError(f"{nm} must be an integer >= {lo}, got {val!r}", function="OCP", array=nm)
         self.x_init = np.asarray(x0, dtype=float).reshape(-1)
@@ -174,7 +174,7 @@ class OCP(AutoDiffDOCP):
         self.n_par = int(self.free_time) + self.np_ + len(self.free_x0)
         self.has_parameter_stage = self.n_par > 0
         self.n_aug = self.nx + int(self.free_time) + self.np_
-        M = max(self.nu, self.n_par)
+        M = max(self.nu, self.n_par, 1)     # unused control entries cost 1/2 u^2 (zero at the optimum)
         Nd = self.intervals + int(self.has_parameter_stage)
         # a safe control at which the integrator branch is evaluated on the parameter stage
         self._u_ref = np.clip(0.0, ul, uu)
@@ -298,7 +298,7 @@ class OCP(AutoDiffDOCP):
         m, M = self.nu, self.m
         flag = d[2] if self.has_parameter_stage else 0.0
         # on the parameter stage the integrator branch sees a fixed safe control, not u^0
-        uc = u[:m] if not self.has_parameter_stage else (1 - flag) * u[:m] + flag * ca.DM(self._u_ref)
+        uc = u[:m] if not self.has_parameter_stage or not m else (1 - flag) * u[:m] + flag * ca.DM(self._u_ref)
         xs, cost = self._integrate(X, uc, p, T, d)
         tail = [T] if self.free_time else []
         x_next = ca.vertcat(xs, *tail, p)
