@@ -219,3 +219,41 @@ def test_refusals_name_the_argument():
     bad = OCP(lambda t, x, u, p: [u[0], x[0]], [0.0], controls=1, T=1.0, N=4)
     with pytest.raises(ProblemDefinitionError, match="rhs"):
         bad.eval_dynamics(np.zeros((5, 1)), np.zeros((4, 1)))
+
+
+# ---------------------------------------------------------------------------- the documented example
+def power_limited_car(N=60):
+    """docs/continuous-time.md and the README: minimum time to a stop 10 m away, |u| <= 1, drag,
+    v >= 0, power u v <= 1 as a path constraint."""
+    return olado.OCP(rhs=lambda t, x, u, p: [x[1], u[0] - 0.1 * x[1] ** 2], x0=[0.0, 0.0], controls=1, N=N,
+                     T=None, T_bounds=(1.0, 100.0), T_guess=10.0, minimum_time=True,
+                     u_bounds=(-1.0, 1.0), x_bounds=([-np.inf, 0.0], None),
+                     path=lambda t, x, u, p: [1.0 - u[0] * x[1]],
+                     terminal=lambda t, x, p: [x[0] - 10.0, x[1]], terminal_equalities=[0, 1])
+
+
+def test_documented_example_by_sqp_and_ipopt():
+    """sqp-ip and IPOPT agree; the arcs are those of the continuous problem: u = 1 while the speed
+    is below sqrt(10) tanh(t / sqrt(10)) < 1 (the drag-limited acceleration from rest, closed form),
+    then the power limit u v = 1 active, then u = -1."""
+    car = power_limited_car()
+    ref = olado.solve(car, config=_ipopt())
+    r = olado.solve(car, config=SQP)
+    assert ref.success and r.success, (ref.message, r.message)
+    s = car.solution(r)
+    assert abs(s.tf - car.solution(ref).tf) < 1e-6 and abs(s.tf - 7.161434) < 1e-6
+    assert s.tf > 2 * np.sqrt(10.0)                    # slower than without drag and power limit
+    v, u = s.x[:, 1], s.u[:, 0]
+    free = s.t[:-1] < np.sqrt(10) * np.arctanh(1 / np.sqrt(10)) - 1e-9
+    np.testing.assert_allclose(u[free], 1.0, atol=1e-6)
+    np.testing.assert_allclose(v[:-1][free], np.sqrt(10) * np.tanh(s.t[:-1][free] / np.sqrt(10)), atol=1e-6)
+    power = u * v[:-1]
+    assert power.max() <= 1.0 + 1e-7 and np.sum(power > 1 - 1e-6) >= 30
+    assert np.all(u[-15:] < -1 + 1e-6)
+
+
+def test_documented_example_by_penalty_with_ddp_inside():
+    """The augmented-Lagrangian penalty method with DDP as its inner method reaches the same t_f."""
+    r = olado.solve(power_limited_car(), config="configs/penalty-al.ini", inner="ddp")
+    assert r.success, r.message
+    assert abs(r.objective - 7.161434082829409) < 1e-6
