@@ -257,3 +257,36 @@ def test_documented_example_by_penalty_with_ddp_inside():
     r = olado.solve(power_limited_car(), config="configs/penalty-al.ini", inner="ddp")
     assert r.success, r.message
     assert abs(r.objective - 7.161434082829409) < 1e-6
+
+
+# ---------------------------------------------------------------------------- free final time vs ContinuousDOCP
+def brachistochrone_ocp(N=50):
+    """literature.Brachistochrone (a ContinuousDOCP with its own parameter stage) on OCP."""
+    g = 9.81
+    return OCP(lambda t, x, u, p: [x[2] * cos(u[0]), x[2] * sin(u[0]), g * sin(u[0])], [0.0, 0.0, 0.0],
+               controls=1, N=N, T=None, T_bounds=(0.01, 10.0), T_guess=1.0, minimum_time=True,
+               u_bounds=(-np.pi / 2, np.pi / 2), u_guess=np.pi / 4,
+               terminal=lambda t, x, p: [x[0] - 1.0], terminal_equalities=[0])
+
+
+def test_free_final_time_is_the_continuous_docp_transcription():
+    """With a free final time OCP builds the DOCP that ContinuousDOCP builds by hand for the
+    brachistochrone (N intervals = its N - 1 steps): the same values and first derivatives
+    (its Hessians are finite differences: compared loosely), and the same optimum near the
+    cycloid's T* = sqrt(pi / g)."""
+    from olado.problems.literature import Brachistochrone
+
+    ocp, hand = brachistochrone_ocp(50), Brachistochrone(N=51)
+    assert (ocp.n, ocp.m, ocp.N) == (hand.n, hand.m, hand.N)
+    U = hand.initial_guess() + 0.1 * np.random.default_rng(2).standard_normal((hand.N, 1))
+    np.testing.assert_array_equal(ocp.initial_guess(), hand.initial_guess())
+    X = hand.simulate(U)
+    report = check_derivatives(ocp, hand, X, U, rtol=1e-11, atol=1e-13, hessians=False)
+    assert report.ok, str(report)
+    report = check_derivatives(ocp, hand, X, U, rtol=1e-4, atol=1e-6)
+    assert report.ok, str(report)
+    r_ocp = olado.solve(ocp, config=SQP)
+    r_hand = olado.solve(hand, config=SQP)
+    assert r_ocp.success and r_hand.success, (r_ocp.message, r_hand.message)
+    assert abs(r_ocp.objective - r_hand.objective) < 1e-8
+    assert abs(r_ocp.objective - np.sqrt(np.pi / 9.81)) < 1e-4
