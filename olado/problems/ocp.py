@@ -80,6 +80,16 @@ def _pair(spec, size, name):
     return out
 
 
+def _guess(value, shape, name):
+    """A start value broadcast to ``shape`` (a scalar, one row, or the full array)."""
+    arr = np.asarray(value, dtype=float)
+    try:
+        return np.broadcast_to(arr, shape).copy()
+    except ValueError:
+        raise ProblemDefinitionError(f"expected shape {shape} or a row of it, got {arr.shape}",
+                                     function="OCP", array=name) from None
+
+
 def _mask(spec, size, name):
     mask = np.zeros(size, dtype=bool)
     if spec is None:
@@ -141,16 +151,56 @@ class OCP(AutoDiffDOCP):
                  minimum_time=False, t0=0.0, method="rk4", substeps=1, u_guess=None, x_guess=None,
                  grid=None, mode="llvm", name=None):
         require_backend("casadi")
+        self._check_arguments(rhs, method, N=N, substeps=substeps, controls=controls, parameters=parameters)
+        self.x_init = np.asarray(x0, dtype=float).reshape(-1)
+        self.nx, self.nu, self.np_ = len(self.x_init), int(controls), int(parameters)
+        self.intervals, self.substeps, self.method, self.t0 = int(N), int(substeps), method, float(t0)
+        self._set_time(T, minimum_time)
+        self._f, self._L, self._phi, self._g, self._psi = rhs, running_cost, final_cost, path, terminal
+        self.free_x0 = np.flatnonzero(_mask(free_x0, self.nx, "free_x0"))
+        bounds = {"x": _pair(x_bounds, self.nx, "x_bounds"), "u": _pair(u_bounds, self.nu, "u_bounds"),
+                  "p": _pair(p_bounds, self.np_, "p_bounds"), "T": _pair(T_bounds, 1, "T_bounds")}
+        bounds["x0"] = _pair(x0_bounds, self.nx, "x0_bounds") if x0_bounds is not None else bounds["x"]
+        self._check_x0(bounds["x"])
+        self._T_guess = self._guess_T(T_guess, float(bounds["T"][0][0]), float(bounds["T"][1][0]))
+        self._p_guess = np.zeros(self.np_) if p_guess is None else _guess(p_guess, (self.np_,), "p_guess")
+        self._grid = self._make_grid(grid)
+        self._u_guess = None if u_guess is None else _guess(u_guess, (self.intervals, self.nu), "u_guess")
+        self._x_guess = None if x_guess is None else _guess(x_guess, (self.intervals + 1, self.nx), "x_guess")
+        # the parameter stage: its controls set T, p and the free initial components, in that order
+        self.n_par = int(self.free_time) + self.np_ + len(self.free_x0)
+        self.has_parameter_stage = self.n_par > 0
+        self.n_aug = self.nx + int(self.free_time) + self.np_
+        # a safe control at which the integrator branch is evaluated on the parameter stage
+        self._u_ref = np.clip(0.0, *bounds["u"])
+        r, rN = self._count(path, self.nu), self._count(terminal, None)
+        self._path_equalities = _mask(path_equalities, r, "path_equalities")
+        if self.has_parameter_stage and self._path_equalities.any():
+            raise ProblemDefinitionError("path equalities are not offered with a parameter stage (free final "
+                                         "time, parameters or free initial states) yet", function="OCP",
+                                         array="path_equalities")
+        X0 = np.concatenate([self.x_init, [self._T_guess] if self.free_time else [], self._p_guess])
+        XB, UB = self._docp_bounds(bounds)
+        if name is not None:
+            self.name = name
+        super().__init__(self.n_aug, UB[0].shape[1], UB[0].shape[0], X0, x_bounds=XB, u_bounds=UB,
+                         n_stage_constraints=r, n_final_constraints=rN,
+                         stage_equalities=self._path_equalities, final_equalities=terminal_equalities)
+        self.ad_options = {"mode": mode}
+
+    # ------------------------------------------------------------------ construction helpers
+    @staticmethod
+    def _check_arguments(rhs, method, **counts):
         if not callable(rhs):
             raise ProblemDefinitionError("rhs must be a function rhs(t, x, u, p)", function="OCP", array="rhs")
         if method not in ("rk4", "euler"):
             raise ProblemDefinitionError(f"method must be 'rk4' or 'euler', got {method!r}", function="OCP", array="method")
-        for val, nm, lo in ((N, "N", 1), (substeps, "substeps", 1), (controls, "controls", 0), (parameters, "parameters", 0)):
-            if isinstance(val, bool) or not isinstance(val, (int, np.integer)) or val < lo:
-                raise ProblemDefinitionError(f"{nm} must be an integer >= {lo}, got {val!r}", function="OCP", array=nm)
-        self.x_init = np.asarray(x0, dtype=float).reshape(-1)
-        self.nx, self.nu, self.np_ = len(self.x_init), int(controls), int(parameters)
-        self.intervals, self.substeps, self.method, self.t0 = int(N), int(substeps), method, float(t0)
+        lowest = {"N": 1, "substeps": 1, "controls": 0, "parameters": 0}
+        for nm, val in counts.items():
+            if isinstance(val, bool) or not isinstance(val, (int, np.integer)) or val < lowest[nm]:
+                raise ProblemDefinitionError(f"{nm} must be an integer >= {lowest[nm]}, got {val!r}", function="OCP", array=nm)
+
+    def _set_time(self, T, minimum_time):
         self.free_time = T is None
         if minimum_time and not self.free_time:
             raise ProblemDefinitionError("minimum_time needs a free final time (T=None)", function="OCP", array="T")
@@ -158,54 +208,35 @@ class OCP(AutoDiffDOCP):
             raise ProblemDefinitionError(f"T must be positive, got {T!r}", function="OCP", array="T")
         self.horizon = None if self.free_time else float(T)
         self.minimum_time = bool(minimum_time)
-        self._f, self._L, self._phi = rhs, running_cost, final_cost
-        self._g, self._psi = path, terminal
-        self.free_x0 = np.flatnonzero(_mask(free_x0, self.nx, "free_x0"))
-        xl, xu = _pair(x_bounds, self.nx, "x_bounds")
-        ul, uu = _pair(u_bounds, self.nu, "u_bounds")
-        pl, pu = _pair(p_bounds, self.np_, "p_bounds")
-        x0l, x0u = _pair(x0_bounds, self.nx, "x0_bounds") if x0_bounds is not None else (xl, xu)
-        Tl, Tu = _pair(T_bounds, 1, "T_bounds")
-        self._T_guess = self._guess_T(T_guess, Tl[0], Tu[0])
-        self._p_guess = np.zeros(self.np_) if p_guess is None else np.asarray(p_guess, dtype=float).reshape(self.np_)
-        self._grid = self._make_grid(grid)
-        self._u_guess, self._x_guess = u_guess, x_guess
-        # the parameter stage: its controls set T, p and the free initial components, in that order
-        self.n_par = int(self.free_time) + self.np_ + len(self.free_x0)
-        self.has_parameter_stage = self.n_par > 0
-        self.n_aug = self.nx + int(self.free_time) + self.np_
-        M = max(self.nu, self.n_par, 1)     # unused control entries cost 1/2 u^2 (zero at the optimum)
-        Nd = self.intervals + int(self.has_parameter_stage)
-        # a safe control at which the integrator branch is evaluated on the parameter stage
-        self._u_ref = np.clip(0.0, ul, uu)
-        r, rN = self._count("path", path, self.nu), self._count("terminal", terminal, None)
-        self._path_equalities = _mask(path_equalities, r, "path_equalities")
-        if self.has_parameter_stage and self._path_equalities.any():
-            raise ProblemDefinitionError("path equalities are not offered with a parameter stage (free final "
-                                         "time, parameters or free initial states) yet", function="OCP",
-                                         array="path_equalities")
-        X0 = np.concatenate([self.x_init, [self._T_guess] if self.free_time else [], self._p_guess])
-        XL = np.full((Nd + 1, self.n_aug), -np.inf)
-        XU = np.full((Nd + 1, self.n_aug), np.inf)
-        first = int(self.has_parameter_stage)
-        XL[first + 1:, :self.nx], XU[first + 1:, :self.nx] = xl, xu
-        if self.has_parameter_stage:
-            fixed = np.setdiff1d(np.arange(self.nx), self.free_x0)
-            XL[1, fixed], XU[1, fixed] = xl[fixed], xu[fixed]
-        UL, UU = np.full((Nd, M), -np.inf), np.full((Nd, M), np.inf)
-        UL[first:, :self.nu], UU[first:, :self.nu] = ul, uu
-        if self.has_parameter_stage:
-            pars_lo = np.concatenate([Tl if self.free_time else [], pl, x0l[self.free_x0]])
-            pars_hi = np.concatenate([Tu if self.free_time else [], pu, x0u[self.free_x0]])
-            UL[0, :self.n_par], UU[0, :self.n_par] = pars_lo, pars_hi
-        if name is not None:
-            self.name = name
-        super().__init__(self.n_aug, M, Nd, X0, x_bounds=(XL, XU), u_bounds=(UL, UU),
-                         n_stage_constraints=r, n_final_constraints=rN,
-                         stage_equalities=self._path_equalities, final_equalities=terminal_equalities)
-        self.ad_options = {"mode": mode}
 
-    # ------------------------------------------------------------------ construction helpers
+    def _check_x0(self, x_bounds):
+        """The fixed initial components must lie within the state bounds (the DOCP does not
+        bound its fixed x^0: a violation would otherwise go unnoticed or read as infeasible)."""
+        fixed = np.setdiff1d(np.arange(self.nx), self.free_x0)
+        lo, hi = x_bounds
+        bad = fixed[(self.x_init[fixed] < lo[fixed]) | (self.x_init[fixed] > hi[fixed])]
+        if bad.size:
+            i = int(bad[0])
+            raise ProblemDefinitionError(f"x0[{i}] = {self.x_init[i]:g} lies outside its bounds "
+                                         f"[{lo[i]:g}, {hi[i]:g}]", function="OCP", array="x0")
+
+    def _docp_bounds(self, b):
+        """The DOCP's state bounds (N_d + 1, n_aug) and control bounds (N_d, M): the physical
+        state bounds after the initial point, the control bounds on the intervals, on the
+        parameter stage the bounds of T, p and the free initial components."""
+        M = max(self.nu, self.n_par, 1)     # unused control entries cost 1/2 u^2 (zero at the optimum)
+        first = int(self.has_parameter_stage)
+        Nd = self.intervals + first
+        XL, XU = np.full((Nd + 1, self.n_aug), -np.inf), np.full((Nd + 1, self.n_aug), np.inf)
+        XL[first + 1:, :self.nx], XU[first + 1:, :self.nx] = b["x"]
+        UL, UU = np.full((Nd, M), -np.inf), np.full((Nd, M), np.inf)
+        UL[first:, :self.nu], UU[first:, :self.nu] = b["u"]
+        if self.has_parameter_stage:
+            lo = [b["T"][0] if self.free_time else [], b["p"][0], b["x0"][0][self.free_x0]]
+            hi = [b["T"][1] if self.free_time else [], b["p"][1], b["x0"][1][self.free_x0]]
+            UL[0, :self.n_par], UU[0, :self.n_par] = np.concatenate(lo), np.concatenate(hi)
+        return (XL, XU), (UL, UU)
+
     def _guess_T(self, T_guess, lo, hi):
         if not self.free_time:
             return self.horizon
@@ -224,7 +255,7 @@ class OCP(AutoDiffDOCP):
                                          function="OCP", array="grid")
         return g
 
-    def _count(self, which, fn, m):
+    def _count(self, fn, m):
         """The number of entries ``fn`` returns, by tracing it once on symbols (0 without fn)."""
         if fn is None:
             return 0
@@ -345,8 +376,7 @@ class OCP(AutoDiffDOCP):
         U = super().initial_guess()
         first = int(self.has_parameter_stage)
         if self._u_guess is not None:
-            g = np.asarray(self._u_guess, dtype=float)
-            U[first:, :self.nu] = np.broadcast_to(g, (self.intervals, self.nu)) if g.ndim < 2 else g
+            U[first:, :self.nu] = self._u_guess
         if self.has_parameter_stage:
             U[0] = 0.0
             U[0, :self.n_par] = self._parameter_values(self._T_guess, self._p_guess, self.x_init[self.free_x0])
@@ -359,7 +389,7 @@ class OCP(AutoDiffDOCP):
         """x_guess (N+1, n) with T and p from the parameter stage's controls, or None (simulate)."""
         if self._x_guess is None:
             return None
-        g = np.asarray(self._x_guess, dtype=float).reshape(self.intervals + 1, self.nx)
+        g = self._x_guess
         X = np.empty((self.N + 1, self.n))
         X[0] = self.x0
         first = int(self.has_parameter_stage)

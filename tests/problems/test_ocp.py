@@ -290,3 +290,33 @@ def test_free_final_time_is_the_continuous_docp_transcription():
     assert r_ocp.success and r_hand.success, (r_ocp.message, r_hand.message)
     assert abs(r_ocp.objective - r_hand.objective) < 1e-8
     assert abs(r_ocp.objective - np.sqrt(np.pi / 9.81)) < 1e-4
+
+
+# ---------------------------------------------------------------------------- time, grid, guesses
+@pytest.mark.parametrize("free", [False, True])
+def test_time_reaches_the_rk4_stages_on_a_nonuniform_grid(free):
+    """x' = t^3 from x(t0) = 0: RK4 (Simpson's rule in t) is exact for cubics, so x at the grid
+    points is (t^4 - t0^4)/4 on any grid, with a fixed or a free (time-scaled) final time."""
+    grid = np.array([0.0, 0.1, 0.35, 0.5, 0.9, 1.0])
+    ocp = OCP(lambda t, x, u, p: [t ** 3 + 0 * u[0]], [0.0], controls=1, N=5, grid=grid, t0=0.5,
+              T=None if free else 2.0, T_guess=2.0)
+    U = ocp.initial_guess()
+    s = ocp.solution((ocp.simulate(U), U))
+    np.testing.assert_allclose(s.t, 0.5 + 2.0 * grid)
+    np.testing.assert_allclose(s.x[:, 0], (s.t ** 4 - 0.5 ** 4) / 4, rtol=1e-13)
+
+
+def test_guesses_and_x0_are_checked():
+    f = lambda t, x, u, p: [u[0]]  # noqa: E731
+    with pytest.raises(ProblemDefinitionError, match="x0.*outside its bounds"):
+        OCP(f, [2.0], controls=1, T=1.0, x_bounds=(0.0, 1.0))
+    OCP(f, [2.0], controls=1, T=1.0, x_bounds=(0.0, 1.0), free_x0=[0])      # free: a guess only
+    with pytest.raises(ProblemDefinitionError, match="u_guess"):
+        OCP(f, [0.0], controls=1, N=4, T=1.0, u_guess=np.zeros(3))
+    ocp = OCP(f, [0.0], controls=1, N=4, T=1.0, u_guess=np.arange(4.0)[:, None])
+    np.testing.assert_array_equal(ocp.initial_guess()[:, 0], np.arange(4.0))
+    x_guess = np.linspace(0, 1, 5)[:, None]
+    ocp = OCP(f, [0.0], controls=1, N=4, T=None, T_guess=3.0, x_guess=x_guess)
+    X = ocp.initial_state_guess(ocp.initial_guess())
+    np.testing.assert_array_equal(X[1:, 0], x_guess[:, 0])
+    np.testing.assert_array_equal(X[1:, 1], 3.0)
