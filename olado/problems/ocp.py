@@ -90,6 +90,21 @@ def _guess(value, shape, name):
                                      function="OCP", array=name) from None
 
 
+def _call(fn, name, *args):
+    """The user's function on symbolic arguments; an exception becomes a ProblemDefinitionError
+    naming the function and the usual cause."""
+    try:
+        return fn(*args)
+    except ProblemDefinitionError:
+        raise
+    except Exception as exc:
+        raise ProblemDefinitionError(
+            f"cannot be evaluated on symbolic arguments ({type(exc).__name__}: {str(exc).splitlines()[0][:200]}); "
+            "OCP functions are traced once with CasADi symbols: use + - * / ** and the functions of "
+            "olado.problems.autodiff (sin, exp, fmax, ...), no Python branch on t, x, u or p",
+            function=name) from exc
+
+
 def _mask(spec, size, name):
     mask = np.zeros(size, dtype=bool)
     if spec is None:
@@ -173,7 +188,7 @@ class OCP(AutoDiffDOCP):
         self.n_aug = self.nx + int(self.free_time) + self.np_
         # a safe control at which the integrator branch is evaluated on the parameter stage
         self._u_ref = np.clip(0.0, *bounds["u"])
-        r, rN = self._count(path, self.nu), self._count(terminal, None)
+        r, rN = self._trace_user_functions()
         self._path_equalities = _mask(path_equalities, r, "path_equalities")
         if self.has_parameter_stage and self._path_equalities.any():
             raise ProblemDefinitionError("path equalities are not offered with a parameter stage (free final "
@@ -255,14 +270,19 @@ class OCP(AutoDiffDOCP):
                                          function="OCP", array="grid")
         return g
 
-    def _count(self, fn, m):
-        """The number of entries ``fn`` returns, by tracing it once on symbols (0 without fn)."""
-        if fn is None:
-            return 0
+    def _trace_user_functions(self):
+        """Call every user function once on symbols: wrong sizes and functions that cannot take
+        symbolic arguments are refused here, by name; returns (r, r_N), the numbers of path and
+        terminal constraints."""
         import casadi as ca   # noqa: PLC0415 - the optional extra
-        t, x, p = ca.SX.sym("t"), ca.SX.sym("x", self.nx), ca.SX.sym("p", self.np_)
-        out = fn(t, x, ca.SX.sym("u", m), p) if m is not None else fn(t, x, p)
-        return len(StageModel._entries(out))
+        t, x, u, p = ca.SX.sym("t"), ca.SX.sym("x", self.nx), ca.SX.sym("u", self.nu), ca.SX.sym("p", self.np_)
+        self._vec(_call(self._f, "rhs", t, x, u, p), self.nx, "rhs")
+        for fn, name, args in ((self._L, "running_cost", (t, x, u, p)), (self._phi, "final_cost", (t, x, p))):
+            if fn is not None:
+                self._vec(_call(fn, name, *args), 1, name)
+        r = len(StageModel._entries(_call(self._g, "path", t, x, u, p))) if self._g is not None else 0
+        rN = len(StageModel._entries(_call(self._psi, "terminal", t, x, p))) if self._psi is not None else 0
+        return r, rN
 
     # ------------------------------------------------------------------ the traced DOCP
     def stage_data(self):
@@ -294,8 +314,8 @@ class OCP(AutoDiffDOCP):
     def _field(self, t, x, u, p):
         """(f, L) at one point, as an SX vector of n + 1 entries."""
         import casadi as ca   # noqa: PLC0415
-        f = self._vec(self._f(t, x, u, p), self.nx, "rhs")
-        L = self._vec(self._L(t, x, u, p), 1, "running_cost") if self._L is not None else ca.SX(0)
+        f = self._vec(_call(self._f, "rhs", t, x, u, p), self.nx, "rhs")
+        L = self._vec(_call(self._L, "running_cost", t, x, u, p), 1, "running_cost") if self._L is not None else ca.SX(0)
         return f, L
 
     def _step(self, t, x, u, p, h):
@@ -335,7 +355,7 @@ class OCP(AutoDiffDOCP):
         x_next = ca.vertcat(xs, *tail, p)
         cost = cost + 0.5 * ca.sumsqr(u[m:]) if M > m else cost
         t = self.t0 + (T * d[0] if self.free_time else d[0])
-        g = self._vec(self._g(t, X, uc, p), self.r, "path") if self.r else ca.SX(0, 1)
+        g = self._vec(_call(self._g, "path", t, X, uc, p), self.r, "path") if self.r else ca.SX(0, 1)
         if not self.has_parameter_stage:
             return x_next, cost, g
         par_next, par_cost = self._parameter_map(x, u)
@@ -363,10 +383,10 @@ class OCP(AutoDiffDOCP):
         import casadi as ca   # noqa: PLC0415
         X, T, p = self._split_state(x)
         tf = self.t0 + T
-        cost = self._vec(self._phi(tf, X, p), 1, "final_cost") if self._phi is not None else ca.SX(0)
+        cost = self._vec(_call(self._phi, "final_cost", tf, X, p), 1, "final_cost") if self._phi is not None else ca.SX(0)
         if self.minimum_time:
             cost = cost + T
-        psi = self._vec(self._psi(tf, X, p), self.rN, "terminal") if self.rN else ca.SX(0, 1)
+        psi = self._vec(_call(self._psi, "terminal", tf, X, p), self.rN, "terminal") if self.rN else ca.SX(0, 1)
         return cost, psi
 
     # ------------------------------------------------------------------ start point

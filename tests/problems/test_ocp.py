@@ -216,9 +216,12 @@ def test_refusals_name_the_argument():
         OCP(f, [0.0], controls=1, T=1.0, method="rk45")
     with pytest.raises(ProblemDefinitionError, match="path equalities"):
         OCP(f, [0.0], controls=1, T=None, path=lambda t, x, u, p: [x[0]], path_equalities=[0])
-    bad = OCP(lambda t, x, u, p: [u[0], x[0]], [0.0], controls=1, T=1.0, N=4)
-    with pytest.raises(ProblemDefinitionError, match="rhs"):
-        bad.eval_dynamics(np.zeros((5, 1)), np.zeros((4, 1)))
+    with pytest.raises(ProblemDefinitionError, match=r"rhs.*returned 2 entries, expected 1"):
+        OCP(lambda t, x, u, p: [u[0], x[0]], [0.0], controls=1, T=1.0, N=4)
+    with pytest.raises(ProblemDefinitionError, match=r"running_cost.*expected 1"):
+        OCP(f, [0.0], controls=1, T=1.0, running_cost=lambda t, x, u, p: [u[0], x[0]])
+    with pytest.raises(ProblemDefinitionError, match=r"path.*symbolic arguments.*no Python branch"):
+        OCP(f, [0.0], controls=1, T=1.0, path=lambda t, x, u, p: [x[0] if x[0] > 0 else -x[0]])
 
 
 # ---------------------------------------------------------------------------- the documented example
