@@ -295,6 +295,43 @@ def test_free_final_time_is_the_continuous_docp_transcription():
     assert abs(r_ocp.objective - np.sqrt(np.pi / 9.81)) < 1e-4
 
 
+def rayleigh_ocp(N=50):
+    """Rayleigh (testproblems, box variant) on OCP."""
+    return OCP(lambda t, x, u, p: [x[1], -x[0] + x[1] * (1.4 - 0.14 * x[1] ** 2) + 4 * u[0]], [-5.0, -5.0],
+               controls=1, N=N, T=4.5, running_cost=lambda t, x, u, p: u[0] ** 2 + x[0] ** 2, u_bounds=(-1.0, 1.0))
+
+
+def bang_bang_cart_ocp(N=50):
+    """literature.BangBangCart (minimum time, free T by ContinuousDOCP's parameter stage) on OCP."""
+    return OCP(lambda t, x, u, p: [x[1], u[0]], [1.0, 1.0], controls=1, N=N, T=None, T_bounds=(0.1, 20.0),
+               T_guess=4.0, minimum_time=True, u_bounds=(-1.0, 1.0), u_guess=0.0,
+               terminal=lambda t, x, p: [x[0], x[1]], terminal_equalities=[0, 1])
+
+
+@pytest.mark.parametrize("name", ["rayleigh-box", "bang-bang-cart"])
+def test_more_built_ins_on_ocp(name):
+    """Two more built-in problems written on OCP: the same DOCP (start, values, first derivatives
+    to rounding; bang-bang-cart's own Hessians are finite differences: compared loosely) and the
+    same optimum by sqp-ip (rayleigh-box)."""
+    from olado.problems import get_problems
+
+    hand = get_problems()[name](N=51 if name == "bang-bang-cart" else 50)
+    ocp = bang_bang_cart_ocp() if name == "bang-bang-cart" else rayleigh_ocp()
+    assert (ocp.n, ocp.m, ocp.N, ocp.rN) == (hand.n, hand.m, hand.N, hand.rN)
+    np.testing.assert_array_equal(ocp.initial_guess(), hand.initial_guess())
+    np.testing.assert_array_equal(ocp.u_bounds, hand.u_bounds)
+    U = hand.initial_guess() + 0.1 * np.random.default_rng(5).standard_normal((hand.N, 1))
+    X = hand.simulate(U)
+    exact = name == "rayleigh-box"
+    assert check_derivatives(ocp, hand, X, U, rtol=1e-11, atol=1e-12, hessians=exact).ok
+    assert check_derivatives(ocp, hand, X, U, rtol=1e-4, atol=1e-6).ok
+    if exact:     # (bang-bang-cart: 32 sqp-ip iterations each way, 3.4502106346; the brachistochrone test solves a free-time one)
+        r_ocp, r_hand = olado.solve(ocp, config=SQP), olado.solve(hand, config=SQP)
+        assert r_ocp.success and r_hand.success, (r_ocp.message, r_hand.message)
+        assert abs(r_ocp.objective - r_hand.objective) < 1e-8 * max(1.0, abs(r_hand.objective))
+        assert abs(r_ocp.objective - REGRESSION_VALUES[(name, "rk4")]) < 1e-6
+
+
 # ---------------------------------------------------------------------------- time, grid, guesses
 @pytest.mark.parametrize("free", [False, True])
 def test_time_reaches_the_rk4_stages_on_a_nonuniform_grid(free):
