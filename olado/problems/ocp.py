@@ -23,7 +23,8 @@ X = (x, T, p) (T = t_f - t_0 only when it is free), and stage 0 maps the fixed D
     f_0^0 = 1/2 |u^0_rest|^2,
 
 so T, p and the free initial components are controls of stage 0, bounded by their bounds; they
-stay constant afterwards (T' = 0, p' = 0). With a free final time the intervals are on the
+stay constant afterwards (T' = 0, p' = 0). On stage 0 the path constraints have stand-ins:
+1 >= 0 for an inequality, u^0[n_par + i] = 0 for the i-th equality (a regular Jacobian row). With a free final time the intervals are on the
 normalized time tau in [0, 1], dx/dtau = T f(t_0 + T tau, x, u, p) (time scaling), i.e. a step of
 physical length T dtau. The DOCP then has N + 1 stages; without anything free it has N stages and
 no augmentation.
@@ -190,10 +191,6 @@ class OCP(AutoDiffDOCP):
         self._u_ref = np.clip(0.0, *bounds["u"])
         r, rN = self._trace_user_functions()
         self._path_equalities = _mask(path_equalities, r, "path_equalities")
-        if self.has_parameter_stage and self._path_equalities.any():
-            raise ProblemDefinitionError("path equalities are not offered with a parameter stage (free final "
-                                         "time, parameters or free initial states) yet", function="OCP",
-                                         array="path_equalities")
         X0 = np.concatenate([self.x_init, [self._T_guess] if self.free_time else [], self._p_guess])
         XB, UB = self._docp_bounds(bounds)
         if name is not None:
@@ -239,7 +236,10 @@ class OCP(AutoDiffDOCP):
         """The DOCP's state bounds (N_d + 1, n_aug) and control bounds (N_d, M): the physical
         state bounds after the initial point, the control bounds on the intervals, on the
         parameter stage the bounds of T, p and the free initial components."""
-        M = max(self.nu, self.n_par, 1)     # unused control entries cost 1/2 u^2 (zero at the optimum)
+        # unused control entries cost 1/2 u^2 (zero at the optimum); on the parameter stage one
+        # entry per path equality after the parameters (its stand-in equality, stage())
+        n_eq = int(self._path_equalities.sum()) if self.has_parameter_stage else 0
+        M = max(self.nu, self.n_par + n_eq, 1)
         first = int(self.has_parameter_stage)
         Nd = self.intervals + first
         XL, XU = np.full((Nd + 1, self.n_aug), -np.inf), np.full((Nd + 1, self.n_aug), np.inf)
@@ -361,8 +361,20 @@ class OCP(AutoDiffDOCP):
         par_next, par_cost = self._parameter_map(x, u)
         x_next = flag * par_next + (1 - flag) * x_next
         cost = flag * par_cost + (1 - flag) * cost
-        g = (1 - flag) * g + flag * ca.DM.ones(self.r) if self.r else g
+        if self.r:
+            g = (1 - flag) * g + flag * self._parameter_stage_constraints(u)
         return x_next, cost, g
+
+    def _parameter_stage_constraints(self, u):
+        """The path constraints' stand-ins on the parameter stage: 1 >= 0 for an inequality
+        (inactive), u^0[n_par + i] = 0 for the i-th equality (a regular row on a control that has
+        no other role), so that the constraint Jacobian keeps full rank there."""
+        import casadi as ca   # noqa: PLC0415
+        rows, i = [], 0
+        for eq in self._path_equalities:
+            rows.append(u[self.n_par + i] if eq else ca.SX(1.0))
+            i += int(eq)
+        return ca.vertcat(*rows)
 
     def _parameter_map(self, x, u):
         """Stage 0: X^1 = (x_0 with the free components from u, T and p from u); cost 1/2 |rest|^2."""

@@ -157,24 +157,29 @@ def test_vanderpol_on_ocp_same_optimum(path):
 
 
 # ---------------------------------------------------------------------------- derivatives
-def everything(method="rk4", substeps=2):
+def everything(method="rk4", substeps=2, equality=False):
     """Time-dependent dynamics, free final time, two parameters, a free initial component, a
-    path constraint, a final cost and terminal constraints: every branch of the class."""
+    path constraint (and a path equality), a final cost and terminal constraints: every branch
+    of the class."""
+    path = [lambda t, x, u, p: 1.0 - x[0] ** 2 - u[0] ** 2 * t, lambda t, x, u, p: 2.0 + x[1] * u[1]]
+    if equality:
+        path.append(lambda t, x, u, p: u[1] - 0.5 * x[0] * u[0] - 0.1 * t)
     return OCP(lambda t, x, u, p: [x[1] * cos(x[0]) + p[0] * sin(t), -p[1] * x[1] + u[0] * u[1] + 0.1 * x[0] ** 2],
                [0.2, 0.0], controls=2, parameters=2, N=6, T=None, T_bounds=(0.5, 3.0), T_guess=1.4,
                free_x0=[1], p_guess=[0.3, 0.7], running_cost=lambda t, x, u, p: x[0] ** 2 * t + u[0] ** 2 + p[0] * u[1] ** 2,
-               path=lambda t, x, u, p: [1.0 - x[0] ** 2 - u[0] ** 2 * t, 2.0 + x[1] * u[1]],
+               path=lambda t, x, u, p: [g(t, x, u, p) for g in path], path_equalities=[2] if equality else None,
                final_cost=lambda t, x, p: t * x[0] ** 2 + p[1] ** 2,
                terminal=lambda t, x, p: [x[0] - 0.1 * t, 1.0 - x[1] ** 2 - p[0]], terminal_equalities=[0],
                method=method, substeps=substeps, t0=0.5, u_bounds=(-2, 2), p_bounds=(0.1, 2.0))
 
 
-@pytest.mark.parametrize("method,substeps", [("rk4", 2), ("euler", 3), ("rk4", 1)])
-def test_derivatives_against_finite_differences(method, substeps):
+@pytest.mark.parametrize("method,substeps,equality", [("rk4", 2, False), ("euler", 3, False), ("rk4", 1, True)])
+def test_derivatives_against_finite_differences(method, substeps, equality):
     """Jacobians, gradients and the stage and final Lagrangian Hessians through the integrator,
     substeps and the parameter stage, against central differences."""
-    p = everything(method, substeps)
-    assert (p.n, p.m, p.N) == (5, 4, 7)      # x (2), T, p (2); controls: max(2, T + p (2) + x0_1); N + 1 stages
+    p = everything(method, substeps, equality)
+    # x (2), T, p (2); controls: max(2, T + p (2) + x0_1 [+ the equality's stand-in]); N + 1 stages
+    assert (p.n, p.m, p.N) == (5, 5 if equality else 4, 7)
     rng = np.random.default_rng(0)
     U = p.initial_guess() + 0.2 * rng.standard_normal((p.N, p.m))
     report = check_derivatives(p, None, p.simulate(U), U, sigma=1.3, rtol=1e-6, atol=1e-7)
@@ -197,9 +202,11 @@ def test_parameter_stage_sets_the_augmented_state():
     np.testing.assert_allclose(s.p, [-0.1, 0.4])
 
 
-def test_everything_solved_by_sqp_and_ipopt():
-    """The problem with every feature: sqp-ip and IPOPT reach the same optimum."""
-    p = everything()
+@pytest.mark.parametrize("equality", [False, True])
+def test_everything_solved_by_sqp_and_ipopt(equality):
+    """The problem with every feature: sqp-ip and IPOPT reach the same optimum (with a path
+    equality too: its stand-in on the parameter stage keeps the Jacobian regular)."""
+    p = everything(equality=equality)
     ref = olado.solve(p, config=_ipopt())
     r = olado.solve(p, config=SQP)
     assert ref.success and r.success, (ref.message, r.message)
@@ -214,8 +221,6 @@ def test_refusals_name_the_argument():
         OCP(f, [0.0], controls=1, T=1.0, minimum_time=True)
     with pytest.raises(ProblemDefinitionError, match="method"):
         OCP(f, [0.0], controls=1, T=1.0, method="rk45")
-    with pytest.raises(ProblemDefinitionError, match="path equalities"):
-        OCP(f, [0.0], controls=1, T=None, path=lambda t, x, u, p: [x[0]], path_equalities=[0])
     with pytest.raises(ProblemDefinitionError, match=r"rhs.*returned 2 entries, expected 1"):
         OCP(lambda t, x, u, p: [u[0], x[0]], [0.0], controls=1, T=1.0, N=4)
     with pytest.raises(ProblemDefinitionError, match=r"running_cost.*expected 1"):
