@@ -3,7 +3,7 @@
 
 The problem
 
-    min   phi(t_f, x(t_f), p) + int_{t_0}^{t_f} L(t, x, u, p) dt  [+ (t_f - t_0): minimum time]
+    min   phi(t_f, x(t_f), p) + phi_0(t_0, x(t_0), p) + int_{t_0}^{t_f} L(t, x, u, p) dt  [+ (t_f - t_0)]
     s.t.  x' = f(t, x, u, p),   x(t_0) = x_0 (components free within bounds where asked),
           g(t, x, u, p) >= 0 (path; some components = 0),  psi(t_f, x(t_f), p) >= 0 (terminal;
           some = 0),  bounds on x, u, p, t_f,
@@ -20,7 +20,7 @@ Free final time, static parameters and free initial states enter through a *para
 X = (x, T, p) (T = t_f - t_0 only when it is free), and stage 0 maps the fixed DOCP start X^0 to
 
     X^1 = (x_0 with its free components := v_F,  T := v_T,  p := v_p),   v = u^0 (its first entries),
-    f_0^0 = 1/2 |u^0_rest|^2,
+    f_0^0 = 1/2 |u^0_rest|^2 + phi_0(t_0, x(t_0), p)   (the initial cost, if any),
 
 so T, p and the free initial components are controls of stage 0, bounded by their bounds; they
 stay constant afterwards (T' = 0, p' = 0). On stage 0 the path constraints have stand-ins:
@@ -134,6 +134,7 @@ class OCP(AutoDiffDOCP):
         running_cost(t, x, u, p)  -> L (scalar)                     int L dt
         path(t, x, u, p)          -> g (r entries)                  g >= 0 (= 0 where path_equalities)
         final_cost(t, x, p)       -> phi (scalar), at t = t_f, x = x(t_f)
+        initial_cost(t, x, p)     -> phi_0 (scalar), at t = t_0, x = x(t_0) (free x0 or parameters)
         terminal(t, x, p)         -> psi (r_N entries), at t_f      psi >= 0 (= 0 where terminal_equalities)
 
     Parameters
@@ -160,7 +161,7 @@ class OCP(AutoDiffDOCP):
     ad_backend = "casadi"
     name = "ocp"
 
-    def __init__(self, rhs, x0, *, controls, N=50, T=None, running_cost=None, final_cost=None,
+    def __init__(self, rhs, x0, *, controls, N=50, T=None, running_cost=None, final_cost=None, initial_cost=None,
                  path=None, path_equalities=None, terminal=None, terminal_equalities=None,
                  x_bounds=None, u_bounds=None, parameters=0, p_bounds=None, p_guess=None,
                  free_x0=None, x0_bounds=None, T_bounds=(0.0, np.inf), T_guess=None,
@@ -173,6 +174,7 @@ class OCP(AutoDiffDOCP):
         self.intervals, self.substeps, self.method, self.t0 = int(N), int(substeps), method, float(t0)
         self._set_time(T, minimum_time)
         self._f, self._L, self._phi, self._g, self._psi = rhs, running_cost, final_cost, path, terminal
+        self._phi0 = initial_cost
         self.free_x0 = np.flatnonzero(_mask(free_x0, self.nx, "free_x0"))
         bounds = {"x": _pair(x_bounds, self.nx, "x_bounds"), "u": _pair(u_bounds, self.nu, "u_bounds"),
                   "p": _pair(p_bounds, self.np_, "p_bounds"), "T": _pair(T_bounds, 1, "T_bounds")}
@@ -186,6 +188,9 @@ class OCP(AutoDiffDOCP):
         # the parameter stage: its controls set T, p and the free initial components, in that order
         self.n_par = int(self.free_time) + self.np_ + len(self.free_x0)
         self.has_parameter_stage = self.n_par > 0
+        if initial_cost is not None and not self.has_parameter_stage:
+            raise ProblemDefinitionError("initial_cost needs free initial states or parameters (with x(t0) fixed "
+                                         "and no parameters it is a constant)", function="OCP", array="initial_cost")
         self.n_aug = self.nx + int(self.free_time) + self.np_
         # a safe control at which the integrator branch is evaluated on the parameter stage
         self._u_ref = np.clip(0.0, *bounds["u"])
@@ -277,7 +282,8 @@ class OCP(AutoDiffDOCP):
         import casadi as ca   # noqa: PLC0415 - the optional extra
         t, x, u, p = ca.SX.sym("t"), ca.SX.sym("x", self.nx), ca.SX.sym("u", self.nu), ca.SX.sym("p", self.np_)
         self._vec(_call(self._f, "rhs", t, x, u, p), self.nx, "rhs")
-        for fn, name, args in ((self._L, "running_cost", (t, x, u, p)), (self._phi, "final_cost", (t, x, p))):
+        for fn, name, args in ((self._L, "running_cost", (t, x, u, p)), (self._phi, "final_cost", (t, x, p)),
+                               (self._phi0, "initial_cost", (t, x, p))):
             if fn is not None:
                 self._vec(_call(fn, name, *args), 1, name)
         r = len(StageModel._entries(_call(self._g, "path", t, x, u, p))) if self._g is not None else 0
@@ -377,7 +383,8 @@ class OCP(AutoDiffDOCP):
         return ca.vertcat(*rows)
 
     def _parameter_map(self, x, u):
-        """Stage 0: X^1 = (x_0 with the free components from u, T and p from u); cost 1/2 |rest|^2."""
+        """Stage 0: X^1 = (x_0 with the free components from u, T and p from u); cost 1/2 |rest|^2
+        plus the initial cost at (t_0, x(t_0), p)."""
         import casadi as ca   # noqa: PLC0415
         n, j = self.nx, 0
         entries = [x[i] for i in range(self.n_aug)]
@@ -389,7 +396,12 @@ class OCP(AutoDiffDOCP):
         j += self.np_
         for i, comp in enumerate(self.free_x0):
             entries[comp] = u[j + i]
-        return ca.vertcat(*entries), 0.5 * ca.sumsqr(u[self.n_par:])
+        X1 = ca.vertcat(*entries)
+        cost = 0.5 * ca.sumsqr(u[self.n_par:])
+        if self._phi0 is not None:
+            x1, _, p = self._split_state(X1)
+            cost = cost + self._vec(_call(self._phi0, "initial_cost", self.t0, x1, p), 1, "initial_cost")
+        return X1, cost
 
     def final(self, x):
         import casadi as ca   # noqa: PLC0415

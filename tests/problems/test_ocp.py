@@ -95,6 +95,20 @@ def test_free_initial_state_at_its_bound_is_exact():
         np.testing.assert_allclose(s.u, 0.5, atol=1e-6)
 
 
+def test_initial_cost_on_a_free_initial_state():
+    """x' = u, min x(0)^2 + int_0^1 u^2 dt, x(1) = 1: u = 1/2 constant, x(0) = 1/2, J = 1/2, exact
+    on any grid."""
+    ocp = OCP(lambda t, x, u, p: [u[0]], [0.0], controls=1, N=5, T=1.0, free_x0=[0],
+              initial_cost=lambda t, x, p: x[0] ** 2, running_cost=lambda t, x, u, p: u[0] ** 2,
+              terminal=lambda t, x, p: [x[0] - 1.0], terminal_equalities=[0])
+    for config in (SQP, _ipopt()):
+        r = olado.solve(ocp, config=config)
+        s = ocp.solution(r)
+        assert r.success and abs(r.objective - 0.5) < 1e-8 and abs(s.x0[0] - 0.5) < 1e-7, (config, r.message)
+    with pytest.raises(ProblemDefinitionError, match="initial_cost needs"):
+        OCP(lambda t, x, u, p: [u[0]], [0.0], controls=1, T=1.0, initial_cost=lambda t, x, p: x[0] ** 2)
+
+
 def oscillator_fit(substeps, bounds=(0.5, 10.0)):
     """x'' = -k x, x(0) = 1, x'(0) = 0, fitted to cos(2t) on [0, 3]: k = 4. No control."""
     return OCP(lambda t, x, u, p: [x[1], -p[0] * x[0]], [1.0, 0.0], controls=0, N=30, T=3.0, parameters=1,
@@ -159,8 +173,8 @@ def test_vanderpol_on_ocp_same_optimum(path):
 # ---------------------------------------------------------------------------- derivatives
 def everything(method="rk4", substeps=2, equality=False):
     """Time-dependent dynamics, free final time, two parameters, a free initial component, a
-    path constraint (and a path equality), a final cost and terminal constraints: every branch
-    of the class."""
+    path constraint (and a path equality), initial and final costs and terminal constraints:
+    every branch of the class."""
     path = [lambda t, x, u, p: 1.0 - x[0] ** 2 - u[0] ** 2 * t, lambda t, x, u, p: 2.0 + x[1] * u[1]]
     if equality:
         path.append(lambda t, x, u, p: u[1] - 0.5 * x[0] * u[0] - 0.1 * t)
@@ -169,6 +183,7 @@ def everything(method="rk4", substeps=2, equality=False):
                free_x0=[1], p_guess=[0.3, 0.7], running_cost=lambda t, x, u, p: x[0] ** 2 * t + u[0] ** 2 + p[0] * u[1] ** 2,
                path=lambda t, x, u, p: [g(t, x, u, p) for g in path], path_equalities=[2] if equality else None,
                final_cost=lambda t, x, p: t * x[0] ** 2 + p[1] ** 2,
+               initial_cost=lambda t, x, p: (x[1] - 0.1) ** 2 + t * p[0] ** 2 * x[1],
                terminal=lambda t, x, p: [x[0] - 0.1 * t, 1.0 - x[1] ** 2 - p[0]], terminal_equalities=[0],
                method=method, substeps=substeps, t0=0.5, u_bounds=(-2, 2), p_bounds=(0.1, 2.0))
 
