@@ -3,7 +3,8 @@
 
 The problem
 
-    min   phi(t_f, x(t_f), p) + phi_0(t_0, x(t_0), p) + int_{t_0}^{t_f} L(t, x, u, p) dt  [+ (t_f - t_0)]
+    min   phi(t_f, x(t_f), p) + phi_0(t_0, x(t_0), p) + int_{t_0}^{t_f} L(t, x, u, p) dt
+          [+ (t_f - t_0): minimum time]
     s.t.  x' = f(t, x, u, p),   x(t_0) = x_0 (components free within bounds where asked),
           g(t, x, u, p) >= 0 (path; some components = 0),  psi(t_f, x(t_f), p) >= 0 (terminal;
           some = 0),  bounds on x, u, p, t_f,
@@ -24,10 +25,10 @@ X = (x, T, p) (T = t_f - t_0 only when it is free), and stage 0 maps the fixed D
 
 so T, p and the free initial components are controls of stage 0, bounded by their bounds; they
 stay constant afterwards (T' = 0, p' = 0). On stage 0 the path constraints have stand-ins:
-1 >= 0 for an inequality, u^0[n_par + i] = 0 for the i-th equality (a regular Jacobian row). With a free final time the intervals are on the
-normalized time tau in [0, 1], dx/dtau = T f(t_0 + T tau, x, u, p) (time scaling), i.e. a step of
-physical length T dtau. The DOCP then has N + 1 stages; without anything free it has N stages and
-no augmentation.
+1 >= 0 for an inequality, u^0[n_par + i] = 0 for the i-th equality (a regular Jacobian row).
+With a free final time the intervals are on the normalized time tau in [0, 1],
+dx/dtau = T f(t_0 + T tau, x, u, p) (time scaling), i.e. a step of physical length T dtau. The
+DOCP then has N + 1 stages; without anything free it has N stages and no augmentation.
 """
 
 from __future__ import annotations
@@ -107,6 +108,7 @@ def _call(fn, name, *args):
 
 
 def _mask(spec, size, name):
+    """A boolean mask of ``size`` entries from None, a mask, or a list of indices."""
     mask = np.zeros(size, dtype=bool)
     if spec is None:
         return mask
@@ -156,6 +158,10 @@ class OCP(AutoDiffDOCP):
     grid : interval boundaries normalized to [0, 1] (N+1 increasing values from 0 to 1);
         default uniform.
     mode : the CasADi back-end's evaluator ("llvm" default, "numba", "vm", "jit").
+    name : the problem's name in results and reports (default "ocp").
+
+    ``ocp.N`` is the DOCP's number of stages (N + 1 with a parameter stage), ``ocp.intervals``
+    the N given; :meth:`solution` reads a result back as t, x, u, t_f, p, x(t_0).
     """
 
     ad_backend = "casadi"
