@@ -29,6 +29,7 @@ _LAZY = {
     "LagrangeDOCP": "olado.problems",
     "MayerDOCP": "olado.problems",
     "StructuredNLP": "olado.problems",
+    "OCP": "olado.problems.ocp",
     "load_config": "olado.config",
     "SolverConfig": "olado.config",
     "OladoError": "olado.errors",
