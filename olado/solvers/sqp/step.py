@@ -87,7 +87,7 @@ class ShiftRule:
         """The next shift: max(shift_increase * delta_k, shift_init * max|H|, floor) on the
         stage blocks in ``stages`` (a boolean mask over the N + 1 blocks; all if None)."""
         o = self.options
-        new = np.maximum(o.shift_increase * delta, max(o.shift_init * hscale, floor))
+        new = np.maximum(o.shift_increase * delta, max(o.shift_init * shift_scale(hscale), floor))
         return new if stages is None else np.where(stages, new, delta)
 
     def raise_along(self, delta, hscale, Bk, BN, dX, dU, local):
