@@ -48,7 +48,10 @@ a large shift then no longer damps the steps of every other stage.
 Local phase: after a full step (Armijo test met) from a point with relative KKT residual <=
 ``local_tol`` the next QP starts from delta = 0 (once, on entering the phase), is warm-started
 from the multipliers of the last QP and a zero step (``qp_warm_start``), and is solved to
-``local_qp_tol``.
+``local_qp_tol``. So does a full step of the proximal-point crawl: taken with delta = tau = 0
+and s.H s >= 0, the proximal term supplied at least ``local_share`` of its curvature
+(olado.solvers.sqp.phases.proximal_dominated); in the local phase such a step makes the next
+local proximal factor smaller, down to ``shift_min``.
 
 Stopping: KKT residual (max-norm of the NLP stationarity, relative to the largest |grad J|
 seen) <= tol and constraint violation <= constr_viol_tol, tested at each new iterate with the
