@@ -228,11 +228,12 @@ class SQPOptions(SolverOptions):
     local_tol: float = option(1e-2, "local phase: after a full step (alpha = 1, Armijo test met) from a point whose "
                               "relative KKT residual is <= local_tol the next QP starts with no Hessian shift (and is "
                               "warm-started, see qp_warm_start)", min=0.0)
-    local_share: float = option(0.9, "local phase, second entry test: a full step taken with the unshifted exact "
-                                "Hessian whose curvature came at least this much from the proximal term (omega = "
-                                "p|s|^2 / (s.H s + p|s|^2), p = proximal * max|H|: the SQP crawls like the proximal-point "
-                                "method at the linear rate omega) starts the local phase too, whatever the KKT residual "
-                                "(1: off)", min=0.0, max=1.0)
+    local_share: float = option(0.9, "local phase: a full step taken with the unshifted exact Hessian (s.H s >= 0) "
+                                "whose curvature came at least this much from the proximal term, p|s|^2 / (s.H s + "
+                                "p|s|^2) >= local_share, starts the local phase whatever the KKT residual, and in the "
+                                "local phase makes the next local proximal factor 1/shift_increase of the last, down "
+                                "to shift_min (1: off; docs/structure-exploiting-sqp.md, 'Local phase')",
+                                min=0.0, max=1.0)
     local_proximal: float | None = option(1e-6, "proximal factor in the local phase (see local_tol): the proximal "
                                           "term there is local_proximal * max|H| (small: fast local rate; nonzero: a "
                                           "regular QP Hessian in flat directions); None: as elsewhere (the proximal "
