@@ -604,11 +604,9 @@ def accept(setup, st, step):
         g_new, gN_new = new_pt.lagrangian_gradients(step.mult_new)
         s_blocks = np.concatenate([new_pt.X[:-1] - pt.X[:-1], new_pt.U - pt.U], axis=1)
         st.hess.update(s_blocks, new_pt.X[-1] - pt.X[-1], g_new - g_old, gN_new - gN_old)
-    # before tau's update and st.Bk's reset: the proximal-point crawl of a full step, under the
-    # global proximal factor and under the one the step's QP had
-    crawl = mode == "full" and proximal_dominated(setup, st, step, qp_step.proximal_factor(o, False))
-    crawl_local = (mode == "full" and st.qp_local and o.local_proximal is not None and proximal_dominated(
-        setup, st, step, qp_step.proximal_factor(o, True, st.local_proximal_scale)))
+    # before tau's update and st.Bk's reset: the proximal-point crawl, under the global proximal
+    # factor and under the one the step's QP had (olado.solvers.sqp.phases.crawling)
+    crawl, crawl_local = crawling(setup, st, step)
     if st.tau > 0.0:
         tau_update(setup, st, step, new_pt)
     st.rho = setup.merit.accepted(st.rho, step, step.search.alpha)
@@ -644,6 +642,25 @@ def proximal_dominated(setup, st, step, factor):
     sHs, ss = qp_step.curvature(st.Bk, st.BN, step.dX, step.dU)
     prox = factor * qp_step.shift_scale(step.hscale) * ss
     return ss > 0.0 and prox > 0.0 and sHs >= 0.0 and prox >= o.local_share * (sHs + prox)
+
+
+def crawling(setup, st, step):
+    """(crawl, crawl_local): this full step and the last accepted one are both dominated by the
+    global proximal term (:func:`proximal_dominated`; by the local one, in the local phase), and
+    the last one reduced the KKT residual -- the linear rate the proximal term predicts, observed
+    (a single dominated step proves nothing: the first step of a Mayer problem, H = 0 at zero
+    multipliers, is one, and so was goddard's second, whose residual grew x166 with sqp-gondzio).
+    Updates the remembered dominance and residual (``st.dominated``, ``st.kkt_prev``)."""
+    o = setup.options
+    full = step.search.mode == "full"
+    dominated = full and proximal_dominated(setup, st, step, qp_step.proximal_factor(o, False))
+    dominated_local = (full and st.qp_local and o.local_proximal is not None and proximal_dominated(
+        setup, st, step, qp_step.proximal_factor(o, True, st.local_proximal_scale)))
+    progress = st.kkt_res < st.kkt_prev
+    crawl = dominated and st.dominated[0] and progress
+    crawl_local = dominated_local and st.dominated[1] and progress
+    st.dominated, st.kkt_prev = (dominated, dominated_local), st.kkt_res
+    return crawl, crawl_local
 
 
 def local_proximal_scale(o, scale, local, crawl_local):

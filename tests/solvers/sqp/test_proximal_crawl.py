@@ -1,9 +1,10 @@
 """The proximal-point crawl of the exact-Hessian SQP (olado.solvers.sqp.phases.proximal_dominated):
 a full step whose curvature comes almost only from the proximal term p max|H| converges at the
-linear rate omega = p |s|^2 / (s.H s + p |s|^2). Such a step starts the local phase (global
-factor), and in the local phase makes the next proximal factor smaller (local_proximal_scale).
-hang-glider crawled at omega ~ 0.97 in the global phase (its relative KKT residual, |grad J| = 1,
-never reached local_tol), goddard at omega ~ 0.98 in the local phase on its singular arc.
+linear rate omega = p |s|^2 / (s.H s + p |s|^2). Two such steps in a row, the first reducing the
+KKT residual (phases.crawling), start the local phase (global factor), and in the local phase make
+the next proximal factor smaller (local_proximal_scale). hang-glider crawled at omega ~ 0.97 in the
+global phase (its relative KKT residual, |grad J| = 1, never reached local_tol), goddard (with
+sqp-gondzio) at omega ~ 0.98 in the local phase on its singular arc.
 References: hand computations, and IPOPT's stored objectives of the robustness set."""
 
 from pathlib import Path
@@ -15,7 +16,7 @@ import pytest
 import olado
 from olado.problems.suites import load_references, load_suite
 from olado.result import Status
-from olado.solvers.sqp.phases import local_proximal_scale, proximal_dominated
+from olado.solvers.sqp.phases import crawling, local_proximal_scale, proximal_dominated
 from olado.solvers.sqp.solver import SQPOptions
 from olado.solvers.sqp.step import hessian_scale
 
@@ -60,6 +61,25 @@ def test_negative_curvature_shifted_or_regularized_steps_are_not():
     assert not proximal_dominated(setup, st, step, factor=1e-4)
 
 
+def test_a_crawl_is_two_dominated_full_steps_with_progress():
+    """One dominated step proves nothing (the first step of a Mayer problem at H = 0 is one); the
+    crawl is a dominated step after a dominated step that reduced the KKT residual."""
+    setup, st, step = _case(0.0, 1.0, 0.0)
+    st.qp_local, st.local_proximal_scale = False, 1.0
+    st.dominated, st.kkt_prev, st.kkt_res = (False, False), float("inf"), 1.0
+    step.search = SimpleNamespace(mode="full")
+    assert crawling(setup, st, step) == (False, False)           # the first dominated step
+    assert st.dominated == (True, False) and st.kkt_prev == 1.0
+    st.kkt_res = 0.9                                               # it reduced the residual
+    assert crawling(setup, st, step) == (True, False)
+    st.kkt_res = 2.0                                               # residual grew: no crawl
+    assert crawling(setup, st, step) == (False, False)
+    st.kkt_res = 1.5
+    step.search = SimpleNamespace(mode="relaxed")                  # not a full step
+    assert crawling(setup, st, step) == (False, False)
+    assert st.dominated == (False, False)
+
+
 def test_local_proximal_scale_falls_to_shift_min_and_resets():
     o = SQPOptions()          # local_proximal 1e-6, shift_increase 10, shift_min 1e-8
     scale = 1.0
@@ -77,11 +97,12 @@ def _entry(name):
     return problem, guess, load_references()["entries"][name]["objective"]
 
 
-def test_goddard_singular_arc_reaches_ipopt():
-    """Before: ACCEPTABLE after 19 iterations at -1.0127498 (+8.6e-5 relative), the shift stalling
-    between ~1 and ~4 on the singular arc; the local proximal factor 1e-6 alone crawls at 0.98."""
+@pytest.mark.slow
+def test_goddard_singular_arc_with_gondzio():
+    """sqp-gondzio, before: SUCCESS after 186 iterations, the local proximal factor 1e-6 crawling
+    on the singular arc (omega ~ 0.98); its falling local factor takes 40."""
     problem, guess, ref = _entry("goddard")
-    r = olado.solve(problem, guess=guess, config=CONFIGS / "sqp-ip.ini")
+    r = olado.solve(problem, guess=guess, config=CONFIGS / "sqp-gondzio.ini")
     assert r.status is Status.SUCCESS, r.message
     assert r.objective == pytest.approx(ref, rel=1e-6)
     assert r.iterations <= 60
