@@ -617,8 +617,8 @@ def accept(setup, st, step):
     st.Bk = None
     st.shift = step.delta
     st.last_qp = dataclasses.replace(step.qres, X=np.zeros_like(step.qres.X), U=np.zeros_like(step.qres.U))
-    # local phase: a full step from a point whose relative KKT residual is small, or a full
-    # step whose curvature came mostly from the proximal term (the proximal-point crawl)
+    # local phase: a full step from a point whose relative KKT residual is small, or the
+    # proximal-point crawl (two full steps whose curvature came mostly from the proximal term)
     st.was_local = st.local
     st.local = mode == "full" and (st.kkt_rel <= o.local_tol or crawl)
     st.local_proximal_scale = local_proximal_scale(o, st.local_proximal_scale, st.local, crawl_local)
@@ -664,8 +664,8 @@ def crawling(setup, st, step):
 
 
 def local_proximal_scale(o, scale, local, crawl_local):
-    """The next local phase's proximal factor, as a multiple of ``local_proximal``: after a full
-    local step the proximal term dominated (:func:`proximal_dominated`), 1/``shift_increase`` of
+    """The next local phase's proximal factor, as a multiple of ``local_proximal``: after the
+    crawl under the local factor (:func:`crawling`), 1/``shift_increase`` of
     the last, down to ``shift_min`` (the smallest shift relative to max|H| the inertia correction
     keeps); back to 1 when the local phase ends. The shift of a Levenberg-Marquardt method falls
     the same way while its model agrees (full steps); on a singular arc the reduced Hessian's
