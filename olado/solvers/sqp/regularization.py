@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .step import curvature
+from .step import curvature, shift_scale
 
 
 def gerschgorin_bounds(Bk, BN):
@@ -48,7 +48,7 @@ def tau_shift(tau, Bk, BN, hscale):
     """The shift of eq. [11] per stage block: tau (|sigma_k| + max|H|) (0 when tau = 0)."""
     if tau <= 0.0:
         return np.zeros(len(Bk) + 1)
-    return tau * (np.abs(gerschgorin_bounds(Bk, BN)) + hscale)
+    return tau * (np.abs(gerschgorin_bounds(Bk, BN)) + shift_scale(hscale))
 
 
 def raise_tau(tau, options):

@@ -48,7 +48,10 @@ a large shift then no longer damps the steps of every other stage.
 Local phase: after a full step (Armijo test met) from a point with relative KKT residual <=
 ``local_tol`` the next QP starts from delta = 0 (once, on entering the phase), is warm-started
 from the multipliers of the last QP and a zero step (``qp_warm_start``), and is solved to
-``local_qp_tol``.
+``local_qp_tol``. So does the proximal-point crawl: a second full step in a row taken with
+delta = tau = 0 and s.H s >= 0 whose curvature came at least ``local_share`` from the proximal
+term, the first having reduced the KKT residual (olado.solvers.sqp.phases.crawling); in the
+local phase such steps make the next local proximal factor smaller, down to ``shift_min``.
 
 Stopping: KKT residual (max-norm of the NLP stationarity, relative to the largest |grad J|
 seen) <= tol and constraint violation <= constr_viol_tol, tested at each new iterate with the
@@ -225,6 +228,13 @@ class SQPOptions(SolverOptions):
     local_tol: float = option(1e-2, "local phase: after a full step (alpha = 1, Armijo test met) from a point whose "
                               "relative KKT residual is <= local_tol the next QP starts with no Hessian shift (and is "
                               "warm-started, see qp_warm_start)", min=0.0)
+    local_share: float = option(0.9, "local phase: two full steps in a row taken with the unshifted exact Hessian "
+                                "(s.H s >= 0) whose curvature came at least this much from the proximal term, p|s|^2 / "
+                                "(s.H s + p|s|^2) >= local_share, the first reducing the KKT residual, start the local "
+                                "phase whatever the KKT residual, and in the local phase make the next local proximal "
+                                "factor 1/shift_increase of the last, down to shift_min (1: off; "
+                                "docs/structure-exploiting-sqp.md, 'Local phase')",
+                                min=0.0, max=1.0)
     local_proximal: float | None = option(1e-6, "proximal factor in the local phase (see local_tol): the proximal "
                                           "term there is local_proximal * max|H| (small: fast local rate; nonzero: a "
                                           "regular QP Hessian in flat directions); None: as elsewhere (the proximal "

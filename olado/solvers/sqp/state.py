@@ -231,6 +231,9 @@ class SQPState:
     last_qp: Any = None             # QP result of the last accepted step (warm start of the local phase)
     local: bool = False             # local phase: full steps and a small KKT residual
     was_local: bool = False
+    local_proximal_scale: float = 1.0   # the local phase's proximal factor is local_proximal times this
+    dominated: tuple = (False, False)   # the last accepted step was dominated by the global / local proximal term
+    kkt_prev: float = float("inf")      # KKT residual at that step's start
     qp_local: bool = False          # the local flag the current iteration's QPs were built with
     eta: float = 0.0                # penalty of the last relaxed (elastic) QP (olado.solvers.sqp.relaxation)
     tau: float = 0.0                # WORHP's regularization parameter (olado.solvers.sqp.regularization)

@@ -36,13 +36,15 @@ class QPSolve(NamedTuple):
     slacks: Any = None
 
 
-def proximal_factor(options, local):
-    """The proximal factor: in the local phase ``local_proximal`` (unless None); else the
-    ``proximal`` option, by default 1e-4 with the exact Hessian and 0 with the quasi-Newton ones
-    (their blocks keep the initial scale in directions no step has explored, so max|H|
-    overstates the curvature; docs/structure-exploiting-sqp.md)."""
+def proximal_factor(options, local, local_scale=1.0):
+    """The proximal factor: in the local phase ``local_proximal`` (unless None) times
+    ``local_scale`` (< 1 after local steps the proximal term dominated, see
+    olado.solvers.sqp.phases.proximal_share); else the ``proximal`` option, by default 1e-4 with
+    the exact Hessian and 0 with the quasi-Newton ones (their blocks keep the initial scale in
+    directions no step has explored, so max|H| overstates the curvature;
+    docs/structure-exploiting-sqp.md)."""
     if local and options.local_proximal is not None:
-        return options.local_proximal
+        return options.local_proximal * local_scale
     if options.proximal is not None:
         return options.proximal
     return 1e-4 if options.hessian == "exact" else 0.0
@@ -87,7 +89,7 @@ class ShiftRule:
         """The next shift: max(shift_increase * delta_k, shift_init * max|H|, floor) on the
         stage blocks in ``stages`` (a boolean mask over the N + 1 blocks; all if None)."""
         o = self.options
-        new = np.maximum(o.shift_increase * delta, max(o.shift_init * hscale, floor))
+        new = np.maximum(o.shift_increase * delta, max(o.shift_init * shift_scale(hscale), floor))
         return new if stages is None else np.where(stages, new, delta)
 
     def raise_along(self, delta, hscale, Bk, BN, dX, dU, local):
@@ -189,7 +191,7 @@ def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=
     scale = hessian_scale(Bk, BN)
     # Levenberg-Marquardt-like: delta shrinks with the relative KKT residual of the last
     # iterate (kept superlinear), but never exceeds proximal * max|H|
-    prox_factor = proximal_factor(o, st.qp_local)
+    prox_factor = proximal_factor(o, st.qp_local, st.local_proximal_scale)
     # (relative to shift_scale: with H = 0, e.g. a linear objective at zero multipliers, a term
     # relative to max|H| = 1e-300 would make a QP whose Hessian is 1e-304 I -- "positive
     # definite" to a Cholesky factorization, and the active-set QP's points then reach 1e307)

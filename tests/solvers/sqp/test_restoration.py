@@ -100,8 +100,9 @@ def test_hang_glider_resumes_after_restoration_with_reset_multipliers():
     phase used to hand them (and a Hessian shift of 8e13) back to the optimality phase, which then
     stopped on step_tol at -1232.65 (UNCERTIFIED). With IPOPT's reset after restoration
     (olado.solvers.sqp.restoration.reset_multipliers) it reaches IPOPT's objective -- with
-    local_tol = 0.1: at the default 1e-2 the proximal term's linear tail needs more than 200
-    iterations (docs/structure-exploiting-sqp.md, "Known limitations"). multiplier_reset off: with
+    local_tol = 0.1, set when the proximal term's linear tail needed more than 200 iterations at
+    the default 1e-2 (now the crawl test of the local phase ends it: test_proximal_crawl.py).
+    multiplier_reset off: with
     it the multipliers never grow and the restoration phase is not entered. ~50 s."""
     entry, problem, guess = _entry("hang-glider")
     ref = load_references()["entries"][entry.name]

@@ -56,3 +56,26 @@ def test_active_set_sqp_on_free_flying_robot():
     r = olado.solve(problem, guess=guess, config=CONFIGS / "sqp-as.ini", max_time=300)
     assert r.status is Status.SUCCESS, r.message
     assert r.objective == pytest.approx(ref, rel=1e-6)
+
+
+def test_shifts_of_a_zero_hessian_are_relative_to_one():
+    """WORHP's tau shift (eq. [11]) and the inertia correction's raise were relative to max|H|
+    = 1e-300 at H = 0: tau (|sigma| + 1e-300) ~ 0 and shift_init * 1e-300, so raising tau or delta
+    changed nothing, and hang-glider (objective -x(T), zero multipliers at the start) reached
+    tau = 1 at its second iterate without any shift; once its Hessian was nonzero that tau = 1
+    made delta >= max|H| and the QP multipliers grew to 1e34. Both are now relative to
+    shift_scale (1 when H = 0), as the proximal term."""
+    from olado.solvers.sqp import regularization
+    from olado.solvers.sqp.solver import SQPOptions
+
+    N, n, m = 3, 2, 1
+    Bk, BN = np.zeros((N, n + m, n + m)), np.zeros((n, n))
+    hscale = sqp_step.hessian_scale(Bk, BN)
+    assert hscale == 1e-300
+    np.testing.assert_allclose(regularization.tau_shift(1e-3, Bk, BN, hscale), np.full(N + 1, 1e-3))
+    o = SQPOptions()
+    raised = sqp_step.ShiftRule(o).raise_(np.zeros(N + 1), hscale)
+    np.testing.assert_allclose(raised, np.full(N + 1, o.shift_init))      # shift_init * 1
+    # a nonzero Hessian keeps its own scale
+    Bk[:, 0, 0] = -2.0
+    np.testing.assert_allclose(regularization.tau_shift(0.5, Bk, BN, 2.0), [2.0, 2.0, 2.0, 1.0])
