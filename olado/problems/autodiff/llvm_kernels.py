@@ -3,7 +3,7 @@ numba's own dependency: no C compiler, a fraction of a second of set-up."""
 
 from __future__ import annotations
 
-from ...errors import ProblemDefinitionError
+from .sx import instructions
 
 
 _LLVM_LIBM1 = {"EXP": "exp", "LOG": "log", "SQRT": "sqrt", "SIN": "sin", "COS": "cos", "TAN": "tan",
@@ -27,12 +27,10 @@ def sx_llvm_ir(fun):
     CasADi's C code generator prints) as one SSA value per instruction, the elementary functions
     as calls to the C math library. Argument j is a C-contiguous (K, nnz_in(j)) array, result j
     a (K, nnz_out(j)) array, entries in CasADi's column-major nonzero order."""
-    import casadi as ca   # noqa: PLC0415
     from llvmlite import ir   # noqa: PLC0415 - numba's own dependency
     names = (["ASSIGN", "NEG", "SQ", "TWICE", "INV", "CONST", "INPUT", "OUTPUT", "SIGN", "NOT", "NE",
               "AND", "OR", "IF_ELSE_ZERO"] + list(_LLVM_CMP) + list(_LLVM_ARITH) + list(_LLVM_LIBM1)
              + list(_LLVM_LIBM2))
-    ops = {getattr(ca, f"OP_{nm}"): nm for nm in names}
     dbl, i64 = ir.DoubleType(), ir.IntType(64)
     n_in, n_out = fun.n_in(), fun.n_out()
     module = ir.Module(name="olado_ad")
@@ -57,12 +55,7 @@ def sx_llvm_ir(fun):
     zero, one = dbl(0.0), dbl(1.0)
     truth = lambda v: b.fcmp_unordered("!=", v, zero)   # noqa: E731 - nonzero (NaN counts), as in C
     w = {}
-    for k in range(fun.n_instructions()):
-        op = ops.get(fun.instruction_id(k))
-        if op is None:
-            raise ProblemDefinitionError(f"the CasADi operation {fun.instruction_id(k)} has no translation; "
-                                         "use the back-end option mode='vm'", function="autodiff")
-        ins, outs = fun.instruction_input(k), fun.instruction_output(k)
+    for k, op, ins, outs in instructions(fun, names, "LLVM"):
         a = w.get(ins[0]) if ins else None
         c = w.get(ins[1]) if len(ins) > 1 else None
         if op == "OUTPUT":

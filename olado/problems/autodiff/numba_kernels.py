@@ -11,7 +11,7 @@ import sys
 
 import numpy as np
 
-from ...errors import ProblemDefinitionError
+from .sx import instructions
 
 
 _UNARY = {"ASSIGN": "{0}", "NEG": "-{0}", "EXP": "math.exp({0})", "LOG": "math.log({0})",
@@ -46,17 +46,11 @@ def sx_source(fun, name="kernel"):
     function's instruction list (its algorithm, the same one CasADi's code generator prints as
     C) as straight-line scalar code. Argument j is a (K, nnz_in(j)) array, result j a
     (K, nnz_out(j)) array, entries in CasADi's column-major nonzero order."""
-    import casadi as ca   # noqa: PLC0415
-    ops = {getattr(ca, f"OP_{nm}"): nm for nm in list(_UNARY) + list(_BINARY) + ["CONST", "INPUT", "OUTPUT"]}
     n_in, n_out = fun.n_in(), fun.n_out()
     args = [f"a{j}" for j in range(n_in)] + [f"r{j}" for j in range(n_out)]
     lines = [f"def {name}({', '.join(args)}):", "    for i in range(a0.shape[0]):"]
-    for k in range(fun.n_instructions()):
-        op = ops.get(fun.instruction_id(k))
-        if op is None:
-            raise ProblemDefinitionError(f"the CasADi operation {fun.instruction_id(k)} has no numba translation; "
-                                         "use the back-end option mode='vm'", function="autodiff")
-        ins, outs = fun.instruction_input(k), fun.instruction_output(k)
+    names = list(_UNARY) + list(_BINARY) + ["CONST", "INPUT", "OUTPUT"]
+    for k, op, ins, outs in instructions(fun, names, "numba"):
         if op == "OUTPUT":
             lines.append(f"        r{outs[0]}[i, {outs[1]}] = w{ins[0]}")
             continue
