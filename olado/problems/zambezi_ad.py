@@ -10,7 +10,6 @@ from __future__ import annotations
 import numpy as np
 
 from .autodiff import AutoDiffDOCP
-from .docp import DOCP
 from .zambezi import Zambezi
 
 
@@ -18,7 +17,7 @@ class ZambeziAD(AutoDiffDOCP, Zambezi):
     """:class:`Zambezi` with every derivative from the AD back-end ``backend`` ("casadi" or
     "sympy"); the stage data d = (Z_1..Z_4, e_1..e_4) are the month's inflows and evaporation."""
 
-    simulate = DOCP.simulate     # the stage function, not Zambezi's hand-written recursion
+    simulate = AutoDiffDOCP.simulate     # the stage function, not Zambezi's hand-written recursion
 
     def __init__(self, family="zambezi12", N=24, start="balance", year=None, extend="cyclic", *,
                  backend="casadi", backend_options=None, **options):

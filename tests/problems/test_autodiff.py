@@ -241,3 +241,39 @@ def test_sympy_backend_equals_hand_written_kernels():
     X, U = _point(hand)
     report = check_derivatives(ad, hand, X, U, rtol=1e-12, atol=1e-14)
     assert report.ok, str(report)
+
+
+class Blowup(AutoDiffDOCP):
+    """x+ = x + h log(x) - u: from x0 = 2 with u = 1 the state falls below 0 at stage 3, where the
+    logarithm is NaN."""
+
+    def __init__(self):
+        super().__init__(1, 1, 6, np.array([2.0]))
+
+    def stage(self, x, u, d):
+        return [x[0] + 0.5 * autodiff.log(x[0]) - u[0]], u[0] * u[0]
+
+
+@pytest.mark.parametrize("mode", ["llvm", "vm"])
+def test_simulation_is_the_stage_by_stage_recursion(casadi, mode):
+    """simulate (eq. (2)): the compiled sequential loop of the LLVM evaluator gives DOCP's loop of
+    one-stage calls exactly -- stage data included (the cart-pole's step lengths, Zambezi's
+    inflows); other modes use DOCP's loop."""
+    from olado.problems.docp import DOCP
+    for p in (CartPoleRK4(N=30, mode=mode), ZambeziAD(N=48)):
+        U = _point(p)[1]
+        np.testing.assert_array_equal(p.simulate(U), DOCP.simulate(p, U))
+    hand = Zambezi(N=48)
+    np.testing.assert_allclose(ZambeziAD(N=48).simulate(hand.initial_guess()), hand.simulate(hand.initial_guess()),
+                               rtol=1e-13)
+
+
+def test_simulation_names_the_first_stage_that_is_not_finite(casadi):
+    from olado.errors import NonFiniteEvaluationError
+    p = Blowup()
+    X = [2.0]
+    for _ in range(3):
+        X.append(X[-1] + 0.5 * np.log(X[-1]) - 1.0)
+    assert X[2] > 0 > X[3]                              # x^3 < 0: x^4 = NaN
+    with pytest.raises(NonFiniteEvaluationError, match=r"stage k=4, array .x."):
+        p.simulate(np.ones((6, 1)))

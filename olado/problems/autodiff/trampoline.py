@@ -41,3 +41,12 @@ def call_kernel(address, arrays):
     """Run the kernel at ``address`` on ``arrays`` (a tuple of C-contiguous float64 (K, size)
     matrices; K = the first one's rows)."""
     _call_address(address, arrays[0].shape[0], arrays)
+
+
+@nb.njit(cache=True)
+def simulate_stages(address, X, U, D):
+    """X[k+1] = f(X[k], U[k], D[k]) for k = 0, ..., N-1 (eq. (2) of paper 001) by the dynamics
+    kernel at ``address``, one stage per call: the state of a stage is the next call's input, so
+    the stages run in sequence (X (N+1, n) with X[0] set; U (N, m), D (N, q) C-contiguous)."""
+    for k in range(U.shape[0]):
+        _call_address(address, 1, (X[k:k + 1], U[k:k + 1], D[k:k + 1], X[k + 1:k + 2]))
