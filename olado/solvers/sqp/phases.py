@@ -625,7 +625,7 @@ def accept(setup, st, step):
     st.it += 1
 
 
-def proximal_dominated(setup, st, step, factor):
+def proximal_dominated(setup, st, step, factor, curvature=None):
     """True when the step is a proximal-point step in effect: taken with the exact Hessian
     unshifted (delta = 0, tau = 0), with positive curvature s.H s >= 0 of its own, and the
     proximal term p = ``factor`` * max|H| supplies at least ``local_share`` of its curvature,
@@ -634,12 +634,13 @@ def proximal_dominated(setup, st, step, factor):
     at the rate p / (c + p) = omega (Rockafellar 1976): hang-glider, global phase: omega 0.97,
     the KKT residual falling 0.2 -> 0.08 in 50 full steps; goddard's singular arc, local phase
     (factor 1e-6): omega 0.98, the residual x0.98 per step. With s.H s < 0 the proximal term
-    convexifies the model along s (no crawl: Zambezi's global steps). Uses the Hessian blocks of
-    the step's QP (st.Bk)."""
+    convexifies the model along s (no crawl: Zambezi's global steps). ``curvature``: (s.H s, |s|^2)
+    with the Hessian blocks of the step's QP (st.Bk), when the caller has it (:func:`crawling`
+    computes it once for both factors)."""
     o = setup.options
     if not (setup.inertia and o.local_share < 1.0 and st.tau == 0.0 and not np.any(step.delta)):
         return False
-    sHs, ss = qp_step.curvature(st.Bk, st.BN, step.dX, step.dU)
+    sHs, ss = curvature if curvature is not None else qp_step.curvature(st.Bk, st.BN, step.dX, step.dU)
     prox = factor * qp_step.shift_scale(step.hscale) * ss
     return ss > 0.0 and prox > 0.0 and sHs >= 0.0 and prox >= o.local_share * (sHs + prox)
 
@@ -652,10 +653,12 @@ def crawling(setup, st, step):
     multipliers, is one, and so was goddard's second, whose residual grew x166 with sqp-gondzio).
     Updates the remembered dominance and residual (``st.dominated``, ``st.kkt_prev``)."""
     o = setup.options
-    full = step.search.mode == "full"
-    dominated = full and proximal_dominated(setup, st, step, qp_step.proximal_factor(o, False))
-    dominated_local = (full and st.qp_local and o.local_proximal is not None and proximal_dominated(
-        setup, st, step, qp_step.proximal_factor(o, True, st.local_proximal_scale)))
+    dominated = dominated_local = False
+    if step.search.mode == "full" and setup.inertia:
+        curv = qp_step.curvature(st.Bk, st.BN, step.dX, step.dU)
+        dominated = proximal_dominated(setup, st, step, qp_step.proximal_factor(o, False), curv)
+        dominated_local = (st.qp_local and o.local_proximal is not None and proximal_dominated(
+            setup, st, step, qp_step.proximal_factor(o, True, st.local_proximal_scale), curv))
     progress = st.kkt_res < st.kkt_prev
     crawl = dominated and st.dominated[0] and progress
     crawl_local = dominated_local and st.dominated[1] and progress

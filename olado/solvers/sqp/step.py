@@ -39,7 +39,7 @@ class QPSolve(NamedTuple):
 def proximal_factor(options, local, local_scale=1.0):
     """The proximal factor: in the local phase ``local_proximal`` (unless None) times
     ``local_scale`` (< 1 after local steps the proximal term dominated, see
-    olado.solvers.sqp.phases.proximal_share); else the ``proximal`` option, by default 1e-4 with
+    olado.solvers.sqp.phases.crawling); else the ``proximal`` option, by default 1e-4 with
     the exact Hessian and 0 with the quasi-Newton ones (their blocks keep the initial scale in
     directions no step has explored, so max|H| overstates the curvature;
     docs/structure-exploiting-sqp.md)."""
