@@ -63,24 +63,26 @@ def _landing_readout(problem, result):
 
 def _seed_times(name, n):
     t = worhp.SEED_000[name]["times"][n]
+    table = {"low-thrust-geo": 4, "hypersonic-landing": 7}[name]
     return f"no optimal value; n = {n}: WORHP {t['WORHP']} s, IPOPT {t['IPOPT']}" + (
-        " s" if isinstance(t["IPOPT"], float) else "") + " (Tables 4/7)"
+        " s" if isinstance(t["IPOPT"], float) else "") + f" (Table {table})"
 
 
-_NONE = "none at hand (the seed cites Kluever 1995; Mayrhofer and Sachs 1996; Buskens and Gerdts 2003)"
+_GEO = "none at hand (the seed's source: Kluever 1995)"
+_LANDING = "none at hand (the seed's sources: Mayrhofer and Sachs 1996; Buskens and Gerdts 2003)"
 ENTRIES = [
     Entry("low-thrust-geo", lambda: worhp.low_thrust_geo(N=100), _geo_readout,
-          seed=_seed_times("low-thrust-geo", 101), published=_NONE),
+          seed=_seed_times("low-thrust-geo", 101), published=_GEO),
     Entry("low-thrust-geo-n1001", lambda: worhp.low_thrust_geo(N=1000), _geo_readout,
-          seed=_seed_times("low-thrust-geo", 1001), published=_NONE),
+          seed=_seed_times("low-thrust-geo", 1001), published=_GEO),
     Entry("low-thrust-geo-rk4", lambda: worhp.low_thrust_geo(N=400, method="rk4"), _geo_readout,
-          seed="-", published=_NONE),
+          seed="-", published=_GEO),
     Entry("hypersonic-landing", lambda: worhp.hypersonic_landing(N=200), _landing_readout,
-          seed=_seed_times("hypersonic-landing", 201), published=_NONE),
+          seed=_seed_times("hypersonic-landing", 201), published=_LANDING),
     Entry("hypersonic-landing-n2001", lambda: worhp.hypersonic_landing(N=2000), _landing_readout,
-          seed=_seed_times("hypersonic-landing", 2001), published=_NONE),
+          seed=_seed_times("hypersonic-landing", 2001), published=_LANDING),
     Entry("hypersonic-landing-rk4", lambda: worhp.hypersonic_landing(N=400, method="rk4"), _landing_readout,
-          seed="-", published=_NONE),
+          seed="-", published=_LANDING),
 ]
 
 
