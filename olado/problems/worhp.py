@@ -36,8 +36,8 @@ __all__ = ["GEO", "LANDING", "LANDING_X0", "LANDING_SCALE", "LANDING_TIME_UNIT",
 # ============================================================================ low-thrust transfer to GEO
 #: Seed 000 sec. VI.1: gravitational parameter r_mu, thrust acceleration (the 0.01 of the
 #: dynamics), initial and final (GEO) radius. Nondimensional; the seed states no units (r_f = 6.6
-#: is the GEO radius in Earth radii, so that LU ~ 6378 km and, with mu_Earth = 398600 km^3/s^2,
-#: TU = sqrt(62.5 LU^3 / mu_Earth) ~ 6378 s -- an inference, not the seed's statement).
+#: is the GEO radius, 42 164 km, in LU ~ 6390 km ~ one Earth radius; with mu_Earth = 398600 km^3/s^2,
+#: TU = sqrt(62.5 LU^3 / mu_Earth) ~ 6390 s -- an inference, not the seed's statement).
 GEO = {"mu": 62.5, "accel": 0.01, "r0": 6.0, "rf": 6.6}
 
 

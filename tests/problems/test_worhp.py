@@ -217,7 +217,7 @@ def test_rk4_transcriptions_against_an_adaptive_integrator():
     r = olado.solve(land, config=SQP)
     sol = land.solution(r)
     xf = _resimulate(land, sol, worhp._scaled_landing_rhs)
-    # RK4's error at N = 100 (steps of 7.4 s) in the final pull-up, where v falls from 140 to 50
+    # RK4's error at N = 100 (steps of 7.4 s) in the last seconds, where v falls from 140 to 55
     # m/s: 6.6 m in h(t_f) (1.1 m at N = 200, 0.11 m at N = 400), 6e-7 in the objective
     assert xf[3] * worhp.LANDING_SCALE[3] == pytest.approx(500.0, abs=10.0)
     assert worhp._landing_distance(None, xf, None) == pytest.approx(r.objective, rel=1e-5)
