@@ -138,8 +138,10 @@ CHECK_N = {("low-thrust-geo", "euler"): 20, ("low-thrust-geo", "rk4"): 20,
            ("hypersonic-landing", "euler"): 200, ("hypersonic-landing", "rk4"): 50}
 
 
-@pytest.mark.parametrize("name", ["low-thrust-geo", "hypersonic-landing"])
-@pytest.mark.parametrize("method", ["euler", "rk4"])
+@pytest.mark.parametrize("name, method", [("low-thrust-geo", "euler"), ("low-thrust-geo", "rk4"),
+                                          ("hypersonic-landing", "euler"),
+                                          # compiling the landing's RK4 step and Hessians: 5-7 s
+                                          pytest.param("hypersonic-landing", "rk4", marks=pytest.mark.slow)])
 def test_derivatives_at_the_start_against_finite_differences(name, method):
     p = PROBLEMS[name](N=CHECK_N[name, method], method=method)
     assert p.substeps == 1
