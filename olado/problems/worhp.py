@@ -170,14 +170,15 @@ def hypersonic_landing(N=None, method="euler", substeps=None):
 
         max F = ((La(t_f) - La0)/La0)^2 + ((Theta(t_f) - Theta0)/Theta0)^2   (here: min -F),  t_f free,
         x' = landing_rhs(x, u)  (see :func:`landing_rhs`),  x(0) = LANDING_X0,  h(t_f) = 500 m,
-        0 <= C_L <= 1,  0 <= mu <= 1   (the seed's control bounds),
+        0 <= C_L <= 1,  0 <= mu <= 1   (the seed's control bounds; it states no dynamic-pressure
+                                    or heating limit, nor does this problem),
 
     with the seed's data (:data:`LANDING`: c = 2, cD0 = 0.017, k = 2, F = 305 m^2, m = 115 000 kg,
     rho0 = 1.249512 kg/m^3, beta = 1/6900 1/m, r0 = 6.371e6 m, g0 = 9.80665 m/s^2,
     omega = 7.27e-5 1/s). The seed states no state bounds; two safeguards are added, inactive at
     the optimum (the tests check it), that keep the iterates where the model is defined (v and
-    cos(gamma) divide): v >= 10 m/s, |gamma| <= 1.5 rad. Without them IPOPT's iterates pass
-    through v = 0 (N = 200: 3000 iterations, no solution); which safeguards are there changes
+    cos(gamma) divide): v >= 10 m/s, |gamma| <= 1.5 rad. Without them sqp-ip still solves it,
+    IPOPT's iterates pass through v = 0 (N = 200: 3000 iterations); which safeguards are there changes
     the solvers' paths and even the local minimum found (docs/aerospace-worhp.md).
 
     Scaling: states (v / 1000 m/s, gamma, chi, h / 10 km, Lambda, Theta) and time in units of 100 s
