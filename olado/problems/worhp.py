@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import ProblemDefinitionError
 from .autodiff import cos, exp, sin, tan
 from .ocp import OCP
 
@@ -163,7 +164,7 @@ def _landing_substeps(N, method):
     return max(1, -(-LANDING_MIN_STEPS.get(method, 1) // int(N)))
 
 
-def hypersonic_landing(N=None, method="euler", substeps=None):
+def hypersonic_landing(N=None, method="euler", substeps=None, start="simulate"):
     """Emergency landing of a hypersonic flight system (seed 000 sec. VI.II; Mayrhofer and Sachs
     1996; Buskens and Gerdts 2003): the upper stage of a two-stage vehicle, its engine failed after
     separation, glides as far as possible from the separation point::
@@ -197,8 +198,13 @@ def hypersonic_landing(N=None, method="euler", substeps=None):
     ~3e-5).
 
     Start: C_L = sqrt(cD0/k) = 0.0922 (maximal lift-to-drag ratio), mu = 0.3, t_f = 700 s, states
-    simulated (constant controls reach h = 500 m after 693 s).
+    simulated (constant controls reach h = 500 m after 693 s); ``start="seed"``: the same controls
+    and t_f, every state at its initial value (the seed's "the initial values are also used as
+    starting point"; its controls and t_f guesses are not stated).
     """
+    if start not in ("simulate", "seed"):
+        raise ProblemDefinitionError(f"start must be 'simulate' or 'seed', got {start!r}",
+                                     function="hypersonic_landing", array="start")
     d = LANDING
     N = 200 if N is None else N
     if substeps is None:
@@ -211,7 +217,7 @@ def hypersonic_landing(N=None, method="euler", substeps=None):
                terminal=lambda t, x, p: [x[3] - h_final], terminal_equalities=[0],
                u_bounds=([0.0, 0.0], [1.0, 1.0]), x_bounds=(lower, [np.inf, 1.5, np.inf, np.inf, np.inf, np.inf]),
                u_guess=[float(np.sqrt(d["cD0"] / d["k"])), 0.3], method=method, substeps=substeps,
-               name="hypersonic-landing")
+               x_guess=np.asarray(LANDING_X0) / S if start == "seed" else None, name="hypersonic-landing")
 
 
 #: What seed 000 reports for each problem (sec. VI): the NLP sizes as functions of the number of
@@ -238,13 +244,16 @@ SEED_000 = {
 }
 
 
-def _factory(fn):
-    def make(N=None, method="euler", substeps=None):
-        return fn(N=N, method=method, substeps=substeps)
-    make.__doc__ = fn.__doc__.strip().splitlines()[0]
-    make.__name__ = fn.__name__
-    return make
+def _geo_factory(N=None, method="euler", substeps=None):
+    return low_thrust_geo(N=N, method=method, substeps=substeps)
 
 
-#: name -> factory(N=None, method="euler", substeps=None) (registered lazily by olado.problems.catalog)
-PROBLEMS = {"low-thrust-geo": _factory(low_thrust_geo), "hypersonic-landing": _factory(hypersonic_landing)}
+def _landing_factory(N=None, method="euler", substeps=None, start="simulate"):
+    return hypersonic_landing(N=N, method=method, substeps=substeps, start=start)
+
+
+for _make, _fn in ((_geo_factory, low_thrust_geo), (_landing_factory, hypersonic_landing)):
+    _make.__doc__ = _fn.__doc__.strip().splitlines()[0]
+
+#: name -> factory(N=None, method="euler", substeps=None[, start]) (registered lazily by olado.problems.catalog)
+PROBLEMS = {"low-thrust-geo": _geo_factory, "hypersonic-landing": _landing_factory}

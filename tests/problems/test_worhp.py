@@ -25,6 +25,7 @@ pytest.importorskip("casadi")
 import olado  # noqa: E402
 from fixtures import REPO  # noqa: E402
 from olado.problems import PROBLEMS, check_derivatives  # noqa: E402
+from olado.errors import ProblemDefinitionError  # noqa: E402
 from olado.problems import worhp  # noqa: E402
 
 SQP = str(REPO / "configs" / "sqp-ip.ini")
@@ -223,3 +224,16 @@ def test_rk4_transcriptions_against_an_adaptive_integrator():
     # m/s: 6.6 m in h(t_f) (1.1 m at N = 200, 0.11 m at N = 400), 6e-7 in the objective
     assert xf[3] * worhp.LANDING_SCALE[3] == pytest.approx(500.0, abs=10.0)
     assert worhp._landing_distance(None, xf, None) == pytest.approx(r.objective, rel=1e-5)
+
+
+@pytest.mark.slow
+def test_landing_from_the_seeds_start():
+    """The seed's start (every state at its initial value; sec. VI.II): the same optimum."""
+    ref = olado.solve(worhp.hypersonic_landing(), config=SQP)
+    p = PROBLEMS["hypersonic-landing"](start="seed")
+    X = p.initial_state_guess(p.initial_guess())
+    np.testing.assert_allclose(X[1:, :6], np.tile(np.asarray(worhp.LANDING_X0) / worhp.LANDING_SCALE, (p.N, 1)))
+    r = olado.solve(p, config=SQP)
+    assert r.success and r.objective == pytest.approx(ref.objective, rel=1e-9)
+    with pytest.raises(ProblemDefinitionError, match="start must be"):
+        worhp.hypersonic_landing(start="zero")
