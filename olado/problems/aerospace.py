@@ -61,9 +61,10 @@ class ShuttleEntry:
     #: control bounds: -90 <= alpha <= 90 deg, -90 <= beta <= 1 deg (Betts eq. (6.12))
     ALPHA_BOUNDS = (-90.0 * DEG, 90.0 * DEG)
     BETA_BOUNDS = (-90.0 * DEG, 1.0 * DEG)
-    #: state bounds: h >= 0, v >= 1 ft/s, |theta|, |gamma| <= 89 deg
-    #: Betts's published optimum (2010, sec. 6.1): crossrange theta(t_f) and t_f without the heat limit
+    #: Betts's published optima (2010, sec. 6.1): crossrange theta(t_f) and t_f without and with
+    #: the heat limit (docs/aerospace.md: where the numbers come from)
     PUBLISHED = {"crossrange_deg": 34.1412, "tf_s": 2008.59}
+    PUBLISHED_HEATING = {"crossrange_deg": 30.6255, "tf_s": 2198.67}
     #: seed 004 Table 1 (SPARTAN, 50 flipped-Radau nodes, with the heat limit): J = -theta(t_f) in deg
     SEED_004 = {"crossrange_deg": 30.63850}
 
@@ -122,8 +123,9 @@ def shuttle_entry(N=100, heating=False, scaled=True, substeps=1, mode="llvm"):
         h(t_f) = 80 000 ft,  v(t_f) = 2500 ft/s,  gamma(t_f) = -5 deg,
         -90 <= alpha <= 90 deg,  -90 <= beta <= 1 deg,  [q(x, alpha) <= 70 BTU/ft^2/s: heating=True]
 
-    Published (Betts 2010, sec. 6.1, no heat limit): theta(t_f) = 34.1412 deg at t_f = 2008.59 s.
-    Seed 004 (Table 1, with the heat limit): J = -30.6385 deg.
+    Published (Betts 2010, sec. 6.1): theta(t_f) = 34.1412 deg at t_f = 2008.59 s; with the heat
+    limit 30.6255 deg at 2198.67 s. Seed 004 (Table 1, with the heat limit): J = -30.6385 deg.
+    State bounds: h >= 0, v >= 1 ft/s, |theta|, |gamma| <= 89 deg (Betts).
 
     Transcription: N RK4 intervals (``substeps`` steps each), piecewise-constant controls, free
     final time by time scaling. ``scaled``: states in (1e5 ft, rad, rad, 1e4 ft/s, rad, rad) and
