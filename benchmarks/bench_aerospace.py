@@ -58,11 +58,18 @@ def _final_state(names):
     return read
 
 
-def _shuttle_readout(problem, result):
+def _shuttle_readout(problem, result, scaled=True):
     from olado.problems.aerospace import entry_result
 
-    e = entry_result(problem, result)
+    e = entry_result(problem, result, scaled=scaled)
     return {"crossrange (deg)": e.crossrange_deg, "t_f (s)": e.tf_s, "max q (BTU/ft^2/s)": e.max_heat_rate}
+
+
+def _raw_shuttle(heating):
+    """The shuttle in Betts's raw units (ft, ft/s, s: badly scaled on purpose, seed 004's subject)."""
+    from olado.problems.aerospace import shuttle_entry
+
+    return shuttle_entry(N=50, heating=heating, scaled=False)
 
 
 ENTRIES = [
@@ -71,6 +78,14 @@ ENTRIES = [
           published="crossrange 34.1412 deg, t_f = 2008.59 s (Betts 2010 ex. 6.1)"),
     Entry("shuttle-entry-heating", lambda: PROBLEMS["shuttle-entry-heating"](N=200), _shuttle_readout,
           seed="J = -30.6385 deg (seed 004 Table 1 'SS', 50 Radau nodes, SNOPT and IPOPT)",
+          published="crossrange 30.6255 deg, t_f = 2198.67 s (Betts 2010 ex. 6.1, heat-limited)"),
+    # the same at N = 50 in Betts's raw units (no manual scaling): for the scaling work (issue 15 item 3)
+    Entry("shuttle-entry-raw", lambda: _raw_shuttle(False),
+          lambda p, r: _shuttle_readout(p, r, scaled=False),
+          seed="-", published="crossrange 34.1412 deg, t_f = 2008.59 s (Betts 2010 ex. 6.1)"),
+    Entry("shuttle-entry-heating-raw", lambda: _raw_shuttle(True),
+          lambda p, r: _shuttle_readout(p, r, scaled=False),
+          seed="no valid solution without scaling (seed 004 Table 1 'SS', NONE and AUTO rows)",
           published="crossrange 30.6255 deg, t_f = 2198.67 s (Betts 2010 ex. 6.1, heat-limited)"),
     Entry("rigid-body", lambda: PROBLEMS["rigid-body"](), _final_state({"t_f": -1}),
           seed="J = t_f = 29.990 .. 30.713 (seed 004 Table 1 'AB', with an unstated angular-speed limit)",
