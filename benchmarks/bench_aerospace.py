@@ -100,7 +100,7 @@ ENTRIES = [
 
 
 def _fmt(v):
-    return f"{v:.6g}" if isinstance(v, float) else str(v)
+    return f"{v:.8g}" if isinstance(v, float) else str(v)
 
 
 #: (heading, function(entry, problem, result) -> cell)

@@ -7,9 +7,9 @@
 ==========================  ======================================================================
 
 The other problems of seeds 002 and 004 are built-ins already and are the same problems (checked
-in docs/aerospace.md): the hang glider (``hang-glider``, olado/problems/cops.py, Betts 2010 ex.
-6.5 / seed 004 'HG'), the asymmetric rigid body (``rigid-body``, olado/problems/literature.py,
-Betts 2010 ex. 6.12 / seed 004 'AB') and the Earth-to-Mars maximum-radius transfer
+in docs/aerospace.md): the hang glider (``hang-glider``, olado/problems/cops.py, Betts 2010 /
+seed 004 'HG'), the asymmetric rigid body (``rigid-body``, olado/problems/literature.py,
+Betts 2010 / seed 004 'AB') and the Earth-to-Mars maximum-radius transfer
 (``orbit-raising``, literature.py; seed 002 sec. 4.1). The three-stage launch vehicle of seed 002
 sec. 4.2 is not built: the seed does not give its drag-coefficient data (a figure only) nor its
 initial state, and OCP has no multi-phase transcription (docs/aerospace.md, "Three-stage launch
@@ -33,8 +33,8 @@ DEG = np.pi / 180.0
 # ============================================================================ Space Shuttle entry
 class ShuttleEntry:
     """Model data of the Space Shuttle entry (Betts, *Practical Methods for Optimal Control and
-    Estimation Using Nonlinear Programming*, 2nd ed., SIAM 2010, sec. 6.1, eqs. (6.1)-(6.12),
-    in Betts's English units: ft, s, slug, lb, BTU). Every constant is Betts's.
+    Estimation Using Nonlinear Programming*, 2nd ed., SIAM 2010, example 6.1, pp. 247-251, in
+    Betts's English units: ft, s, slug, lb, BTU). Every constant is Betts's.
     """
 
     #: Earth radius R_e (ft) and gravitational parameter mu (ft^3/s^2)
@@ -58,10 +58,10 @@ class ShuttleEntry:
     X0 = (260000.0, 0.0, 0.0, 25600.0, -1.0 * DEG, 90.0 * DEG)
     #: terminal area energy management interface: h = 80 000 ft, v = 2500 ft/s, gamma = -5 deg
     HF, VF, GAMMAF = 80000.0, 2500.0, -5.0 * DEG
-    #: control bounds: -90 <= alpha <= 90 deg, -90 <= beta <= 1 deg (Betts eq. (6.12))
+    #: control bounds: -90 <= alpha <= 90 deg, -90 <= beta <= 1 deg (Betts)
     ALPHA_BOUNDS = (-90.0 * DEG, 90.0 * DEG)
     BETA_BOUNDS = (-90.0 * DEG, 1.0 * DEG)
-    #: Betts's published optima (2010, sec. 6.1): crossrange theta(t_f) and t_f without and with
+    #: Betts's published optima (2010, example 6.1): crossrange theta(t_f) and t_f without and with
     #: the heat limit (docs/aerospace.md: where the numbers come from)
     PUBLISHED = {"crossrange_deg": 34.1412, "tf_s": 2008.59}
     PUBLISHED_HEATING = {"crossrange_deg": 30.6255, "tf_s": 2198.67}
@@ -70,13 +70,13 @@ class ShuttleEntry:
 
     STATES = ("h", "phi", "theta", "v", "gamma", "psi")
     CONTROLS = ("alpha", "beta")
-    #: scaled units (Betts scales too): h in 1e5 ft, v in 1e4 ft/s, angles in rad, time in 100 s
+    #: scaled units (a manual scaling of the NLP; the model stays in Betts's units): h in 1e5 ft, v in 1e4 ft/s, angles in rad, time in 100 s
     UNITS = np.array([1e5, 1.0, 1.0, 1e4, 1.0, 1.0])
     TIME_UNIT = 100.0
 
     @classmethod
     def physical_rhs(cls, x, u):
-        """Betts's eqs. (6.1)-(6.6) at physical (h, phi, theta, v, gamma, psi) and (alpha, beta) in rad."""
+        """Betts's equations of motion (example 6.1) at physical (h, phi, theta, v, gamma, psi) and (alpha, beta) in rad."""
         h, theta, v, gamma, psi = x[0], x[2], x[3], x[4], x[5]
         alpha, beta = u[0], u[1]
         r = cls.RE + h
@@ -96,7 +96,7 @@ class ShuttleEntry:
 
     @classmethod
     def heat_rate(cls, x, u):
-        """q = q_a q_r (BTU/ft^2/s), Betts eqs. (6.10)-(6.11), at physical x and u (rad)."""
+        """q = q_a q_r (BTU/ft^2/s) of Betts's example 6.1 at physical x and u (rad)."""
         a = u[0] / DEG
         rho = cls.RHO0 * exp(-x[0] / cls.HR)
         qr = 17700.0 * sqrt(rho) * (1e-4 * x[3]) ** 3.07
@@ -118,12 +118,12 @@ def shuttle_entry(N=100, heating=False, scaled=True, substeps=1, mode="llvm"):
     """Space Shuttle entry, maximum crossrange (Betts 2010 ex. 6.1; seed 004 'SS')::
 
         max theta(t_f),  t_f free,   x = (h, phi, theta, v, gamma, psi),  u = (alpha, beta),
-        x' = f(x, u) (Betts eqs. (6.1)-(6.6), :meth:`ShuttleEntry.physical_rhs`),
+        x' = f(x, u) (Betts's equations of motion, :meth:`ShuttleEntry.physical_rhs`),
         x(0) = (260 000 ft, 0, 0, 25 600 ft/s, -1 deg, 90 deg),
         h(t_f) = 80 000 ft,  v(t_f) = 2500 ft/s,  gamma(t_f) = -5 deg,
         -90 <= alpha <= 90 deg,  -90 <= beta <= 1 deg,  [q(x, alpha) <= 70 BTU/ft^2/s: heating=True]
 
-    Published (Betts 2010, sec. 6.1): theta(t_f) = 34.1412 deg at t_f = 2008.59 s; with the heat
+    Published (Betts 2010, example 6.1): theta(t_f) = 34.1412 deg at t_f = 2008.59 s; with the heat
     limit 30.6255 deg at 2198.67 s. Seed 004 (Table 1, with the heat limit): J = -30.6385 deg.
     State bounds: h >= 0, v >= 1 ft/s, |theta|, |gamma| <= 89 deg (Betts).
 
@@ -132,8 +132,7 @@ def shuttle_entry(N=100, heating=False, scaled=True, substeps=1, mode="llvm"):
     time in 100 s (the model is the same; only the NLP's units change); ``scaled=False`` is the
     problem in Betts's raw units, badly scaled on purpose (seed 004's subject). The objective is
     -theta(t_f) in rad, the heat limit is written 1 - q/70 >= 0. Start: alpha = 17 deg, beta = -75
-    deg, t_f = 2000 s, states linear from x(0) to (h_f, 0, 30 deg, v_f, gamma_f, 0) (Betts starts
-    from the linear interpolation of the boundary values too).
+    deg, t_f = 2000 s, states linear from x(0) to (h_f, 0, 30 deg, v_f, gamma_f, 0), the longitude to 75 deg.
     """
     M = ShuttleEntry
     units = M.UNITS if scaled else np.ones(6)

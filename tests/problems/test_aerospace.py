@@ -30,7 +30,7 @@ def _ipopt():
 
 # ---------------------------------------------------------------------------- the model
 def test_entry_interface_by_hand():
-    """Betts's eqs. (6.1)-(6.6) at x(0) with alpha = 0, beta = 0, evaluated term by term here."""
+    """Betts's equations of motion at x(0) with alpha = 0, beta = 0, evaluated term by term here."""
     x = np.array(ShuttleEntry.X0)
     f = np.array(ShuttleEntry.physical_rhs(x, np.zeros(2)), dtype=float)
     h, v, gam = 260000.0, 25600.0, -1.0 * DEG
@@ -49,7 +49,7 @@ def test_entry_interface_by_hand():
 
 
 def test_heat_rate_by_hand():
-    """q = q_a q_r (Betts eqs. (6.10)-(6.11)) at 200 000 ft, 20 000 ft/s, alpha = 40 deg."""
+    """q = q_a q_r (Betts 2010 example 6.1) at 200 000 ft, 20 000 ft/s, alpha = 40 deg."""
     x = np.array([200000.0, 0.0, 0.0, 20000.0, 0.0, 0.0])
     rho = 0.002378 * np.exp(-200000.0 / 23800.0)
     qr = 17700.0 * np.sqrt(rho) * 2.0 ** 3.07
