@@ -2,14 +2,15 @@
 :class:`olado.OCP` (exact derivatives by CasADi through the RK4 transcription).
 
 ==========================  ======================================================================
-``shuttle-entry``           Space Shuttle entry, maximum crossrange (Betts 2010, ex. 6.1; seed 004
-                            sec. 6 'SS'); ``heating=True``: the heat-rate limit q <= 70 BTU/ft^2/s
+``shuttle-entry``           Space Shuttle entry, maximum crossrange (Betts 2010, ex. 6.1: 34.1412 deg)
+``shuttle-entry-heating``   the same with the heat-rate limit q <= 70 BTU/ft^2/s (Betts 2010:
+                            30.6255 deg; seed 004 sec. 6 'SS': 30.6385 deg)
 ==========================  ======================================================================
 
 The other problems of seeds 002 and 004 are built-ins already and are the same problems (checked
 in docs/aerospace.md): the hang glider (``hang-glider``, olado/problems/cops.py, Betts 2010 /
 seed 004 'HG'), the asymmetric rigid body (``rigid-body``, olado/problems/literature.py,
-Betts 2010 / seed 004 'AB') and the Earth-to-Mars maximum-radius transfer
+Betts 2010; seed 004 'AB' adds an angular-speed limit it does not state) and the Earth-to-Mars maximum-radius transfer
 (``orbit-raising``, literature.py; seed 002 sec. 4.1). The three-stage launch vehicle of seed 002
 sec. 4.2 is not built: the seed does not give its drag-coefficient data (a figure only) nor its
 initial state, and OCP has no multi-phase transcription (docs/aerospace.md, "Three-stage launch
