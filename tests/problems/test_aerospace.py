@@ -163,3 +163,18 @@ def test_reused_problems_against_ipopt_and_the_published_value(name):
         out.append(float(r.x[-1, idx]))
     assert out[0] == pytest.approx(out[1], rel=1e-6)
     assert out[0] == pytest.approx(value, abs=tol)
+
+
+@pytest.mark.slow
+def test_raw_units_are_the_same_problem():
+    """Betts's raw units (scaled=False) and the scaled NLP have the same optimum: IPOPT (which
+    scales by gradients itself) reaches the same crossrange and t_f at N = 50 from both (measured
+    34.1391801485 deg both, t_f 2008.4330 / 2008.4333 s: t_f is weakly determined, see above)."""
+    out = []
+    for scaled in (True, False):
+        p = shuttle_entry(N=50, scaled=scaled)
+        r = olado.solve(p, config=_ipopt())
+        assert r.status.value == "success", r.message
+        out.append(entry_result(p, r, scaled=scaled))
+    assert out[0].crossrange_deg == pytest.approx(out[1].crossrange_deg, abs=1e-7)
+    assert out[0].tf_s == pytest.approx(out[1].tf_s, abs=0.5)
