@@ -13,7 +13,7 @@ import inspect
 
 __all__ = ["CATALOG", "LazyFactory", "lazy_factories"]
 
-#: name -> (module, summary); order: variants of the built-ins, COPS, literature, seed 000 (worhp), infeasible
+#: name -> (module, summary); order: variants of the built-ins, COPS, literature, aerospace (seeds 004/002), seed 000 (worhp), infeasible
 CATALOG = {
     "rayleigh-mixed": ("variants", "Rayleigh problem with the mixed constraint u + x1/6 <= 0 (Maurer and Augustin 2001)."),
     "goddard": ("cops", "Goddard rocket, maximal altitude, free final time (COPS 3.0 'rocket')."),
@@ -37,6 +37,8 @@ CATALOG = {
     "obstacle": ("literature", "Minimum-energy point mass around a circular obstacle (two local minima)."),
     "cart-pole": ("literature", "Cart-pole swing-up, minimum effort (Kelly 2017)."),
     "orbit-raising": ("literature", "Maximal-radius low-thrust orbit transfer (Bryson and Ho 1975 sec. 2.5)."),
+    "shuttle-entry": ("aerospace", "Space Shuttle entry, maximum crossrange, free final time (Betts 2010 ex. 6.1; seed 004)."),
+    "shuttle-entry-heating": ("aerospace", "Space Shuttle entry with the heat-rate limit q <= 70 BTU/ft^2/s (Betts 2010 ex. 6.1; seed 004)."),
     "low-thrust-geo": ("worhp", "Time-optimal low-thrust planar transfer to GEO (seed 000 sec. VI.1; Kluever 1995)."),
     "hypersonic-landing": ("worhp", "Emergency landing of a hypersonic upper stage, maximal range (seed 000 sec. VI.II)."),
     "lq-unreachable": ("infeasible", "lq-box with an unreachable terminal state (infeasible)."),

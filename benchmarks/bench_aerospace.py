@@ -1,0 +1,157 @@
+"""The seeds' aerospace benchmark problems (issue 15 item 4; docs/aerospace.md): olado's result
+next to the value the seed reports and the published one.
+
+Each entry of ``ENTRIES`` builds one problem and reads its result in the problem's own terms
+(crossrange, final time, radius, range); every entry is solved by every preset of ``CONFIGS``
+(configs/<name>.ini). To add a problem, append an :class:`Entry`; to add a column, a
+``(heading, function(entry, problem, result) -> str)`` pair to ``COLUMNS``; to add a solver or a
+scaled variant, a preset name to ``CONFIGS`` (or ``--configs``).
+
+    python benchmarks/bench_aerospace.py                       # prints the table
+    python benchmarks/bench_aerospace.py --entries shuttle-entry --configs ipopt
+    python benchmarks/bench_aerospace.py --write               # and writes the RESULTS.md section
+
+The machine is shared: the times are orders of magnitude; compare iterations and values.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
+
+from _common import commit, machine, write_section  # noqa: E402
+
+import olado  # noqa: E402
+from olado.problems import PROBLEMS  # noqa: E402
+
+SECTION = "Aerospace benchmark problems of the seeds (issue 15 item 4)"
+CONFIGS = ["sqp-ip", "ipopt"]
+
+
+@dataclass
+class Entry:
+    """One row group: ``build()`` makes the problem, ``readout(problem, result)`` gives its
+    quantities {label: value} (objective aside), ``seed`` what the seed reports (with where),
+    ``published`` the literature's value (with where)."""
+
+    name: str
+    build: Callable
+    readout: Callable
+    seed: str
+    published: str
+
+
+def _final_state(names):
+    """Readout of a ContinuousDOCP: the named components of the last state (T is the last one
+    with a free final time)."""
+    def read(problem, result):
+        return {label: float(result.x[-1, idx]) for label, idx in names.items()}
+    return read
+
+
+def _shuttle_readout(problem, result, scaled=True):
+    from olado.problems.aerospace import entry_result
+
+    e = entry_result(problem, result, scaled=scaled)
+    return {"crossrange (deg)": e.crossrange_deg, "t_f (s)": e.tf_s, "max q (BTU/ft^2/s)": e.max_heat_rate}
+
+
+def _raw_shuttle(heating):
+    """The shuttle in Betts's raw units (ft, ft/s, s: badly scaled on purpose, seed 004's subject)."""
+    from olado.problems.aerospace import shuttle_entry
+
+    return shuttle_entry(N=50, heating=heating, scaled=False)
+
+
+ENTRIES = [
+    Entry("shuttle-entry", lambda: PROBLEMS["shuttle-entry"](N=200), _shuttle_readout,
+          seed="not solved without the heat limit (seed 004 Table 1 has the heat-limited case only)",
+          published="crossrange 34.1412 deg, t_f = 2008.59 s (Betts 2010 ex. 6.1)"),
+    Entry("shuttle-entry-heating", lambda: PROBLEMS["shuttle-entry-heating"](N=200), _shuttle_readout,
+          seed="J = -30.6385 deg (seed 004 Table 1 'SS', 50 Radau nodes, SNOPT and IPOPT)",
+          published="crossrange 30.6255 deg, t_f = 2198.67 s (Betts 2010 ex. 6.1, heat-limited)"),
+    # the same at N = 50 in Betts's raw units (no manual scaling): for the scaling work (issue 15 item 3)
+    Entry("shuttle-entry-raw", lambda: _raw_shuttle(False),
+          lambda p, r: _shuttle_readout(p, r, scaled=False),
+          seed="-", published="crossrange 34.1412 deg, t_f = 2008.59 s (Betts 2010 ex. 6.1)"),
+    Entry("shuttle-entry-heating-raw", lambda: _raw_shuttle(True),
+          lambda p, r: _shuttle_readout(p, r, scaled=False),
+          seed="no valid solution without scaling (seed 004 Table 1 'SS', NONE and AUTO rows)",
+          published="crossrange 30.6255 deg, t_f = 2198.67 s (Betts 2010 ex. 6.1, heat-limited)"),
+    Entry("rigid-body", lambda: PROBLEMS["rigid-body"](), _final_state({"t_f": -1}),
+          seed="J = t_f = 29.990 .. 30.713 (seed 004 Table 1 'AB', with an unstated angular-speed limit)",
+          published="t_f = 28.6304077 (Betts 2010)"),
+    Entry("hang-glider", lambda: PROBLEMS["hang-glider"](), _final_state({"range x(t_f) (m)": 0, "t_f (s)": -1}),
+          seed="J = -1248.032 m (seed 004 Table 1 'HG', every scaling)",
+          published="range 1248.03103 m, t_f = 98.436940 s (Betts 2010)"),
+    Entry("orbit-raising", lambda: PROBLEMS["orbit-raising"](), _final_state({"r(t_f)": 0}),
+          seed="r(t_f) = 1.525 (seed 002 sec. 4.5, 'physical case'; other local minimum 1.504)",
+          published="r(t_f) = 1.525 (Bryson and Ho 1975 sec. 2.5)"),
+]
+
+
+def _fmt(v):
+    return f"{v:.8g}" if isinstance(v, float) else str(v)
+
+
+#: (heading, function(entry, problem, result) -> cell)
+COLUMNS = [
+    ("status", lambda e, p, r: r.status.value),
+    ("iterations", lambda e, p, r: str(r.iterations)),
+    ("time (s)", lambda e, p, r: f"{r.time_s:.2g}"),
+    ("objective", lambda e, p, r: f"{r.objective:.10g}"),
+    ("olado's values", lambda e, p, r: ", ".join(f"{k} {_fmt(v)}" for k, v in e.readout(p, r).items())),
+]
+
+
+def run(entries, configs):
+    """Table rows: one per (entry, config)."""
+    rows = []
+    for e in entries:
+        for cfg in configs:
+            problem = e.build()
+            t0 = time.perf_counter()
+            r = olado.solve(problem, config=str(HERE.parent / "configs" / f"{cfg}.ini"))
+            wall = time.perf_counter() - t0
+            cells = [e.name, str(problem.N), cfg] + [f(e, problem, r) for _, f in COLUMNS] + [e.seed, e.published]
+            rows.append("| " + " | ".join(cells) + " |")
+            print(rows[-1], f"(wall {wall:.1f} s)", flush=True)
+    return rows
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--entries", nargs="+", default=[e.name for e in ENTRIES])
+    ap.add_argument("--configs", nargs="+", default=CONFIGS)
+    ap.add_argument("--write", action="store_true", help=f"write the '{SECTION}' section of RESULTS.md")
+    args = ap.parse_args(argv)
+    chosen = [e for e in ENTRIES if e.name in args.entries]
+    head = ["problem", "N", "config"] + [h for h, _ in COLUMNS] + ["seed reports", "published"]
+    table = ["| " + " | ".join(head) + " |", "|" + "|".join(":--" for _ in head) + "|"] + run(chosen, args.configs)
+    text = "\n".join(table)
+    if args.write:
+        cmd = "python benchmarks/bench_aerospace.py --write" + (
+            "" if chosen == ENTRIES else " --entries " + " ".join(args.entries)) + (
+            "" if args.configs == CONFIGS else " --configs " + " ".join(args.configs))
+        write_section(SECTION, f"## {SECTION}\n\nCommand: `{cmd}`  \nCommit: {commit()}  \n"
+                      f"Date: {time.strftime('%Y-%m-%d')}  \nMachine: {machine()} (shared with other jobs: "
+                      "times are orders of magnitude)\n\nN is the DOCP's number of stages (with a free final "
+                      "time: the intervals plus the parameter stage). Objectives are minimized (a maximized "
+                      "quantity appears with a minus sign; the shuttle's objective is -theta(t_f) in rad). "
+                      "Formulations, data sources and the differences to the seeds' values: "
+                      "docs/aerospace.md.\n\n" + text + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    np.seterr(all="ignore")
+    sys.exit(main())
