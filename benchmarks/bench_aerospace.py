@@ -113,43 +113,55 @@ COLUMNS = [
 ]
 
 
+def _grid(problem):
+    """The leading cells of a row: the intervals (N for a plain DOCP) and the scheme."""
+    return [str(getattr(problem, "intervals", problem.N)), str(getattr(problem, "method", "-"))]
+
+
 def run(entries, configs):
-    """Table rows: one per (entry, config)."""
+    """Table rows: one per (entry, config); the problem is built (and its model compiled) once per
+    entry, outside the solve times."""
     rows = []
     for e in entries:
+        problem = e.build()
+        problem.simulate(problem.initial_guess())
         for cfg in configs:
-            problem = e.build()
             t0 = time.perf_counter()
             r = olado.solve(problem, config=str(HERE.parent / "configs" / f"{cfg}.ini"))
             wall = time.perf_counter() - t0
-            cells = [e.name, str(problem.N), cfg] + [f(e, problem, r) for _, f in COLUMNS] + [e.seed, e.published]
+            cells = [e.name] + _grid(problem) + [cfg] + [f(e, problem, r) for _, f in COLUMNS] + [e.seed, e.published]
             rows.append("| " + " | ".join(cells) + " |")
             print(rows[-1], f"(wall {wall:.1f} s)", flush=True)
     return rows
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--entries", nargs="+", default=[e.name for e in ENTRIES])
+def table_main(argv, *, entries, section, script, preamble):
+    """The command line shared by the seeds' benchmark scripts: ``--entries``, ``--configs``,
+    ``--write`` (the section ``section`` of RESULTS.md, headed by ``preamble``)."""
+    ap = argparse.ArgumentParser(description=f"{section}: olado next to the seeds' values")
+    ap.add_argument("--entries", nargs="+", default=[e.name for e in entries])
     ap.add_argument("--configs", nargs="+", default=CONFIGS)
-    ap.add_argument("--write", action="store_true", help=f"write the '{SECTION}' section of RESULTS.md")
+    ap.add_argument("--write", action="store_true", help=f"write the '{section}' section of RESULTS.md")
     args = ap.parse_args(argv)
-    chosen = [e for e in ENTRIES if e.name in args.entries]
-    head = ["problem", "N", "config"] + [h for h, _ in COLUMNS] + ["seed reports", "published"]
+    chosen = [e for e in entries if e.name in args.entries]
+    head = ["problem", "intervals", "scheme", "config"] + [h for h, _ in COLUMNS] + ["seed reports", "published"]
     table = ["| " + " | ".join(head) + " |", "|" + "|".join(":--" for _ in head) + "|"] + run(chosen, args.configs)
-    text = "\n".join(table)
     if args.write:
-        cmd = "python benchmarks/bench_aerospace.py --write" + (
-            "" if chosen == ENTRIES else " --entries " + " ".join(args.entries)) + (
+        cmd = f"python benchmarks/{script} --write" + (
+            "" if chosen == entries else " --entries " + " ".join(args.entries)) + (
             "" if args.configs == CONFIGS else " --configs " + " ".join(args.configs))
-        write_section(SECTION, f"## {SECTION}\n\nCommand: `{cmd}`  \nCommit: {commit()}  \n"
+        write_section(section, f"## {section}\n\nCommand: `{cmd}`  \nCommit: {commit()}  \n"
                       f"Date: {time.strftime('%Y-%m-%d')}  \nMachine: {machine()} (shared with other jobs: "
-                      "times are orders of magnitude)\n\nN is the DOCP's number of stages (with a free final "
-                      "time: the intervals plus the parameter stage). Objectives are minimized (a maximized "
-                      "quantity appears with a minus sign; the shuttle's objective is -theta(t_f) in rad). "
-                      "Formulations, data sources and the differences to the seeds' values: "
-                      "docs/aerospace.md.\n\n" + text + "\n")
+                      f"times are orders of magnitude)\n\n{preamble}\n\n" + "\n".join(table) + "\n")
     return 0
+
+
+def main(argv=None):
+    return table_main(argv, entries=ENTRIES, section=SECTION, script="bench_aerospace.py", preamble=(
+        "'intervals' is the number of control intervals (a free final time adds a parameter stage to "
+        "the DOCP). Objectives are minimized (a maximized quantity appears with a minus sign; the "
+        "shuttle's objective is -theta(t_f) in rad). Formulations, data sources and the differences to "
+        "the seeds' values: docs/aerospace.md."))
 
 
 if __name__ == "__main__":

@@ -2,8 +2,8 @@
 low-thrust transfer to GEO and the hypersonic emergency landing, at the seed's sizes and by RK4,
 olado's result next to what the seed reports (sizes and CPU times only: no optimal values).
 
-``ENTRIES`` has the shape of benchmarks/bench_aerospace.py's (name, build, readout, seed,
-published), so the two lists can be merged; each entry is solved by every preset of ``CONFIGS``.
+``ENTRIES`` are :class:`bench_aerospace.Entry` rows, run by bench_aerospace's table (every
+preset of ``CONFIGS``); this script keeps seed 000's entries and its RESULTS.md section apart.
 
     python benchmarks/bench_worhp.py                       # prints the table
     python benchmarks/bench_worhp.py --entries low-thrust-geo --configs ipopt
@@ -14,37 +14,19 @@ The machine is shared: the times are orders of magnitude; compare iterations and
 
 from __future__ import annotations
 
-import argparse
 import sys
-import time
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
-from _common import commit, machine, write_section  # noqa: E402
+from bench_aerospace import Entry, table_main  # noqa: E402
 
-import olado  # noqa: E402
 from olado.problems import worhp  # noqa: E402
 
 SECTION = "Seed 000's aerospace benchmarks: low-thrust transfer to GEO, hypersonic emergency landing"
-CONFIGS = ["sqp-ip", "ipopt"]
-
-
-@dataclass
-class Entry:
-    """One row group: ``build()`` makes the problem, ``readout(problem, result)`` gives its
-    quantities {label: value}, ``seed`` what the seed reports, ``published`` the literature's value."""
-
-    name: str
-    build: Callable
-    readout: Callable
-    seed: str
-    published: str
 
 
 def _geo_readout(problem, result):
@@ -86,55 +68,11 @@ ENTRIES = [
 ]
 
 
-def _fmt(v):
-    return f"{v:.8g}" if isinstance(v, float) else str(v)
-
-
-#: (heading, function(entry, problem, result) -> cell)
-COLUMNS = [
-    ("status", lambda e, p, r: r.status.value),
-    ("iterations", lambda e, p, r: str(r.iterations)),
-    ("time (s)", lambda e, p, r: f"{r.time_s:.2g}"),
-    ("objective", lambda e, p, r: f"{r.objective:.10g}"),
-    ("olado's values", lambda e, p, r: ", ".join(f"{k} {_fmt(v)}" for k, v in e.readout(p, r).items())),
-]
-
-
-def run(entries, configs):
-    """Table rows: one per (entry, config); the problem is built (and compiled) once per entry."""
-    rows = []
-    for e in entries:
-        problem = e.build()
-        problem.simulate(problem.initial_guess())    # compile outside the solve times
-        for cfg in configs:
-            r = olado.solve(problem, config=str(HERE.parent / "configs" / f"{cfg}.ini"))
-            cells = [e.name, str(problem.intervals), problem.method, cfg] + [f(e, problem, r) for _, f in COLUMNS]
-            rows.append("| " + " | ".join(cells + [e.seed, e.published]) + " |")
-            print(rows[-1], flush=True)
-    return rows
-
-
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--entries", nargs="+", default=[e.name for e in ENTRIES])
-    ap.add_argument("--configs", nargs="+", default=CONFIGS)
-    ap.add_argument("--write", action="store_true", help=f"write the '{SECTION}' section of RESULTS.md")
-    args = ap.parse_args(argv)
-    chosen = [e for e in ENTRIES if e.name in args.entries]
-    head = ["problem", "intervals", "scheme", "config"] + [h for h, _ in COLUMNS] + ["seed reports", "published"]
-    table = ["| " + " | ".join(head) + " |", "|" + "|".join(":--" for _ in head) + "|"] + run(chosen, args.configs)
-    text = "\n".join(table)
-    if args.write:
-        cmd = "python benchmarks/bench_worhp.py --write" + (
-            "" if chosen == ENTRIES else " --entries " + " ".join(args.entries)) + (
-            "" if args.configs == CONFIGS else " --configs " + " ".join(args.configs))
-        write_section(SECTION, f"## {SECTION}\n\nCommand: `{cmd}`  \nCommit: {commit()}  \n"
-                      f"Date: {time.strftime('%Y-%m-%d')}  \nMachine: {machine()} (shared with other jobs: "
-                      "times are orders of magnitude)\n\n'intervals' is N (the seed's n points: N + 1). "
-                      "Objectives are minimized (the landing's is -F). The seed reports CPU times only "
-                      "(on an Intel Core2 Quad Q6600), quoted for the same n; formulations, data and what "
-                      "differs from the seed: docs/aerospace-worhp.md.\n\n" + text + "\n")
-    return 0
+    return table_main(argv, entries=ENTRIES, section=SECTION, script="bench_worhp.py", preamble=(
+        "'intervals' is N (the seed's n points: N + 1). Objectives are minimized (the landing's is -F). "
+        "The seed reports CPU times only (on an Intel Core2 Quad Q6600), quoted for the same n; "
+        "formulations, data and what differs from the seed: docs/aerospace-worhp.md."))
 
 
 if __name__ == "__main__":
