@@ -1,0 +1,125 @@
+"""The bounds of the DOCP as IPOPT's barrier sees them (Waechter and Biegler 2006, sec. 2.1,
+3.5, 3.6): the free variables y = (x^1..x^N, u^0..u^{N-1}) as one flat vector, the finite sides
+of their bounds (relaxed by IPOPT's bound_relax_factor), the slacks s_L = y - lb, s_U = ub - y,
+the barrier function phi_mu (eq. (3), with the damping term of sec. 3.7 for one-sided bounds),
+its gradient, Sigma (eq. (12)), the bound-multiplier step (eq. (13)), the fraction-to-boundary
+rule (eq. (15)) and the multiplier safeguard (eq. (16))."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+#: kappa_d of sec. 3.7: the linear damping of variables with one finite bound only
+KAPPA_D = 1e-5
+
+
+def pack(X, U):
+    """The free variables as one flat vector (x^0 is fixed)."""
+    return np.concatenate([X[1:].ravel(), U.ravel()])
+
+
+def unpack(v, x0, N, n, m):
+    """(X (N+1, n), U (N, m)) from the flat vector and x^0."""
+    X = np.empty((N + 1, n))
+    X[0] = x0
+    X[1:] = v[:N * n].reshape(N, n)
+    return X, v[N * n:].reshape(N, m).copy()
+
+
+@dataclasses.dataclass
+class Bounds:
+    """The finite bound sides of the free variables (relaxed), as flat vectors with masks."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+    has_lo: np.ndarray
+    has_hi: np.ndarray
+
+    @classmethod
+    def of(cls, problem, relax=1e-8, relax_max=np.inf):
+        """The bounds of ``problem`` relaxed by min(relax max(1, |bound|), relax_max) (IPOPT's
+        bound_relax_factor, capped by constr_viol_tol as IPOPT does)."""
+        lo = pack(problem.x_lower, problem.u_lower).astype(float)
+        hi = pack(problem.x_upper, problem.u_upper).astype(float)
+        has_lo, has_hi = np.isfinite(lo), np.isfinite(hi)
+        lo = np.where(has_lo, lo - np.minimum(relax * np.maximum(1.0, np.abs(np.where(has_lo, lo, 0.0))), relax_max),
+                      -np.inf)
+        hi = np.where(has_hi, hi + np.minimum(relax * np.maximum(1.0, np.abs(np.where(has_hi, hi, 0.0))), relax_max),
+                      np.inf)
+        return cls(lo, hi, has_lo, has_hi)
+
+    @property
+    def count(self):
+        return int(self.has_lo.sum() + self.has_hi.sum())
+
+    def push(self, v, kappa1=1e-2, kappa2=1e-2):
+        """The starting point moved strictly inside the bounds (sec. 3.6, IPOPT's bound_push and
+        bound_frac)."""
+        lo, hi = self.lo, self.hi
+        width = np.where(self.has_lo & self.has_hi, hi - lo, np.inf)
+        with np.errstate(invalid="ignore"):
+            pl = np.minimum(kappa1 * np.maximum(1.0, np.abs(np.where(self.has_lo, lo, 0.0))), kappa2 * width)
+            pu = np.minimum(kappa1 * np.maximum(1.0, np.abs(np.where(self.has_hi, hi, 0.0))), kappa2 * width)
+        v = np.where(self.has_lo, np.maximum(v, lo + pl), v)
+        return np.where(self.has_hi, np.minimum(v, hi - pu), v)
+
+    def slacks(self, v):
+        """(s_L, s_U), 1 where a side is infinite (they carry no multiplier)."""
+        return np.where(self.has_lo, v - self.lo, 1.0), np.where(self.has_hi, self.hi - v, 1.0)
+
+    def barrier(self, v, mu):
+        """The barrier terms of phi_mu at v (+inf outside the bounds) and their gradient."""
+        sl, su = self.slacks(v)
+        if np.any(sl <= 0) or np.any(su <= 0):
+            return np.inf, None
+        one_lo, one_hi = self.has_lo & ~self.has_hi, self.has_hi & ~self.has_lo
+        value = (-mu * (np.log(sl[self.has_lo]).sum() + np.log(su[self.has_hi]).sum())
+                 + KAPPA_D * mu * ((v - self.lo)[one_lo].sum() + (self.hi - v)[one_hi].sum()))
+        grad = -mu * np.where(self.has_lo, 1.0 / sl, 0.0) + mu * np.where(self.has_hi, 1.0 / su, 0.0)
+        grad += KAPPA_D * mu * (one_lo.astype(float) - one_hi.astype(float))
+        return value, grad
+
+    def sigma(self, v, zl, zu):
+        """Sigma = Z_L / S_L + Z_U / S_U (eq. (12))."""
+        sl, su = self.slacks(v)
+        return zl / sl + zu / su
+
+    def dual_step(self, v, dv, zl, zu, mu):
+        """The bound-multiplier step of eq. (13): dz_L = mu / s_L - z_L - Sigma_L dv, and the
+        same for the upper side (0 on infinite sides)."""
+        sl, su = self.slacks(v)
+        dzl = np.where(self.has_lo, mu / sl - zl - zl / sl * dv, 0.0)
+        dzu = np.where(self.has_hi, mu / su - zu + zu / su * dv, 0.0)
+        return dzl, dzu
+
+    def max_step(self, v, dv, tau):
+        """The fraction-to-boundary rule (15) for the primal variables: the largest alpha in
+        (0, 1] with s + alpha ds >= (1 - tau) s on every finite side."""
+        sl, su = self.slacks(v)
+        alpha = 1.0
+        for s, ds, mask in ((sl, dv, self.has_lo), (su, -dv, self.has_hi)):
+            neg = mask & (ds < 0)
+            if neg.any():
+                alpha = min(alpha, float(np.min(-tau * s[neg] / ds[neg])))
+        return alpha
+
+    @staticmethod
+    def max_dual_step(z, dz, tau):
+        """The fraction-to-boundary rule (15) for multipliers z >= 0."""
+        neg = dz < 0
+        return min(1.0, float(np.min(-tau * z[neg] / dz[neg]))) if neg.any() else 1.0
+
+    def safeguard(self, v, zl, zu, mu, kappa_sigma=1e10):
+        """The multiplier reset (16): z within [mu / (kappa_sigma s), kappa_sigma mu / s]."""
+        sl, su = self.slacks(v)
+        zl = np.where(self.has_lo, np.clip(zl, mu / (kappa_sigma * sl), kappa_sigma * mu / sl), 0.0)
+        zu = np.where(self.has_hi, np.clip(zu, mu / (kappa_sigma * su), kappa_sigma * mu / su), 0.0)
+        return zl, zu
+
+    def complementarity(self, v, zl, zu, mu):
+        """max |s z - mu| over the finite sides (the complementarity part of eq. (5))."""
+        sl, su = self.slacks(v)
+        parts = [np.abs(sl * zl - mu)[self.has_lo], np.abs(su * zu - mu)[self.has_hi]]
+        return max((float(p.max()) for p in parts if p.size), default=0.0)

@@ -1,0 +1,98 @@
+"""The filter of the line search (Waechter and Biegler 2006, Math. Program. 106, sec. 2.3-2.4).
+
+A trial point is judged by the pair (theta, phi): theta the constraint violation (1-norm of the
+dynamics residuals), phi the barrier function (eq. (3)). The filter F is a set of pairs; a point
+is acceptable to it when it is not dominated by any of them (eq. (18): theta < theta_j or
+phi < phi_j for every (theta_j, phi_j) in F).
+
+Acceptance of a trial step of length alpha along d from (theta, phi) with barrier directional
+derivative g = grad phi . d:
+
+* switching condition (19): g < 0 and alpha (-g)^s_phi > delta theta^s_theta;
+* if it holds and theta <= theta_min: Armijo condition (20), phi_trial <= phi + eta_phi alpha g
+  (an "f-type" iteration: the filter is not augmented);
+* otherwise sufficient decrease with respect to the current point (18):
+  theta_trial <= (1 - gamma_theta) theta or phi_trial <= phi - gamma_phi theta, and after
+  acceptance the filter is augmented (22) by ((1 - gamma_theta) theta, phi - gamma_phi theta).
+* alpha_min (23): below it the line search gives up and the restoration phase starts.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+
+@dataclasses.dataclass(frozen=True)
+class FilterConstants:
+    """The constants of the filter line search (Waechter and Biegler 2006, Table 1 / IPOPT's
+    defaults)."""
+
+    gamma_theta: float = 1e-5
+    gamma_phi: float = 1e-8
+    delta: float = 1.0
+    s_theta: float = 1.1
+    s_phi: float = 2.3
+    eta_phi: float = 1e-8
+    gamma_alpha: float = 0.05
+
+
+@dataclasses.dataclass
+class Filter:
+    """The filter F (a list of (theta, phi) corner points) with theta_max and theta_min of
+    sec. 2.3 (theta_max = 1e4 max(1, theta_0), theta_min = 1e-4 max(1, theta_0))."""
+
+    theta_max: float
+    theta_min: float
+    const: FilterConstants = dataclasses.field(default_factory=FilterConstants)
+    entries: list = dataclasses.field(default_factory=list)
+
+    @classmethod
+    def start(cls, theta0, const=None):
+        f = cls(1e4 * max(1.0, theta0), 1e-4 * max(1.0, theta0), const or FilterConstants())
+        f.reset()
+        return f
+
+    def reset(self):
+        """F_0 = {(theta, phi): theta >= theta_max} (sec. 2.3); also after a barrier update (IPOPT)."""
+        self.entries = [(self.theta_max, -np.inf)]
+
+    def acceptable(self, theta, phi) -> bool:
+        """Whether (theta, phi) is acceptable to the filter: not dominated by any entry (a pair
+        with theta >= theta_j and phi >= phi_j is rejected)."""
+        return all(theta < tj or phi < pj for tj, pj in self.entries)
+
+    def add(self, theta, phi):
+        """Augment the filter by the corner (22) of the current point."""
+        c = self.const
+        t, p = (1.0 - c.gamma_theta) * theta, phi - c.gamma_phi * theta
+        # drop the entries the new one dominates (they add nothing to the forbidden region)
+        self.entries = [(tj, pj) for tj, pj in self.entries if not (tj >= t and pj >= p)] + [(t, p)]
+
+    def switching(self, alpha, theta, gphi) -> bool:
+        """Switching condition (19)."""
+        c = self.const
+        return gphi < 0 and alpha * (-gphi) ** c.s_phi > c.delta * theta ** c.s_theta
+
+    def accept(self, alpha, theta, phi, gphi, theta_t, phi_t):
+        """Judge a trial point: (accepted, f_type). ``f_type`` says the Armijo condition decided
+        (no filter augmentation)."""
+        c = self.const
+        if not np.isfinite(phi_t) or theta_t > self.theta_max or not self.acceptable(theta_t, phi_t):
+            return False, False
+        if theta <= self.theta_min and self.switching(alpha, theta, gphi):
+            return bool(phi_t <= phi + c.eta_phi * alpha * gphi), True
+        ok = theta_t <= (1.0 - c.gamma_theta) * theta or phi_t <= phi - c.gamma_phi * theta
+        return bool(ok), False
+
+    def alpha_min(self, theta, gphi) -> float:
+        """alpha_min of (23): the smallest step the backtracking tries before the restoration."""
+        c = self.const
+        if gphi < 0:
+            a = min(c.gamma_theta, -c.gamma_phi * theta / gphi, c.delta * theta ** c.s_theta / (-gphi) ** c.s_phi)
+            if theta > self.theta_min:
+                a = min(c.gamma_theta, -c.gamma_phi * theta / gphi)
+        else:
+            a = c.gamma_theta
+        return c.gamma_alpha * a

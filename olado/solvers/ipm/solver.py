@@ -1,0 +1,448 @@
+"""A structure-exploiting primal-dual interior-point NLP solver: IPOPT's algorithm (Waechter and
+Biegler 2006, Math. Program. 106, 25-57; docs/interior-point-nlp.md) on the DOCP of paper 001
+(eqs. (1)-(5)) with one block Riccati factorization per Newton system instead of a sparse LDL^T.
+
+The barrier problem (eq. (3)) of the DOCP with simple bounds,
+
+    min  phi_mu(y) = s_f J(y) - mu sum ln(y - lb) - mu sum ln(ub - y)   s.t.  h(y) = 0,
+
+y = (x^1..x^N, u^0..u^{N-1}) (x^0 fixed), h the dynamics residuals, is solved approximately for
+a decreasing sequence of mu (the monotone Fiacco-McCormick rule (7)); each iteration takes a
+primal-dual Newton step (eqs. (11)-(13), :mod:`olado.solvers.ipm.newton`: the Riccati recursion
+on the LQ-DOCP the system is), the fraction-to-boundary rule (15), the multiplier safeguard
+(16), and a filter line search with second-order corrections (sec. 2.3-2.4,
+:mod:`olado.solvers.ipm.filter`); the inertia correction of sec. 3.1 shifts the Hessian when a
+factorization finds the reduced Hessian not positive definite, and a feasibility restoration
+phase (:mod:`olado.solvers.ipm.restoration`) takes over when the line search fails.
+
+Code layout: ``barrier.py`` (bounds, barrier function, Sigma, step rules), ``newton.py`` (the
+KKT matrix on the Riccati back-end, Algorithm IC), ``filter.py`` (the filter), ``restoration.py``,
+this module (options, the per-solve state, the loop, the Result).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from ...errors import NonFiniteEvaluationError
+from ...interrupts import Limits
+from ...options import option
+from ...result import Result, Status
+from ..base import Solver, SolverOptions
+from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION, stop_outcome
+from ..sqp.residuals import stage_kkt
+from ..sqp.state import BoundMultipliers, Clock, Multipliers, Point
+from .barrier import Bounds, pack, unpack
+from .filter import Filter
+from .newton import KKTMatrix, stage_blocks
+from .restoration import least_squares_multipliers, restore
+
+#: s_max of eq. (5): the scaling of the optimality error by the multipliers' size
+S_MAX = 100.0
+
+
+@dataclasses.dataclass
+class IPMOptions(SolverOptions):
+    """Options of the interior-point NLP solver (IPOPT's names where IPOPT has the option)."""
+
+    mu_init: float = option(0.1, "initial barrier parameter (IPOPT mu_init)", min=0.0, min_exclusive=True)
+    mu_strategy: str = option("monotone", "barrier parameter update: monotone Fiacco-McCormick (eq. (7)); "
+                              "the adaptive rule is not implemented yet", choices=("monotone",))
+    barrier_tol_factor: float = option(10.0, "kappa_epsilon: mu is decreased once the barrier problem's "
+                                       "optimality error is below kappa_epsilon * mu", min=0.0, min_exclusive=True)
+    mu_linear_decrease_factor: float = option(0.2, "kappa_mu of eq. (7)", min=0.0, max=1.0, min_exclusive=True)
+    mu_superlinear_decrease_power: float = option(1.5, "theta_mu of eq. (7)", min=1.0, max=2.0)
+    tau_min: float = option(0.99, "smallest fraction-to-boundary factor tau (tau = max(tau_min, 1 - mu))",
+                            min=0.0, max=1.0, min_exclusive=True)
+    bound_push: float = option(1e-2, "kappa_1 of sec. 3.6: least absolute distance of the start from a bound",
+                               min=0.0, min_exclusive=True)
+    bound_frac: float = option(1e-2, "kappa_2 of sec. 3.6: least relative distance of the start from a bound",
+                               min=0.0, max=0.5, min_exclusive=True)
+    bound_relax_factor: float = option(1e-8, "bounds relaxed by this factor times max(1, |bound|), at most "
+                                       "by constr_viol_tol (IPOPT)", min=0.0)
+    constr_mult_init_max: float = option(1e3, "least-squares dynamics multipliers larger than this start at 0",
+                                         min=0.0)
+    acceptable_tol: float = option(1e-6, "scaled optimality error of an acceptable iterate", min=0.0,
+                                   min_exclusive=True)
+    acceptable_iter: int = option(15, "stop as ACCEPTABLE after this many acceptable iterates in a row "
+                                  "(0: never)", min=0)
+    dual_inf_tol: float = option(1.0, "unscaled dual infeasibility a success must also meet (IPOPT)",
+                                 min=0.0, min_exclusive=True)
+    compl_inf_tol: float = option(1e-4, "unscaled complementarity a success must also meet (IPOPT)",
+                                  min=0.0, min_exclusive=True)
+    max_soc: int = option(4, "second-order corrections per line search at most (p_max of sec. 2.4)", min=0)
+    kappa_soc: float = option(0.99, "a further second-order correction only while it reduces theta by this "
+                              "factor", min=0.0, max=1.0, min_exclusive=True)
+    obj_scaling: str = option("gradient-based", "objective scaling: gradient-based (IPOPT: s_f = min(1, "
+                              "100 / |grad J(y_0)|_inf)) or none", choices=("gradient-based", "none"))
+    max_restoration_iter: int = option(50, "iterations of one feasibility restoration phase at most", min=1)
+
+
+@dataclasses.dataclass
+class IPMState:
+    """One solve's iterate and bookkeeping: the flat free variables v with the evaluated point,
+    the dynamics multipliers lam (N+1, n) (row k+1: the dynamics of stage k; of the scaled
+    problem), the bound multipliers, mu, tau, the filter, the last Hessian shift."""
+
+    v: np.ndarray
+    pt: Point
+    lam: np.ndarray
+    zl: np.ndarray
+    zu: np.ndarray
+    mu: float
+    tau: float
+    filt: Filter
+    s_obj: float
+    clock: Clock
+    delta: float = 0.0
+    it: int = 0
+    acceptable: int = 0
+    factorizations: int = 0
+    restorations: int = 0
+    status: Status = Status.MAX_ITERATIONS
+    message: str = ""
+    history: list = dataclasses.field(default_factory=list)
+    errors: tuple = (math.inf, math.inf, math.inf)
+
+    def stop(self, status, message):
+        self.status, self.message = status, message
+        return True
+
+
+class Setup:
+    """What stays fixed during a solve."""
+
+    def __init__(self, options, problem, limits, callback):
+        self.options, self.problem, self.limits, self.callback = options, problem, limits, callback
+        self.bounds = Bounds.of(problem, options.bound_relax_factor, options.constr_viol_tol)
+        self.t_start = time.perf_counter()
+
+
+# ---------------------------------------------------------------------------- evaluations
+def evaluate(setup, v, clock, derivatives=False):
+    """The Point (values; derivatives on request) at the flat free variables v."""
+    p = setup.problem
+    X, U = unpack(v, p.x0, p.N, p.n, p.m)
+    return Point(p, X, U, derivatives=derivatives, clock=clock)
+
+
+def theta(pt):
+    """The constraint violation theta (the 1-norm of the dynamics residuals)."""
+    return float(np.abs(pt.h).sum())
+
+
+def barrier_value(setup, pt, v, mu, s_obj):
+    """phi_mu at the point and the gradient of its barrier terms."""
+    value, grad = setup.bounds.barrier(v, mu)
+    return s_obj * pt.J + value, grad
+
+
+def objective_gradient(pt, s_obj):
+    """s_f grad J over the free variables as (q (N+1, n) with row 0 the x^0 part, r (N, m))."""
+    q = np.empty_like(pt.X)
+    q[:-1] = pt.lx
+    q[-1] = pt.lN
+    return s_obj * q, s_obj * pt.lu
+
+
+def lagrangian_gradient(pt, lam, s_obj):
+    """grad (s_f J) + J_h^T lam over the free variables, flat (without the bound multipliers)."""
+    q, r = objective_gradient(pt, s_obj)
+    gx = q.copy()
+    gx[:-1] += np.einsum("kij,ki->kj", pt.A, lam[1:])
+    gx[1:] -= lam[1:]
+    gu = r + np.einsum("kij,ki->kj", pt.B, lam[1:])
+    return pack(gx, gu)
+
+
+def optimality_errors(setup, st, mu):
+    """(E_mu scaled (eq. (5)), dual infeasibility unscaled, constraint violation max-norm,
+    complementarity unscaled) at the current iterate."""
+    b = setup.bounds
+    dual = lagrangian_gradient(st.pt, st.lam, st.s_obj) - st.zl + st.zu
+    inf_du = float(np.abs(dual).max(initial=0.0))
+    inf_pr = float(np.abs(st.pt.h).max(initial=0.0))
+    compl = b.complementarity(st.v, st.zl, st.zu, mu)
+    nz = max(b.count, 1)
+    zsum = float(np.abs(st.zl).sum() + np.abs(st.zu).sum())
+    s_d = max(S_MAX, (float(np.abs(st.lam[1:]).sum()) + zsum) / (st.lam[1:].size + nz)) / S_MAX
+    s_c = max(S_MAX, zsum / nz) / S_MAX
+    return max(inf_du / s_d, inf_pr, compl / s_c), inf_du / st.s_obj, inf_pr, compl / st.s_obj
+
+
+# ---------------------------------------------------------------------------- start
+def initial_state(setup, X0, U0, clock):
+    """The starting point of sec. 3.6: the guess pushed inside the bounds, z = 1, the
+    least-squares dynamics multipliers (0 when larger than constr_mult_init_max), the objective
+    scaling s_f, mu = mu_init, the filter F_0."""
+    o, b = setup.options, setup.bounds
+    v = b.push(pack(X0, U0), o.bound_push, o.bound_frac)
+    pt = evaluate(setup, v, clock, derivatives=True)
+    q, r = objective_gradient(pt, 1.0)
+    gmax = max(float(np.abs(q[1:]).max(initial=0.0)), float(np.abs(r).max(initial=0.0)))
+    s_obj = min(1.0, 100.0 / gmax) if o.obj_scaling == "gradient-based" and gmax > 0 else 1.0
+    zl, zu = b.has_lo.astype(float), b.has_hi.astype(float)
+    lam = least_squares_multipliers(setup.problem, pt, zl, zu, s_obj)
+    if float(np.abs(lam).max(initial=0.0)) > o.constr_mult_init_max:
+        lam = np.zeros_like(lam)
+    mu = o.mu_init
+    return IPMState(v=v, pt=pt, lam=lam, zl=zl, zu=zu, mu=mu, tau=max(o.tau_min, 1.0 - mu),
+                    filt=Filter.start(theta(pt)), s_obj=s_obj, clock=clock)
+
+
+# ---------------------------------------------------------------------------- one iteration
+def newton_system(setup, st):
+    """The iteration's KKT matrix (Hessian blocks of the Lagrangian at (pt, lam), Sigma) factored
+    with the inertia correction; None when Algorithm IC gives up."""
+    p, pt = setup.problem, st.pt
+    t0 = time.perf_counter()
+    Hxx, Hxu, Huu = p.eval_stage_hessians(pt.X, pt.U, st.s_obj, st.lam[1:], np.zeros((p.N, p.r)))
+    HN = p.eval_final_hessian(pt.X[-1], st.s_obj, np.zeros(p.rN))
+    st.clock.add(("hessian",), t0)
+    Q, S, R = stage_blocks(Hxx, Hxu, Huu, HN)
+    sig = setup.bounds.sigma(st.v, st.zl, st.zu)
+    Sx, Su = unpack(sig, np.zeros(p.n), p.N, p.n, p.m)
+    kkt = KKTMatrix(Q, S, R, pt.A, pt.B, Sx, Su)
+    delta = kkt.factor(st.delta)
+    st.factorizations += kkt.factorizations
+    if delta is None:
+        return None
+    st.delta = delta
+    return kkt
+
+
+def update_barrier(setup, st):
+    """The monotone rule (7): while the barrier problem is solved to kappa_eps mu, mu <- max(tol / 10,
+    min(kappa_mu mu, mu^theta_mu)), tau <- max(tau_min, 1 - mu), and the filter starts afresh."""
+    o = setup.options
+    while optimality_errors(setup, st, st.mu)[0] <= o.barrier_tol_factor * st.mu:
+        mu = max(o.tol / 10.0, min(o.mu_linear_decrease_factor * st.mu, st.mu ** o.mu_superlinear_decrease_power))
+        if mu >= st.mu:
+            break
+        st.mu, st.tau = mu, max(o.tau_min, 1.0 - mu)
+        st.filt.reset()
+
+
+def converged(setup, st):
+    """IPOPT's stopping test: E_0 <= tol and the unscaled dual infeasibility, constraint
+    violation and complementarity within dual_inf_tol, constr_viol_tol, compl_inf_tol; or
+    acceptable_iter acceptable iterates in a row."""
+    o = setup.options
+    e0, inf_du, inf_pr, compl = st.errors = optimality_errors(setup, st, 0.0)
+    if e0 <= o.tol and inf_du <= o.dual_inf_tol and inf_pr <= o.constr_viol_tol and compl <= o.compl_inf_tol:
+        return st.stop(Status.SUCCESS, f"optimal: scaled optimality error {e0:.2e} <= tol = {o.tol:g} "
+                       f"after {st.it} iterations")
+    if e0 <= o.acceptable_tol and inf_pr <= max(o.constr_viol_tol, 1e-2 * o.acceptable_tol ** 0.5):
+        st.acceptable += 1
+        if o.acceptable_iter and st.acceptable >= o.acceptable_iter:
+            return st.stop(Status.ACCEPTABLE, f"acceptable: {st.acceptable} iterates in a row with scaled optimality "
+                           f"error <= acceptable_tol = {o.acceptable_tol:g} (last {e0:.2e}), tol = {o.tol:g} not met")
+    else:
+        st.acceptable = 0
+    return False
+
+
+def _trial(setup, st, v_t):
+    """A trial point's (point, theta, phi); phi = inf when a function is not finite there."""
+    try:
+        pt = evaluate(setup, v_t, st.clock)
+    except NonFiniteEvaluationError:
+        return None, math.inf, math.inf
+    phi, _ = barrier_value(setup, pt, v_t, st.mu, st.s_obj)
+    return pt, theta(pt), phi
+
+
+def line_search(setup, st, kkt, q, r):
+    """The filter line search with second-order corrections (sec. 2.3-2.4, Algorithm A steps
+    A-5 to A-8). Returns the accepted step (v_new, pt_new, dv, lam_new, alpha, soc) or None
+    (alpha fell below alpha_min: restoration)."""
+    o, b, p = setup.options, setup.bounds, setup.problem
+    dX, dU, lam_new = kkt.solve(q, r, st.pt.h)
+    dv = pack(dX, dU)
+    grad = np.concatenate([q[1:].ravel(), r.ravel()])
+    gphi = float(grad @ dv)
+    th, (phi, _) = theta(st.pt), barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)
+    alpha_max = b.max_step(st.v, dv, st.tau)
+    tiny = float(np.max(np.abs(dv) / (1.0 + np.abs(st.v)), initial=0.0)) < 10 * np.finfo(float).eps
+    if tiny:     # IPOPT's tiny-step rule: no line search for a step below rounding
+        pt_t, _, _ = _trial(setup, st, st.v + alpha_max * dv)
+        if pt_t is not None:
+            return st.v + alpha_max * dv, pt_t, dv, lam_new, alpha_max, 0, True
+    alpha_min = st.filt.alpha_min(th, gphi)
+    alpha, trials = alpha_max, 0
+    while alpha >= alpha_min:
+        setup.limits.check()
+        trials += 1
+        v_t = st.v + alpha * dv
+        pt_t, th_t, phi_t = _trial(setup, st, v_t)
+        ok, f_type = st.filt.accept(alpha, th, phi, gphi, th_t, phi_t)
+        if ok:
+            if not f_type:
+                st.filt.add(th, phi)
+            return v_t, pt_t, dv, lam_new, alpha, 0, f_type
+        if trials == 1 and pt_t is not None and th_t >= th and o.max_soc:
+            soc = second_order_correction(setup, st, kkt, q, r, alpha, th, phi, gphi, pt_t, th_t)
+            if soc is not None:
+                return soc
+        alpha *= 0.5
+    return None
+
+
+def second_order_correction(setup, st, kkt, q, r, alpha_max, th, phi, gphi, pt_t, th_t):
+    """Second-order corrections (sec. 2.4): the system solved again with the dynamics offsets
+    c_soc = alpha c(y) + c(y_trial) (accumulated, eq. (27)), at most max_soc times while each
+    reduces theta by kappa_soc."""
+    o, b = setup.options, setup.bounds
+    c_soc = alpha_max * st.pt.h + pt_t.h
+    th_old = th_t
+    for k in range(o.max_soc):
+        dX, dU, lam_s = kkt.solve(q, r, c_soc)
+        dv = pack(dX, dU)
+        a_soc = b.max_step(st.v, dv, st.tau)
+        v_s = st.v + a_soc * dv
+        pt_s, th_s, phi_s = _trial(setup, st, v_s)
+        if pt_s is None:
+            return None
+        ok, f_type = st.filt.accept(alpha_max, th, phi, gphi, th_s, phi_s)
+        if ok:
+            if not f_type:
+                st.filt.add(th, phi)
+            return v_s, pt_s, dv, lam_s, a_soc, k + 1, f_type
+        if th_s > o.kappa_soc * th_old:
+            return None
+        th_old = th_s
+        c_soc = a_soc * c_soc + pt_s.h
+    return None
+
+
+def take_step(setup, st, step):
+    """Accept a step: the primal variables, lam <- lam + alpha (lam_new - lam), the bound multipliers
+    by their own fraction-to-boundary step (eq. (14)-(15)) and the safeguard (16)."""
+    b = setup.bounds
+    v_new, pt_new, dv, lam_new, alpha, soc, _ = step
+    dzl, dzu = b.dual_step(st.v, dv, st.zl, st.zu, st.mu)
+    alpha_z = min(b.max_dual_step(st.zl[b.has_lo], dzl[b.has_lo], st.tau),
+                  b.max_dual_step(st.zu[b.has_hi], dzu[b.has_hi], st.tau))
+    st.lam = st.lam + alpha * (lam_new - st.lam)
+    st.v, st.pt = v_new, pt_new
+    st.pt.add_derivatives(setup.problem)
+    st.zl, st.zu = b.safeguard(v_new, st.zl + alpha_z * dzl, st.zu + alpha_z * dzu, st.mu)
+    return alpha, alpha_z, soc
+
+
+def iterate(setup, st):
+    """One iteration of Algorithm A; True when the solve ends."""
+    o = setup.options
+    setup.limits.check()
+    if converged(setup, st):
+        return True
+    if st.it >= o.max_iter:
+        return st.stop(Status.MAX_ITERATIONS, f"iteration limit {o.max_iter} reached; scaled optimality error "
+                       f"{st.errors[0]:.2e}, constraint violation {st.errors[2]:.2e}")
+    update_barrier(setup, st)
+    kkt = newton_system(setup, st)
+    step = None
+    if kkt is not None:
+        q, r = objective_gradient(st.pt, st.s_obj)
+        _, bgrad = setup.bounds.barrier(st.v, st.mu)
+        bx, bu = unpack(bgrad, np.zeros(setup.problem.n), setup.problem.N, setup.problem.n, setup.problem.m)
+        q, r = q + bx, r + bu
+        step = line_search(setup, st, kkt, q, r)
+    st.it += 1
+    entry = {"iteration": st.it, "objective": float(st.pt.J), "inf_pr": st.errors[2], "inf_du": st.errors[1],
+             "mu": st.mu, "delta_w": st.delta}
+    if step is None:
+        why = ("the inertia correction found no shift up to 1e20" if kkt is None
+               else "the filter line search reached alpha_min")
+        st.filt.add(theta(st.pt), barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0])
+        st.restorations += 1
+        outcome = restore(setup, st, evaluate, theta, barrier_value)
+        entry.update(restoration=True, alpha=float("nan"), alpha_z=float("nan"), soc=0)
+        st.history.append(entry)
+        if outcome is not None:
+            return st.stop(*outcome(why))
+    else:
+        alpha, alpha_z, soc = take_step(setup, st, step)
+        entry.update(alpha=alpha, alpha_z=alpha_z, soc=soc, restoration=False)
+        st.history.append(entry)
+    if setup.options.verbose >= 2:
+        print(f"{st.it:4d} {st.pt.J: .10e} {st.errors[2]:.2e} {st.errors[1]:.2e} mu={st.mu:.1e} "
+              f"dw={st.delta:.1e} a={entry['alpha']:.2e}{' soc' if entry['soc'] else ''}"
+              f"{' resto' if entry['restoration'] else ''}")
+    if setup.callback(dict(entry)):
+        return st.stop(Status.USER_STOP, f"stopped by the callback after {st.it} iterations")
+    return False
+
+
+# ---------------------------------------------------------------------------- the result
+def finish(setup, st) -> Result:
+    """The Result at the last accepted iterate: multipliers of the unscaled problem, KKT
+    quantities stage by stage (olado.solvers.sqp.residuals.stage_kkt)."""
+    p, pt = setup.problem, st.pt
+    solve_time = time.perf_counter() - setup.t_start
+    pt.add_derivatives(p)
+    zero_x = np.zeros(p.n)
+    zl_x, zl_u = unpack(st.zl / st.s_obj, zero_x, p.N, p.n, p.m)
+    zu_x, zu_u = unpack(st.zu / st.s_obj, zero_x, p.N, p.n, p.m)
+    mult = Multipliers(st.lam / st.s_obj, np.zeros((p.N, p.r)), np.zeros(p.rN))
+    kkt = stage_kkt(p, pt, mult, BoundMultipliers(zl_x, zu_x, zl_u, zu_u))
+    z = kkt.bounds
+    clock = st.clock
+    info = {"callback_time_s": clock.time_s, "solve_time_s": solve_time,
+            "callback_share": clock.time_s / solve_time if solve_time > 0 else float("nan"),
+            "kkt_residual_kind": "max-norm of stationarity and complementarity at the final point (unscaled)",
+            "stationarity_residual": kkt.stationarity, "complementarity_residual": kkt.complementarity,
+            "multiplier_convention": MULTIPLIER_CONVENTION, "mu": st.mu, "objective_scaling": st.s_obj,
+            "factorizations": st.factorizations, "restorations": st.restorations,
+            "scaled_optimality_error": st.errors[0], "kkt": "riccati"}
+    multipliers = {"dynamics": mult.lam[1:].copy(), "stage_constraints": mult.Lg, "final_constraints": mult.LgN,
+                   "bound_lower_x": z.zl_x, "bound_lower_u": z.zl_u, "bound_upper_x": z.zu_x, "bound_upper_u": z.zu_u}
+    return Result(status=st.status, message=st.message, objective=float(pt.J), x=pt.X.copy(), u=pt.U.copy(),
+                  multipliers=multipliers, max_constraint_violation=kkt.violation,
+                  kkt_residual=max(kkt.stationarity, kkt.complementarity), iterations=int(st.it),
+                  evaluations={k: int(clock.counts[k]) for k in EVALUATION_KINDS}, history=list(st.history),
+                  info=info)
+
+
+def refuse(problem, X0, U0) -> Result | None:
+    """A problem outside what the solver handles yet (stage or final constraints): INVALID_PROBLEM
+    with a sentence, at the guess."""
+    general = [f"{k} {what}{'s' if k > 1 else ''}" for k, what in
+               ((problem.r, "stage constraint"), (problem.rN, "final constraint")) if k]
+    if not general:
+        return None
+    return Result(status=Status.INVALID_PROBLEM,
+                  message=f"solver 'ipm' handles simple bounds on states and controls only so far, but "
+                          f"{type(problem).__name__} has {' and '.join(general)}; use 'sqp' or 'ipopt' "
+                          "(docs/interior-point-nlp.md, 'What is left')",
+                  objective=float("nan"), x=np.asarray(X0, dtype=float).copy(), u=np.asarray(U0, dtype=float).copy())
+
+
+class IPMSolver(Solver):
+    """IPOPT's primal-dual interior-point filter method on the Riccati KKT back-end."""
+
+    name = "ipm"
+    Options = IPMOptions
+
+    def _solve(self, problem, X0, U0):
+        refused = refuse(problem, X0, U0)
+        if refused is not None:
+            return refused
+        limits = Limits(self.options.max_time)
+        setup = Setup(self.options, problem, limits, self._call_callback)
+        clock = Clock(limits)
+        st = None
+        with limits.catch() as stop:
+            st = initial_state(setup, X0, U0, clock)
+            while not iterate(setup, st):
+                pass
+        if st is None:      # stopped during the first evaluation
+            return Result(status=Status(stop.reason), message=stop_outcome(stop.reason, limits, "before the first "
+                          "iterate")[1], objective=float("nan"), x=np.asarray(X0, float), u=np.asarray(U0, float))
+        if stop.reason:
+            st.stop(*stop_outcome(stop.reason, limits, f"after {st.it} iterations"))
+        return finish(setup, st)
