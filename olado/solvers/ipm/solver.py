@@ -353,7 +353,7 @@ def iterate(setup, st):
         q, r = q + bx, r + bu
         step = line_search(setup, st, kkt, q, r)
     st.it += 1
-    entry = {"iteration": st.it, "objective": float(st.pt.J), "inf_pr": st.errors[2], "inf_du": st.errors[1],
+    entry = {"iter": st.it, "objective": float(st.pt.J), "inf_pr": st.errors[2], "inf_du": st.errors[1],
              "mu": st.mu, "delta_w": st.delta}
     if step is None:
         why = ("the inertia correction found no shift up to 1e20" if kkt is None
