@@ -249,5 +249,5 @@ def test_unreachable_bounds_end_in_the_restoration_phase_as_infeasible():
     r = olado.solve(Unreachable(), solver="ipm")
     assert r.status is Status.INFEASIBLE and r.info["restorations"] >= 1
     assert "locally infeasible" in r.message
-    assert r.infeasibility.largest == pytest.approx(0.9, rel=1e-6)
+    assert r.infeasibility.largest == pytest.approx(0.9, rel=1e-4)
     assert r.infeasibility.arrays[0].array == "dynamics" and r.infeasibility.arrays[0].first_stage == 0
