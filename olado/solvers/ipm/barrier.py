@@ -1,5 +1,6 @@
 """The bounds of the DOCP as IPOPT's barrier sees them (Waechter and Biegler 2006, sec. 2.1,
-3.5, 3.6): the free variables y = (x^1..x^N, u^0..u^{N-1}) as one flat vector, the finite sides
+3.4-3.6): the free variables y = (x^1..x^N, u^0..u^{N-1}) and the slacks of the inequalities as
+one flat vector (:class:`Layout`), the finite sides
 of their bounds (relaxed by IPOPT's bound_relax_factor), the slacks s_L = y - lb, s_U = ub - y,
 the barrier function phi_mu (eq. (3), with the damping term of sec. 3.7 for one-sided bounds),
 its gradient, Sigma (eq. (12)), the bound-multiplier step (eq. (13)), the fraction-to-boundary
@@ -15,17 +16,36 @@ import numpy as np
 KAPPA_D = 1e-5
 
 
-def pack(X, U):
-    """The free variables as one flat vector (x^0 is fixed)."""
-    return np.concatenate([X[1:].ravel(), U.ravel()])
+class Layout:
+    """The flat vector of the iterate: v = (x^1..x^N, u^0..u^{N-1}, s (N, ni), s_N (niN,)) with the
+    slacks s = g^k of the stage inequalities g^k >= 0 and s_N of the final ones (IPOPT's
+    d(x) - s = 0, sec. 3.4 of Waechter and Biegler); equality rows have no slack."""
 
+    def __init__(self, problem):
+        p = problem
+        self.N, self.n, self.m, self.x0 = p.N, p.n, p.m, np.asarray(p.x0, dtype=float)
+        self.eq, self.eqN = np.asarray(p.stage_equality_mask, bool), np.asarray(p.final_equality_mask, bool)
+        self.ineq, self.ineqN = ~self.eq, ~self.eqN
+        self.ni, self.niN = int(self.ineq.sum()), int(self.ineqN.sum())
+        self.ne, self.neN = int(self.eq.sum()), int(self.eqN.sum())
+        self.ny = self.N * (self.n + self.m)
+        self.size = self.ny + self.N * self.ni + self.niN
 
-def unpack(v, x0, N, n, m):
-    """(X (N+1, n), U (N, m)) from the flat vector and x^0."""
-    X = np.empty((N + 1, n))
-    X[0] = x0
-    X[1:] = v[:N * n].reshape(N, n)
-    return X, v[N * n:].reshape(N, m).copy()
+    def pack(self, X, U, s=None, sN=None):
+        parts = [X[1:].ravel(), U.ravel()]
+        parts.append(np.zeros(self.N * self.ni) if s is None else np.asarray(s, float).ravel())
+        parts.append(np.zeros(self.niN) if sN is None else np.asarray(sN, float).ravel())
+        return np.concatenate(parts)
+
+    def split(self, v, x0=None):
+        """(X (N+1, n) with row 0 = x0 (default: the problem's), U (N, m), s (N, ni), s_N (niN,))."""
+        N, n, m = self.N, self.n, self.m
+        X = np.empty((N + 1, n))
+        X[0] = self.x0 if x0 is None else x0
+        X[1:] = v[:N * n].reshape(N, n)
+        U = v[N * n:self.ny].reshape(N, m).copy()
+        s = v[self.ny:self.ny + N * self.ni].reshape(N, self.ni).copy()
+        return X, U, s, v[self.ny + N * self.ni:].copy()
 
 
 @dataclasses.dataclass
@@ -38,11 +58,13 @@ class Bounds:
     has_hi: np.ndarray
 
     @classmethod
-    def of(cls, problem, relax=1e-8, relax_max=np.inf):
+    def of(cls, problem, layout, relax=1e-8, relax_max=np.inf):
         """The bounds of ``problem`` relaxed by min(relax max(1, |bound|), relax_max) (IPOPT's
-        bound_relax_factor, capped by constr_viol_tol as IPOPT does)."""
-        lo = pack(problem.x_lower, problem.u_lower).astype(float)
-        hi = pack(problem.x_upper, problem.u_upper).astype(float)
+        bound_relax_factor, capped by constr_viol_tol as IPOPT does); the slacks >= 0."""
+        L = layout
+        s0 = (np.zeros((L.N, L.ni)), np.zeros(L.niN))
+        lo = L.pack(problem.x_lower, problem.u_lower, *s0).astype(float)
+        hi = L.pack(problem.x_upper, problem.u_upper, np.full((L.N, L.ni), np.inf), np.full(L.niN, np.inf))
         has_lo, has_hi = np.isfinite(lo), np.isfinite(hi)
         lo = np.where(has_lo, lo - np.minimum(relax * np.maximum(1.0, np.abs(np.where(has_lo, lo, 0.0))), relax_max),
                       -np.inf)
@@ -64,6 +86,24 @@ class Bounds:
             pu = np.minimum(kappa1 * np.maximum(1.0, np.abs(np.where(self.has_hi, hi, 0.0))), kappa2 * width)
         v = np.where(self.has_lo, np.maximum(v, lo + pl), v)
         return np.where(self.has_hi, np.minimum(v, hi - pu), v)
+
+    def move_tiny(self, v):
+        """IPOPT's slack_move: a side whose slack fell below rounding relative to the variable
+        (eps max(1, |v|); then s = v - lb is no longer resolved) has its bound moved by
+        eps^(3/4) max(1, |bound|), so that Sigma and the barrier stay finite. Returns the count."""
+        eps = np.finfo(float).eps
+        tiny = eps * np.maximum(1.0, np.abs(v))
+        moved = 0
+        with np.errstate(invalid="ignore"):
+            lo_tiny = self.has_lo & (v - self.lo < tiny)
+            hi_tiny = self.has_hi & (self.hi - v < tiny)
+        if lo_tiny.any():
+            self.lo[lo_tiny] -= eps ** 0.75 * np.maximum(1.0, np.abs(self.lo[lo_tiny]))
+            moved += int(lo_tiny.sum())
+        if hi_tiny.any():
+            self.hi[hi_tiny] += eps ** 0.75 * np.maximum(1.0, np.abs(self.hi[hi_tiny]))
+            moved += int(hi_tiny.sum())
+        return moved
 
     def slacks(self, v):
         """(s_L, s_U), 1 where a side is infinite (they carry no multiplier)."""

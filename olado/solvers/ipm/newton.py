@@ -25,6 +25,7 @@ full row rank -- the -I of x^{k+1} -- so delta_c is never needed for it).
 from __future__ import annotations
 
 import dataclasses
+from typing import NamedTuple
 
 import numpy as np
 
@@ -45,11 +46,77 @@ class InertiaConstants:
 
 
 @dataclasses.dataclass
+class Constraints:
+    """The linearized stage and final constraints of an iteration: equality rows (E, F) of the
+    stage equalities and EN of the final ones (the Riccati recursion's equality rows), the
+    inequality rows (Ci = [C_x C_u] (N, ni, n+m), CNi (niN, n)) with the slack Sigma Ss (N, ni),
+    SsN (niN,) (v_L / s, eq. (12) for the slacks)."""
+
+    E: np.ndarray
+    F: np.ndarray
+    EN: np.ndarray
+    Ci: np.ndarray
+    CNi: np.ndarray
+    Ss: np.ndarray
+    SsN: np.ndarray
+
+    @classmethod
+    def none(cls, N, n, m):
+        return cls(np.zeros((N, 0, n)), np.zeros((N, 0, m)), np.zeros((0, n)), np.zeros((N, 0, n + m)),
+                   np.zeros((0, n)), np.zeros((N, 0)), np.zeros(0))
+
+
+class Residuals(NamedTuple):
+    """The constraint residuals of the Newton system's right-hand side: dynamics h (N, n),
+    stage equalities e (N, ne), final equalities eN (neN,), and the inequality rows d - s
+    (N, ni) and d_N - s_N (niN,)."""
+
+    h: np.ndarray
+    e: np.ndarray
+    eN: np.ndarray
+    d: np.ndarray
+    dN: np.ndarray
+
+    def combine(self, alpha, other):
+        """alpha * self + other (the accumulated offsets of the second-order correction (27))."""
+        return Residuals(*(alpha * a + b for a, b in zip(self, other)))
+
+    def l1(self):
+        return float(sum(np.abs(a).sum() for a in self))
+
+    def max(self):
+        return max((float(np.abs(a).max()) for a in self if a.size), default=0.0)
+
+
+class Step(NamedTuple):
+    """A solution of the Newton system: the primal steps dX (N+1, n) (dX[0] = 0), dU, ds (N, ni),
+    dsN (niN,) and the new multipliers lam (N+1, n) (dynamics), nu (N, ne), nuN (neN,) of the
+    equalities and yd (N, ni), ydN (niN,) of the inequality rows d - s = 0."""
+
+    dX: np.ndarray
+    dU: np.ndarray
+    ds: np.ndarray
+    dsN: np.ndarray
+    lam: np.ndarray
+    nu: np.ndarray
+    nuN: np.ndarray
+    yd: np.ndarray
+    ydN: np.ndarray
+
+
+@dataclasses.dataclass
 class KKTMatrix:
     """One iteration's LQ-DOCP matrix: Hessian blocks Q (N+1, n, n), S (N, n, m), R (N, m, m),
-    dynamics A, B, and the barrier diagonal Sigma as Sx (N+1, n) (row 0 unused: x^0 is fixed),
-    Su (N, m). ``factor`` factors it with the inertia correction; ``solve`` solves for a
-    right-hand side with the factors."""
+    dynamics A, B, the barrier diagonal Sigma as Sx (N+1, n) (row 0 unused: x^0 is fixed),
+    Su (N, m), and the constraints (:class:`Constraints`; their slacks eliminated, below).
+    ``factor`` factors it with the inertia correction; ``solve`` solves for a right-hand side.
+
+    Slacks (Waechter and Biegler sec. 3.4; the rows d(y) - s = 0 of the inequalities g >= 0):
+    with Ss' = Ss + delta_w the slack rows eliminate to yd^+ = Ss' ds + grad_s phi and
+    ds = J_d dy + (d - s), which leaves J_d^T Ss' J_d in the Hessian and the gradient term
+    J_d^T (Ss' (d - s) + grad_s phi): the Riccati recursion's stage inequality term
+    1/2 sigma |C z + ci|^2 with sigma = Ss', ci = (d - s) + grad_s phi / Ss'; the final rows are
+    added to Q_N and q_N. The equality rows are the recursion's equality rows E z + e = 0."""
 
     Q: np.ndarray
     S: np.ndarray
@@ -58,28 +125,43 @@ class KKTMatrix:
     B: np.ndarray
     Sx: np.ndarray
     Su: np.ndarray
+    cons: Constraints = None
     backend: str = "riccati"
     kkt: object = None
     delta: float = 0.0
     factorizations: int = 0
 
+    def __post_init__(self):
+        N, n, m = self.B.shape
+        if self.cons is None:
+            self.cons = Constraints.none(N, n, m)
+        self.QN = self.Q[N].copy()
+
     def _diagonals(self, delta):
         Dx = self.Sx + delta
         Dx[0] = 0.0
-        return Dx, self.Su + delta
+        c = self.cons
+        N = self.B.shape[0]
+        self.Q[N] = self.QN + c.CNi.T @ ((c.SsN + delta)[:, None] * c.CNi)
+        return Dx, self.Su + delta, c.Ss + delta
 
     def try_factor(self, delta) -> bool:
         """Factor with delta_w = delta; False when the inertia is wrong (reduced Hessian not
         positive definite)."""
-        Dx, Du = self._diagonals(delta)
+        Dx, Du, sig = self._diagonals(delta)
+        c = self.cons
         self.factorizations += 1
         try:
             if self.kkt is None:
-                self.kkt = make_kkt_solver(self.backend, self.Q, self.S, self.R, self.A, self.B, Dx=Dx, Du=Du)
+                kw = {}
+                if c.E.shape[1] or c.EN.shape[0]:
+                    kw.update(E=c.E, F=c.F, EN=c.EN)
+                if c.Ci.shape[1]:
+                    kw.update(Ci=c.Ci, sigma=sig)
+                self.kkt = make_kkt_solver(self.backend, self.Q, self.S, self.R, self.A, self.B, Dx=Dx, Du=Du, **kw)
             else:
-                self.kkt.refactor(Dx=Dx, Du=Du)
+                self.kkt.refactor(Dx=Dx, Du=Du, sigma=sig if c.Ci.shape[1] else None)
         except NotPositiveDefiniteError:
-            self.kkt = None if self.kkt is None else self.kkt
             return False
         self.delta = delta
         return True
@@ -98,12 +180,30 @@ class KKTMatrix:
             delta *= const.kappa_plus_first if delta_last == 0.0 else const.kappa_plus
         return None
 
-    def solve(self, q, r, c):
-        """Solve for the gradient rows (q (N+1, n), r (N, m)) and the dynamics offsets c (N, n)
-        with dx^0 = 0: (dX (N+1, n), dU (N, m), lam (N+1, n)), lam[k+1] the new multiplier of
-        the dynamics of stage k."""
-        sol = self.kkt.solve(q, r, c, np.zeros(self.Q.shape[1]))
-        return sol.X, sol.U, sol.lam
+    def solve(self, q, r, res: Residuals, gs=None, gsN=None) -> Step:
+        """Solve for the gradient rows q (N+1, n), r (N, m) of the barrier function in y, its
+        gradient gs (N, ni), gsN (niN,) in the slacks, and the constraint residuals ``res``,
+        with dx^0 = 0."""
+        c, d = self.cons, self.delta
+        N, n, m = self.B.shape
+        gs = np.zeros(c.Ss.shape) if gs is None else gs
+        gsN = np.zeros(c.SsN.shape) if gsN is None else gsN
+        ss, ssN = c.Ss + d, c.SsN + d
+        q = q.copy()
+        if c.CNi.shape[0]:
+            q[N] += c.CNi.T @ (ssN * res.dN + gsN)
+        kw = {}
+        if c.E.shape[1] or c.EN.shape[0]:
+            kw.update(e=res.e, eN=res.eN)
+        if c.Ci.shape[1]:
+            kw.update(ci=res.d + gs / ss)
+        sol = self.kkt.solve(q, r, res.h, np.zeros(n), **kw)
+        dz = np.concatenate([sol.X[:N], sol.U], axis=1)
+        ds = np.einsum("kij,kj->ki", c.Ci, dz) + res.d
+        dsN = c.CNi @ sol.X[N] + res.dN
+        ne, neN = c.E.shape[1], c.EN.shape[0]
+        return Step(sol.X, sol.U, ds, dsN, sol.lam, sol.nu[:N, :ne].copy(), sol.nu[N, :neN].copy(),
+                    ss * ds + gs, ssN * dsN + gsN)
 
 
 def stage_blocks(Hxx, Hxu, Huu, HN):

@@ -25,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from typing import NamedTuple
 
 import numpy as np
 
@@ -36,10 +37,10 @@ from ..base import Solver, SolverOptions
 from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION, stop_outcome
 from ..sqp.residuals import stage_kkt
 from ..sqp.state import BoundMultipliers, Clock, Multipliers, Point
-from .barrier import Bounds, pack, unpack
+from .barrier import Bounds, Layout
 from .filter import Filter
-from .newton import KKTMatrix, stage_blocks
-from .restoration import least_squares_multipliers, restore
+from .newton import Constraints, KKTMatrix, Residuals, stage_blocks
+from .restoration import Restoration, least_squares_multipliers, restore
 
 #: s_max of eq. (5): the scaling of the optimality error by the multipliers' size
 S_MAX = 100.0
@@ -98,6 +99,10 @@ class IPMState:
     filt: Filter
     s_obj: float
     clock: Clock
+    nu: np.ndarray = None       # stage equality multipliers (N, ne)
+    nuN: np.ndarray = None      # final equality multipliers (neN,)
+    yd: np.ndarray = None       # multipliers of the stage inequality rows g - s = 0 (N, ni); <= 0 at a solution
+    ydN: np.ndarray = None      # ... of the final ones (niN,)
     delta: float = 0.0
     it: int = 0
     acceptable: int = 0
@@ -118,21 +123,28 @@ class Setup:
 
     def __init__(self, options, problem, limits, callback):
         self.options, self.problem, self.limits, self.callback = options, problem, limits, callback
-        self.bounds = Bounds.of(problem, options.bound_relax_factor, options.constr_viol_tol)
+        self.layout = Layout(problem)
+        self.bounds = Bounds.of(problem, self.layout, options.bound_relax_factor, options.constr_viol_tol)
         self.t_start = time.perf_counter()
 
 
 # ---------------------------------------------------------------------------- evaluations
 def evaluate(setup, v, clock, derivatives=False):
-    """The Point (values; derivatives on request) at the flat free variables v."""
-    p = setup.problem
-    X, U = unpack(v, p.x0, p.N, p.n, p.m)
-    return Point(p, X, U, derivatives=derivatives, clock=clock)
+    """The Point (values; derivatives on request) at the flat vector v."""
+    X, U, _, _ = setup.layout.split(v)
+    return Point(setup.problem, X, U, derivatives=derivatives, clock=clock)
 
 
-def theta(pt):
-    """The constraint violation theta (the 1-norm of the dynamics residuals)."""
-    return float(np.abs(pt.h).sum())
+def residuals(setup, pt, v) -> Residuals:
+    """The constraint residuals at the point: dynamics, equalities, inequality rows d - s."""
+    L = setup.layout
+    _, _, s, sN = L.split(v)
+    return Residuals(pt.h, pt.g[:, L.eq], pt.gN[L.eqN], pt.g[:, L.ineq] - s, pt.gN[L.ineqN] - sN)
+
+
+def theta(setup, pt, v):
+    """The constraint violation theta (the 1-norm of every constraint residual)."""
+    return residuals(setup, pt, v).l1()
 
 
 def barrier_value(setup, pt, v, mu, s_obj):
@@ -149,64 +161,94 @@ def objective_gradient(pt, s_obj):
     return s_obj * q, s_obj * pt.lu
 
 
-def lagrangian_gradient(pt, lam, s_obj):
-    """grad (s_f J) + J_h^T lam over the free variables, flat (without the bound multipliers)."""
-    q, r = objective_gradient(pt, s_obj)
+def full_multipliers(L, st):
+    """(Lg (N, r), LgN (rN,)): the equality and inequality multipliers in the problem's order."""
+    Lg = np.zeros((L.N, L.eq.size))
+    Lg[:, L.eq], Lg[:, L.ineq] = st.nu, st.yd
+    LgN = np.zeros(L.eqN.size)
+    LgN[L.eqN], LgN[L.ineqN] = st.nuN, st.ydN
+    return Lg, LgN
+
+
+def lagrangian_gradient(setup, st):
+    """The gradient of the Lagrangian s_f J + lam.h + Lg.g + LgN.gN - y_d.s over v (without the
+    bound multipliers), flat."""
+    pt, lam, L = st.pt, st.lam, setup.layout
+    q, r = objective_gradient(pt, st.s_obj) if st.s_obj else (np.zeros_like(pt.X), np.zeros_like(pt.U))
+    Lg, LgN = full_multipliers(L, st)
     gx = q.copy()
-    gx[:-1] += np.einsum("kij,ki->kj", pt.A, lam[1:])
+    gx[:-1] += np.einsum("kij,ki->kj", pt.A, lam[1:]) + np.einsum("kij,ki->kj", pt.Cx, Lg)
     gx[1:] -= lam[1:]
-    gu = r + np.einsum("kij,ki->kj", pt.B, lam[1:])
-    return pack(gx, gu)
+    gx[-1] += pt.CN.T @ LgN
+    gu = r + np.einsum("kij,ki->kj", pt.B, lam[1:]) + np.einsum("kij,ki->kj", pt.Cu, Lg)
+    return L.pack(gx, gu, -st.yd, -st.ydN)
 
 
 def optimality_errors(setup, st, mu):
     """(E_mu scaled (eq. (5)), dual infeasibility unscaled, constraint violation max-norm,
     complementarity unscaled) at the current iterate."""
     b = setup.bounds
-    dual = lagrangian_gradient(st.pt, st.lam, st.s_obj) - st.zl + st.zu
+    dual = lagrangian_gradient(setup, st) - st.zl + st.zu
     inf_du = float(np.abs(dual).max(initial=0.0))
-    inf_pr = float(np.abs(st.pt.h).max(initial=0.0))
+    inf_pr = residuals(setup, st.pt, st.v).max()
     compl = b.complementarity(st.v, st.zl, st.zu, mu)
     nz = max(b.count, 1)
     zsum = float(np.abs(st.zl).sum() + np.abs(st.zu).sum())
-    s_d = max(S_MAX, (float(np.abs(st.lam[1:]).sum()) + zsum) / (st.lam[1:].size + nz)) / S_MAX
+    ysum = sum(float(np.abs(a).sum()) for a in (st.lam[1:], st.nu, st.nuN, st.yd, st.ydN))
+    ny = st.lam[1:].size + st.nu.size + st.nuN.size + st.yd.size + st.ydN.size
+    s_d = max(S_MAX, (ysum + zsum) / (ny + nz)) / S_MAX
     s_c = max(S_MAX, zsum / nz) / S_MAX
     return max(inf_du / s_d, inf_pr, compl / s_c), inf_du / st.s_obj, inf_pr, compl / st.s_obj
 
 
 # ---------------------------------------------------------------------------- start
 def initial_state(setup, X0, U0, clock):
-    """The starting point of sec. 3.6: the guess pushed inside the bounds, z = 1, the
-    least-squares dynamics multipliers (0 when larger than constr_mult_init_max), the objective
-    scaling s_f, mu = mu_init, the filter F_0."""
-    o, b = setup.options, setup.bounds
-    v = b.push(pack(X0, U0), o.bound_push, o.bound_frac)
+    """The starting point of sec. 3.6: the guess pushed inside the bounds, the slacks the
+    inequality values pushed inside theirs, z = 1, the least-squares multipliers (0 when larger
+    than constr_mult_init_max), the objective scaling s_f, mu = mu_init, the filter F_0."""
+    o, b, L = setup.options, setup.bounds, setup.layout
+    X0 = np.array(X0, dtype=float)
+    X0[0] = L.x0
+    pt0 = Point(setup.problem, X0, np.asarray(U0, dtype=float), derivatives=False, clock=clock)
+    v = b.push(L.pack(X0, U0, pt0.g[:, L.ineq], pt0.gN[L.ineqN]), o.bound_push, o.bound_frac)
     pt = evaluate(setup, v, clock, derivatives=True)
     q, r = objective_gradient(pt, 1.0)
     gmax = max(float(np.abs(q[1:]).max(initial=0.0)), float(np.abs(r).max(initial=0.0)))
     s_obj = min(1.0, 100.0 / gmax) if o.obj_scaling == "gradient-based" and gmax > 0 else 1.0
     zl, zu = b.has_lo.astype(float), b.has_hi.astype(float)
-    lam = least_squares_multipliers(setup.problem, pt, zl, zu, s_obj)
-    if float(np.abs(lam).max(initial=0.0)) > o.constr_mult_init_max:
-        lam = np.zeros_like(lam)
+    mult = least_squares_multipliers(setup, pt, zl, zu, s_obj)
+    if max((float(np.abs(a).max(initial=0.0)) for a in mult), default=0.0) > o.constr_mult_init_max:
+        mult = tuple(np.zeros_like(a) for a in mult)
+    lam, nu, nuN, yd, ydN = mult
     mu = o.mu_init
-    return IPMState(v=v, pt=pt, lam=lam, zl=zl, zu=zu, mu=mu, tau=max(o.tau_min, 1.0 - mu),
-                    filt=Filter.start(theta(pt)), s_obj=s_obj, clock=clock)
+    st = IPMState(v=v, pt=pt, lam=lam, zl=zl, zu=zu, mu=mu, tau=max(o.tau_min, 1.0 - mu),
+                  filt=Filter.start(0.0), s_obj=s_obj, clock=clock, nu=nu, nuN=nuN, yd=yd, ydN=ydN)
+    st.filt = Filter.start(theta(setup, pt, v))
+    return st
 
 
 # ---------------------------------------------------------------------------- one iteration
+def constraint_blocks(setup, pt, Ss, SsN):
+    """The iteration's :class:`Constraints` from the constraint Jacobians at pt."""
+    L = setup.layout
+    Ci = np.ascontiguousarray(np.concatenate([pt.Cx[:, L.ineq], pt.Cu[:, L.ineq]], axis=2))
+    return Constraints(np.ascontiguousarray(pt.Cx[:, L.eq]), np.ascontiguousarray(pt.Cu[:, L.eq]),
+                       np.ascontiguousarray(pt.CN[L.eqN]), Ci, np.ascontiguousarray(pt.CN[L.ineqN]), Ss, SsN)
+
+
 def newton_system(setup, st):
-    """The iteration's KKT matrix (Hessian blocks of the Lagrangian at (pt, lam), Sigma) factored
-    with the inertia correction; None when Algorithm IC gives up."""
-    p, pt = setup.problem, st.pt
+    """The iteration's KKT matrix (Hessian blocks of the Lagrangian at (pt, multipliers), Sigma)
+    factored with the inertia correction; None when Algorithm IC gives up."""
+    p, pt, L = setup.problem, st.pt, setup.layout
+    Lg, LgN = full_multipliers(L, st)
     t0 = time.perf_counter()
-    Hxx, Hxu, Huu = p.eval_stage_hessians(pt.X, pt.U, st.s_obj, st.lam[1:], np.zeros((p.N, p.r)))
-    HN = p.eval_final_hessian(pt.X[-1], st.s_obj, np.zeros(p.rN))
+    Hxx, Hxu, Huu = p.eval_stage_hessians(pt.X, pt.U, st.s_obj, st.lam[1:], Lg)
+    HN = p.eval_final_hessian(pt.X[-1], st.s_obj, LgN)
     st.clock.add(("hessian",), t0)
     Q, S, R = stage_blocks(Hxx, Hxu, Huu, HN)
     sig = setup.bounds.sigma(st.v, st.zl, st.zu)
-    Sx, Su = unpack(sig, np.zeros(p.n), p.N, p.n, p.m)
-    kkt = KKTMatrix(Q, S, R, pt.A, pt.B, Sx, Su)
+    Sx, Su, Ss, SsN = L.split(sig, np.zeros(p.n))
+    kkt = KKTMatrix(Q, S, R, pt.A, pt.B, Sx, Su, constraint_blocks(setup, pt, Ss, SsN))
     delta = kkt.factor(st.delta)
     st.factorizations += kkt.factorizations
     if delta is None:
@@ -253,25 +295,49 @@ def _trial(setup, st, v_t):
     except NonFiniteEvaluationError:
         return None, math.inf, math.inf
     phi, _ = barrier_value(setup, pt, v_t, st.mu, st.s_obj)
-    return pt, theta(pt), phi
+    return pt, theta(setup, pt, v_t), phi
 
 
-def line_search(setup, st, kkt, q, r):
+class Direction(NamedTuple):
+    """The Newton system's right-hand side in y (q, r) and s (gs, gsN), and grad phi flat."""
+
+    q: np.ndarray
+    r: np.ndarray
+    gs: np.ndarray
+    gsN: np.ndarray
+    grad: np.ndarray
+
+
+def barrier_gradient(setup, st) -> Direction:
+    """grad phi_mu at the iterate, split for the Newton system."""
+    L = setup.layout
+    q, r = objective_gradient(st.pt, st.s_obj)
+    _, bgrad = setup.bounds.barrier(st.v, st.mu)
+    bx, bu, gs, gsN = L.split(bgrad, np.zeros(L.n))
+    q, r = q + bx, r + bu
+    return Direction(q, r, gs, gsN, L.pack(q, r, gs, gsN))
+
+
+def step_vector(setup, step):
+    return setup.layout.pack(step.dX, step.dU, step.ds, step.dsN)
+
+
+def line_search(setup, st, kkt, g):
     """The filter line search with second-order corrections (sec. 2.3-2.4, Algorithm A steps
-    A-5 to A-8). Returns the accepted step (v_new, pt_new, dv, lam_new, alpha, soc) or None
+    A-5 to A-8). Returns the accepted step (v_new, pt_new, dv, newton step, alpha, soc) or None
     (alpha fell below alpha_min: restoration)."""
-    o, b, p = setup.options, setup.bounds, setup.problem
-    dX, dU, lam_new = kkt.solve(q, r, st.pt.h)
-    dv = pack(dX, dU)
-    grad = np.concatenate([q[1:].ravel(), r.ravel()])
-    gphi = float(grad @ dv)
-    th, (phi, _) = theta(st.pt), barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)
+    o, b = setup.options, setup.bounds
+    res = residuals(setup, st.pt, st.v)
+    step = kkt.solve(g.q, g.r, res, g.gs, g.gsN)
+    dv = step_vector(setup, step)
+    gphi = float(g.grad @ dv)
+    th, (phi, _) = res.l1(), barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)
     alpha_max = b.max_step(st.v, dv, st.tau)
     tiny = float(np.max(np.abs(dv) / (1.0 + np.abs(st.v)), initial=0.0)) < 10 * np.finfo(float).eps
     if tiny:     # IPOPT's tiny-step rule: no line search for a step below rounding
         pt_t, _, _ = _trial(setup, st, st.v + alpha_max * dv)
         if pt_t is not None:
-            return st.v + alpha_max * dv, pt_t, dv, lam_new, alpha_max, 0, True
+            return st.v + alpha_max * dv, pt_t, dv, step, alpha_max, 0
     alpha_min = st.filt.alpha_min(th, gphi)
     alpha, trials = alpha_max, 0
     while alpha >= alpha_min:
@@ -283,25 +349,26 @@ def line_search(setup, st, kkt, q, r):
         if ok:
             if not f_type:
                 st.filt.add(th, phi)
-            return v_t, pt_t, dv, lam_new, alpha, 0, f_type
+            return v_t, pt_t, dv, step, alpha, 0
         if trials == 1 and pt_t is not None and th_t >= th and o.max_soc:
-            soc = second_order_correction(setup, st, kkt, q, r, alpha, th, phi, gphi, pt_t, th_t)
+            soc = second_order_correction(setup, st, kkt, g, res, alpha, (th, phi, gphi), pt_t, v_t, th_t)
             if soc is not None:
                 return soc
         alpha *= 0.5
     return None
 
 
-def second_order_correction(setup, st, kkt, q, r, alpha_max, th, phi, gphi, pt_t, th_t):
-    """Second-order corrections (sec. 2.4): the system solved again with the dynamics offsets
+def second_order_correction(setup, st, kkt, g, res, alpha_max, current, pt_t, v_t, th_t):
+    """Second-order corrections (sec. 2.4): the system solved again with the constraint offsets
     c_soc = alpha c(y) + c(y_trial) (accumulated, eq. (27)), at most max_soc times while each
     reduces theta by kappa_soc."""
     o, b = setup.options, setup.bounds
-    c_soc = alpha_max * st.pt.h + pt_t.h
+    th, phi, gphi = current
+    c_soc = res.combine(alpha_max, residuals(setup, pt_t, v_t))
     th_old = th_t
     for k in range(o.max_soc):
-        dX, dU, lam_s = kkt.solve(q, r, c_soc)
-        dv = pack(dX, dU)
+        step = kkt.solve(g.q, g.r, c_soc, g.gs, g.gsN)
+        dv = step_vector(setup, step)
         a_soc = b.max_step(st.v, dv, st.tau)
         v_s = st.v + a_soc * dv
         pt_s, th_s, phi_s = _trial(setup, st, v_s)
@@ -311,25 +378,29 @@ def second_order_correction(setup, st, kkt, q, r, alpha_max, th, phi, gphi, pt_t
         if ok:
             if not f_type:
                 st.filt.add(th, phi)
-            return v_s, pt_s, dv, lam_s, a_soc, k + 1, f_type
+            return v_s, pt_s, dv, step, a_soc, k + 1
         if th_s > o.kappa_soc * th_old:
             return None
         th_old = th_s
-        c_soc = a_soc * c_soc + pt_s.h
+        c_soc = c_soc.combine(a_soc, residuals(setup, pt_s, v_s))
     return None
 
 
-def take_step(setup, st, step):
-    """Accept a step: the primal variables, lam <- lam + alpha (lam_new - lam), the bound multipliers
-    by their own fraction-to-boundary step (eq. (14)-(15)) and the safeguard (16)."""
+def take_step(setup, st, accepted):
+    """Accept a step: the primal variables, every constraint multiplier y <- y + alpha (y_new - y),
+    the bound multipliers by their own fraction-to-boundary step (eqs. (14)-(15)) and the
+    safeguard (16)."""
     b = setup.bounds
-    v_new, pt_new, dv, lam_new, alpha, soc, _ = step
+    v_new, pt_new, dv, step, alpha, soc = accepted
     dzl, dzu = b.dual_step(st.v, dv, st.zl, st.zu, st.mu)
     alpha_z = min(b.max_dual_step(st.zl[b.has_lo], dzl[b.has_lo], st.tau),
                   b.max_dual_step(st.zu[b.has_hi], dzu[b.has_hi], st.tau))
-    st.lam = st.lam + alpha * (lam_new - st.lam)
+    for name in ("lam", "nu", "nuN", "yd", "ydN"):
+        old = getattr(st, name)
+        setattr(st, name, old + alpha * (getattr(step, name) - old))
     st.v, st.pt = v_new, pt_new
     st.pt.add_derivatives(setup.problem)
+    b.move_tiny(v_new)
     st.zl, st.zu = b.safeguard(v_new, st.zl + alpha_z * dzl, st.zu + alpha_z * dzu, st.mu)
     return alpha, alpha_z, soc
 
@@ -345,28 +416,22 @@ def iterate(setup, st):
                        f"{st.errors[0]:.2e}, constraint violation {st.errors[2]:.2e}")
     update_barrier(setup, st)
     kkt = newton_system(setup, st)
-    step = None
-    if kkt is not None:
-        q, r = objective_gradient(st.pt, st.s_obj)
-        _, bgrad = setup.bounds.barrier(st.v, st.mu)
-        bx, bu = unpack(bgrad, np.zeros(setup.problem.n), setup.problem.N, setup.problem.n, setup.problem.m)
-        q, r = q + bx, r + bu
-        step = line_search(setup, st, kkt, q, r)
+    accepted = None if kkt is None else line_search(setup, st, kkt, barrier_gradient(setup, st))
     st.it += 1
     entry = {"iter": st.it, "objective": float(st.pt.J), "inf_pr": st.errors[2], "inf_du": st.errors[1],
              "mu": st.mu, "delta_w": st.delta}
-    if step is None:
+    if accepted is None:
         why = ("the inertia correction found no shift up to 1e20" if kkt is None
                else "the filter line search reached alpha_min")
-        st.filt.add(theta(st.pt), barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0])
+        st.filt.add(theta(setup, st.pt, st.v), barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0])
         st.restorations += 1
-        outcome = restore(setup, st, evaluate, theta, barrier_value)
+        outcome = restore(setup, st, Restoration(evaluate, theta, barrier_value, residuals, lagrangian_gradient))
         entry.update(restoration=True, alpha=float("nan"), alpha_z=float("nan"), soc=0)
         st.history.append(entry)
         if outcome is not None:
             return st.stop(*outcome(why))
     else:
-        alpha, alpha_z, soc = take_step(setup, st, step)
+        alpha, alpha_z, soc = take_step(setup, st, accepted)
         entry.update(alpha=alpha, alpha_z=alpha_z, soc=soc, restoration=False)
         st.history.append(entry)
     if setup.options.verbose >= 2:
@@ -382,13 +447,14 @@ def iterate(setup, st):
 def finish(setup, st) -> Result:
     """The Result at the last accepted iterate: multipliers of the unscaled problem, KKT
     quantities stage by stage (olado.solvers.sqp.residuals.stage_kkt)."""
-    p, pt = setup.problem, st.pt
+    p, pt, L = setup.problem, st.pt, setup.layout
     solve_time = time.perf_counter() - setup.t_start
     pt.add_derivatives(p)
     zero_x = np.zeros(p.n)
-    zl_x, zl_u = unpack(st.zl / st.s_obj, zero_x, p.N, p.n, p.m)
-    zu_x, zu_u = unpack(st.zu / st.s_obj, zero_x, p.N, p.n, p.m)
-    mult = Multipliers(st.lam / st.s_obj, np.zeros((p.N, p.r)), np.zeros(p.rN))
+    zl_x, zl_u, _, _ = L.split(st.zl / st.s_obj, zero_x)
+    zu_x, zu_u, _, _ = L.split(st.zu / st.s_obj, zero_x)
+    Lg, LgN = full_multipliers(L, st)
+    mult = Multipliers(st.lam / st.s_obj, Lg / st.s_obj, LgN / st.s_obj)
     kkt = stage_kkt(p, pt, mult, BoundMultipliers(zl_x, zu_x, zl_u, zu_u))
     z = kkt.bounds
     clock = st.clock
@@ -408,20 +474,6 @@ def finish(setup, st) -> Result:
                   info=info)
 
 
-def refuse(problem, X0, U0) -> Result | None:
-    """A problem outside what the solver handles yet (stage or final constraints): INVALID_PROBLEM
-    with a sentence, at the guess."""
-    general = [f"{k} {what}{'s' if k > 1 else ''}" for k, what in
-               ((problem.r, "stage constraint"), (problem.rN, "final constraint")) if k]
-    if not general:
-        return None
-    return Result(status=Status.INVALID_PROBLEM,
-                  message=f"solver 'ipm' handles simple bounds on states and controls only so far, but "
-                          f"{type(problem).__name__} has {' and '.join(general)}; use 'sqp' or 'ipopt' "
-                          "(docs/interior-point-nlp.md, 'What is left')",
-                  objective=float("nan"), x=np.asarray(X0, dtype=float).copy(), u=np.asarray(U0, dtype=float).copy())
-
-
 class IPMSolver(Solver):
     """IPOPT's primal-dual interior-point filter method on the Riccati KKT back-end."""
 
@@ -429,9 +481,6 @@ class IPMSolver(Solver):
     Options = IPMOptions
 
     def _solve(self, problem, X0, U0):
-        refused = refuse(problem, X0, U0)
-        if refused is not None:
-            return refused
         limits = Limits(self.options.max_time)
         setup = Setup(self.options, problem, limits, self._call_callback)
         clock = Clock(limits)
@@ -440,9 +489,8 @@ class IPMSolver(Solver):
             st = initial_state(setup, X0, U0, clock)
             while not iterate(setup, st):
                 pass
-        if st is None:      # stopped during the first evaluation
-            return Result(status=Status(stop.reason), message=stop_outcome(stop.reason, limits, "before the first "
-                          "iterate")[1], objective=float("nan"), x=np.asarray(X0, float), u=np.asarray(U0, float))
+        if st is None:      # stopped in the start's evaluations: the start, evaluated outside the catch block
+            st = initial_state(setup, X0, U0, Clock(None))
         if stop.reason:
             st.stop(*stop_outcome(stop.reason, limits, f"after {st.it} iterations"))
         return finish(setup, st)

@@ -10,15 +10,19 @@ from olado.config import load_config, make_solver
 from olado.problems import PROBLEMS
 from olado.problems.zambezi import zambezi_problem
 from olado.result import Status
-from olado.solvers.ipm.barrier import Bounds, pack
+from olado.solvers.ipm.barrier import Bounds, Layout
 from olado.solvers.ipm.filter import Filter, FilterConstants
-from olado.solvers.ipm.newton import InertiaConstants, KKTMatrix
+from olado.solvers.ipm.newton import Constraints, InertiaConstants, KKTMatrix, Residuals
 
 from fixtures import CONFIGS
 from fixtures.toy_problems import Pendulum
 
 
 # ---------------------------------------------------------------------------- the Newton step
+def pack(X, U):
+    return np.concatenate([X[1:].ravel(), U.ravel()])
+
+
 def random_lq(rng, N=4, n=3, m=2, convex=True):
     """Stage Hessian blocks, dynamics and a barrier diagonal of a small LQ-DOCP."""
     H = rng.standard_normal((N + 1, n + m, n + m))
@@ -69,13 +73,61 @@ def test_newton_step_equals_the_dense_kkt_solve():
     kkt = KKTMatrix(Q, S, R, A, B, Sx, Su)
     assert kkt.try_factor(0.3)
     q, r, c = rng.standard_normal((N + 1, n)), rng.standard_normal((N, m)), rng.standard_normal((N, n))
-    dX, dU, lam = kkt.solve(q, r, c)
+    step = kkt.solve(q, r, Residuals(c, np.zeros((N, 0)), np.zeros(0), np.zeros((N, 0)), np.zeros(0)))
+    dX, dU, lam = step.dX, step.dU, step.lam
     K, _, _ = dense_kkt(Q, S, R, A, B, Sx, Su, 0.3)
     rhs = -np.concatenate([q[1:].ravel(), r.ravel(), c.ravel()])
     sol = np.linalg.solve(K, rhs)
     np.testing.assert_allclose(pack(dX, dU), sol[:N * (n + m)], rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(lam[1:].ravel(), sol[N * (n + m):], rtol=1e-10, atol=1e-12)
     assert np.all(dX[0] == 0.0)
+
+
+def test_newton_step_with_equalities_and_slacked_inequalities_equals_the_dense_solve():
+    """Stage and final equality rows and inequality rows d - s = 0 with their slacks: the
+    eliminated system on the Riccati recursion gives the dense system's steps (dy, ds) and
+    multipliers (lam, nu, nu_N, y_d, y_dN)."""
+    rng = np.random.default_rng(11)
+    Q, S, R, A, B, Sx, Su = random_lq(rng, N=4, n=3, m=3)
+    N, n, m = B.shape
+    ne, neN, ni, niN = 1, 1, 2, 1
+    E, F = rng.standard_normal((N, ne, n)), rng.standard_normal((N, ne, m))
+    EN = rng.standard_normal((neN, n))
+    Ci, CNi = rng.standard_normal((N, ni, n + m)), rng.standard_normal((niN, n))
+    Ss, SsN = rng.uniform(0.1, 3.0, (N, ni)), rng.uniform(0.1, 3.0, niN)
+    delta = 0.2
+    kkt = KKTMatrix(Q.copy(), S, R, A, B, Sx, Su, Constraints(E, F, EN, Ci, CNi, Ss, SsN))
+    assert kkt.try_factor(delta)
+    q, r = rng.standard_normal((N + 1, n)), rng.standard_normal((N, m))
+    gs, gsN = rng.standard_normal((N, ni)), rng.standard_normal(niN)
+    res = Residuals(rng.standard_normal((N, n)), rng.standard_normal((N, ne)), rng.standard_normal(neN),
+                    rng.standard_normal((N, ni)), rng.standard_normal(niN))
+    st = kkt.solve(q, r, res, gs, gsN)
+    # the dense system over (y, s) and the multipliers of (h, e, eN, d - s, dN - sN)
+    _, W, Jh = dense_kkt(Q, S, R, A, B, Sx, Su, delta)
+    ny, ns = N * (n + m), N * ni + niN
+    nx = N * n
+    col_x = lambda k: slice((k - 1) * n, k * n)                # noqa: E731
+    col_u = lambda k: slice(nx + k * m, nx + (k + 1) * m)       # noqa: E731
+    Je = np.zeros((N * ne + neN, ny)); Jd = np.zeros((N * ni + niN, ny))
+    for k in range(N):
+        if k >= 1:
+            Je[k * ne:(k + 1) * ne, col_x(k)] = E[k]
+            Jd[k * ni:(k + 1) * ni, col_x(k)] = Ci[k][:, :n]
+        Je[k * ne:(k + 1) * ne, col_u(k)] = F[k]
+        Jd[k * ni:(k + 1) * ni, col_u(k)] = Ci[k][:, n:]
+    Je[N * ne:, col_x(N)] = EN
+    Jd[N * ni:, col_x(N)] = CNi
+    Hs = np.diag(np.concatenate([Ss.ravel(), SsN]) + delta)
+    Jc = np.block([[Jh, np.zeros((nx, ns))], [Je, np.zeros((Je.shape[0], ns))], [Jd, -np.eye(ns)]])
+    H = np.block([[W, np.zeros((ny, ns))], [np.zeros((ns, ny)), Hs]])
+    K = np.block([[H, Jc.T], [Jc, np.zeros((Jc.shape[0], Jc.shape[0]))]])
+    rhs = -np.concatenate([q[1:].ravel(), r.ravel(), gs.ravel(), gsN, res.h.ravel(), res.e.ravel(), res.eN,
+                           res.d.ravel(), res.dN])
+    sol = np.linalg.solve(K, rhs)
+    got = np.concatenate([pack(st.dX, st.dU), st.ds.ravel(), st.dsN, st.lam[1:].ravel(), st.nu.ravel(), st.nuN,
+                          st.yd.ravel(), st.ydN])
+    np.testing.assert_allclose(got, sol, rtol=1e-8, atol=1e-10)
 
 
 def test_inertia_correction_on_a_nonconvex_stage_hessian():
@@ -157,7 +209,7 @@ def test_filter_acceptance_rules():
 def test_barrier_start_and_fraction_to_boundary():
     """The start is pushed inside (sec. 3.6) and the primal step stops at tau of the distance."""
     p = PROBLEMS["lq-box"](N=3)
-    b = Bounds.of(p, relax=0.0)
+    b = Bounds.of(p, Layout(p), relax=0.0)
     v = np.full(b.lo.size, 5.0)
     w = b.push(v)
     assert np.all(w[b.has_hi] <= b.hi[b.has_hi] - 1e-2 * np.maximum(1, np.abs(b.hi[b.has_hi])) + 1e-15)
@@ -206,10 +258,23 @@ def test_vanderpol_takes_the_inertia_correction():
     assert any(h["delta_w"] > 0 for h in r.history)
 
 
-def test_stage_constraints_are_refused_with_a_sentence():
-    r = olado.solve(Pendulum(N=5), solver="ipm")
-    assert r.status is Status.INVALID_PROBLEM and not r.success
-    assert "1 stage constraint and 1 final constraint" in r.message and "'sqp'" in r.message
+CONSTRAINED = {"pendulum": lambda: Pendulum(N=20), "rayleigh-mixed": lambda: PROBLEMS["rayleigh-mixed"](N=40),
+               "bryson-denham": lambda: PROBLEMS["bryson-denham"](N=40),
+               "hanging-chain": lambda: PROBLEMS["hanging-chain"](N=40)}
+
+
+@pytest.mark.parametrize("name", CONSTRAINED)
+def test_stage_and_final_constraints_reach_ipopts_solution(name, ipm, ipopt):
+    """Mixed stage inequalities (slacks), final equalities and inequalities: IPOPT's objective,
+    solution, constraint multipliers and iterations."""
+    a, b = ipm.solve(CONSTRAINED[name]()), ipopt.solve(CONSTRAINED[name]())
+    assert a.status is Status.SUCCESS and a.certificate.level == "success", a.message
+    assert a.objective == pytest.approx(b.objective, rel=1e-8)
+    scale = 1.0 + max(np.abs(b.x).max(), np.abs(b.u).max())
+    assert np.abs(a.x - b.x).max() <= 1e-6 * scale and np.abs(a.u - b.u).max() <= 1e-6 * scale
+    for key in ("stage_constraints", "final_constraints"):
+        np.testing.assert_allclose(a.multipliers[key], b.multipliers[key], atol=1e-5 * (1 + np.abs(b.multipliers[key]).max(initial=0)))
+    assert abs(a.iterations - b.iterations) <= 2
 
 
 def test_iteration_limit_is_a_status_with_the_iterate():
