@@ -51,7 +51,8 @@ def main(argv=None):
                         f"{1e3 * t:.0f} | {1e3 * t / max(r.iterations, 1):.1f} | {fac} |")
             print(rows[-1], flush=True)
     shown = " ".join(argv if argv is not None else __import__("sys").argv[1:])
-    text = (f"## {SECTION}\n\n`python benchmarks/bench_ipm.py {shown}`".rstrip() + f" at {commit()}, "
+    command = f"python benchmarks/bench_ipm.py {shown}".strip()
+    text = (f"## {SECTION}\n\n`{command}` at {commit()}, "
             f"{datetime.date.today()}, {machine()}; best of {args.repeats} after a warm-up, the machine shared "
             "with other jobs (times: orders of magnitude).\n\n" + "\n".join(rows) + "\n")
     if not args.no_write:
