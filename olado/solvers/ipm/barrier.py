@@ -72,6 +72,12 @@ class Bounds:
                       np.inf)
         return cls(lo, hi, has_lo, has_hi)
 
+    def __post_init__(self):
+        # the masks as floats, for the passes without fancy indexing (slacks are 1 on infinite sides)
+        self.lo_f, self.hi_f = self.has_lo.astype(float), self.has_hi.astype(float)
+        self.one_lo_f = (self.has_lo & ~self.has_hi).astype(float)
+        self.one_hi_f = (self.has_hi & ~self.has_lo).astype(float)
+
     @property
     def count(self):
         return int(self.has_lo.sum() + self.has_hi.sum())
@@ -112,13 +118,12 @@ class Bounds:
     def barrier(self, v, mu):
         """The barrier terms of phi_mu at v (+inf outside the bounds) and their gradient."""
         sl, su = self.slacks(v)
-        if np.any(sl <= 0) or np.any(su <= 0):
+        if sl.size and (sl.min() <= 0 or su.min() <= 0):
             return np.inf, None
-        one_lo, one_hi = self.has_lo & ~self.has_hi, self.has_hi & ~self.has_lo
-        value = (-mu * (np.log(sl[self.has_lo]).sum() + np.log(su[self.has_hi]).sum())
-                 + KAPPA_D * mu * ((v - self.lo)[one_lo].sum() + (self.hi - v)[one_hi].sum()))
-        grad = -mu * np.where(self.has_lo, 1.0 / sl, 0.0) + mu * np.where(self.has_hi, 1.0 / su, 0.0)
-        grad += KAPPA_D * mu * (one_lo.astype(float) - one_hi.astype(float))
+        # log(1) = 0 and 1/1 times a zero mask on the infinite sides
+        value = (-mu * (np.log(sl).sum() + np.log(su).sum())
+                 + KAPPA_D * mu * (self.one_lo_f @ sl + self.one_hi_f @ su))
+        grad = mu * (self.hi_f / su - self.lo_f / sl) + KAPPA_D * mu * (self.one_lo_f - self.one_hi_f)
         return value, grad
 
     def sigma(self, v, zl, zu):
@@ -138,18 +143,17 @@ class Bounds:
         """The fraction-to-boundary rule (15) for the primal variables: the largest alpha in
         (0, 1] with s + alpha ds >= (1 - tau) s on every finite side."""
         sl, su = self.slacks(v)
-        alpha = 1.0
-        for s, ds, mask in ((sl, dv, self.has_lo), (su, -dv, self.has_hi)):
-            neg = mask & (ds < 0)
-            if neg.any():
-                alpha = min(alpha, float(np.min(-tau * s[neg] / ds[neg])))
-        return alpha
+        with np.errstate(divide="ignore", invalid="ignore"):
+            a_lo = np.where(self.has_lo & (dv < 0), -tau * sl / dv, 1.0)
+            a_hi = np.where(self.has_hi & (dv > 0), tau * su / dv, 1.0)
+        return min(1.0, float(a_lo.min(initial=1.0)), float(a_hi.min(initial=1.0)))
 
     @staticmethod
     def max_dual_step(z, dz, tau):
         """The fraction-to-boundary rule (15) for multipliers z >= 0."""
-        neg = dz < 0
-        return min(1.0, float(np.min(-tau * z[neg] / dz[neg]))) if neg.any() else 1.0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(dz < 0, -tau * z / dz, 1.0)
+        return min(1.0, float(ratio.min(initial=1.0)))
 
     def safeguard(self, v, zl, zu, mu, kappa_sigma=1e10):
         """The multiplier reset (16): z within [mu / (kappa_sigma s), kappa_sigma mu / s]."""

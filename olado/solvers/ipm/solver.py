@@ -393,8 +393,7 @@ def take_step(setup, st, accepted):
     b = setup.bounds
     v_new, pt_new, dv, step, alpha, soc = accepted
     dzl, dzu = b.dual_step(st.v, dv, st.zl, st.zu, st.mu)
-    alpha_z = min(b.max_dual_step(st.zl[b.has_lo], dzl[b.has_lo], st.tau),
-                  b.max_dual_step(st.zu[b.has_hi], dzu[b.has_hi], st.tau))
+    alpha_z = min(b.max_dual_step(st.zl, dzl, st.tau), b.max_dual_step(st.zu, dzu, st.tau))   # dz = 0 off the bounds
     for name in ("lam", "nu", "nuN", "yd", "ydN"):
         old = getattr(st, name)
         setattr(st, name, old + alpha * (getattr(step, name) - old))
