@@ -9,11 +9,12 @@ Acceptance of a trial step of length alpha along d from (theta, phi) with barrie
 derivative g = grad phi . d:
 
 * switching condition (19): g < 0 and alpha (-g)^s_phi > delta theta^s_theta;
-* if it holds and theta <= theta_min: Armijo condition (20), phi_trial <= phi + eta_phi alpha g
-  (an "f-type" iteration: the filter is not augmented);
+* if it holds and theta <= theta_min: Armijo condition (20), phi_trial <= phi + eta_phi alpha g;
 * otherwise sufficient decrease with respect to the current point (18):
-  theta_trial <= (1 - gamma_theta) theta or phi_trial <= phi - gamma_phi theta, and after
-  acceptance the filter is augmented (22) by ((1 - gamma_theta) theta, phi - gamma_phi theta).
+  theta_trial <= (1 - gamma_theta) theta or phi_trial <= phi - gamma_phi theta;
+* after acceptance the filter is augmented (22) by ((1 - gamma_theta) theta, phi - gamma_phi theta)
+  unless (19) and (20) both hold for the accepted alpha (an "f-type" iteration; step A-8 of
+  Algorithm A, IPOPT's FilterLSAcceptor::UpdateForNextIteration), also above theta_min.
 * alpha_min (23): below it the line search gives up and the restoration phase starts.
 """
 
@@ -76,15 +77,18 @@ class Filter:
         return gphi < 0 and alpha * (-gphi) ** c.s_phi > c.delta * theta ** c.s_theta
 
     def accept(self, alpha, theta, phi, gphi, theta_t, phi_t):
-        """Judge a trial point: (accepted, f_type). ``f_type`` says the Armijo condition decided
-        (no filter augmentation)."""
+        """Judge a trial point: (accepted, f_type). ``f_type`` says the switching condition (19)
+        and the Armijo condition (20) both hold for alpha -- then the filter is not augmented
+        (Algorithm A, step A-8), whatever decided the acceptance."""
         c = self.const
         if not np.isfinite(phi_t) or theta_t > self.theta_max or not self.acceptable(theta_t, phi_t):
             return False, False
-        if theta <= self.theta_min and self.switching(alpha, theta, gphi):
-            return bool(phi_t <= phi + c.eta_phi * alpha * gphi), True
+        switching = self.switching(alpha, theta, gphi)
+        armijo = bool(phi_t <= phi + c.eta_phi * alpha * gphi)
+        if theta <= self.theta_min and switching:
+            return armijo, armijo
         ok = theta_t <= (1.0 - c.gamma_theta) * theta or phi_t <= phi - c.gamma_phi * theta
-        return bool(ok), False
+        return bool(ok), switching and armijo
 
     def alpha_min(self, theta, gphi) -> float:
         """alpha_min of (23): the smallest step the backtracking tries before the restoration."""

@@ -80,6 +80,10 @@ class IPMOptions(SolverOptions):
                               "factor", min=0.0, max=1.0, min_exclusive=True)
     obj_scaling: str = option("gradient-based", "objective scaling: gradient-based (IPOPT: s_f = min(1, "
                               "100 / |grad J(y_0)|_inf)) or none", choices=("gradient-based", "none"))
+    watchdog_shortened_iter_trigger: int = option(10, "start the watchdog after this many successive "
+                                                  "shortened steps (IPOPT's; 0: never)", min=0)
+    watchdog_trial_iter_max: int = option(3, "full steps the watchdog takes at most before it returns to "
+                                          "where it started (IPOPT's)", min=1)
     max_restoration_iter: int = option(50, "iterations of one feasibility restoration phase at most", min=1)
 
 
@@ -103,7 +107,8 @@ class IPMState:
     nuN: np.ndarray = None      # final equality multipliers (neN,)
     yd: np.ndarray = None       # multipliers of the stage inequality rows g - s = 0 (N, ni); <= 0 at a solution
     ydN: np.ndarray = None      # ... of the final ones (niN,)
-    delta: float = 0.0
+    delta: float = 0.0          # delta_w of the last factorization
+    delta_last: float = 0.0     # the last nonzero delta_w (Algorithm IC's delta_w^last)
     it: int = 0
     acceptable: int = 0
     factorizations: int = 0
@@ -112,6 +117,8 @@ class IPMState:
     message: str = ""
     history: list = dataclasses.field(default_factory=list)
     errors: tuple = (math.inf, math.inf, math.inf)
+    shortened: int = 0          # successive iterations whose line search shortened the step
+    watch: object = None        # the watchdog (Watchdog) while it runs
 
     def stop(self, status, message):
         self.status, self.message = status, message
@@ -249,11 +256,13 @@ def newton_system(setup, st):
     sig = setup.bounds.sigma(st.v, st.zl, st.zu)
     Sx, Su, Ss, SsN = L.split(sig, np.zeros(p.n))
     kkt = KKTMatrix(Q, S, R, pt.A, pt.B, Sx, Su, constraint_blocks(setup, pt, Ss, SsN))
-    delta = kkt.factor(st.delta)
+    delta = kkt.factor(st.delta_last)
     st.factorizations += kkt.factorizations
     if delta is None:
         return None
     st.delta = delta
+    if delta > 0.0:       # delta_w^last of Algorithm IC: the last shift that was needed (IC-4)
+        st.delta_last = delta
     return kkt
 
 
@@ -322,37 +331,122 @@ def step_vector(setup, step):
     return setup.layout.pack(step.dX, step.dU, step.ds, step.dsN)
 
 
-def line_search(setup, st, kkt, g):
-    """The filter line search with second-order corrections (sec. 2.3-2.4, Algorithm A steps
-    A-5 to A-8). Returns the accepted step (v_new, pt_new, dv, newton step, alpha, soc) or None
-    (alpha fell below alpha_min: restoration)."""
-    o, b = setup.options, setup.bounds
+class Search(NamedTuple):
+    """A Newton direction at an iterate and the quantities its line search compares against:
+    the system and right-hand side (for second-order corrections), the residuals, the step, dv,
+    grad phi . dv, theta, phi and the largest step by the fraction-to-boundary rule."""
+
+    kkt: KKTMatrix
+    g: Direction
+    res: Residuals
+    step: object
+    dv: np.ndarray
+    gphi: float
+    theta: float
+    phi: float
+    alpha_max: float
+
+
+@dataclasses.dataclass
+class Watchdog:
+    """IPOPT's watchdog (watchdog_shortened_iter_trigger, watchdog_trial_iter_max): the iterate
+    and search where it started and the trial steps taken since."""
+
+    state: dict
+    search: Search
+    trials: int = 1
+
+
+WATCHED = ("v", "pt", "lam", "nu", "nuN", "yd", "ydN", "zl", "zu", "mu", "tau")
+
+
+def direction(setup, st, kkt, g) -> Search:
+    """The Newton direction at the iterate and its line-search quantities."""
     res = residuals(setup, st.pt, st.v)
     step = kkt.solve(g.q, g.r, res, g.gs, g.gsN)
     dv = step_vector(setup, step)
-    gphi = float(g.grad @ dv)
-    th, (phi, _) = res.l1(), barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)
-    alpha_max = b.max_step(st.v, dv, st.tau)
-    tiny = float(np.max(np.abs(dv) / (1.0 + np.abs(st.v)), initial=0.0)) < 10 * np.finfo(float).eps
+    phi = barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0]
+    return Search(kkt, g, res, step, dv, float(g.grad @ dv), res.l1(), phi, setup.bounds.max_step(st.v, dv, st.tau))
+
+
+def line_search(setup, st, kkt, g):
+    """The filter line search with second-order corrections (sec. 2.3-2.4, Algorithm A steps
+    A-5 to A-8) and IPOPT's watchdog. Returns the accepted step (v_new, pt_new, dv, newton step,
+    alpha, soc) or None (alpha fell below alpha_min: restoration)."""
+    o = setup.options
+    d = direction(setup, st, kkt, g)
+    tiny = float(np.max(np.abs(d.dv) / (1.0 + np.abs(st.v)), initial=0.0)) < 10 * np.finfo(float).eps
     if tiny:     # IPOPT's tiny-step rule: no line search for a step below rounding
-        pt_t, _, _ = _trial(setup, st, st.v + alpha_max * dv)
+        pt_t, _, _ = _trial(setup, st, st.v + d.alpha_max * d.dv)
         if pt_t is not None:
-            return st.v + alpha_max * dv, pt_t, dv, step, alpha_max, 0
+            return st.v + d.alpha_max * d.dv, pt_t, d.dv, d.step, d.alpha_max, 0
+    if st.watch is None and o.watchdog_shortened_iter_trigger and st.shortened >= o.watchdog_shortened_iter_trigger:
+        st.watch = Watchdog({k: getattr(st, k) for k in WATCHED}, d)
+        st.shortened = 0
+        step = _watchdog_step(setup, st, d)
+        if step is not None:
+            return step
+        st.watch = None
+    elif st.watch is not None:
+        step = _watched_trial(setup, st, d)
+        if step is not None:
+            return step
+        d = st.watch.search           # the watchdog gives up: back to where it started
+        for k, val in st.watch.state.items():
+            setattr(st, k, val)
+        st.watch = None
+    return backtrack(setup, st, d)
+
+
+def _watchdog_step(setup, st, d):
+    """A full step taken without the acceptance test (IPOPT's "w" iteration); None when the
+    functions are not finite there."""
+    v_t = st.v + d.alpha_max * d.dv
+    pt_t, _, _ = _trial(setup, st, v_t)
+    return None if pt_t is None else (v_t, pt_t, d.dv, d.step, d.alpha_max, 0)
+
+
+def _watched_trial(setup, st, d):
+    """In the watchdog: the full step, accepted (and the watchdog ended) when the filter accepts it
+    against the watchdog's starting point; else another "w" step while watchdog_trial_iter_max
+    allows; None: the watchdog fails and the line search starts again from its starting point."""
+    ref = st.watch.search
+    v_t = st.v + d.alpha_max * d.dv
+    pt_t, th_t, phi_t = _trial(setup, st, v_t)
+    ok, f_type = st.filt.accept(d.alpha_max, ref.theta, ref.phi, ref.gphi, th_t, phi_t)
+    if ok:
+        if not f_type:
+            st.filt.add(ref.theta, ref.phi)
+        st.watch = None
+        return v_t, pt_t, d.dv, d.step, d.alpha_max, 0
+    if pt_t is not None and st.watch.trials < setup.options.watchdog_trial_iter_max:
+        st.watch.trials += 1
+        return v_t, pt_t, d.dv, d.step, d.alpha_max, 0
+    return None
+
+
+def backtrack(setup, st, d: Search):
+    """Backtracking from alpha_max by halves to alpha_min (23), with second-order corrections
+    after a rejected first trial that increased theta."""
+    o = setup.options
+    th, phi, gphi = d.theta, d.phi, d.gphi
     alpha_min = st.filt.alpha_min(th, gphi)
-    alpha, trials = alpha_max, 0
+    alpha, trials = d.alpha_max, 0
     while alpha >= alpha_min:
         setup.limits.check()
         trials += 1
-        v_t = st.v + alpha * dv
+        v_t = st.v + alpha * d.dv
         pt_t, th_t, phi_t = _trial(setup, st, v_t)
         ok, f_type = st.filt.accept(alpha, th, phi, gphi, th_t, phi_t)
         if ok:
             if not f_type:
                 st.filt.add(th, phi)
-            return v_t, pt_t, dv, step, alpha, 0
+            st.shortened = st.shortened + 1 if trials > 1 else 0
+            return v_t, pt_t, d.dv, d.step, alpha, 0
         if trials == 1 and pt_t is not None and th_t >= th and o.max_soc:
-            soc = second_order_correction(setup, st, kkt, g, res, alpha, (th, phi, gphi), pt_t, v_t, th_t)
+            soc = second_order_correction(setup, st, d.kkt, d.g, d.res, alpha, (th, phi, gphi), pt_t, v_t, th_t)
             if soc is not None:
+                st.shortened = 0
                 return soc
         alpha *= 0.5
     return None

@@ -195,7 +195,11 @@ def test_filter_acceptance_rules():
     assert f.switching(alpha, th, g) and not f.switching(alpha, th, +1.0)
     armijo = 1.0 + c.eta_phi * alpha * g
     assert f.accept(alpha, th, 1.0, g, 0.0, armijo - 1e-12) == (True, True)
-    assert f.accept(alpha, th, 1.0, g, 0.0, armijo + 1e-9) == (False, True)   # theta decreased, Armijo fails
+    assert f.accept(alpha, th, 1.0, g, 0.0, armijo + 1e-9) == (False, False)  # theta decreased, Armijo fails
+    # above theta_min the sufficient decrease decides, but an accepted step for which (19) and (20)
+    # hold is f-type all the same (step A-8: no filter augmentation), as IPOPT's acceptor does
+    assert f.accept(1.0, 1e-2, 1.0, -1.0, 0.5, 0.5) == (True, True)
+    assert f.accept(1.0, 1e-2, 1.0, -1e-3, 5e-3, 1.0) == (True, False)       # (19) fails: h-type
     # the filter itself rejects first
     f.add(1.0, 0.0)
     assert f.accept(1.0, 2.0, 10.0, -1.0, 1.0, 0.5) == (False, False)
