@@ -511,21 +511,22 @@ def iterate(setup, st):
     kkt = newton_system(setup, st)
     accepted = None if kkt is None else line_search(setup, st, kkt, barrier_gradient(setup, st))
     st.it += 1
-    entry = {"iter": st.it, "objective": float(st.pt.J), "inf_pr": st.errors[2], "inf_du": st.errors[1],
-             "mu": st.mu, "delta_w": st.delta}
+    # the objective after the iteration (IPOPT's log), the errors at its start
+    entry = {"iter": st.it, "inf_pr": st.errors[2], "inf_du": st.errors[1], "mu": st.mu, "delta_w": st.delta,
+             "watchdog": st.watch is not None}
     if accepted is None:
         why = ("the inertia correction found no shift up to 1e20" if kkt is None
                else "the filter line search reached alpha_min")
         st.filt.add(theta(setup, st.pt, st.v), barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0])
         st.restorations += 1
         outcome = restore(setup, st, Restoration(evaluate, theta, barrier_value, residuals, lagrangian_gradient))
-        entry.update(restoration=True, alpha=float("nan"), alpha_z=float("nan"), soc=0)
+        entry.update(restoration=True, alpha=float("nan"), alpha_z=float("nan"), soc=0, objective=float(st.pt.J))
         st.history.append(entry)
         if outcome is not None:
             return st.stop(*outcome(why))
     else:
         alpha, alpha_z, soc = take_step(setup, st, accepted)
-        entry.update(alpha=alpha, alpha_z=alpha_z, soc=soc, restoration=False)
+        entry.update(alpha=alpha, alpha_z=alpha_z, soc=soc, restoration=False, objective=float(st.pt.J))
         st.history.append(entry)
     if setup.options.verbose >= 2:
         print(f"{st.it:4d} {st.pt.J: .10e} {st.errors[2]:.2e} {st.errors[1]:.2e} mu={st.mu:.1e} "

@@ -320,3 +320,18 @@ def test_unreachable_bounds_end_in_the_restoration_phase_as_infeasible():
     assert "locally infeasible" in r.message
     assert r.infeasibility.largest == pytest.approx(0.9, rel=1e-4)
     assert r.infeasibility.arrays[0].array == "dynamics" and r.infeasibility.arrays[0].first_stage == 0
+
+
+def test_the_iterates_follow_ipopts_through_watchdog_and_second_order_correction(ipopt):
+    """obstacle's first 22 iterations: ten shortened steps (4-13), the watchdog's three full steps
+    (14-16, IPOPT's "w"), the step accepted against the watched point (17), a second-order
+    correction with delta_w = 1/3 of the last shift (18), backtracking (19-22): IPOPT's objective
+    after every iteration, to 1e-7."""
+    a = olado.solve(PROBLEMS["obstacle"](), solver="ipm", max_iter=22)
+    b = olado.solve(PROBLEMS["obstacle"](), solver="ipopt", max_iter=22)
+    got = [h["objective"] for h in a.history]
+    ref = [h["objective"] for h in b.history[1:]]
+    assert len(got) == len(ref) == 22
+    np.testing.assert_allclose(got, ref, rtol=1e-7)
+    assert [h["watchdog"] for h in a.history[13:17]] == [True, True, True, False]
+    assert a.history[17]["soc"] >= 1 and a.history[17]["delta_w"] == pytest.approx(a.history[14]["delta_w"] / 3)
