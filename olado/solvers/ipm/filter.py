@@ -37,6 +37,9 @@ class FilterConstants:
     s_phi: float = 2.3
     eta_phi: float = 1e-8
     gamma_alpha: float = 0.05
+    obj_max_inc: float = 5.0        # IPOPT: reject a barrier increase of more than this many orders
+    filter_reset_trigger: int = 5   # IPOPT: clear the filter after this many acceptances in a row that
+    max_filter_resets: int = 5      # followed a rejection by the filter (at most max_filter_resets times)
 
 
 @dataclasses.dataclass
@@ -48,6 +51,9 @@ class Filter:
     theta_min: float
     const: FilterConstants = dataclasses.field(default_factory=FilterConstants)
     entries: list = dataclasses.field(default_factory=list)
+    resets: int = 0                 # filter resets by the heuristic
+    rejected_by_filter: bool = False    # the last rejected trial was rejected by the filter
+    filter_rejections: int = 0      # acceptances in a row that followed a rejection by the filter
 
     @classmethod
     def start(cls, theta0, const=None):
@@ -56,8 +62,11 @@ class Filter:
         return f
 
     def reset(self):
-        """F_0 = {(theta, phi): theta >= theta_max} (sec. 2.3); also after a barrier update (IPOPT)."""
+        """F_0 = {(theta, phi): theta >= theta_max} (sec. 2.3); also after a barrier update and by
+        the reset heuristic (IPOPT's FilterLSAcceptor::Reset)."""
         self.entries = [(self.theta_max, -np.inf)]
+        self.rejected_by_filter = False
+        self.filter_rejections = 0
 
     def acceptable(self, theta, phi) -> bool:
         """Whether (theta, phi) is acceptable to the filter: not dominated by any entry (a pair
@@ -79,16 +88,50 @@ class Filter:
     def accept(self, alpha, theta, phi, gphi, theta_t, phi_t):
         """Judge a trial point: (accepted, f_type). ``f_type`` says the switching condition (19)
         and the Armijo condition (20) both hold for alpha -- then the filter is not augmented
-        (Algorithm A, step A-8), whatever decided the acceptance."""
+        (Algorithm A, step A-8), whatever decided the acceptance. The order of the tests and the
+        two safeguards are IPOPT's (FilterLSAcceptor::CheckAcceptabilityOfTrialPoint): theta_max,
+        the barrier function rising by more than obj_max_inc orders of magnitude, the decrease
+        with respect to the current point, then the filter; and the filter reset heuristic."""
         c = self.const
-        if not np.isfinite(phi_t) or theta_t > self.theta_max or not self.acceptable(theta_t, phi_t):
+        if not np.isfinite(phi_t) or theta_t > self.theta_max:
             return False, False
         switching = self.switching(alpha, theta, gphi)
         armijo = bool(phi_t <= phi + c.eta_phi * alpha * gphi)
         if theta <= self.theta_min and switching:
-            return armijo, armijo
-        ok = theta_t <= (1.0 - c.gamma_theta) * theta or phi_t <= phi - c.gamma_phi * theta
-        return bool(ok), switching and armijo
+            ok = armijo
+        else:
+            ok = self._decrease(theta, phi, theta_t, phi_t)
+        if not ok:
+            self.rejected_by_filter = False
+            return False, False
+        if not self.acceptable(theta_t, phi_t):
+            self.rejected_by_filter = True
+            return False, False
+        self._reset_heuristic()
+        return True, switching and armijo
+
+    def _decrease(self, theta, phi, theta_t, phi_t):
+        """Sufficient decrease (18) with respect to the current point, after IPOPT's obj_max_inc test."""
+        c = self.const
+        if phi_t > phi:
+            base = np.log10(abs(phi)) if abs(phi) > 10.0 else 1.0
+            if np.log10(phi_t - phi) > c.obj_max_inc + base:
+                return False
+        return theta_t <= (1.0 - c.gamma_theta) * theta or phi_t <= phi - c.gamma_phi * theta
+
+    def _reset_heuristic(self):
+        """IPOPT's filter reset: an accepted trial after a rejection by the filter counts; after
+        filter_reset_trigger of them in a row the filter is cleared (at most max_filter_resets times)."""
+        c = self.const
+        if self.resets < c.max_filter_resets:
+            if self.rejected_by_filter:
+                self.filter_rejections += 1
+                if self.filter_rejections >= c.filter_reset_trigger:
+                    self.resets += 1
+                    self.reset()
+            else:
+                self.filter_rejections = 0
+        self.rejected_by_filter = False
 
     def alpha_min(self, theta, gphi) -> float:
         """alpha_min of (23): the smallest step the backtracking tries before the restoration."""

@@ -413,7 +413,8 @@ def _watched_trial(setup, st, d):
     ref = st.watch.search
     v_t = st.v + d.alpha_max * d.dv
     pt_t, th_t, phi_t = _trial(setup, st, v_t)
-    ok, f_type = st.filt.accept(d.alpha_max, ref.theta, ref.phi, ref.gphi, th_t, phi_t)
+    # the tests use the watched point's values and step to the boundary (IPOPT's watchdog_alpha_primal_test)
+    ok, f_type = st.filt.accept(ref.alpha_max, ref.theta, ref.phi, ref.gphi, th_t, phi_t)
     if ok:
         if not f_type:
             st.filt.add(ref.theta, ref.phi)
@@ -432,7 +433,7 @@ def backtrack(setup, st, d: Search):
     th, phi, gphi = d.theta, d.phi, d.gphi
     alpha_min = st.filt.alpha_min(th, gphi)
     alpha, trials = d.alpha_max, 0
-    while alpha >= alpha_min:
+    while alpha > alpha_min or trials == 0:     # the first trial always (IPOPT)
         setup.limits.check()
         trials += 1
         v_t = st.v + alpha * d.dv

@@ -210,6 +210,28 @@ def test_filter_acceptance_rules():
     assert f.alpha_min(1e-2, 1.0) == pytest.approx(c.gamma_alpha * c.gamma_theta)
 
 
+def test_filter_reset_heuristic_and_objective_increase_guard():
+    """IPOPT's safeguards of the acceptance test: a barrier function rising by more than
+    obj_max_inc orders of magnitude is rejected; after filter_reset_trigger acceptances in a row
+    that each followed a rejection *by the filter*, the filter is cleared."""
+    c = FilterConstants()
+    f = Filter.start(theta0=1.0)
+    assert f.accept(1.0, 1.0, 1.0, 1.0, 0.5, 1.0 + 10 ** (c.obj_max_inc + 1.0) * 1.01) == (False, False)
+    assert f.accept(1.0, 1.0, 1.0, 1.0, 0.5, 1.0 + 10 ** (c.obj_max_inc + 1.0) * 0.99)[0]
+    f.add(0.1, 0.0)                          # forbids theta >= 0.1 with phi >= 0
+    for k in range(c.filter_reset_trigger):
+        assert f.accept(1.0, 1.0, 1.0, 1.0, 0.5, 0.5) == (False, False)     # decrease ok, filter rejects
+        assert f.rejected_by_filter
+        assert f.accept(1.0, 1.0, 1.0, 1.0, 0.05, 0.5)[0]                   # accepted after it
+        assert len(f.entries) == (2 if k < c.filter_reset_trigger - 1 else 1)
+    assert f.resets == 1 and f.accept(1.0, 1.0, 1.0, 1.0, 0.5, 0.5)[0]     # the entry is gone
+    # a rejection by the decrease test, not the filter, breaks the count
+    f.add(0.1, 0.0)
+    assert f.accept(1.0, 1.0, 1.0, 1.0, 0.5, 0.5) == (False, False) and f.rejected_by_filter
+    assert f.accept(1.0, 1.0, 1.0, 1.0, 2.0, 2.0) == (False, False) and not f.rejected_by_filter
+    assert f.accept(1.0, 1.0, 1.0, 1.0, 0.05, 0.5)[0] and f.filter_rejections == 0
+
+
 def test_barrier_start_and_fraction_to_boundary():
     """The start is pushed inside (sec. 3.6) and the primal step stops at tau of the distance."""
     p = PROBLEMS["lq-box"](N=3)
