@@ -19,6 +19,7 @@ reduces the violation) reports the problem as locally infeasible.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Callable, NamedTuple
 
 import numpy as np
@@ -151,3 +152,75 @@ def infeasibility_stationarity(setup, fns, pt, v):
     g = np.where(act_hi, np.maximum(g, 0.0), g)
     jmax = max(float(np.abs(a).max(initial=0.0)) for a in (pt.A, pt.B, pt.Cx, pt.Cu, pt.CN))
     return float(np.abs(g).max(initial=0.0)) / max(1.0, res.max() * max(1.0, jmax))
+
+
+def restore_l1(setup, st, fns: Restoration):
+    """IPOPT's restoration phase (sec. 3.3): the l1 restoration problem of
+    :mod:`olado.solvers.ipm.elastic` solved by this interior-point method from the current point,
+    until an iterate (with the slacks of the inequalities max(g, mu)) is acceptable to the
+    original filter with theta at most kappa_resto times its start. Returns None (``st``
+    updated) or a function of the reason the line search gave up that returns (Status, message);
+    the restoration problem's own line-search failures fall back to the Gauss-Newton phase."""
+    from .elastic import ElasticDOCP          # noqa: PLC0415
+    from .solver import Setup, initial_state, iterate   # noqa: PLC0415 - the solver module imports this one
+
+    p, b, o, L = setup.problem, setup.bounds, setup.options, setup.layout
+    th0 = fns.theta(setup, st.pt, st.v)
+    if th0 <= 0.1 * o.constr_viol_tol:
+        return restore(setup, st, fns)
+    X, U = st.pt.X.copy(), st.pt.U.copy()
+    mu = max(st.mu, fns.residuals(setup, st.pt, st.v).max())
+    ep = ElasticDOCP(p, X, U, mu)
+    opts = dataclasses.replace(o, mu_init=mu, obj_scaling="none", max_iter=o.max_restoration_iter)
+    inner = Setup(opts, ep, setup.limits, lambda info: False)
+    inner.l1_restoration = False
+    ist = initial_state(inner, X, ep.start_controls(X, U, mu), st.clock)
+    done, th = False, th0
+    while not done:
+        if np.sqrt(ist.mu) < ep.zeta:       # the proximity weight follows the restoration's mu (IPOPT)
+            ep.zeta = float(np.sqrt(ist.mu))
+            ist.pt.J = ep.objective(ist.pt.X, ist.pt.U)
+            ist.pt.lx, ist.pt.lu = ep.eval_stage_cost_gradients(ist.pt.X, ist.pt.U)
+            ist.pt.lN = ep.eval_final_cost_gradient(ist.pt.X[-1])
+        done = iterate(inner, ist)
+        Xi, Ui = ist.pt.X, ep.split(ist.pt.U)[0]
+        try:
+            pt = fns.evaluate(setup, L.pack(Xi, Ui, np.zeros((L.N, L.ni)), np.zeros(L.niN)), st.clock)
+        except NonFiniteEvaluationError:
+            continue
+        v = L.pack(Xi, Ui, np.maximum(pt.g[:, L.ineq], st.mu), np.maximum(pt.gN[L.ineqN], st.mu))
+        th = fns.theta(setup, pt, v)
+        phi = fns.barrier_value(setup, pt, v, st.mu, st.s_obj)[0]
+        if np.isfinite(phi) and th <= KAPPA_RESTO * th0 and st.filt.acceptable(th, phi):
+            _return_to_filter_method(setup, st, v, pt)
+            return None
+    elastic = ep.elastic_sum(ist.pt.U)
+    pt.add_derivatives(p)
+    stat = infeasibility_stationarity(setup, fns, pt, v) if ist.status.success else np.inf
+    if ist.status.success and elastic > 10 * o.constr_viol_tol and stat <= INFEASIBLE_TOL:
+        _return_to_filter_method(setup, st, v, pt)
+        return lambda why: (Status.INFEASIBLE,
+                            f"{why} after {st.it} iterations; the restoration phase converged to a local minimizer "
+                            f"of the l1 constraint violation ({elastic:.3e} in the elastic variables, theta "
+                            f"{th:.3e}) where the projected gradient of |c|^2/2 is {stat:.1e} (relative): the "
+                            "problem is locally infeasible")
+    return lambda why: (Status.FAILED,
+                        f"{why} after {st.it} iterations and the restoration phase ended without a point "
+                        f"acceptable to the filter ({ist.status.value}: {ist.message}; theta {th0:.3e} -> {th:.3e}; "
+                        f"projected gradient of |c|^2/2 {stat:.1e}, so infeasibility is not shown)")
+
+
+def _return_to_filter_method(setup, st, v, pt):
+    """Back from the restoration: the new iterate, the bound multipliers kept (safeguarded), the
+    constraint multipliers estimated afresh (least squares, 0 when too large)."""
+    b, o = setup.bounds, setup.options
+    pt.add_derivatives(setup.problem)
+    st.v, st.pt = v, pt
+    b.move_tiny(v)
+    sl, su = b.slacks(v)
+    zl = np.where(b.has_lo & (st.zl <= 0), st.mu / sl, st.zl)
+    st.zl, st.zu = b.safeguard(v, zl, st.zu, st.mu)
+    mult = least_squares_multipliers(setup, pt, st.zl, st.zu, st.s_obj)
+    if max(float(np.abs(a).max(initial=0.0)) for a in mult) > o.constr_mult_init_max:
+        mult = tuple(np.zeros_like(a) for a in mult)
+    st.lam, st.nu, st.nuN, st.yd, st.ydN = mult

@@ -40,7 +40,7 @@ from ..sqp.state import BoundMultipliers, Clock, Multipliers, Point
 from .barrier import Bounds, Layout
 from .filter import Filter
 from .newton import Constraints, KKTMatrix, Residuals, stage_blocks
-from .restoration import Restoration, least_squares_multipliers, restore
+from .restoration import Restoration, least_squares_multipliers, restore, restore_l1
 
 #: s_max of eq. (5): the scaling of the optimality error by the multipliers' size
 S_MAX = 100.0
@@ -84,6 +84,9 @@ class IPMOptions(SolverOptions):
                                                   "shortened steps (IPOPT's; 0: never)", min=0)
     watchdog_trial_iter_max: int = option(3, "full steps the watchdog takes at most before it returns to "
                                           "where it started (IPOPT's)", min=1)
+    restoration: str = option("gauss-newton", "the restoration phase: l1 (IPOPT's l1 restoration problem, solved by this "
+                              "method) or gauss-newton (minimum-distance Gauss-Newton steps)",
+                              choices=("l1", "gauss-newton"))
     max_restoration_iter: int = option(50, "iterations of one feasibility restoration phase at most", min=1)
 
 
@@ -131,6 +134,9 @@ class Setup:
     def __init__(self, options, problem, limits, callback):
         self.options, self.problem, self.limits, self.callback = options, problem, limits, callback
         self.layout = Layout(problem)
+        #: the restoration phase: IPOPT's l1 problem (restoration.restore_l1), or the Gauss-Newton
+        #: steps (restoration.restore) inside a restoration problem and with restoration = gauss-newton
+        self.l1_restoration = options.restoration == "l1"
         self.bounds = Bounds.of(problem, self.layout, options.bound_relax_factor, options.constr_viol_tol)
         self.t_start = time.perf_counter()
 
@@ -520,7 +526,8 @@ def iterate(setup, st):
                else "the filter line search reached alpha_min")
         st.filt.add(theta(setup, st.pt, st.v), barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0])
         st.restorations += 1
-        outcome = restore(setup, st, Restoration(evaluate, theta, barrier_value, residuals, lagrangian_gradient))
+        fns = Restoration(evaluate, theta, barrier_value, residuals, lagrangian_gradient)
+        outcome = (restore_l1 if setup.l1_restoration else restore)(setup, st, fns)
         entry.update(restoration=True, alpha=float("nan"), alpha_z=float("nan"), soc=0, objective=float(st.pt.J))
         st.history.append(entry)
         if outcome is not None:

@@ -357,3 +357,56 @@ def test_the_iterates_follow_ipopts_through_watchdog_and_second_order_correction
     np.testing.assert_allclose(got, ref, rtol=1e-7)
     assert [h["watchdog"] for h in a.history[13:17]] == [True, True, True, False]
     assert a.history[17]["soc"] >= 1 and a.history[17]["delta_w"] == pytest.approx(a.history[14]["delta_w"] / 3)
+
+
+def test_the_l1_restoration_problem_is_a_docp_with_consistent_derivatives():
+    """The elastic restoration problem (olado.solvers.ipm.elastic): its Jacobians and cost
+    gradients are the finite differences of its functions, its stage Hessian the difference of
+    the Lagrangian gradients; at the start of eq. (33) the elastic variables reproduce the
+    dynamics residuals (x^{k+1} = f - p + n)."""
+    from olado.solvers.ipm.elastic import ElasticDOCP
+
+    p = Pendulum(N=4)
+    rng = np.random.default_rng(2)
+    X = rng.standard_normal((5, 2)) * 0.3
+    X[0] = p.x0
+    U = rng.uniform(-1, 1, (4, 1))
+    ep = ElasticDOCP(p, X, U, mu=0.1)
+    U2 = ep.start_controls(X, U, 0.1)
+    assert U2.shape == (4, ep.m) and np.all(U2[:, 1:] > 0)
+    np.testing.assert_allclose(ep.eval_dynamics(X, U2), X[1:], atol=1e-12)
+    eps = 1e-6
+    A, B = ep.eval_dynamics_jacobians(X, U2)
+    Cx, Cu = ep.eval_stage_constraint_jacobians(X, U2)
+    lx, lu = ep.eval_stage_cost_gradients(X, U2)
+    for j in range(ep.m):
+        dU = np.zeros_like(U2); dU[:, j] = eps
+        fd = (ep.eval_dynamics(X, U2 + dU) - ep.eval_dynamics(X, U2 - dU)) / (2 * eps)
+        np.testing.assert_allclose(B[:, :, j], fd, atol=1e-7)
+        fd = (ep.eval_stage_constraints(X, U2 + dU) - ep.eval_stage_constraints(X, U2 - dU)) / (2 * eps)
+        np.testing.assert_allclose(Cu[:, :, j], fd, atol=1e-7)
+        fd = (ep.objective(X, U2 + dU) - ep.objective(X, U2 - dU)) / (2 * eps)
+        assert lu[:, j].sum() == pytest.approx(fd, rel=1e-6, abs=1e-6)
+    lN = ep.eval_final_cost_gradient(X[-1])
+    dX = np.zeros_like(X); dX[-1, 0] = eps
+    assert lN[0] == pytest.approx((ep.objective(X + dX, U2) - ep.objective(X - dX, U2)) / (2 * eps), rel=1e-6)
+    # stage Hessian: derivative of the Lagrangian's u-gradient (sigma = 1, multipliers P, L)
+    P, L = rng.standard_normal((4, 2)), rng.standard_normal((4, 1))
+    Hxx, Hxu, Huu = ep.eval_stage_hessians(X, U2, 1.0, P, L)
+
+    def grad_u(UU):
+        _, B_ = ep.eval_dynamics_jacobians(X, UU)
+        _, Cu_ = ep.eval_stage_constraint_jacobians(X, UU)
+        _, lu_ = ep.eval_stage_cost_gradients(X, UU)
+        return lu_ + np.einsum("kij,ki->kj", B_, P) + np.einsum("kij,ki->kj", Cu_, L)
+
+    dU = np.zeros_like(U2); dU[:, 0] = eps
+    np.testing.assert_allclose(Huu[:, :, 0], (grad_u(U2 + dU) - grad_u(U2 - dU)) / (2 * eps), atol=1e-6)
+
+
+def test_l1_restoration_option_keeps_the_statuses_honest():
+    """restoration = l1 on the unreachable bound: no false success, no infeasibility claim without
+    a converged restoration problem -- INFEASIBLE or FAILED with the sentence."""
+    r = olado.solve(Unreachable(), solver="ipm", restoration="l1")
+    assert r.status in (Status.INFEASIBLE, Status.FAILED) and r.info["restorations"] >= 1
+    assert "restoration phase" in r.message
