@@ -222,10 +222,11 @@ def initial_state(setup, X0, U0, clock):
     o, b, L = setup.options, setup.bounds, setup.layout
     X0 = np.array(X0, dtype=float)
     X0[0] = L.x0
-    pt0 = Point(setup.problem, X0, np.asarray(U0, dtype=float), derivatives=False, clock=clock)
+    pt0 = Point(setup.problem, X0, np.asarray(U0, dtype=float), derivatives=o.obj_scaling != "none", clock=clock)
     v = b.push(L.pack(X0, U0, pt0.g[:, L.ineq], pt0.gN[L.ineqN]), o.bound_push, o.bound_frac)
     pt = evaluate(setup, v, clock, derivatives=True)
-    q, r = objective_gradient(pt, 1.0)
+    # the scaling from the user's point, before the push into the bounds (IPOPT scales the NLP first)
+    q, r = objective_gradient(pt0 if o.obj_scaling != "none" else pt, 1.0)
     gmax = max(float(np.abs(q[1:]).max(initial=0.0)), float(np.abs(r).max(initial=0.0)))
     s_obj = min(1.0, 100.0 / gmax) if o.obj_scaling == "gradient-based" and gmax > 0 else 1.0
     zl, zu = b.has_lo.astype(float), b.has_hi.astype(float)
