@@ -223,8 +223,12 @@ def initial_state(setup, X0, U0, clock):
     X0 = np.array(X0, dtype=float)
     X0[0] = L.x0
     pt0 = Point(setup.problem, X0, np.asarray(U0, dtype=float), derivatives=o.obj_scaling != "none", clock=clock)
+    # x, u pushed into their bounds first, then the slacks d(x) at the pushed point pushed into theirs
+    # (IPOPT's DefaultIterateInitializer)
     v = b.push(L.pack(X0, U0, pt0.g[:, L.ineq], pt0.gN[L.ineqN]), o.bound_push, o.bound_frac)
     pt = evaluate(setup, v, clock, derivatives=True)
+    if L.ni or L.niN:
+        v = b.push(L.pack(pt.X, pt.U, pt.g[:, L.ineq], pt.gN[L.ineqN]), o.bound_push, o.bound_frac)
     # the scaling from the user's point, before the push into the bounds (IPOPT scales the NLP first)
     q, r = objective_gradient(pt0 if o.obj_scaling != "none" else pt, 1.0)
     gmax = max(float(np.abs(q[1:]).max(initial=0.0)), float(np.abs(r).max(initial=0.0)))
