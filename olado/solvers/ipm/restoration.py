@@ -164,7 +164,7 @@ def restore_l1(setup, st, fns: Restoration):
     from .elastic import ElasticDOCP          # noqa: PLC0415
     from .solver import Setup, initial_state, iterate   # noqa: PLC0415 - the solver module imports this one
 
-    p, b, o, L = setup.problem, setup.bounds, setup.options, setup.layout
+    p, o, L = setup.problem, setup.options, setup.layout
     th0 = fns.theta(setup, st.pt, st.v)
     if th0 <= 0.1 * o.constr_viol_tol:
         return restore(setup, st, fns)

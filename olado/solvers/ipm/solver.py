@@ -2,22 +2,27 @@
 Biegler 2006, Math. Program. 106, 25-57; docs/interior-point-nlp.md) on the DOCP of paper 001
 (eqs. (1)-(5)) with one block Riccati factorization per Newton system instead of a sparse LDL^T.
 
-The barrier problem (eq. (3)) of the DOCP with simple bounds,
+The barrier problem (eq. (3)) of the DOCP,
 
-    min  phi_mu(y) = s_f J(y) - mu sum ln(y - lb) - mu sum ln(ub - y)   s.t.  h(y) = 0,
+    min  phi_mu(y, s) = s_f J(y) - mu sum ln(y - lb) - mu sum ln(ub - y) - mu sum ln(s)
+    s.t. h(y) = 0,  g_E(y) = 0,  g_I(y) - s = 0,
 
-y = (x^1..x^N, u^0..u^{N-1}) (x^0 fixed), h the dynamics residuals, is solved approximately for
+y = (x^1..x^N, u^0..u^{N-1}) (x^0 fixed), h the dynamics residuals, g_E the stage and final
+equalities, g_I the inequalities with their slacks s (sec. 3.4), is solved approximately for
 a decreasing sequence of mu (the monotone Fiacco-McCormick rule (7)); each iteration takes a
 primal-dual Newton step (eqs. (11)-(13), :mod:`olado.solvers.ipm.newton`: the Riccati recursion
 on the LQ-DOCP the system is), the fraction-to-boundary rule (15), the multiplier safeguard
 (16), and a filter line search with second-order corrections (sec. 2.3-2.4,
 :mod:`olado.solvers.ipm.filter`); the inertia correction of sec. 3.1 shifts the Hessian when a
 factorization finds the reduced Hessian not positive definite, and a feasibility restoration
-phase (:mod:`olado.solvers.ipm.restoration`) takes over when the line search fails.
+phase (:mod:`olado.solvers.ipm.restoration`) takes over when the line search fails; IPOPT's
+watchdog lets full steps through after a run of shortened ones.
 
-Code layout: ``barrier.py`` (bounds, barrier function, Sigma, step rules), ``newton.py`` (the
-KKT matrix on the Riccati back-end, Algorithm IC), ``filter.py`` (the filter), ``restoration.py``,
-this module (options, the per-solve state, the loop, the Result).
+Code layout: ``barrier.py`` (the flat iterate, bounds, barrier function, Sigma, step rules),
+``newton.py`` (the KKT matrix on the Riccati back-end with the slacks eliminated, Algorithm IC),
+``filter.py`` (the filter and IPOPT's acceptance safeguards), ``restoration.py`` (least-squares
+multipliers, the restoration phases), ``elastic.py`` (the l1 restoration problem as a DOCP), this
+module (options, the per-solve state, the loop, the watchdog, the Result).
 """
 
 from __future__ import annotations
