@@ -23,6 +23,9 @@ SOLVERS = LazyRegistry("solver", {
                  "differential dynamic programming (unconstrained DOCPs), shifted Q_uu, O(N) per iteration"),
     "gradient": Entry(f"{_CONTROL}.reduced_gradient:GradientSolver",
                       "steepest descent in the control space (adjoint gradient), strong Wolfe line search"),
+    "ipm": Entry("olado.solvers.ipm.solver:IPMSolver",
+                 "IPOPT's primal-dual interior-point filter method on the DOCP, one block Riccati "
+                 "factorization per Newton system (bounds, stage and final constraints through slacks)"),
     "ipopt": Entry("olado.solvers.nlp.ipopt:IpoptSolver",
                    "IPOPT interior-point method (cyipopt) on the sparse NLP view, sec. 4.3.2",
                    requires=("cyipopt",), install='pip install "cyipopt-wheels>=1.7.0.dev0"'),

@@ -33,7 +33,7 @@ CASES = {
     "sqp": lambda: Pendulum(N=20), "ipopt": lambda: Pendulum(N=20), "slsqp": lambda: Pendulum(N=20),
     "trust-constr": lambda: Pendulum(N=20), "penalty": lambda: Pendulum(N=20),
     "gradient": VanDerPol, "cg": VanDerPol, "variable-metric": VanDerPol, "newton": VanDerPol,
-    "ddp": VanDerPol, "stagewise-newton": VanDerPol, "pdmin": BoundedPendulum,
+    "ddp": VanDerPol, "stagewise-newton": VanDerPol, "pdmin": BoundedPendulum, "ipm": BoundedPendulum,
 }
 SOLVERS = sorted(CASES)
 K = 2       # the iteration at which the interrupt comes

@@ -1,0 +1,169 @@
+"""The bounds of the DOCP as IPOPT's barrier sees them (Waechter and Biegler 2006, sec. 2.1,
+3.4-3.6): the free variables y = (x^1..x^N, u^0..u^{N-1}) and the slacks of the inequalities as
+one flat vector (:class:`Layout`), the finite sides
+of their bounds (relaxed by IPOPT's bound_relax_factor), the slacks s_L = y - lb, s_U = ub - y,
+the barrier function phi_mu (eq. (3), with the damping term of sec. 3.7 for one-sided bounds),
+its gradient, Sigma (eq. (12)), the bound-multiplier step (eq. (13)), the fraction-to-boundary
+rule (eq. (15)) and the multiplier safeguard (eq. (16))."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+#: kappa_d of sec. 3.7: the linear damping of variables with one finite bound only
+KAPPA_D = 1e-5
+
+
+class Layout:
+    """The flat vector of the iterate: v = (x^1..x^N, u^0..u^{N-1}, s (N, ni), s_N (niN,)) with the
+    slacks s = g^k of the stage inequalities g^k >= 0 and s_N of the final ones (IPOPT's
+    d(x) - s = 0, sec. 3.4 of Waechter and Biegler); equality rows have no slack."""
+
+    def __init__(self, problem):
+        p = problem
+        self.N, self.n, self.m, self.x0 = p.N, p.n, p.m, np.asarray(p.x0, dtype=float)
+        self.eq, self.eqN = np.asarray(p.stage_equality_mask, bool), np.asarray(p.final_equality_mask, bool)
+        self.ineq, self.ineqN = ~self.eq, ~self.eqN
+        self.ni, self.niN = int(self.ineq.sum()), int(self.ineqN.sum())
+        self.ne, self.neN = int(self.eq.sum()), int(self.eqN.sum())
+        self.ny = self.N * (self.n + self.m)
+        self.size = self.ny + self.N * self.ni + self.niN
+
+    def pack(self, X, U, s=None, sN=None):
+        parts = [X[1:].ravel(), U.ravel()]
+        parts.append(np.zeros(self.N * self.ni) if s is None else np.asarray(s, float).ravel())
+        parts.append(np.zeros(self.niN) if sN is None else np.asarray(sN, float).ravel())
+        return np.concatenate(parts)
+
+    def split(self, v, x0=None):
+        """(X (N+1, n) with row 0 = x0 (default: the problem's), U (N, m), s (N, ni), s_N (niN,))."""
+        N, n, m = self.N, self.n, self.m
+        X = np.empty((N + 1, n))
+        X[0] = self.x0 if x0 is None else x0
+        X[1:] = v[:N * n].reshape(N, n)
+        U = v[N * n:self.ny].reshape(N, m).copy()
+        s = v[self.ny:self.ny + N * self.ni].reshape(N, self.ni).copy()
+        return X, U, s, v[self.ny + N * self.ni:].copy()
+
+
+@dataclasses.dataclass
+class Bounds:
+    """The finite bound sides of the free variables (relaxed), as flat vectors with masks."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+    has_lo: np.ndarray
+    has_hi: np.ndarray
+
+    @classmethod
+    def of(cls, problem, layout, relax=1e-8, relax_max=np.inf):
+        """The bounds of ``problem`` relaxed by min(relax max(1, |bound|), relax_max) (IPOPT's
+        bound_relax_factor, capped by constr_viol_tol as IPOPT does); the slacks >= 0."""
+        L = layout
+        s0 = (np.zeros((L.N, L.ni)), np.zeros(L.niN))
+        lo = L.pack(problem.x_lower, problem.u_lower, *s0).astype(float)
+        hi = L.pack(problem.x_upper, problem.u_upper, np.full((L.N, L.ni), np.inf), np.full(L.niN, np.inf))
+        has_lo, has_hi = np.isfinite(lo), np.isfinite(hi)
+        lo = np.where(has_lo, lo - np.minimum(relax * np.maximum(1.0, np.abs(np.where(has_lo, lo, 0.0))), relax_max),
+                      -np.inf)
+        hi = np.where(has_hi, hi + np.minimum(relax * np.maximum(1.0, np.abs(np.where(has_hi, hi, 0.0))), relax_max),
+                      np.inf)
+        return cls(lo, hi, has_lo, has_hi)
+
+    def __post_init__(self):
+        # the masks as floats, for the passes without fancy indexing (slacks are 1 on infinite sides)
+        self.lo_f, self.hi_f = self.has_lo.astype(float), self.has_hi.astype(float)
+        self.one_lo_f = (self.has_lo & ~self.has_hi).astype(float)
+        self.one_hi_f = (self.has_hi & ~self.has_lo).astype(float)
+
+    @property
+    def count(self):
+        return int(self.has_lo.sum() + self.has_hi.sum())
+
+    def push(self, v, kappa1=1e-2, kappa2=1e-2):
+        """The starting point moved strictly inside the bounds (sec. 3.6, IPOPT's bound_push and
+        bound_frac)."""
+        lo, hi = self.lo, self.hi
+        width = np.where(self.has_lo & self.has_hi, hi - lo, np.inf)
+        with np.errstate(invalid="ignore"):
+            pl = np.minimum(kappa1 * np.maximum(1.0, np.abs(np.where(self.has_lo, lo, 0.0))), kappa2 * width)
+            pu = np.minimum(kappa1 * np.maximum(1.0, np.abs(np.where(self.has_hi, hi, 0.0))), kappa2 * width)
+        v = np.where(self.has_lo, np.maximum(v, lo + pl), v)
+        return np.where(self.has_hi, np.minimum(v, hi - pu), v)
+
+    def move_tiny(self, v):
+        """IPOPT's slack_move: a side whose slack fell below rounding relative to the variable
+        (eps max(1, |v|); then s = v - lb is no longer resolved) has its bound moved by
+        eps^(3/4) max(1, |bound|), so that Sigma and the barrier stay finite. Returns the count."""
+        eps = np.finfo(float).eps
+        tiny = eps * np.maximum(1.0, np.abs(v))
+        moved = 0
+        with np.errstate(invalid="ignore"):
+            lo_tiny = self.has_lo & (v - self.lo < tiny)
+            hi_tiny = self.has_hi & (self.hi - v < tiny)
+        if lo_tiny.any():
+            self.lo[lo_tiny] -= eps ** 0.75 * np.maximum(1.0, np.abs(self.lo[lo_tiny]))
+            moved += int(lo_tiny.sum())
+        if hi_tiny.any():
+            self.hi[hi_tiny] += eps ** 0.75 * np.maximum(1.0, np.abs(self.hi[hi_tiny]))
+            moved += int(hi_tiny.sum())
+        return moved
+
+    def slacks(self, v):
+        """(s_L, s_U), 1 where a side is infinite (they carry no multiplier)."""
+        return np.where(self.has_lo, v - self.lo, 1.0), np.where(self.has_hi, self.hi - v, 1.0)
+
+    def barrier(self, v, mu):
+        """The barrier terms of phi_mu at v (+inf outside the bounds) and their gradient."""
+        sl, su = self.slacks(v)
+        if sl.size and (sl.min() <= 0 or su.min() <= 0):
+            return np.inf, None
+        # log(1) = 0 and 1/1 times a zero mask on the infinite sides
+        value = (-mu * (np.log(sl).sum() + np.log(su).sum())
+                 + KAPPA_D * mu * (self.one_lo_f @ sl + self.one_hi_f @ su))
+        grad = mu * (self.hi_f / su - self.lo_f / sl) + KAPPA_D * mu * (self.one_lo_f - self.one_hi_f)
+        return value, grad
+
+    def sigma(self, v, zl, zu):
+        """Sigma = Z_L / S_L + Z_U / S_U (eq. (12))."""
+        sl, su = self.slacks(v)
+        return zl / sl + zu / su
+
+    def dual_step(self, v, dv, zl, zu, mu):
+        """The bound-multiplier step of eq. (13): dz_L = mu / s_L - z_L - Sigma_L dv, and the
+        same for the upper side (0 on infinite sides)."""
+        sl, su = self.slacks(v)
+        dzl = np.where(self.has_lo, mu / sl - zl - zl / sl * dv, 0.0)
+        dzu = np.where(self.has_hi, mu / su - zu + zu / su * dv, 0.0)
+        return dzl, dzu
+
+    def max_step(self, v, dv, tau):
+        """The fraction-to-boundary rule (15) for the primal variables: the largest alpha in
+        (0, 1] with s + alpha ds >= (1 - tau) s on every finite side."""
+        sl, su = self.slacks(v)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            a_lo = np.where(self.has_lo & (dv < 0), -tau * sl / dv, 1.0)
+            a_hi = np.where(self.has_hi & (dv > 0), tau * su / dv, 1.0)
+        return min(1.0, float(a_lo.min(initial=1.0)), float(a_hi.min(initial=1.0)))
+
+    @staticmethod
+    def max_dual_step(z, dz, tau):
+        """The fraction-to-boundary rule (15) for multipliers z >= 0."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(dz < 0, -tau * z / dz, 1.0)
+        return min(1.0, float(ratio.min(initial=1.0)))
+
+    def safeguard(self, v, zl, zu, mu, kappa_sigma=1e10):
+        """The multiplier reset (16): z within [mu / (kappa_sigma s), kappa_sigma mu / s]."""
+        sl, su = self.slacks(v)
+        zl = np.where(self.has_lo, np.clip(zl, mu / (kappa_sigma * sl), kappa_sigma * mu / sl), 0.0)
+        zu = np.where(self.has_hi, np.clip(zu, mu / (kappa_sigma * su), kappa_sigma * mu / su), 0.0)
+        return zl, zu
+
+    def complementarity(self, v, zl, zu, mu):
+        """max |s z - mu| over the finite sides (the complementarity part of eq. (5))."""
+        sl, su = self.slacks(v)
+        parts = [np.abs(sl * zl - mu)[self.has_lo], np.abs(su * zu - mu)[self.has_hi]]
+        return max((float(p.max()) for p in parts if p.size), default=0.0)

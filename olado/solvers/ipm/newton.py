@@ -1,0 +1,215 @@
+"""The primal-dual Newton step of the barrier problem on the Riccati back-end, with IPOPT's
+inertia correction (Waechter and Biegler 2006, sec. 2.2 and 3.1).
+
+The primal-dual system (11) of the barrier problem, with the bound multipliers eliminated
+(eq. (13)), reads for the DOCP of paper 001 (variables y = (x^1..x^N, u^0..u^{N-1}), x^0 fixed,
+constraints the dynamics h^k = f^k(x^k, u^k) - x^{k+1} = 0):
+
+    [W + Sigma + delta_w I   J^T] [dy      ]     [grad phi_mu]
+    [J                       0  ] [lam + dl] = - [h          ]
+
+with W the Hessian of the Lagrangian, Sigma = Z_L / S_L + Z_U / S_U (eq. (12)) and grad phi_mu
+the gradient of the barrier function. This is the KKT system of an LQ-DOCP -- the stage blocks
+of W as Q, S, R, Sigma (+ delta_w) as the diagonal terms Dx, Du, grad phi_mu as q, r, h as the
+dynamics offsets c -- so one block Riccati factorization (olado.linalg, ``make_kkt_solver``)
+replaces IPOPT's sparse LDL^T. The factorization succeeds exactly when the reduced Hessian on
+the null space of the linearized dynamics is positive definite, i.e. when the KKT matrix has
+IPOPT's desired inertia (n, N n, 0): its ``NotPositiveDefiniteError`` is the inertia test.
+The solution's multipliers are lam + d_lam directly (the LQ-DOCP's multiplier convention is the
+one of olado.solvers.common).
+
+Inertia correction: Algorithm IC of sec. 3.1 (delta_w only; the dynamics Jacobian always has
+full row rank -- the -I of x^{k+1} -- so delta_c is never needed for it).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import numpy as np
+
+from ...linalg.backend import NotPositiveDefiniteError, make_kkt_solver
+
+
+@dataclasses.dataclass(frozen=True)
+class InertiaConstants:
+    """Algorithm IC's constants (IPOPT's defaults: first_hessian_perturbation, min/max_hessian_perturbation,
+    perturb_inc_fact_first, perturb_inc_fact, perturb_dec_fact)."""
+
+    delta_0: float = 1e-4
+    delta_min: float = 1e-20
+    delta_max: float = 1e20
+    kappa_plus_first: float = 100.0
+    kappa_plus: float = 8.0
+    kappa_minus: float = 1.0 / 3.0
+
+
+@dataclasses.dataclass
+class Constraints:
+    """The linearized stage and final constraints of an iteration: equality rows (E, F) of the
+    stage equalities and EN of the final ones (the Riccati recursion's equality rows), the
+    inequality rows (Ci = [C_x C_u] (N, ni, n+m), CNi (niN, n)) with the slack Sigma Ss (N, ni),
+    SsN (niN,) (v_L / s, eq. (12) for the slacks)."""
+
+    E: np.ndarray
+    F: np.ndarray
+    EN: np.ndarray
+    Ci: np.ndarray
+    CNi: np.ndarray
+    Ss: np.ndarray
+    SsN: np.ndarray
+
+    @classmethod
+    def none(cls, N, n, m):
+        return cls(np.zeros((N, 0, n)), np.zeros((N, 0, m)), np.zeros((0, n)), np.zeros((N, 0, n + m)),
+                   np.zeros((0, n)), np.zeros((N, 0)), np.zeros(0))
+
+
+class Residuals(NamedTuple):
+    """The constraint residuals of the Newton system's right-hand side: dynamics h (N, n),
+    stage equalities e (N, ne), final equalities eN (neN,), and the inequality rows d - s
+    (N, ni) and d_N - s_N (niN,)."""
+
+    h: np.ndarray
+    e: np.ndarray
+    eN: np.ndarray
+    d: np.ndarray
+    dN: np.ndarray
+
+    def combine(self, alpha, other):
+        """alpha * self + other (the accumulated offsets of the second-order correction (27))."""
+        return Residuals(*(alpha * a + b for a, b in zip(self, other)))
+
+    def l1(self):
+        return float(sum(np.abs(a).sum() for a in self))
+
+    def max(self):
+        return max((float(np.abs(a).max()) for a in self if a.size), default=0.0)
+
+
+class Step(NamedTuple):
+    """A solution of the Newton system: the primal steps dX (N+1, n) (dX[0] = 0), dU, ds (N, ni),
+    dsN (niN,) and the new multipliers lam (N+1, n) (dynamics), nu (N, ne), nuN (neN,) of the
+    equalities and yd (N, ni), ydN (niN,) of the inequality rows d - s = 0."""
+
+    dX: np.ndarray
+    dU: np.ndarray
+    ds: np.ndarray
+    dsN: np.ndarray
+    lam: np.ndarray
+    nu: np.ndarray
+    nuN: np.ndarray
+    yd: np.ndarray
+    ydN: np.ndarray
+
+
+@dataclasses.dataclass
+class KKTMatrix:
+    """One iteration's LQ-DOCP matrix: Hessian blocks Q (N+1, n, n), S (N, n, m), R (N, m, m),
+    dynamics A, B, the barrier diagonal Sigma as Sx (N+1, n) (row 0 unused: x^0 is fixed),
+    Su (N, m), and the constraints (:class:`Constraints`; their slacks eliminated, below).
+    ``factor`` factors it with the inertia correction; ``solve`` solves for a right-hand side.
+
+    Slacks (Waechter and Biegler sec. 3.4; the rows d(y) - s = 0 of the inequalities g >= 0):
+    with Ss' = Ss + delta_w the slack rows eliminate to yd^+ = Ss' ds + grad_s phi and
+    ds = J_d dy + (d - s), which leaves J_d^T Ss' J_d in the Hessian and the gradient term
+    J_d^T (Ss' (d - s) + grad_s phi): the Riccati recursion's stage inequality term
+    1/2 sigma |C z + ci|^2 with sigma = Ss', ci = (d - s) + grad_s phi / Ss'; the final rows are
+    added to Q_N and q_N. The equality rows are the recursion's equality rows E z + e = 0."""
+
+    Q: np.ndarray
+    S: np.ndarray
+    R: np.ndarray
+    A: np.ndarray
+    B: np.ndarray
+    Sx: np.ndarray
+    Su: np.ndarray
+    cons: Constraints = None
+    backend: str = "riccati"
+    kkt: object = None
+    delta: float = 0.0
+    factorizations: int = 0
+
+    def __post_init__(self):
+        N, n, m = self.B.shape
+        if self.cons is None:
+            self.cons = Constraints.none(N, n, m)
+        self.QN = self.Q[N].copy()
+
+    def _diagonals(self, delta):
+        Dx = self.Sx + delta
+        Dx[0] = 0.0
+        c = self.cons
+        N = self.B.shape[0]
+        self.Q[N] = self.QN + c.CNi.T @ ((c.SsN + delta)[:, None] * c.CNi)
+        return Dx, self.Su + delta, c.Ss + delta
+
+    def try_factor(self, delta) -> bool:
+        """Factor with delta_w = delta; False when the inertia is wrong (reduced Hessian not
+        positive definite)."""
+        Dx, Du, sig = self._diagonals(delta)
+        c = self.cons
+        self.factorizations += 1
+        try:
+            if self.kkt is None:
+                kw = {}
+                if c.E.shape[1] or c.EN.shape[0]:
+                    kw.update(E=c.E, F=c.F, EN=c.EN)
+                if c.Ci.shape[1]:
+                    kw.update(Ci=c.Ci, sigma=sig)
+                self.kkt = make_kkt_solver(self.backend, self.Q, self.S, self.R, self.A, self.B, Dx=Dx, Du=Du, **kw)
+            else:
+                self.kkt.refactor(Dx=Dx, Du=Du, sigma=sig if c.Ci.shape[1] else None)
+        except NotPositiveDefiniteError:
+            return False
+        self.delta = delta
+        return True
+
+    def factor(self, delta_last, const=InertiaConstants()):
+        """Algorithm IC (Waechter and Biegler 2006, sec. 3.1): delta_w = 0 first; then from
+        delta_0 (the first time) or kappa_minus delta_last, raised by kappa_plus_first (first
+        time) or kappa_plus until the inertia is right. Returns delta_w, or None when it would
+        exceed delta_max (the caller starts the restoration phase)."""
+        if self.try_factor(0.0):
+            return 0.0
+        delta = const.delta_0 if delta_last == 0.0 else max(const.delta_min, const.kappa_minus * delta_last)
+        while delta <= const.delta_max:
+            if self.try_factor(delta):
+                return delta
+            delta *= const.kappa_plus_first if delta_last == 0.0 else const.kappa_plus
+        return None
+
+    def solve(self, q, r, res: Residuals, gs=None, gsN=None) -> Step:
+        """Solve for the gradient rows q (N+1, n), r (N, m) of the barrier function in y, its
+        gradient gs (N, ni), gsN (niN,) in the slacks, and the constraint residuals ``res``,
+        with dx^0 = 0."""
+        c, d = self.cons, self.delta
+        N, n, m = self.B.shape
+        gs = np.zeros(c.Ss.shape) if gs is None else gs
+        gsN = np.zeros(c.SsN.shape) if gsN is None else gsN
+        ss, ssN = c.Ss + d, c.SsN + d
+        q = q.copy()
+        if c.CNi.shape[0]:
+            q[N] += c.CNi.T @ (ssN * res.dN + gsN)
+        kw = {}
+        if c.E.shape[1] or c.EN.shape[0]:
+            kw.update(e=res.e, eN=res.eN)
+        if c.Ci.shape[1]:
+            kw.update(ci=res.d + gs / ss)
+        sol = self.kkt.solve(q, r, res.h, np.zeros(n), **kw)
+        dz = np.concatenate([sol.X[:N], sol.U], axis=1)
+        ds = np.einsum("kij,kj->ki", c.Ci, dz) + res.d
+        dsN = c.CNi @ sol.X[N] + res.dN
+        ne, neN = c.E.shape[1], c.EN.shape[0]
+        return Step(sol.X, sol.U, ds, dsN, sol.lam, sol.nu[:N, :ne].copy(), sol.nu[N, :neN].copy(),
+                    ss * ds + gs, ssN * dsN + gsN)
+
+
+def stage_blocks(Hxx, Hxu, Huu, HN):
+    """Q (N+1, n, n) with the final block, S, R from the stage Hessian blocks."""
+    N, n = Hxx.shape[0], Hxx.shape[1]
+    Q = np.empty((N + 1, n, n))
+    Q[:N] = Hxx
+    Q[N] = HN
+    return Q, np.ascontiguousarray(Hxu), np.ascontiguousarray(Huu)

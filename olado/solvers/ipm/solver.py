@@ -1,0 +1,608 @@
+"""A structure-exploiting primal-dual interior-point NLP solver: IPOPT's algorithm (Waechter and
+Biegler 2006, Math. Program. 106, 25-57; docs/interior-point-nlp.md) on the DOCP of paper 001
+(eqs. (1)-(5)) with one block Riccati factorization per Newton system instead of a sparse LDL^T.
+
+The barrier problem (eq. (3)) of the DOCP,
+
+    min  phi_mu(y, s) = s_f J(y) - mu sum ln(y - lb) - mu sum ln(ub - y) - mu sum ln(s)
+    s.t. h(y) = 0,  g_E(y) = 0,  g_I(y) - s = 0,
+
+y = (x^1..x^N, u^0..u^{N-1}) (x^0 fixed), h the dynamics residuals, g_E the stage and final
+equalities, g_I the inequalities with their slacks s (sec. 3.4), is solved approximately for
+a decreasing sequence of mu (the monotone Fiacco-McCormick rule (7)); each iteration takes a
+primal-dual Newton step (eqs. (11)-(13), :mod:`olado.solvers.ipm.newton`: the Riccati recursion
+on the LQ-DOCP the system is), the fraction-to-boundary rule (15), the multiplier safeguard
+(16), and a filter line search with second-order corrections (sec. 2.3-2.4,
+:mod:`olado.solvers.ipm.filter`); the inertia correction of sec. 3.1 shifts the Hessian when a
+factorization finds the reduced Hessian not positive definite, and a feasibility restoration
+phase (:mod:`olado.solvers.ipm.restoration`) takes over when the line search fails; IPOPT's
+watchdog lets full steps through after a run of shortened ones.
+
+Code layout: ``barrier.py`` (the flat iterate, bounds, barrier function, Sigma, step rules),
+``newton.py`` (the KKT matrix on the Riccati back-end with the slacks eliminated, Algorithm IC),
+``filter.py`` (the filter and IPOPT's acceptance safeguards), ``restoration.py`` (least-squares
+multipliers, the restoration phases), ``elastic.py`` (the l1 restoration problem as a DOCP), this
+module (options, the per-solve state, the loop, the watchdog, the Result).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from ...errors import NonFiniteEvaluationError
+from ...interrupts import Limits
+from ...options import option
+from ...result import Result, Status
+from ..base import Solver, SolverOptions
+from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION, stop_outcome
+from ..sqp.residuals import stage_kkt
+from ..sqp.state import BoundMultipliers, Clock, Multipliers, Point
+from .barrier import Bounds, Layout
+from .filter import Filter
+from .newton import Constraints, KKTMatrix, Residuals, stage_blocks
+from .restoration import Restoration, least_squares_multipliers, restore, restore_l1
+
+#: s_max of eq. (5): the scaling of the optimality error by the multipliers' size
+S_MAX = 100.0
+
+
+@dataclasses.dataclass
+class IPMOptions(SolverOptions):
+    """Options of the interior-point NLP solver (IPOPT's names where IPOPT has the option)."""
+
+    mu_init: float = option(0.1, "initial barrier parameter (IPOPT mu_init)", min=0.0, min_exclusive=True)
+    mu_strategy: str = option("monotone", "barrier parameter update: monotone Fiacco-McCormick (eq. (7)); "
+                              "the adaptive rule is not implemented yet", choices=("monotone",))
+    barrier_tol_factor: float = option(10.0, "kappa_epsilon: mu is decreased once the barrier problem's "
+                                       "optimality error is below kappa_epsilon * mu", min=0.0, min_exclusive=True)
+    mu_linear_decrease_factor: float = option(0.2, "kappa_mu of eq. (7)", min=0.0, max=1.0, min_exclusive=True)
+    mu_superlinear_decrease_power: float = option(1.5, "theta_mu of eq. (7)", min=1.0, max=2.0)
+    tau_min: float = option(0.99, "smallest fraction-to-boundary factor tau (tau = max(tau_min, 1 - mu))",
+                            min=0.0, max=1.0, min_exclusive=True)
+    bound_push: float = option(1e-2, "kappa_1 of sec. 3.6: least absolute distance of the start from a bound",
+                               min=0.0, min_exclusive=True)
+    bound_frac: float = option(1e-2, "kappa_2 of sec. 3.6: least relative distance of the start from a bound",
+                               min=0.0, max=0.5, min_exclusive=True)
+    bound_relax_factor: float = option(1e-8, "bounds relaxed by this factor times max(1, |bound|), at most "
+                                       "by constr_viol_tol (IPOPT)", min=0.0)
+    constr_mult_init_max: float = option(1e3, "least-squares dynamics multipliers larger than this start at 0",
+                                         min=0.0)
+    acceptable_tol: float = option(1e-6, "scaled optimality error of an acceptable iterate", min=0.0,
+                                   min_exclusive=True)
+    acceptable_iter: int = option(15, "stop as ACCEPTABLE after this many acceptable iterates in a row "
+                                  "(0: never)", min=0)
+    dual_inf_tol: float = option(1.0, "unscaled dual infeasibility a success must also meet (IPOPT)",
+                                 min=0.0, min_exclusive=True)
+    compl_inf_tol: float = option(1e-4, "unscaled complementarity a success must also meet (IPOPT)",
+                                  min=0.0, min_exclusive=True)
+    max_soc: int = option(4, "second-order corrections per line search at most (p_max of sec. 2.4)", min=0)
+    kappa_soc: float = option(0.99, "a further second-order correction only while it reduces theta by this "
+                              "factor", min=0.0, max=1.0, min_exclusive=True)
+    obj_scaling: str = option("gradient-based", "objective scaling: gradient-based (IPOPT: s_f = min(1, "
+                              "100 / |grad J(y_0)|_inf)) or none", choices=("gradient-based", "none"))
+    watchdog_shortened_iter_trigger: int = option(10, "start the watchdog after this many successive "
+                                                  "shortened steps (IPOPT's; 0: never)", min=0)
+    watchdog_trial_iter_max: int = option(3, "full steps the watchdog takes at most before it returns to "
+                                          "where it started (IPOPT's)", min=1)
+    restoration: str = option("gauss-newton", "the restoration phase: l1 (IPOPT's l1 restoration problem, solved by this "
+                              "method) or gauss-newton (minimum-distance Gauss-Newton steps)",
+                              choices=("l1", "gauss-newton"))
+    max_restoration_iter: int = option(50, "iterations of one feasibility restoration phase at most", min=1)
+
+
+@dataclasses.dataclass
+class IPMState:
+    """One solve's iterate and bookkeeping: the flat free variables v with the evaluated point,
+    the dynamics multipliers lam (N+1, n) (row k+1: the dynamics of stage k; of the scaled
+    problem), the bound multipliers, mu, tau, the filter, the last Hessian shift."""
+
+    v: np.ndarray
+    pt: Point
+    lam: np.ndarray
+    zl: np.ndarray
+    zu: np.ndarray
+    mu: float
+    tau: float
+    filt: Filter
+    s_obj: float
+    clock: Clock
+    nu: np.ndarray = None       # stage equality multipliers (N, ne)
+    nuN: np.ndarray = None      # final equality multipliers (neN,)
+    yd: np.ndarray = None       # multipliers of the stage inequality rows g - s = 0 (N, ni); <= 0 at a solution
+    ydN: np.ndarray = None      # ... of the final ones (niN,)
+    delta: float = 0.0          # delta_w of the last factorization
+    delta_last: float = 0.0     # the last nonzero delta_w (Algorithm IC's delta_w^last)
+    it: int = 0
+    acceptable: int = 0
+    factorizations: int = 0
+    restorations: int = 0
+    status: Status = Status.MAX_ITERATIONS
+    message: str = ""
+    history: list = dataclasses.field(default_factory=list)
+    errors: tuple = (math.inf, math.inf, math.inf)
+    shortened: int = 0          # successive iterations whose line search shortened the step
+    watch: object = None        # the watchdog (Watchdog) while it runs
+
+    def stop(self, status, message):
+        self.status, self.message = status, message
+        return True
+
+
+class Setup:
+    """What stays fixed during a solve."""
+
+    def __init__(self, options, problem, limits, callback):
+        self.options, self.problem, self.limits, self.callback = options, problem, limits, callback
+        self.layout = Layout(problem)
+        #: the restoration phase: IPOPT's l1 problem (restoration.restore_l1), or the Gauss-Newton
+        #: steps (restoration.restore) inside a restoration problem and with restoration = gauss-newton
+        self.l1_restoration = options.restoration == "l1"
+        self.bounds = Bounds.of(problem, self.layout, options.bound_relax_factor, options.constr_viol_tol)
+        self.t_start = time.perf_counter()
+
+
+# ---------------------------------------------------------------------------- evaluations
+def evaluate(setup, v, clock, derivatives=False):
+    """The Point (values; derivatives on request) at the flat vector v."""
+    X, U, _, _ = setup.layout.split(v)
+    return Point(setup.problem, X, U, derivatives=derivatives, clock=clock)
+
+
+def residuals(setup, pt, v) -> Residuals:
+    """The constraint residuals at the point: dynamics, equalities, inequality rows d - s."""
+    L = setup.layout
+    _, _, s, sN = L.split(v)
+    return Residuals(pt.h, pt.g[:, L.eq], pt.gN[L.eqN], pt.g[:, L.ineq] - s, pt.gN[L.ineqN] - sN)
+
+
+def theta(setup, pt, v):
+    """The constraint violation theta (the 1-norm of every constraint residual)."""
+    return residuals(setup, pt, v).l1()
+
+
+def barrier_value(setup, pt, v, mu, s_obj):
+    """phi_mu at the point and the gradient of its barrier terms."""
+    value, grad = setup.bounds.barrier(v, mu)
+    return s_obj * pt.J + value, grad
+
+
+def objective_gradient(pt, s_obj):
+    """s_f grad J over the free variables as (q (N+1, n) with row 0 the x^0 part, r (N, m))."""
+    q = np.empty_like(pt.X)
+    q[:-1] = pt.lx
+    q[-1] = pt.lN
+    return s_obj * q, s_obj * pt.lu
+
+
+def full_multipliers(L, st):
+    """(Lg (N, r), LgN (rN,)): the equality and inequality multipliers in the problem's order."""
+    Lg = np.zeros((L.N, L.eq.size))
+    Lg[:, L.eq], Lg[:, L.ineq] = st.nu, st.yd
+    LgN = np.zeros(L.eqN.size)
+    LgN[L.eqN], LgN[L.ineqN] = st.nuN, st.ydN
+    return Lg, LgN
+
+
+def lagrangian_gradient(setup, st):
+    """The gradient of the Lagrangian s_f J + lam.h + Lg.g + LgN.gN - y_d.s over v (without the
+    bound multipliers), flat."""
+    pt, lam, L = st.pt, st.lam, setup.layout
+    q, r = objective_gradient(pt, st.s_obj) if st.s_obj else (np.zeros_like(pt.X), np.zeros_like(pt.U))
+    Lg, LgN = full_multipliers(L, st)
+    gx = q.copy()
+    gx[:-1] += np.einsum("kij,ki->kj", pt.A, lam[1:]) + np.einsum("kij,ki->kj", pt.Cx, Lg)
+    gx[1:] -= lam[1:]
+    gx[-1] += pt.CN.T @ LgN
+    gu = r + np.einsum("kij,ki->kj", pt.B, lam[1:]) + np.einsum("kij,ki->kj", pt.Cu, Lg)
+    return L.pack(gx, gu, -st.yd, -st.ydN)
+
+
+def optimality_errors(setup, st, mu):
+    """(E_mu scaled (eq. (5)), dual infeasibility unscaled, constraint violation max-norm,
+    complementarity unscaled) at the current iterate."""
+    b = setup.bounds
+    dual = lagrangian_gradient(setup, st) - st.zl + st.zu
+    inf_du = float(np.abs(dual).max(initial=0.0))
+    inf_pr = residuals(setup, st.pt, st.v).max()
+    compl = b.complementarity(st.v, st.zl, st.zu, mu)
+    nz = max(b.count, 1)
+    zsum = float(np.abs(st.zl).sum() + np.abs(st.zu).sum())
+    ysum = sum(float(np.abs(a).sum()) for a in (st.lam[1:], st.nu, st.nuN, st.yd, st.ydN))
+    ny = st.lam[1:].size + st.nu.size + st.nuN.size + st.yd.size + st.ydN.size
+    s_d = max(S_MAX, (ysum + zsum) / (ny + nz)) / S_MAX
+    s_c = max(S_MAX, zsum / nz) / S_MAX
+    return max(inf_du / s_d, inf_pr, compl / s_c), inf_du / st.s_obj, inf_pr, compl / st.s_obj
+
+
+# ---------------------------------------------------------------------------- start
+def initial_state(setup, X0, U0, clock):
+    """The starting point of sec. 3.6: the guess pushed inside the bounds, the slacks the
+    inequality values pushed inside theirs, z = 1, the least-squares multipliers (0 when larger
+    than constr_mult_init_max), the objective scaling s_f, mu = mu_init, the filter F_0."""
+    o, b, L = setup.options, setup.bounds, setup.layout
+    X0 = np.array(X0, dtype=float)
+    X0[0] = L.x0
+    pt0 = Point(setup.problem, X0, np.asarray(U0, dtype=float), derivatives=o.obj_scaling != "none", clock=clock)
+    # x, u pushed into their bounds first, then the slacks d(x) at the pushed point pushed into theirs
+    # (IPOPT's DefaultIterateInitializer)
+    v = b.push(L.pack(X0, U0, pt0.g[:, L.ineq], pt0.gN[L.ineqN]), o.bound_push, o.bound_frac)
+    pt = evaluate(setup, v, clock, derivatives=True)
+    if L.ni or L.niN:
+        v = b.push(L.pack(pt.X, pt.U, pt.g[:, L.ineq], pt.gN[L.ineqN]), o.bound_push, o.bound_frac)
+    # the scaling from the user's point, before the push into the bounds (IPOPT scales the NLP first)
+    q, r = objective_gradient(pt0 if o.obj_scaling != "none" else pt, 1.0)
+    gmax = max(float(np.abs(q[1:]).max(initial=0.0)), float(np.abs(r).max(initial=0.0)))
+    s_obj = min(1.0, 100.0 / gmax) if o.obj_scaling == "gradient-based" and gmax > 0 else 1.0
+    zl, zu = b.has_lo.astype(float), b.has_hi.astype(float)
+    mult = least_squares_multipliers(setup, pt, zl, zu, s_obj)
+    if max((float(np.abs(a).max(initial=0.0)) for a in mult), default=0.0) > o.constr_mult_init_max:
+        mult = tuple(np.zeros_like(a) for a in mult)
+    lam, nu, nuN, yd, ydN = mult
+    mu = o.mu_init
+    st = IPMState(v=v, pt=pt, lam=lam, zl=zl, zu=zu, mu=mu, tau=max(o.tau_min, 1.0 - mu),
+                  filt=Filter.start(0.0), s_obj=s_obj, clock=clock, nu=nu, nuN=nuN, yd=yd, ydN=ydN)
+    st.filt = Filter.start(theta(setup, pt, v))
+    return st
+
+
+# ---------------------------------------------------------------------------- one iteration
+def constraint_blocks(setup, pt, Ss, SsN):
+    """The iteration's :class:`Constraints` from the constraint Jacobians at pt."""
+    L = setup.layout
+    Ci = np.ascontiguousarray(np.concatenate([pt.Cx[:, L.ineq], pt.Cu[:, L.ineq]], axis=2))
+    return Constraints(np.ascontiguousarray(pt.Cx[:, L.eq]), np.ascontiguousarray(pt.Cu[:, L.eq]),
+                       np.ascontiguousarray(pt.CN[L.eqN]), Ci, np.ascontiguousarray(pt.CN[L.ineqN]), Ss, SsN)
+
+
+def newton_system(setup, st):
+    """The iteration's KKT matrix (Hessian blocks of the Lagrangian at (pt, multipliers), Sigma)
+    factored with the inertia correction; None when Algorithm IC gives up."""
+    p, pt, L = setup.problem, st.pt, setup.layout
+    Lg, LgN = full_multipliers(L, st)
+    t0 = time.perf_counter()
+    Hxx, Hxu, Huu = p.eval_stage_hessians(pt.X, pt.U, st.s_obj, st.lam[1:], Lg)
+    HN = p.eval_final_hessian(pt.X[-1], st.s_obj, LgN)
+    st.clock.add(("hessian",), t0)
+    Q, S, R = stage_blocks(Hxx, Hxu, Huu, HN)
+    sig = setup.bounds.sigma(st.v, st.zl, st.zu)
+    Sx, Su, Ss, SsN = L.split(sig, np.zeros(p.n))
+    kkt = KKTMatrix(Q, S, R, pt.A, pt.B, Sx, Su, constraint_blocks(setup, pt, Ss, SsN))
+    delta = kkt.factor(st.delta_last)
+    st.factorizations += kkt.factorizations
+    if delta is None:
+        return None
+    st.delta = delta
+    if delta > 0.0:       # delta_w^last of Algorithm IC: the last shift that was needed (IC-4)
+        st.delta_last = delta
+    return kkt
+
+
+def update_barrier(setup, st):
+    """The monotone rule (7): while the barrier problem is solved to kappa_eps mu, mu <- max(tol / 10,
+    min(kappa_mu mu, mu^theta_mu)), tau <- max(tau_min, 1 - mu), and the filter starts afresh."""
+    o = setup.options
+    while optimality_errors(setup, st, st.mu)[0] <= o.barrier_tol_factor * st.mu:
+        mu = max(o.tol / 10.0, min(o.mu_linear_decrease_factor * st.mu, st.mu ** o.mu_superlinear_decrease_power))
+        if mu >= st.mu:
+            break
+        st.mu, st.tau = mu, max(o.tau_min, 1.0 - mu)
+        st.filt.reset()
+
+
+def converged(setup, st):
+    """IPOPT's stopping test: E_0 <= tol and the unscaled dual infeasibility, constraint
+    violation and complementarity within dual_inf_tol, constr_viol_tol, compl_inf_tol; or
+    acceptable_iter acceptable iterates in a row."""
+    o = setup.options
+    e0, inf_du, inf_pr, compl = st.errors = optimality_errors(setup, st, 0.0)
+    if e0 <= o.tol and inf_du <= o.dual_inf_tol and inf_pr <= o.constr_viol_tol and compl <= o.compl_inf_tol:
+        return st.stop(Status.SUCCESS, f"optimal: scaled optimality error {e0:.2e} <= tol = {o.tol:g} "
+                       f"after {st.it} iterations")
+    if e0 <= o.acceptable_tol and inf_pr <= max(o.constr_viol_tol, 1e-2 * o.acceptable_tol ** 0.5):
+        st.acceptable += 1
+        if o.acceptable_iter and st.acceptable >= o.acceptable_iter:
+            return st.stop(Status.ACCEPTABLE, f"acceptable: {st.acceptable} iterates in a row with scaled optimality "
+                           f"error <= acceptable_tol = {o.acceptable_tol:g} (last {e0:.2e}), tol = {o.tol:g} not met")
+    else:
+        st.acceptable = 0
+    return False
+
+
+def _trial(setup, st, v_t):
+    """A trial point's (point, theta, phi); phi = inf when a function is not finite there."""
+    try:
+        pt = evaluate(setup, v_t, st.clock)
+    except NonFiniteEvaluationError:
+        return None, math.inf, math.inf
+    phi, _ = barrier_value(setup, pt, v_t, st.mu, st.s_obj)
+    return pt, theta(setup, pt, v_t), phi
+
+
+class Direction(NamedTuple):
+    """The Newton system's right-hand side in y (q, r) and s (gs, gsN), and grad phi flat."""
+
+    q: np.ndarray
+    r: np.ndarray
+    gs: np.ndarray
+    gsN: np.ndarray
+    grad: np.ndarray
+
+
+def barrier_gradient(setup, st) -> Direction:
+    """grad phi_mu at the iterate, split for the Newton system."""
+    L = setup.layout
+    q, r = objective_gradient(st.pt, st.s_obj)
+    _, bgrad = setup.bounds.barrier(st.v, st.mu)
+    bx, bu, gs, gsN = L.split(bgrad, np.zeros(L.n))
+    q, r = q + bx, r + bu
+    return Direction(q, r, gs, gsN, L.pack(q, r, gs, gsN))
+
+
+def step_vector(setup, step):
+    return setup.layout.pack(step.dX, step.dU, step.ds, step.dsN)
+
+
+class Search(NamedTuple):
+    """A Newton direction at an iterate and the quantities its line search compares against:
+    the system and right-hand side (for second-order corrections), the residuals, the step, dv,
+    grad phi . dv, theta, phi and the largest step by the fraction-to-boundary rule."""
+
+    kkt: KKTMatrix
+    g: Direction
+    res: Residuals
+    step: object
+    dv: np.ndarray
+    gphi: float
+    theta: float
+    phi: float
+    alpha_max: float
+
+
+@dataclasses.dataclass
+class Watchdog:
+    """IPOPT's watchdog (watchdog_shortened_iter_trigger, watchdog_trial_iter_max): the iterate
+    and search where it started and the trial steps taken since."""
+
+    state: dict
+    search: Search
+    trials: int = 1
+
+
+WATCHED = ("v", "pt", "lam", "nu", "nuN", "yd", "ydN", "zl", "zu", "mu", "tau")
+
+
+def direction(setup, st, kkt, g) -> Search:
+    """The Newton direction at the iterate and its line-search quantities."""
+    res = residuals(setup, st.pt, st.v)
+    step = kkt.solve(g.q, g.r, res, g.gs, g.gsN)
+    dv = step_vector(setup, step)
+    phi = barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0]
+    return Search(kkt, g, res, step, dv, float(g.grad @ dv), res.l1(), phi, setup.bounds.max_step(st.v, dv, st.tau))
+
+
+def line_search(setup, st, kkt, g):
+    """The filter line search with second-order corrections (sec. 2.3-2.4, Algorithm A steps
+    A-5 to A-8) and IPOPT's watchdog. Returns the accepted step (v_new, pt_new, dv, newton step,
+    alpha, soc) or None (alpha fell below alpha_min: restoration)."""
+    o = setup.options
+    d = direction(setup, st, kkt, g)
+    tiny = float(np.max(np.abs(d.dv) / (1.0 + np.abs(st.v)), initial=0.0)) < 10 * np.finfo(float).eps
+    if tiny:     # IPOPT's tiny-step rule: no line search for a step below rounding
+        pt_t, _, _ = _trial(setup, st, st.v + d.alpha_max * d.dv)
+        if pt_t is not None:
+            return st.v + d.alpha_max * d.dv, pt_t, d.dv, d.step, d.alpha_max, 0
+    if st.watch is None and o.watchdog_shortened_iter_trigger and st.shortened >= o.watchdog_shortened_iter_trigger:
+        st.watch = Watchdog({k: getattr(st, k) for k in WATCHED}, d)
+        st.shortened = 0
+        step = _watchdog_step(setup, st, d)
+        if step is not None:
+            return step
+        st.watch = None
+    elif st.watch is not None:
+        step = _watched_trial(setup, st, d)
+        if step is not None:
+            return step
+        d = st.watch.search           # the watchdog gives up: back to where it started
+        for k, val in st.watch.state.items():
+            setattr(st, k, val)
+        st.watch = None
+    return backtrack(setup, st, d)
+
+
+def _watchdog_step(setup, st, d):
+    """A full step taken without the acceptance test (IPOPT's "w" iteration); None when the
+    functions are not finite there."""
+    v_t = st.v + d.alpha_max * d.dv
+    pt_t, _, _ = _trial(setup, st, v_t)
+    return None if pt_t is None else (v_t, pt_t, d.dv, d.step, d.alpha_max, 0)
+
+
+def _watched_trial(setup, st, d):
+    """In the watchdog: the full step, accepted (and the watchdog ended) when the filter accepts it
+    against the watchdog's starting point; else another "w" step while watchdog_trial_iter_max
+    allows; None: the watchdog fails and the line search starts again from its starting point."""
+    ref = st.watch.search
+    v_t = st.v + d.alpha_max * d.dv
+    pt_t, th_t, phi_t = _trial(setup, st, v_t)
+    # the tests use the watched point's values and step to the boundary (IPOPT's watchdog_alpha_primal_test)
+    ok, f_type = st.filt.accept(ref.alpha_max, ref.theta, ref.phi, ref.gphi, th_t, phi_t)
+    if ok:
+        if not f_type:
+            st.filt.add(ref.theta, ref.phi)
+        st.watch = None
+        return v_t, pt_t, d.dv, d.step, d.alpha_max, 0
+    if pt_t is not None and st.watch.trials < setup.options.watchdog_trial_iter_max:
+        st.watch.trials += 1
+        return v_t, pt_t, d.dv, d.step, d.alpha_max, 0
+    return None
+
+
+def backtrack(setup, st, d: Search):
+    """Backtracking from alpha_max by halves to alpha_min (23), with second-order corrections
+    after a rejected first trial that increased theta."""
+    o = setup.options
+    th, phi, gphi = d.theta, d.phi, d.gphi
+    alpha_min = st.filt.alpha_min(th, gphi)
+    alpha, trials = d.alpha_max, 0
+    while alpha > alpha_min or trials == 0:     # the first trial always (IPOPT)
+        setup.limits.check()
+        trials += 1
+        v_t = st.v + alpha * d.dv
+        pt_t, th_t, phi_t = _trial(setup, st, v_t)
+        ok, f_type = st.filt.accept(alpha, th, phi, gphi, th_t, phi_t)
+        if ok:
+            if not f_type:
+                st.filt.add(th, phi)
+            st.shortened = st.shortened + 1 if trials > 1 else 0
+            return v_t, pt_t, d.dv, d.step, alpha, 0
+        if trials == 1 and pt_t is not None and th_t >= th and o.max_soc:
+            soc = second_order_correction(setup, st, d.kkt, d.g, d.res, alpha, (th, phi, gphi), pt_t, v_t, th_t)
+            if soc is not None:
+                st.shortened = 0
+                return soc
+        alpha *= 0.5
+    return None
+
+
+def second_order_correction(setup, st, kkt, g, res, alpha_max, current, pt_t, v_t, th_t):
+    """Second-order corrections (sec. 2.4): the system solved again with the constraint offsets
+    c_soc = alpha c(y) + c(y_trial) (accumulated, eq. (27)), at most max_soc times while each
+    reduces theta by kappa_soc."""
+    o, b = setup.options, setup.bounds
+    th, phi, gphi = current
+    c_soc = res.combine(alpha_max, residuals(setup, pt_t, v_t))
+    th_old = th_t
+    for k in range(o.max_soc):
+        step = kkt.solve(g.q, g.r, c_soc, g.gs, g.gsN)
+        dv = step_vector(setup, step)
+        a_soc = b.max_step(st.v, dv, st.tau)
+        v_s = st.v + a_soc * dv
+        pt_s, th_s, phi_s = _trial(setup, st, v_s)
+        if pt_s is None:
+            return None
+        ok, f_type = st.filt.accept(alpha_max, th, phi, gphi, th_s, phi_s)
+        if ok:
+            if not f_type:
+                st.filt.add(th, phi)
+            return v_s, pt_s, dv, step, a_soc, k + 1
+        if th_s > o.kappa_soc * th_old:
+            return None
+        th_old = th_s
+        c_soc = c_soc.combine(a_soc, residuals(setup, pt_s, v_s))
+    return None
+
+
+def take_step(setup, st, accepted):
+    """Accept a step: the primal variables, every constraint multiplier y <- y + alpha (y_new - y),
+    the bound multipliers by their own fraction-to-boundary step (eqs. (14)-(15)) and the
+    safeguard (16)."""
+    b = setup.bounds
+    v_new, pt_new, dv, step, alpha, soc = accepted
+    dzl, dzu = b.dual_step(st.v, dv, st.zl, st.zu, st.mu)
+    alpha_z = min(b.max_dual_step(st.zl, dzl, st.tau), b.max_dual_step(st.zu, dzu, st.tau))   # dz = 0 off the bounds
+    for name in ("lam", "nu", "nuN", "yd", "ydN"):
+        old = getattr(st, name)
+        setattr(st, name, old + alpha * (getattr(step, name) - old))
+    st.v, st.pt = v_new, pt_new
+    st.pt.add_derivatives(setup.problem)
+    b.move_tiny(v_new)
+    st.zl, st.zu = b.safeguard(v_new, st.zl + alpha_z * dzl, st.zu + alpha_z * dzu, st.mu)
+    return alpha, alpha_z, soc
+
+
+def iterate(setup, st):
+    """One iteration of Algorithm A; True when the solve ends."""
+    o = setup.options
+    setup.limits.check()
+    if converged(setup, st):
+        return True
+    if st.it >= o.max_iter:
+        return st.stop(Status.MAX_ITERATIONS, f"iteration limit {o.max_iter} reached; scaled optimality error "
+                       f"{st.errors[0]:.2e}, constraint violation {st.errors[2]:.2e}")
+    update_barrier(setup, st)
+    kkt = newton_system(setup, st)
+    accepted = None if kkt is None else line_search(setup, st, kkt, barrier_gradient(setup, st))
+    st.it += 1
+    # the objective after the iteration (IPOPT's log), the errors at its start
+    entry = {"iter": st.it, "inf_pr": st.errors[2], "inf_du": st.errors[1], "mu": st.mu, "delta_w": st.delta,
+             "watchdog": st.watch is not None}
+    if accepted is None:
+        why = ("the inertia correction found no shift up to 1e20" if kkt is None
+               else "the filter line search reached alpha_min")
+        st.filt.add(theta(setup, st.pt, st.v), barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0])
+        st.restorations += 1
+        fns = Restoration(evaluate, theta, barrier_value, residuals, lagrangian_gradient)
+        outcome = (restore_l1 if setup.l1_restoration else restore)(setup, st, fns)
+        entry.update(restoration=True, alpha=float("nan"), alpha_z=float("nan"), soc=0, objective=float(st.pt.J))
+        st.history.append(entry)
+        if outcome is not None:
+            return st.stop(*outcome(why))
+    else:
+        alpha, alpha_z, soc = take_step(setup, st, accepted)
+        entry.update(alpha=alpha, alpha_z=alpha_z, soc=soc, restoration=False, objective=float(st.pt.J))
+        st.history.append(entry)
+    if setup.options.verbose >= 2:
+        print(f"{st.it:4d} {st.pt.J: .10e} {st.errors[2]:.2e} {st.errors[1]:.2e} mu={st.mu:.1e} "
+              f"dw={st.delta:.1e} a={entry['alpha']:.2e}{' soc' if entry['soc'] else ''}"
+              f"{' resto' if entry['restoration'] else ''}")
+    if setup.callback(dict(entry)):
+        return st.stop(Status.USER_STOP, f"stopped by the callback after {st.it} iterations")
+    return False
+
+
+# ---------------------------------------------------------------------------- the result
+def finish(setup, st) -> Result:
+    """The Result at the last accepted iterate: multipliers of the unscaled problem, KKT
+    quantities stage by stage (olado.solvers.sqp.residuals.stage_kkt)."""
+    p, pt, L = setup.problem, st.pt, setup.layout
+    solve_time = time.perf_counter() - setup.t_start
+    pt.add_derivatives(p)
+    zero_x = np.zeros(p.n)
+    zl_x, zl_u, _, _ = L.split(st.zl / st.s_obj, zero_x)
+    zu_x, zu_u, _, _ = L.split(st.zu / st.s_obj, zero_x)
+    Lg, LgN = full_multipliers(L, st)
+    mult = Multipliers(st.lam / st.s_obj, Lg / st.s_obj, LgN / st.s_obj)
+    kkt = stage_kkt(p, pt, mult, BoundMultipliers(zl_x, zu_x, zl_u, zu_u))
+    z = kkt.bounds
+    clock = st.clock
+    info = {"callback_time_s": clock.time_s, "solve_time_s": solve_time,
+            "callback_share": clock.time_s / solve_time if solve_time > 0 else float("nan"),
+            "kkt_residual_kind": "max-norm of stationarity and complementarity at the final point (unscaled)",
+            "stationarity_residual": kkt.stationarity, "complementarity_residual": kkt.complementarity,
+            "multiplier_convention": MULTIPLIER_CONVENTION, "mu": st.mu, "objective_scaling": st.s_obj,
+            "factorizations": st.factorizations, "restorations": st.restorations,
+            "scaled_optimality_error": st.errors[0], "kkt": "riccati"}
+    multipliers = {"dynamics": mult.lam[1:].copy(), "stage_constraints": mult.Lg, "final_constraints": mult.LgN,
+                   "bound_lower_x": z.zl_x, "bound_lower_u": z.zl_u, "bound_upper_x": z.zu_x, "bound_upper_u": z.zu_u}
+    return Result(status=st.status, message=st.message, objective=float(pt.J), x=pt.X.copy(), u=pt.U.copy(),
+                  multipliers=multipliers, max_constraint_violation=kkt.violation,
+                  kkt_residual=max(kkt.stationarity, kkt.complementarity), iterations=int(st.it),
+                  evaluations={k: int(clock.counts[k]) for k in EVALUATION_KINDS}, history=list(st.history),
+                  info=info)
+
+
+class IPMSolver(Solver):
+    """IPOPT's primal-dual interior-point filter method on the Riccati KKT back-end."""
+
+    name = "ipm"
+    Options = IPMOptions
+
+    def _solve(self, problem, X0, U0):
+        limits = Limits(self.options.max_time)
+        setup = Setup(self.options, problem, limits, self._call_callback)
+        clock = Clock(limits)
+        st = None
+        with limits.catch() as stop:
+            st = initial_state(setup, X0, U0, clock)
+            while not iterate(setup, st):
+                pass
+        if st is None:      # stopped in the start's evaluations: the start, evaluated outside the catch block
+            st = initial_state(setup, X0, U0, Clock(None))
+        if stop.reason:
+            st.stop(*stop_outcome(stop.reason, limits, f"after {st.it} iterations"))
+        return finish(setup, st)
