@@ -79,6 +79,30 @@ def test_an_euler_position_is_fixed_one_stage_only():
     assert value[1, 0] == pytest.approx(1.0 + h * 2.0 + 0.01)
 
 
+def _clock(N=50, offset=0.1):
+    """x = (t, v): t_{k+1} = t_k + offset (no control), v_{k+1} = v_k + u_k."""
+    A = np.tile(np.eye(2), (N, 1, 1)); B = np.tile(np.array([[0.0], [1.0]]), (N, 1, 1))
+    c = np.zeros((N, 2)); c[:, 0] = offset
+    return A, B, c
+
+
+def test_a_clock_is_fixed_over_the_horizon():
+    N = 50
+    A, B, c = _clock(N)
+    fixed, value = fixed_states(A, B, c, np.array([0.5, 0.0]))
+    assert fixed[:, 0].all() and not fixed[1:, 1].any()
+    np.testing.assert_allclose(value[:, 0], 0.5 + 0.1 * np.arange(N + 1))    # the stage-by-stage path
+    # without bounds on t, or with zero offsets from a zero start, the one vectorized test
+    bounds = np.zeros((N + 1, 2), dtype=bool)
+    skipped, _ = fixed_states(A, B, c, np.array([0.5, 0.0]), wanted=bounds)
+    np.testing.assert_array_equal(skipped, fixed)
+    A, B, c = _clock(N, offset=0.0)
+    bounds[:, 0] = True
+    skipped, zero = fixed_states(A, B, c, np.zeros(2), wanted=bounds)
+    np.testing.assert_array_equal(skipped, fixed)
+    assert not zero.any()
+
+
 def test_only_satisfied_bounds_of_fixed_states_are_dropped():
     qp, t = _parameter_stage_qp()
     xl, xu = qp.x_lower.copy(), qp.x_upper.copy()
