@@ -153,9 +153,77 @@ def build_qp(p, pt, Bk, BN, masks, offsets=None):
         kw.update(CN=pt.CN[ineqN], cN_lower=-gN[ineqN], cN_upper=np.full(int(ineqN.sum()), np.inf))
     xl = p.x_lower - X; xu = p.x_upper - X
     xl[0] = -np.inf; xu[0] = np.inf      # x0 is fixed by the x0 row; its bounds are not the QP's business
+    drop_fixed_bounds(pt.A, pt.B, h, p.x0 - X[0], xl, xu, kw.get("EN"), kw.get("eN"),
+                      slack=FIXED_BOUND_RTOL * (1.0 + np.abs(X)))
     return StageQP(Q=Q, R=Bk[:, n:, n:], S=Bk[:, :n, n:], q=np.vstack([pt.lx, pt.lN[None, :]]), r=pt.lu,
                    A=pt.A, B=pt.B, c=h, x0=p.x0 - X[0], x_lower=xl, x_upper=xu,
                    u_lower=p.u_lower - U, u_upper=p.u_upper - U, **kw)
+
+
+def fixed_states(A, B, c, x0, EN=None, eN=None, wanted=None):
+    """The state steps that the QP's equality rows fix whatever the controls, as (mask, values),
+    both (N+1, n): dx_0 = x0 (the x0 row); then, while any component is fixed, the components
+    of dx_{k+1} = A_k dx_k + B_k du_k + c_k whose row of B_k is zero and whose row of A_k touches
+    fixed components only (e.g. the states a parameter stage copies, olado.problems.continuous,
+    or an explicit Euler position x_1 = x_0 + h v_0); and the components of x_N that a final
+    equality row with a single nonzero entry fixes (a singleton row, as in LP presolve).
+    ``wanted`` (N+1, n), if given, marks the components whose values matter (finite bounds): a
+    chain that stays fixed over every later stage (a clock) is not followed stage by stage when
+    it has none of them (its later entries get the mask and no value) or when its value and the
+    offsets c_k of its rows are 0 from there on (a feasible iterate: its values stay 0), so a
+    long horizon costs one vectorized test instead of a Python loop (~0.1 ms per stage)."""
+    N, n = A.shape[0], A.shape[1]
+    fixed = np.zeros((N + 1, n), dtype=bool)
+    value = np.zeros((N + 1, n))
+    fixed[0], value[0] = True, x0
+    tail_tested = False
+    for k in range(N):
+        rows = ~np.any(B[k] != 0.0, axis=1) & ~np.any((A[k] != 0.0) & ~fixed[k][None, :], axis=1)
+        if not rows.any():
+            break           # nothing fixed at stage k + 1, so nothing later through the dynamics
+        fixed[k + 1] = rows
+        value[k + 1] = np.where(rows, A[k] @ np.where(fixed[k], value[k], 0.0) + c[k], 0.0)
+        if wanted is not None and not tail_tested and k + 2 <= N and np.array_equal(rows, fixed[k]):
+            tail_tested = True
+            if _fixed_from_here(A, B, k + 1, rows) and (not wanted[k + 2:, rows].any() or (
+                    not np.any(value[k + 1, rows]) and not np.any(c[k + 1:, rows]))):
+                fixed[k + 2:, rows] = True      # (values 0: from 0 through rows without offsets)
+                break
+    if EN is not None and EN.size:
+        for row in np.nonzero(np.count_nonzero(EN, axis=1) == 1)[0]:
+            i = int(np.flatnonzero(EN[row])[0])
+            if not fixed[N, i]:
+                fixed[N, i], value[N, i] = True, -eN[row] / EN[row, i]
+    return fixed, value
+
+
+def _fixed_from_here(A, B, k, rows):
+    """Whether the components ``rows`` stay fixed through the dynamics of stages k..N-1: zero rows
+    of B_j, rows of A_j that touch those components only."""
+    return not (np.any(B[k:, rows, :] != 0.0) or np.any(A[k:][:, rows][:, :, ~rows] != 0.0))
+
+
+#: a fixed state step within this times (1 + |x|) of its bound counts as satisfying it (the
+#: dynamics residual c_k of a feasible iterate is a rounding error, not a violation)
+FIXED_BOUND_RTOL = 1e-12
+
+
+def drop_fixed_bounds(A, B, c, x0, xl, xu, EN=None, eN=None, slack=0.0):
+    """Remove (in place) the bounds xl <= dx <= xu of the state steps that the equality rows fix
+    (:func:`fixed_states`; x_0's are dropped by the caller) when the fixed value satisfies them
+    to within ``slack``. Such a bound at its limit is active at every feasible point: the QP has no
+    strictly feasible point, and an interior-point method's multipliers z = mu / slack on it grow
+    without bound with those of the rows that fix it (goddard: its final mass row m(T) = 0.6 on
+    the bound m >= 0.6, and the states at x0's bounds that its parameter stage copies -- QP
+    multipliers 1.27e6, IPOPT's largest 4.8; IPOPT relaxes such bounds, bound_relax_factor,
+    Waechter & Biegler 2006 sec. 3.5). The QP's feasible set is unchanged (to ``slack``), and so
+    is its solution; the dropped bounds' multipliers are 0, their share carried by the rows that
+    fix the state. A violated bound is kept (the QP is then infeasible, and says so)."""
+    fixed, value = fixed_states(A, B, c, x0, EN, eN, wanted=np.isfinite(xl) | np.isfinite(xu))
+    fixed[0] = False
+    ok = fixed & (value >= xl - slack) & (value <= xu + slack)
+    xl[ok] = -np.inf
+    xu[ok] = np.inf
 
 
 def _qp_shift(qp_solver, qres):
