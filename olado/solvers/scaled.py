@@ -1,0 +1,89 @@
+"""The option ``scaling``: every solver solves the scaled DOCP and returns the original's result.
+
+:meth:`olado.solvers.base.Solver.solve` calls :func:`solve_scaled` when ``scaling`` is not
+``none``: the scale factors are computed at the start point and the bounds
+(:func:`olado.problems.scaling.compute_scaling`, seed 004), the solver's own ``_solve`` runs on
+the :class:`~olado.problems.scaling.ScaledDOCP`, and :func:`unscale_result` maps the point, the
+objective and the multipliers back. Olado's certificate then checks the success on the original
+problem (Solver.solve). The same wrapper serves IPOPT: its user-scaling (``obj_scaling_factor``,
+``x_scaling``, ``g_scaling``) has neither shifts nor the nonlinear transforms of seed 004 sec. 5,
+and one mechanism for every solver gives the same scaled problem to each (docs/scaling.md).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..errors import OladoError
+from ..problems.scaling import DENSE_ENTRIES, ScaledDOCP, condition_ratio, compute_scaling, unscale_multipliers
+from ..result import Result
+
+#: the condition ratio of eq. (16) is reported for NLPs with at most this many variables (an
+#: estimate above DENSE_ENTRIES Jacobian entries); larger ones: olado.problems.scaling.condition_ratio
+REPORT_VARIABLES = 20_000
+
+
+def solve_scaled(solver, problem, X0, U0) -> Result:
+    """``solver._solve`` on ``problem`` scaled by ``solver.options.scaling`` from (X0, U0)."""
+    t0 = time.perf_counter()
+    method = solver.options.scaling
+    scaling = compute_scaling(problem, method, X0, U0)
+    scaled = ScaledDOCP(problem, scaling)
+    report = scaling_report(problem, scaled, X0, U0)
+    report["setup_time_s"] = time.perf_counter() - t0
+    Xs, Us = scaled.to_scaled(X0, U0)
+    result = solver._solve(scaled, Xs, Us)
+    return unscale_result(result, scaled, report)
+
+
+def scaling_report(problem, scaled, X0, U0) -> dict:
+    """The scale factors and seed 004's eq. (16) at the start point (for the Result's info)."""
+    report = {"method": scaled.scaling.method, "factors": scaled.scaling.summary()}
+    n_vars = problem.N * (problem.n + problem.m)
+    if n_vars > REPORT_VARIABLES:
+        report["condition"] = {"note": f"not computed ({n_vars} variables > {REPORT_VARIABLES}); "
+                                       "olado.problems.scaling.condition_ratio computes it"}
+        return report
+    try:
+        report["condition"] = condition_ratio(problem, scaled, X0, U0, dense_entries=DENSE_ENTRIES).to_dict()
+    except (OladoError, ArithmeticError, ValueError) as exc:   # a start point where a Jacobian fails
+        report["condition"] = {"note": f"not computed: {exc}"}
+    return report
+
+
+def unscale_result(result: Result, scaled: ScaledDOCP, report: dict) -> Result:
+    """The scaled problem's Result in the original units: the trajectories (eq. (3)), the
+    objective (J = J~ / c), the multipliers (:func:`olado.problems.scaling.unscale_multipliers`),
+    the constraint violation recomputed on the original problem. The solver's own KKT residual,
+    history and certificate stay in scaled units (info["scaling"] says so); the certificate is
+    redone on the original problem by Solver.solve."""
+    problem = scaled.inner
+    X, U = scaled.to_original(result.x, result.u)
+    result.x, result.u = X, U
+    result.objective = float(result.objective) / scaled.scaling.objective
+    if result.multipliers:
+        try:
+            result.multipliers = unscale_multipliers(scaled, result.multipliers, X, U)
+        except OladoError as exc:
+            report["multipliers_note"] = f"left in scaled units: {exc}"
+    result.max_constraint_violation = _violation(problem, X, U, result.max_constraint_violation)
+    if result.certificate is not None:
+        report["scaled_certificate"] = result.certificate.to_dict()
+        result.certificate = None
+    report["scaled_units"] = "kkt_residual, history and scaled_certificate are the scaled problem's"
+    result.info["scaling"] = report
+    return result
+
+
+def _violation(problem, X, U, fallback):
+    """The max-norm constraint violation of the original problem at (X, U)."""
+    from .diagnosis import ConstraintValues, largest_violation, violation_arrays   # noqa: PLC0415
+
+    if not (np.all(np.isfinite(X)) and np.all(np.isfinite(U))):
+        return fallback
+    try:
+        return largest_violation(violation_arrays(problem, ConstraintValues.at(problem, X, U)))[0]
+    except OladoError:
+        return fallback
