@@ -104,19 +104,34 @@ def check_method(method, key="scaling"):
     return method
 
 
-def bound_scale(lower, upper, trajectory):
+#: an artificial range (bound_scale) takes the start trajectory's magnitude up to this multiple
+#: of the component's known size (x^0, finite bounds, 1)
+TRAJECTORY_TRUST = 1e3
+
+
+def bound_scale(lower, upper, reference, trajectory):
     """Per-stage scale and shift of eq. (4): d^k = x_U^k - x_L^k, s^k = x_L^k where both bounds
     are finite and apart. Elsewhere (a fixed or unbounded component at a stage) the component's
-    largest finite range over the stages, else Betts' artificial bounds from the start
-    trajectory: d = its largest magnitude over the stages (1 when that is 0); the shift is the
-    lower bound where both bounds are finite, else 0. Returns (d, s) shaped like the bounds."""
+    largest finite range over the stages, else an artificial range (Betts sec. 4.8): the
+    component's size over the start trajectory, at least its known size (the magnitudes of
+    ``reference`` -- x^0 for the states -- and of its finite bounds, and 1) and at most
+    TRAJECTORY_TRUST times that. The shift is the lower bound where both bounds are finite,
+    else 0. Returns (d, s) shaped like the bounds.
+
+    The cap matters: a simulated start can diverge (lq-box at N = 400 simulates states of 1e19),
+    and a scale taken from it makes the scaled feasibility tolerance meaningless in the
+    original units."""
     lower, upper = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
     with np.errstate(invalid="ignore"):
         rng = upper - lower
     apart = np.isfinite(rng) & (rng > 0)
     widest = np.max(np.where(apart, rng, 0.0), axis=0)
-    size = np.max(np.abs(trajectory), axis=0) if trajectory.size else np.ones(lower.shape[1])
-    size = np.where(np.isfinite(size) & (size > 0), size, 1.0)
+    finite = np.where(np.isfinite(lower), np.abs(lower), 0.0), np.where(np.isfinite(upper), np.abs(upper), 0.0)
+    known = np.maximum.reduce([np.ones(lower.shape[1]), np.abs(np.asarray(reference, dtype=float)),
+                               finite[0].max(axis=0), finite[1].max(axis=0)])
+    seen = np.max(np.abs(trajectory), axis=0) if np.size(trajectory) else known
+    seen = np.where(np.isfinite(seen), seen, np.inf)
+    size = np.clip(seen, known, TRAJECTORY_TRUST * known)
     fallback = np.where(widest > 0, widest, size)
     d = np.where(apart, rng, fallback[None, :])
     s = np.where(np.isfinite(lower) & np.isfinite(upper), lower, 0.0)
@@ -202,8 +217,8 @@ def compute_scaling(problem, method="auto", X=None, U=None, *, positive=None) ->
             raise ConfigError(f"unknown transform {positive!r} of positive constraints; choose log or ip",
                               key="positive")
         nonlinear = positive
-    d_bound, sx = bound_scale(p.x_lower, p.x_upper, X)
-    du, su = bound_scale(p.u_lower, p.u_upper, U)
+    d_bound, sx = bound_scale(p.x_lower, p.x_upper, p.x0, X)
+    du, su = bound_scale(p.u_lower, p.u_upper, np.zeros(p.m), U)
     A, B = p.eval_dynamics_jacobians(X, U)
     dx = state_scale(fmethod, A, B, d_bound, du)
     notes = []

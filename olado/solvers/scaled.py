@@ -34,8 +34,31 @@ def solve_scaled(solver, problem, X0, U0) -> Result:
     report = scaling_report(problem, scaled, X0, U0)
     report["setup_time_s"] = time.perf_counter() - t0
     Xs, Us = scaled.to_scaled(X0, U0)
-    result = solver._solve(scaled, Xs, Us)
+    tol = scaled_violation_tolerance(solver.options.constr_viol_tol, scaling)
+    report["constr_viol_tol_scaled"] = tol
+    inner = type(solver)(solver.options, constr_viol_tol=tol) if tol != solver.options.constr_viol_tol else solver
+    result = inner._solve(scaled, Xs, Us)
     return unscale_result(result, scaled, report)
+
+
+#: the scaled problem's violation tolerance is not made smaller than this
+SMALLEST_TOLERANCE = 1e-14
+
+
+def scaled_violation_tolerance(tol, scaling):
+    """The constraint violation tolerance for the scaled problem: ``tol`` times the smallest
+    factor between a scaled and an original constraint row (1/dx of the dynamics rows, w of the
+    constraint rows, w/n for the inverse power at g = 0), so that a violation the solver accepts
+    in the scaled problem is within ``tol`` in the original one (rows are only tightened; not
+    below SMALLEST_TOLERANCE). IPOPT checks its unscaled violation for the same reason."""
+    factors = [1.0 / np.max(scaling.dx[1:])] if scaling.dx.shape[0] > 1 else []
+    for rows, kinds, power in ((scaling.stage_rows, scaling.stage_kind, scaling.stage_power),
+                               (scaling.final_rows, scaling.final_kind, scaling.final_power)):
+        if np.size(rows):
+            at_zero = np.where(np.asarray(kinds) == "ip", 1.0 / np.asarray(power, dtype=float), 1.0)
+            factors.append(float(np.min(rows * at_zero)))
+    smallest = min([1.0] + factors)
+    return max(tol * smallest, min(tol, SMALLEST_TOLERANCE))
 
 
 def scaling_report(problem, scaled, X0, U0) -> dict:
