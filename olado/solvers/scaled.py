@@ -34,14 +34,28 @@ def solve_scaled(solver, problem, X0, U0) -> Result:
     report = scaling_report(problem, scaled, X0, U0)
     report["setup_time_s"] = time.perf_counter() - t0
     Xs, Us = scaled.to_scaled(X0, U0)
-    tol = scaled_violation_tolerance(solver.options.constr_viol_tol, scaling)
-    report["constr_viol_tol_scaled"] = tol
-    inner = type(solver)(solver.options, constr_viol_tol=tol) if tol != solver.options.constr_viol_tol else solver
+    inner = _with_scaled_tolerances(solver, scaling, report)
     result = inner._solve(scaled, Xs, Us)
     return unscale_result(result, scaled, report)
 
 
-#: the scaled problem's violation tolerance is not made smaller than this
+def _with_scaled_tolerances(solver, scaling, report):
+    """The solver with its tolerances for the scaled problem: the violation tolerance of
+    :func:`scaled_violation_tolerance`, the optimality tolerance times the objective factor
+    when that is below 1 (the scaled Lagrangian's gradient is c times the original's: a solver
+    with an absolute stopping test, IPOPT, would otherwise stop 1/c too early)."""
+    o = solver.options
+    changes = {}
+    viol = scaled_violation_tolerance(o.constr_viol_tol, scaling)
+    if viol != o.constr_viol_tol:
+        changes["constr_viol_tol"] = viol
+    if scaling.objective < 1.0:
+        changes["tol"] = max(o.tol * scaling.objective, min(o.tol, SMALLEST_TOLERANCE))
+    report["scaled_tolerances"] = dict(changes)
+    return type(solver)(o, **changes) if changes else solver
+
+
+#: the scaled problem's tolerances are not made smaller than this
 SMALLEST_TOLERANCE = 1e-14
 
 

