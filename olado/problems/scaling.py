@@ -50,8 +50,12 @@ POSITIVE_ATTRIBUTE = "positive_constraints"
 #: phi(0) = 0 and phi' > 0: the constraint g~ >= 0 (= 0) holds exactly where g >= 0 (= 0)
 NONLINEAR = ("log", "ip")
 
-#: the factor of the objective is 1 / max(|grad J~|, OBJECTIVE_FLOOR): at most 1/FLOOR upward
+#: the factor of the objective is 1 / |grad J~| clipped to [OBJECTIVE_MIN, 1 / OBJECTIVE_FLOOR]:
+#: at most 100 upward and 1e8 downward (IPOPT's nlp_scaling_min_value: a start far from the
+#: solution -- lq-box at N = 400 has |grad J| ~ 1e23 there -- would otherwise leave an objective
+#: too small for any stopping test near the solution)
 OBJECTIVE_FLOOR = 1e-2
+OBJECTIVE_MIN = 1e-8
 
 #: the (state, constraint) methods of each preset (module docstring; docs/scaling.md)
 PRESETS = {
@@ -266,11 +270,11 @@ def _identity(p) -> Scaling:
 
 def _objective_factor(p, X, U, dx, du):
     """K_j of eq. (8): 1 / |grad J K_x^{-1}| (the objective's row of eq. (2) normalised in the
-    scaled variables, x^0 excluded: it is fixed), at most 1/OBJECTIVE_FLOOR."""
+    scaled variables, x^0 excluded: it is fixed), within [OBJECTIVE_MIN, 1/OBJECTIVE_FLOOR]."""
     lx, lu = p.eval_stage_cost_gradients(X, U)
     gN = p.eval_final_cost_gradient(X[-1])
     norm2 = float(np.sum((lx[1:] * dx[1:-1]) ** 2) + np.sum((lu * du) ** 2) + np.sum((gN * dx[-1]) ** 2))
-    return 1.0 / max(math.sqrt(norm2), OBJECTIVE_FLOOR)
+    return max(1.0 / max(math.sqrt(norm2), OBJECTIVE_FLOOR), OBJECTIVE_MIN)
 
 
 # ============================================================================ nonlinear transforms
