@@ -319,3 +319,15 @@ def test_scaled_problem_is_a_docp_with_the_same_structure():
     nlp0, nlp1 = StructuredNLP(p), StructuredNLP(s)
     assert np.array_equal(nlp0.jacobian_structure()[0], nlp1.jacobian_structure()[0])
     assert np.array_equal(nlp0.jacobian_structure()[1], nlp1.jacobian_structure()[1])
+
+
+@pytest.mark.parametrize("solver", ["ddp", "newton", "stagewise-newton", "penalty", "slsqp", "trust-constr"])
+def test_every_solver_family_solves_the_scaled_problem(solver):
+    """The option is honoured by the shared mechanism (Solver.solve), not per solver: the
+    control-space, DDP, penalty and SciPy solvers reach the unscaled optimum."""
+    a = olado.solve(get_problems()["vanderpol"](N=20), solver=solver)
+    b = olado.solve(get_problems()["vanderpol"](N=20), solver=solver, scaling="auto")
+    assert a.success and b.success
+    assert b.objective == pytest.approx(a.objective, rel=1e-8)
+    assert b.info["scaling"]["method"] == "auto"
+    np.testing.assert_allclose(b.u, a.u, atol=1e-4)
