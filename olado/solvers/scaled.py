@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from ..errors import OladoError
+from ..errors import NonFiniteEvaluationError, OladoError
 from ..problems.scaling import DENSE_ENTRIES, ScaledDOCP, condition_ratio, compute_scaling, unscale_multipliers
 from ..result import Result
 
@@ -30,7 +30,14 @@ def solve_scaled(solver, problem, X0, U0) -> Result:
     """``solver._solve`` on ``problem`` scaled by ``solver.options.scaling`` from (X0, U0)."""
     t0 = time.perf_counter()
     method = solver.options.scaling
-    scaling = compute_scaling(problem, method, X0, U0)
+    try:
+        scaling = compute_scaling(problem, method, X0, U0)
+    except NonFiniteEvaluationError as exc:
+        # no derivatives at the start point, no factors: the solver meets the problem as it is
+        # (and reports the non-finite evaluation its own way)
+        result = solver._solve(problem, X0, U0)
+        result.info["scaling"] = {"method": method, "condition": {"note": f"not applied: {exc}"}}
+        return result
     scaled = ScaledDOCP(problem, scaling)
     report = scaling_report(problem, scaled, X0, U0)
     report["setup_time_s"] = time.perf_counter() - t0

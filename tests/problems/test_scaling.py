@@ -331,3 +331,33 @@ def test_every_solver_family_solves_the_scaled_problem(solver):
     assert b.objective == pytest.approx(a.objective, rel=1e-8)
     assert b.info["scaling"]["method"] == "auto"
     np.testing.assert_allclose(b.u, a.u, atol=1e-4)
+
+
+class NaNAtStart(BadlyScaled):
+    name = "nan-jacobian"
+
+    def stage_constraints_jacobian(self, k, x, u):
+        Cx, Cu = super().stage_constraints_jacobian(k, x, u)
+        return Cx * np.nan, Cu
+
+
+def test_a_start_without_derivatives_meets_the_solver_unscaled():
+    """No factors at a start point where a Jacobian is not finite: the solver meets the problem as
+    it is and answers as it does without scaling (here the SQP's error naming the function)."""
+    from olado.errors import NonFiniteEvaluationError
+    from olado.solvers.scaled import solve_scaled
+    from olado.solvers.sqp.solver import SQPSolver
+
+    with pytest.raises(NonFiniteEvaluationError, match="stage_constraints_jacobian") as unscaled:
+        olado.solve(NaNAtStart(N=5), solver="sqp")
+    with pytest.raises(NonFiniteEvaluationError, match="stage_constraints_jacobian") as scaled:
+        olado.solve(NaNAtStart(N=5), solver="sqp", scaling="auto")
+    assert str(scaled.value) == str(unscaled.value)
+    # and a solver that returns a status gets the note
+    class Quiet(SQPSolver):
+        def _solve(self, problem, X0, U0):
+            return olado.result.Result(status=olado.result.Status.NUMERICAL_ERROR, message="", objective=np.nan,
+                                       x=X0, u=U0)
+    p = NaNAtStart(N=5)
+    res = solve_scaled(Quiet(scaling="auto"), p, *start_point(p))
+    assert res.info["scaling"]["condition"]["note"].startswith("not applied")
