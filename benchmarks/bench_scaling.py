@@ -90,9 +90,7 @@ def main(argv=None):
     for label in args.entries:
         for method in args.methods:
             if method == "none":
-                cr_text = "| | |"
-                c0 = condition(label, "iso").original
-                cr_text = f"{c0:.3g} | - | -"
+                cr_text = f"{condition(label, 'iso').original:.3g} | - | -"
             else:
                 cr = condition(label, method)
                 cr_text = f"{cr.original:.3g} | {cr.scaled:.3g} | {cr.ratio:.3g}"

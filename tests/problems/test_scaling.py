@@ -284,7 +284,9 @@ def test_builtins_scaled_and_unscaled_agree(name, N, solver):
     pytest.importorskip("cyipopt") if solver == "ipopt" else None
     ref = olado.solve(get_problems()[name](N=N), solver=solver, tol=1e-10)
     res = olado.solve(get_problems()[name](N=N), solver=solver, scaling="auto", tol=1e-10)
-    _solutions_agree(res, ref, rtol=1e-4, atol=1e-4, multipliers=("dynamics",))
+    _solutions_agree(res, ref, rtol=1e-4, atol=1e-4, multipliers=("dynamics", "bound_lower_u", "bound_upper_u"))
+    if name == "lq-box":   # its control bounds are active: the bound multiplier map is exercised
+        assert np.abs(ref.multipliers["bound_upper_u"]).max() + np.abs(ref.multipliers["bound_lower_u"]).max() > 1e-2
 
 
 @pytest.mark.slow
