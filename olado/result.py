@@ -371,6 +371,13 @@ class Result:
             ev = ", ".join(f"{k} {v}" for k, v in self.evaluations.items())
             lines.append(f"  evaluations  : {ev}")
         lines.append(f"  time         : {self.time_s:.3f} s")
+        scaling = self.info.get("scaling")
+        if scaling:
+            cond = scaling.get("condition", {})
+            text = (f"{scaling.get('method')}; condition ratio (seed 004 eq. (16)) {cond['ratio']:.3g}: "
+                    f"cond {cond['cond_original']:.3g} -> {cond['cond_scaled']:.3g} at the start point"
+                    if "ratio" in cond else f"{scaling.get('method')}; {cond.get('note', '')}")
+            lines.append(f"  scaling      : {text}")
         for key in ("callback_time_s", "callback_share"):
             if key in self.info:
                 val = self.info[key]

@@ -53,6 +53,11 @@ class SolverOptions:
                                     min=0.0, min_exclusive=True)
     certificate_acceptable_tol: float = option(1e-4, "a success whose certificate meets only this looser tolerance "
                                                "is reported as acceptable", min=0.0, min_exclusive=True)
+    scaling: str = option("none", "automatic scaling of the problem before it is solved (seed 004; docs/scaling.md): "
+                          "none, iso (states and controls by their bounds), jrn / pjrn (Jacobian rows normalised, "
+                          "projected), auto (isoscaled variables, projected rows, inverse power on positive "
+                          "constraints); the result is in the original units",
+                          choices=("none", "auto", "iso", "jrn", "pjrn"))
     certificate_acceptable_constr_viol_tol: float = option(1e-6, "constraint violation allowed at the certificate's "
                                                            "acceptable level (constr_viol_tol when that is larger)",
                                                            min=0.0, min_exclusive=True)
@@ -101,7 +106,7 @@ class Solver:
                 X0, U0 = self.initial_point(problem, guess)
                 t0 = time.perf_counter()
                 problem.reset_counters()
-                result = self._solve(problem, X0, U0)
+                result = self._solve_in_scale(problem, X0, U0)
             except (StopRequested, KeyboardInterrupt) as exc:
                 if isinstance(exc, AbortSolve):
                     raise
@@ -129,6 +134,15 @@ class Solver:
         if self.options.verbose >= 1:
             print(result.summary())
         return result
+
+    def _solve_in_scale(self, problem, X0, U0) -> Result:
+        """``_solve`` on the problem, or on its scaled form (option ``scaling``, the one place
+        every solver is scaled: olado.solvers.scaled) with the result mapped back."""
+        if getattr(self.options, "scaling", "none") == "none":
+            return self._solve(problem, X0, U0)
+        from .scaled import solve_scaled   # noqa: PLC0415 - loaded only when scaling is on
+
+        return solve_scaled(self, problem, X0, U0)
 
     def options_dict(self) -> dict:
         out = {}
