@@ -371,6 +371,8 @@ class Result:
             ev = ", ".join(f"{k} {v}" for k, v in self.evaluations.items())
             lines.append(f"  evaluations  : {ev}")
         lines.append(f"  time         : {self.time_s:.3f} s")
+        if self.info.get("derivatives"):
+            lines.append(f"  derivatives  : {self.info['derivatives']}")
         for key in ("callback_time_s", "callback_share"):
             if key in self.info:
                 val = self.info[key]
