@@ -56,8 +56,9 @@ class NumpyOps:
 
     @staticmethod
     def sym(name, size, sample):
-        """A stand-in for a symbol: the sample value (size,) as one stage, (size, 1)."""
-        return np.asarray(sample, dtype=float).reshape(size, 1)
+        """A stand-in for a symbol: the sample value (size,) at two stages, (size, 2) (so that a
+        Python branch on a value fails here, as it does on a symbol)."""
+        return np.repeat(np.asarray(sample, dtype=float).reshape(size, 1), 2, axis=1)
 
     entries = staticmethod(entries)
     vertcat = staticmethod(vertcat)
