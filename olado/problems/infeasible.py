@@ -101,16 +101,7 @@ class VanDerPolContradict(VanDerPol):
 
     def __init__(self, N=50, **options):
         options.setdefault("name", "vanderpol-contradict")
-        super().__init__(N, n_stage_constraints=2, **options)
-
-    def stage_constraints(self, k, x, u):
-        return np.stack([x[:, 0] - 0.2, 0.1 - x[:, 0]], axis=1)
-
-    def stage_constraints_jacobian(self, k, x, u):
-        K = x.shape[0]
-        gx = np.zeros((K, 2, 2))
-        gx[:, 0, 0], gx[:, 1, 0] = 1.0, -1.0
-        return gx, np.zeros((K, 2, 1))
+        super().__init__(N, path_constraints=lambda t, x, u, p: [x[0] - 0.2, 0.1 - x[0]], **options)
 
 
 class BatchOveryield(BatchReactor):
