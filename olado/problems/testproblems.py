@@ -187,9 +187,9 @@ class ODEProblem(OCP):
     params : the model's constants (default ``PARAMS``).
     path_constraints : OCP's ``path`` (g(t, x, u, p) >= 0 at k = 0..N-1; ``path`` is a variant's
         flag in :class:`VanDerPol`).
-    x_bounds, u_bounds, path_equalities, u_guess, name, mode, ad_backend : as for
-        :class:`~olado.problems.ocp.OCP`; the state bounds also hold at the fixed x^0 (as the
-        built-ins always had them).
+    x_bounds : DOCP's state bounds (stationary or per stage, rows 0..N; x0 may violate row 0).
+    u_bounds, path_equalities, u_guess, name, mode, ad_backend : as for
+        :class:`~olado.problems.ocp.OCP`.
     """
 
     T_DEFAULT = 1.0
@@ -216,9 +216,10 @@ class ODEProblem(OCP):
         x0 = self.X0_DEFAULT if x0 is None else x0
         options.setdefault("name", type(self).name)
         super().__init__(self._rhs, x0, controls=self.M, N=int(N), T=self.T, running_cost=self._cost,
-                         method=method, x_bounds=x_bounds, path=path_constraints, **options)
-        if x_bounds is not None:
-            self.x_bounds = x_bounds     # also on the fixed x^0 (OCP bounds the grid points after it)
+                         method=method, path=path_constraints, **options)
+        # DOCP's state bounds, on every stage: also on the fixed x^0, which may lie outside them
+        # (moot there, issue 13; OCP would refuse such an x0)
+        self.x_bounds = x_bounds
 
     def _rhs(self, t, x, u, p):
         return self.ode_rhs(x, u)
