@@ -30,7 +30,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .autodiff.functions import cos, sin
 from .continuous import ContinuousDOCP, ExactHessians
+from .continuous_ocp import ContinuousOCP
 
 __all__ = ["Brachistochrone", "BrachistochronePoint", "DoubleIntegrator", "BrysonDenham", "BangBangCart",
            "MoonLander", "LotkaFishing", "BatchReactor", "AlpRider", "FreeFlyingRobot", "Dubins",
@@ -58,7 +60,7 @@ class _MinTime:
 
 
 # ============================================================================ brachistochrone
-class Brachistochrone(_MinTime, ContinuousDOCP):
+class Brachistochrone(ContinuousOCP):
     """Brachistochrone to a vertical line (Johann Bernoulli 1696; Bryson and Ho, *Applied
     Optimal Control*, 1975, sec. 2.6)::
 
@@ -85,23 +87,13 @@ class Brachistochrone(_MinTime, ContinuousDOCP):
     TERMINAL_EQUALITIES = [0]
     DEFAULT_N = 51
     TARGET = (1.0,)
+    MINIMUM_TIME = True
 
-    def model(self, X, U, order):
-        v, th = X[:, 2], U[:, 0]
-        K = len(v)
-        c, s = np.cos(th), np.sin(th)
-        F = np.stack([v * c, v * s, self.G * s, np.zeros(K)], axis=1)
-        if order < 1:
-            return F, None, None
-        J = _z(K, 4, 4)
-        J[:, 0, 2], J[:, 0, 3] = c, -v * s
-        J[:, 1, 2], J[:, 1, 3] = s, v * c
-        J[:, 2, 3] = self.G * c
-        return F, J, None
+    def ode_rhs(self, x, u):
+        return [x[2] * cos(u[0]), x[2] * sin(u[0]), self.G * sin(u[0])]
 
-    def terminal(self, x, order):
-        idx = list(range(len(self.TARGET)))
-        return x[idx] - np.asarray(self.TARGET), _select(self.n, idx), np.zeros((len(idx), self.n, self.n))
+    def ode_terminal(self, x, T):
+        return [x[i] - t for i, t in enumerate(self.TARGET)]
 
     def control_guess(self):
         return np.full((self.steps, 1), np.pi / 4)
@@ -123,7 +115,7 @@ class BrachistochronePoint(Brachistochrone):
 
 
 # ============================================================================ double integrator
-class DoubleIntegrator(ExactHessians, ContinuousDOCP):
+class DoubleIntegrator(ContinuousOCP):
     """Minimum-energy double integrator (Bryson and Ho 1975, sec. 3.11, without the state
     constraint)::
 
@@ -142,24 +134,14 @@ class DoubleIntegrator(ExactHessians, ContinuousDOCP):
     TERMINAL_EQUALITIES = [0, 1]
     DEFAULT_N = 50
 
-    def model(self, X, U, order):
-        v, u = X[:, 1], U[:, 0]
-        K = len(u)
-        F = np.stack([v, u, 0.5 * u * u], axis=1)
-        if order < 1:
-            return F, None, None
-        J = _z(K, 3, 3)
-        J[:, 0, 1] = 1.0
-        J[:, 1, 2] = 1.0
-        J[:, 2, 2] = u
-        H = None
-        if order >= 2:
-            H = np.zeros((K, 3, 3, 3))
-            H[:, 2, 2, 2] = 1.0
-        return F, J, H
+    def ode_rhs(self, x, u):
+        return [x[1], u[0]]
 
-    def terminal(self, x, order):
-        return np.array([x[0], x[1] + 1.0]), np.eye(2), np.zeros((2, 2, 2))
+    def ode_cost(self, x, u):
+        return 0.5 * u[0] * u[0]
+
+    def ode_terminal(self, x, T):
+        return [x[0], x[1] + 1.0]
 
 
 class BrysonDenham(DoubleIntegrator):
@@ -175,7 +157,7 @@ class BrysonDenham(DoubleIntegrator):
 
 
 # ============================================================================ minimum time cart
-class BangBangCart(_MinTime, ContinuousDOCP):
+class BangBangCart(ContinuousOCP):
     """Minimum-time control of a cart, x'' = u, |u| <= 1, to the origin (Bryson and Ho 1975,
     sec. 7.3; Pontryagin et al. 1962)::
 
@@ -198,26 +180,20 @@ class BangBangCart(_MinTime, ContinuousDOCP):
     N_TERMINAL = 2
     TERMINAL_EQUALITIES = [0, 1]
     DEFAULT_N = 51
+    MINIMUM_TIME = True
 
-    def model(self, X, U, order):
-        K = X.shape[0]
-        F = np.stack([X[:, 1], U[:, 0], np.zeros(K)], axis=1)
-        if order < 1:
-            return F, None, None
-        J = _z(K, 3, 3)
-        J[:, 0, 1] = 1.0
-        J[:, 1, 2] = 1.0
-        return F, J, None
+    def ode_rhs(self, x, u):
+        return [x[1], u[0]]
 
-    def terminal(self, x, order):
-        return x[:2].copy(), _select(self.n, [0, 1]), np.zeros((2, self.n, self.n))
+    def ode_terminal(self, x, T):
+        return [x[0], x[1]]
 
     def control_guess(self):
         return np.zeros((self.steps, 1))
 
 
 # ============================================================================ moon lander
-class MoonLander(ContinuousDOCP):
+class MoonLander(ContinuousOCP):
     """Minimum-fuel soft landing (Meditch, IEEE Trans. Automat. Control 9 (1964) 477-484, in the
     unit-mass form of many textbooks)::
 
@@ -243,20 +219,14 @@ class MoonLander(ContinuousDOCP):
     TERMINAL_EQUALITIES = [0, 1]
     DEFAULT_N = 51
 
-    def model(self, X, U, order):
-        v, u = X[:, 1], U[:, 0]
-        K = len(u)
-        F = np.stack([v, u - self.G, u], axis=1)
-        if order < 1:
-            return F, None, None
-        J = _z(K, 3, 3)
-        J[:, 0, 1] = 1.0
-        J[:, 1, 2] = 1.0
-        J[:, 2, 2] = 1.0
-        return F, J, None
+    def ode_rhs(self, x, u):
+        return [x[1], u[0] - self.G]
 
-    def terminal(self, x, order):
-        return x[:2].copy(), _select(self.n, [0, 1]), np.zeros((2, self.n, self.n))
+    def ode_cost(self, x, u):
+        return u[0]
+
+    def ode_terminal(self, x, T):
+        return [x[0], x[1]]
 
     def control_guess(self):
         return np.full((self.steps, 1), self.G)
@@ -519,7 +489,7 @@ class FreeFlyingRobot(ExactHessians, ContinuousDOCP):
 
 
 # ============================================================================ Dubins car
-class Dubins(_MinTime, ContinuousDOCP):
+class Dubins(ContinuousOCP):
     """Minimum-time Dubins car (Dubins, Amer. J. Math. 79 (1957) 497-516)::
 
         min T,   x' = cos th,  y' = sin th,  th' = w,   |w| <= 1   (unit speed and turning radius),
@@ -542,19 +512,13 @@ class Dubins(_MinTime, ContinuousDOCP):
     N_TERMINAL = 3
     TERMINAL_EQUALITIES = [0, 1, 2]
     DEFAULT_N = 51
+    MINIMUM_TIME = True
 
-    def model(self, X, U, order):
-        th = X[:, 2]
-        K = len(th)
-        F = np.stack([np.cos(th), np.sin(th), U[:, 0], np.zeros(K)], axis=1)
-        if order < 1:
-            return F, None, None
-        J = _z(K, 4, 4)
-        J[:, 0, 2], J[:, 1, 2], J[:, 2, 3] = -np.sin(th), np.cos(th), 1.0
-        return F, J, None
+    def ode_rhs(self, x, u):
+        return [cos(x[2]), sin(x[2]), u[0]]
 
-    def terminal(self, x, order):
-        return x[:3] - np.asarray(self.XF), _select(self.n, [0, 1, 2]), np.zeros((3, self.n, self.n))
+    def ode_terminal(self, x, T):
+        return [x[i] - xf for i, xf in enumerate(self.XF)]
 
     def control_guess(self):
         return np.full((self.steps, 1), 0.5)
