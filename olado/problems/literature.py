@@ -525,7 +525,7 @@ class Dubins(ContinuousOCP):
 
 
 # ============================================================================ rigid body
-class RigidBody(_MinTime, ContinuousDOCP):
+class RigidBody(ContinuousOCP):
     """Minimum-time reorientation of an asymmetric rigid body (Fleming, Sekhavat and Ross,
     AIAA 2008-7012; Betts 2010, sec. 6.8)::
 
@@ -554,43 +554,18 @@ class RigidBody(_MinTime, ContinuousDOCP):
     N_TERMINAL = 6
     TERMINAL_EQUALITIES = list(range(6))
     DEFAULT_N = 61
+    MINIMUM_TIME = True
 
-    def model(self, X, U, order):
-        q, w = X[:, :4], X[:, 4:7]
-        K = X.shape[0]
+    def ode_rhs(self, x, u):
         Ix, Iy, Iz = self.INERTIA
-        w1, w2, w3 = w[:, 0], w[:, 1], w[:, 2]
-        q1, q2, q3, q4 = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-        F = np.empty((K, 8))
-        F[:, 0] = 0.5 * (w1 * q4 - w2 * q3 + w3 * q2)
-        F[:, 1] = 0.5 * (w1 * q3 + w2 * q4 - w3 * q1)
-        F[:, 2] = 0.5 * (-w1 * q2 + w2 * q1 + w3 * q4)
-        F[:, 3] = 0.5 * (-w1 * q1 - w2 * q2 - w3 * q3)
-        F[:, 4] = (U[:, 0] - (Iz - Iy) * w2 * w3) / Ix
-        F[:, 5] = (U[:, 1] - (Ix - Iz) * w1 * w3) / Iy
-        F[:, 6] = (U[:, 2] - (Iy - Ix) * w1 * w2) / Iz
-        F[:, 7] = 0.0
-        if order < 1:
-            return F, None, None
-        J = _z(K, 8, 10)
-        # d q'/d q (columns 0..3) and d q'/d w (columns 4..6)
-        J[:, 0, 1], J[:, 0, 2], J[:, 0, 3] = 0.5 * w3, -0.5 * w2, 0.5 * w1
-        J[:, 0, 4], J[:, 0, 5], J[:, 0, 6] = 0.5 * q4, -0.5 * q3, 0.5 * q2
-        J[:, 1, 0], J[:, 1, 2], J[:, 1, 3] = -0.5 * w3, 0.5 * w1, 0.5 * w2
-        J[:, 1, 4], J[:, 1, 5], J[:, 1, 6] = 0.5 * q3, 0.5 * q4, -0.5 * q1
-        J[:, 2, 0], J[:, 2, 1], J[:, 2, 3] = 0.5 * w2, -0.5 * w1, 0.5 * w3
-        J[:, 2, 4], J[:, 2, 5], J[:, 2, 6] = -0.5 * q2, 0.5 * q1, 0.5 * q4
-        J[:, 3, 0], J[:, 3, 1], J[:, 3, 2] = -0.5 * w1, -0.5 * w2, -0.5 * w3
-        J[:, 3, 4], J[:, 3, 5], J[:, 3, 6] = -0.5 * q1, -0.5 * q2, -0.5 * q3
-        J[:, 4, 5], J[:, 4, 6], J[:, 4, 7] = -(Iz - Iy) * w3 / Ix, -(Iz - Iy) * w2 / Ix, 1.0 / Ix
-        J[:, 5, 4], J[:, 5, 6], J[:, 5, 8] = -(Ix - Iz) * w3 / Iy, -(Ix - Iz) * w1 / Iy, 1.0 / Iy
-        J[:, 6, 4], J[:, 6, 5], J[:, 6, 9] = -(Iy - Ix) * w2 / Iz, -(Iy - Ix) * w1 / Iz, 1.0 / Iz
-        return F, J, None
+        q1, q2, q3, q4, w1, w2, w3 = (x[i] for i in range(7))
+        return [0.5 * (w1 * q4 - w2 * q3 + w3 * q2), 0.5 * (w1 * q3 + w2 * q4 - w3 * q1),
+                0.5 * (-w1 * q2 + w2 * q1 + w3 * q4), 0.5 * (-w1 * q1 - w2 * q2 - w3 * q3),
+                (u[0] - (Iz - Iy) * w2 * w3) / Ix, (u[1] - (Ix - Iz) * w1 * w3) / Iy, (u[2] - (Iy - Ix) * w1 * w2) / Iz]
 
-    def terminal(self, x, order):
-        idx = [0, 1, 2, 4, 5, 6]
-        target = np.array([np.sin(self.PHI / 2), 0, 0, 0, 0, 0])
-        return x[idx] - target, _select(self.n, idx), np.zeros((6, self.n, self.n))
+    def ode_terminal(self, x, T):
+        target = (np.sin(self.PHI / 2), 0.0, 0.0, 0.0, 0.0, 0.0)
+        return [x[i] - v for i, v in zip((0, 1, 2, 4, 5, 6), target)]
 
     def control_guess(self):
         U = np.zeros((self.steps, 3))
@@ -665,7 +640,7 @@ class Obstacle(ExactHessians, ContinuousDOCP):
 
 
 # ============================================================================ cart-pole
-class CartPole(ContinuousDOCP):
+class CartPole(ContinuousOCP):
     """Cart-pole swing-up (Kelly, *An introduction to trajectory optimization*, SIAM Review 59
     (2017) 849-904, sec. 6 and appendix E)::
 
@@ -675,9 +650,8 @@ class CartPole(ContinuousDOCP):
         (q1, q2, q1', q2')(0) = 0,   (q1, q2, q1', q2')(2) = (1, pi, 0, 0),   |u| <= 20,  |q1| <= 2,
 
     with m1 = 1, m2 = 0.3, l = 0.5, g = 9.81. No published optimal value (Kelly shows the
-    trajectory only). The model's Jacobian is by central differences of its values (the step
-    derivatives through RK4 are then exact given it). Start: u = 0 with the states linear from
-    the initial to the final values (Kelly's guess).
+    trajectory only). Start: u = 0 with the states linear from the initial to the final values
+    (Kelly's guess).
     """
 
     name = "cart-pole"
@@ -693,18 +667,20 @@ class CartPole(ContinuousDOCP):
     TERMINAL_EQUALITIES = [0, 1, 2, 3]
     DEFAULT_N = 50
 
-    def model(self, X, U, order):
-        q2, dq2, u = X[:, 1], X[:, 3], U[:, 0]
+    def ode_rhs(self, x, u):
+        q2, dq2, v = x[1], x[3], u[0]
         m1, m2, ln, g = self.M1, self.M2, self.LEN, self.G
-        s, c = np.sin(q2), np.cos(q2)
+        s, c = sin(q2), cos(q2)
         den = m1 + m2 * (1.0 - c * c)
-        a1 = (ln * m2 * s * dq2 ** 2 + u + m2 * g * c * s) / den
-        a2 = -(ln * m2 * c * s * dq2 ** 2 + u * c + (m1 + m2) * g * s) / (ln * den)
-        F = np.stack([X[:, 2], dq2, a1, a2, u * u], axis=1)
-        return F, None, None
+        a1 = (ln * m2 * s * dq2 ** 2 + v + m2 * g * c * s) / den
+        a2 = -(ln * m2 * c * s * dq2 ** 2 + v * c + (m1 + m2) * g * s) / (ln * den)
+        return [x[2], dq2, a1, a2]
 
-    def terminal(self, x, order):
-        return x - np.asarray(self.XF), np.eye(4), np.zeros((4, 4, 4))
+    def ode_cost(self, x, u):
+        return u[0] * u[0]
+
+    def ode_terminal(self, x, T):
+        return [x[i] - v for i, v in enumerate(self.XF)]
 
     def control_guess(self):
         return np.zeros((self.steps, 1))
@@ -715,7 +691,7 @@ class CartPole(ContinuousDOCP):
 
 
 # ============================================================================ orbit raising
-class OrbitRaising(ContinuousDOCP):
+class OrbitRaising(ContinuousOCP):
     """Maximal-radius low-thrust orbit transfer in fixed time (Moyer and Pinkham 1964; Bryson and
     Ho, *Applied Optimal Control*, 1975, sec. 2.5)::
 
@@ -740,34 +716,16 @@ class OrbitRaising(ContinuousDOCP):
     TERMINAL_EQUALITIES = [0, 1]
     DEFAULT_N = 50
 
-    def model(self, X, U, order):
-        r, vr, vt, t, ph = X[:, 0], X[:, 1], X[:, 2], X[:, 3], U[:, 0]
-        K = len(r)
-        den = 1.0 - self.MDOT * t
-        a = self.THRUST / den
-        s, c = np.sin(ph), np.cos(ph)
-        F = np.stack([vr, vt * vt / r - 1.0 / (r * r) + a * s, -vr * vt / r + a * c, np.ones(K), np.zeros(K)], axis=1)
-        if order < 1:
-            return F, None, None
-        da = self.THRUST * self.MDOT / den ** 2
-        J = _z(K, 5, 5)
-        J[:, 0, 1] = 1.0
-        J[:, 1, 0], J[:, 1, 2], J[:, 1, 3], J[:, 1, 4] = -vt * vt / r ** 2 + 2.0 / r ** 3, 2.0 * vt / r, da * s, a * c
-        J[:, 2, 0], J[:, 2, 1], J[:, 2, 2] = vr * vt / r ** 2, -vt / r, -vr / r
-        J[:, 2, 3], J[:, 2, 4] = da * c, -a * s
-        return F, J, None
+    def ode_rhs(self, x, u):
+        r, vr, vt, t, ph = x[0], x[1], x[2], x[3], u[0]
+        a = self.THRUST / (1.0 - self.MDOT * t)
+        return [vr, vt * vt / r - 1.0 / (r * r) + a * sin(ph), -vr * vt / r + a * cos(ph), 1.0 + 0.0 * r]
 
-    def mayer(self, x, order):
-        g = np.zeros(self.n)
-        g[0] = -1.0
-        return -x[0], g, np.zeros((self.n, self.n))
+    def ode_final_cost(self, x, T):
+        return -x[0]
 
-    def terminal(self, x, order):
-        r, vr, vt = x[0], x[1], x[2]
-        jac = np.zeros((2, self.n))
-        jac[0, 1] = 1.0
-        jac[1, 0], jac[1, 2] = 0.5 * r ** -1.5, 1.0
-        return np.array([vr, vt - r ** -0.5]), jac, None
+    def ode_terminal(self, x, T):
+        return [x[1], x[2] - x[0] ** -0.5]
 
     def control_guess(self):
         return np.zeros((self.steps, 1))
