@@ -12,7 +12,8 @@ model once, as expressions (``x[0]``, ``+ - * / **`` and the functions of
     ode_path(x, u)         -> g (N_PATH entries)     g >= 0 at k = 0..N-1 (fixed final time only)
     ode_terminal(x, T)     -> psi (N_TERMINAL)       psi >= 0 (= 0 where TERMINAL_EQUALITIES)
 
-``MINIMUM_TIME = True`` adds T to the objective. The DOCP is ContinuousDOCP's: N stages, i.e.
+``MINIMUM_TIME = True`` adds T to the objective (with a free final time; at a fixed T, a
+constant, it is left out). The DOCP is ContinuousDOCP's: N stages, i.e.
 N intervals with a fixed final time and N - 1 with a free one (stage 0 is OCP's parameter stage,
 which is ContinuousDOCP's); steps of length exactly h = T/N (1/(N - 1) normalized); the state
 bounds on every stage (x^0 and the parameter stage's x^1 included) and a zero placeholder for T
@@ -85,7 +86,7 @@ class ContinuousOCP(OCP):
         u_guess, x_guess = self.control_guess(), self.state_guess()
         super().__init__(lambda t, x, u, p: self.ode_rhs(x, u), np.asarray(self.X0, dtype=float),
                          controls=len(self.CONTROLS), N=self.steps, T=horizon, T_bounds=self.T_BOUNDS,
-                         T_guess=self.T_GUESS, minimum_time=self.MINIMUM_TIME, u_bounds=self.U_BOUNDS,
+                         T_guess=self.T_GUESS, minimum_time=self.MINIMUM_TIME and free, u_bounds=self.U_BOUNDS,
                          path_equalities=self.PATH_EQUALITIES, terminal_equalities=self.TERMINAL_EQUALITIES,
                          method=method, u_guess=u_guess, x_guess=x_guess, **kwargs, **options)
         self._contdocp_bounds()
