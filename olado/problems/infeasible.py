@@ -112,8 +112,8 @@ class BatchOveryield(BatchReactor):
     name = "batch-overyield"
     N_TERMINAL = 1
 
-    def terminal(self, x, order):
-        return np.array([x[1] - 1.05]), np.array([[0.0, 1.0]]), np.zeros((1, 2, 2))
+    def ode_terminal(self, x, T):
+        return [x[1] - 1.05]
 
 
 def _factory(cls, doc):

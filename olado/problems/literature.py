@@ -50,15 +50,6 @@ def _select(n, idx):
     return jac
 
 
-class _MinTime:
-    """Mayer term T (the time-scaling state, last) of a minimum-time problem."""
-
-    def mayer(self, x, order):
-        g = np.zeros(self.n)
-        g[-1] = 1.0
-        return x[-1], g, np.zeros((self.n, self.n))
-
-
 # ============================================================================ brachistochrone
 class Brachistochrone(ContinuousOCP):
     """Brachistochrone to a vertical line (Johann Bernoulli 1696; Bryson and Ho, *Applied
@@ -280,7 +271,7 @@ class LotkaFishing(ExactHessians, ContinuousDOCP):
 
 
 # ============================================================================ batch reactor
-class BatchReactor(ExactHessians, ContinuousDOCP):
+class BatchReactor(ContinuousOCP):
     """Consecutive reactions A -> B -> C in a batch reactor (Ray, *Advanced Process Control*,
     McGraw-Hill 1981; Luus, *Iterative Dynamic Programming*, Chapman & Hall/CRC 2000)::
 
@@ -300,26 +291,11 @@ class BatchReactor(ExactHessians, ContinuousDOCP):
     U_BOUNDS = ((0.0,), (5.0,))
     DEFAULT_N = 50
 
-    def model(self, X, U, order):
-        x1, u = X[:, 0], U[:, 0]
-        K = len(u)
-        r = u + 0.5 * u * u
-        F = np.stack([-r * x1, u * x1, np.zeros(K)], axis=1)
-        if order < 1:
-            return F, None, None
-        J = _z(K, 3, 3)
-        J[:, 0, 0], J[:, 0, 2] = -r, -(1 + u) * x1
-        J[:, 1, 0], J[:, 1, 2] = u, x1
-        H = None
-        if order >= 2:
-            H = np.zeros((K, 3, 3, 3))
-            H[:, 0, 0, 2] = H[:, 0, 2, 0] = -(1 + u)
-            H[:, 0, 2, 2] = -x1
-            H[:, 1, 0, 2] = H[:, 1, 2, 0] = 1.0
-        return F, J, H
+    def ode_rhs(self, x, u):
+        return [-(u[0] + 0.5 * u[0] * u[0]) * x[0], u[0] * x[0]]
 
-    def mayer(self, x, order):
-        return -x[1], np.array([0.0, -1.0]), np.zeros((2, 2))
+    def ode_final_cost(self, x, T):
+        return -x[1]
 
 
 # ============================================================================ alp rider
