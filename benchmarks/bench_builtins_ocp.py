@@ -58,6 +58,7 @@ def load_before(rev):
                              capture_output=True, text=True).stdout
         for other in MODULES:
             src = src.replace(f"from .{other} import", f"from ._before_{other} import")
+        src = src.replace("cache=True", "cache=False")     # numba caches only functions of real files
         full = f"olado.problems._before_{name}"
         spec = importlib.util.spec_from_loader(full, loader=None)
         mod = importlib.util.module_from_spec(spec)
