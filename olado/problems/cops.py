@@ -1,6 +1,8 @@
 """Optimal-control problems of the COPS collection (Dolan, Moré and Munson, *Benchmarking
 optimization software with COPS 3.0*, Argonne ANL/MCS-TM-273, 2004), discretized by RK4 (or
-Euler) with piecewise-constant controls on the stages (:mod:`olado.problems.continuous`).
+Euler) with piecewise-constant controls on the stages: written on OCP
+(:mod:`olado.problems.continuous_ocp`, exact derivatives) or as ContinuousDOCPs
+(:mod:`olado.problems.continuous`, catalyst-mixing and hanging-chain).
 
 COPS itself discretizes by the trapezoidal rule (or collocation) on nh intervals; its tables give
 the optimal values of those discretizations, which the published values below quote together

@@ -1,5 +1,7 @@
 """Optimal-control problems of the literature (Bryson and Ho; Betts; Luus; Sager; Kelly),
-discretized by RK4 (or Euler) with piecewise-constant controls (:mod:`olado.problems.continuous`).
+discretized by RK4 (or Euler) with piecewise-constant controls: written on OCP
+(:mod:`olado.problems.continuous_ocp`, exact derivatives) or as ContinuousDOCPs
+(:mod:`olado.problems.continuous`: lotka-fishing, alp-rider, free-flying-robot, obstacle).
 
 Each class states its source, its formulation and the published continuous-time optimal value,
 or says that none is published (or that the value is the analytic one, derived in the
