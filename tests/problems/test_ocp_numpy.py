@@ -158,3 +158,22 @@ def test_a_branch_on_a_value_is_refused_on_numpy_too():
     with pytest.raises(ProblemDefinitionError, match=r"path.*no Python branch"):
         OCP(lambda t, x, u, p: [u[0]], [0.0], controls=1, T=1.0, ad_backend="numpy",
             path=lambda t, x, u, p: [x[0] if x[0] > 0 else -x[0]])
+
+
+def test_built_ins_without_casadi():
+    """The built-in ODE problems run on the numpy back-end: vanderpol-path (an OCP) reaches its
+    regression objective by sqp-ip, and brachistochrone (a ContinuousOCP) has the CasADi
+    problem's values to the bit and its first derivatives to FD accuracy."""
+    from olado.problems.literature import Brachistochrone
+    from olado.problems.testproblems import REGRESSION_VALUES, VanDerPol
+
+    p = VanDerPol(N=50, path=True, ad_backend="numpy")
+    r = olado.solve(p, config=SQP)
+    assert r.success, r.message
+    assert abs(r.objective - REGRESSION_VALUES[("vanderpol-path", "rk4")]) < 1e-6
+    assert "finite differences" in r.info["derivatives"]
+    pytest.importorskip("casadi")
+    a, b = Brachistochrone(ad_backend="numpy"), Brachistochrone(ad_backend="casadi")
+    X, U = _point(b, scale=0.05)
+    assert check_derivatives(a, b, X, U, rtol=1e-15, atol=1e-15, hessians=False)["dynamics"].ok
+    assert check_derivatives(a, b, X, U, rtol=1e-7, atol=1e-8, hessians=False).ok
