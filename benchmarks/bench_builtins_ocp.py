@@ -149,7 +149,7 @@ def timing(before, N=12_000):
 
 
 def markdown(rev, rows, trows):
-    lines = [f"Command: `python benchmarks/bench_builtins_ocp.py --before {rev} --timing --write`  ",
+    lines = [f"## {SECTION}", "", f"Command: `python benchmarks/bench_builtins_ocp.py --before {rev} --timing --write`  ",
              f"Commit: {commit()}  ", f"Date: {time.strftime('%Y-%m-%d')}  ", f"Machine: {machine()}", "",
              f"Every rewritten problem against its implementation at {rev}: the same dimensions, x^0, bounds, start "
              "point (controls and states) and equality masks (asserted), values and first derivatives "
