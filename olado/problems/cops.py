@@ -2,7 +2,7 @@
 optimization software with COPS 3.0*, Argonne ANL/MCS-TM-273, 2004), discretized by RK4 (or
 Euler) with piecewise-constant controls on the stages: written on OCP
 (:mod:`olado.problems.continuous_ocp`, exact derivatives) or as ContinuousDOCPs
-(:mod:`olado.problems.continuous`, catalyst-mixing and hanging-chain).
+(:mod:`olado.problems.continuous`: hang-glider, catalyst-mixing, hanging-chain).
 
 COPS itself discretizes by the trapezoidal rule (or collocation) on nh intervals; its tables give
 the optimal values of those discretizations, which the published values below quote together
@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .autodiff.functions import cos, exp, sin, sqrt
+from .autodiff.functions import cos, exp, sin
 from .continuous import ContinuousDOCP, ExactHessians
 from .continuous_ocp import ContinuousOCP
 
@@ -90,7 +90,7 @@ class Goddard(ContinuousOCP):
 
 
 # ============================================================================ hang glider
-class HangGlider(ContinuousOCP):
+class HangGlider(ContinuousDOCP):
     """Range of a hang glider in a thermal updraft (Bulirsch, Nerz, Pesch and von Stryk 1993;
     COPS 3.0 'glider'; Betts, *Practical Methods for Optimal Control and Estimation Using
     Nonlinear Programming*, 2nd ed., SIAM 2010, sec. 6.5 / ex. 10.54)::
@@ -127,21 +127,46 @@ class HangGlider(ContinuousOCP):
     TERMINAL_EQUALITIES = [0, 1, 2]
     DEFAULT_N = 101
 
-    def ode_rhs(self, x, u):
-        vx, vy, cL = x[2], x[3], u[0]
-        s = x[0] / self.R - 2.5
+    def model(self, X, U, order):
+        x, vx, vy, cL = X[:, 0], X[:, 2], X[:, 3], U[:, 0]
+        K = len(x)
+        s = x / self.R - 2.5
         Xa = s * s
-        w = vy - self.UM * (1.0 - Xa) * exp(-Xa)
-        vr = sqrt(vx * vx + w * w)
+        ex = np.exp(-Xa)
+        ua = self.UM * (1.0 - Xa) * ex
+        w = vy - ua
+        vr = np.sqrt(vx * vx + w * w)
         q = 0.5 * self.RHO * self.S / self.MASS
         cD = self.C0 + self.KD * cL * cL
-        return [vx, vy, -q * vr * (cL * w + cD * vx), q * vr * (cL * vx - cD * w) - self.G]
+        a = cL * w + cD * vx            # vx' = -q vr a
+        b = cL * vx - cD * w            # vy' = q vr b - g
+        F = np.stack([vx, vy, -q * vr * a, q * vr * b - self.G, np.zeros(K)], axis=1)
+        if order < 1:
+            return F, None, None
+        dua_dx = self.UM * ex * (Xa - 2.0) * (2.0 * s / self.R)
+        dvr_dvx, dvr_dw = vx / vr, w / vr
+        # derivatives w.r.t. (vx, w, cL) of vx' and vy'
+        fvx = (-q * (dvr_dvx * a + vr * cD), -q * (dvr_dw * a + vr * cL), -q * vr * (w + 2.0 * self.KD * cL * vx))
+        fvy = (q * (dvr_dvx * b + vr * cL), q * (dvr_dw * b - vr * cD), q * vr * (vx - 2.0 * self.KD * cL * w))
+        J = _zeros(K, 5, 5)
+        J[:, 0, 2] = 1.0
+        J[:, 1, 3] = 1.0
+        for row, d in ((2, fvx), (3, fvy)):
+            J[:, row, 0] = -d[1] * dua_dx        # dw/dx = -dua/dx
+            J[:, row, 2] = d[0]
+            J[:, row, 3] = d[1]                  # dw/dvy = 1
+            J[:, row, 4] = d[2]
+        return F, J, None
 
-    def ode_final_cost(self, x, T):
-        return -x[0]
+    def mayer(self, x, order):
+        g = np.zeros(self.n)
+        g[0] = -1.0
+        return -x[0], g, np.zeros((self.n, self.n))
 
-    def ode_terminal(self, x, T):
-        return [x[1] - 900.0, x[2] - self.VX, x[3] - self.VY]
+    def terminal(self, x, order):
+        jac = np.zeros((3, self.n))
+        jac[0, 1] = jac[1, 2] = jac[2, 3] = 1.0
+        return np.array([x[1] - 900.0, x[2] - self.VX, x[3] - self.VY]), jac, np.zeros((3, self.n, self.n))
 
     def control_guess(self):
         return np.full((self.steps, 1), 0.7)
