@@ -11,6 +11,10 @@ Two problems exist both ways:
   time by its parameter stage, hand-written first derivatives, Hessians by finite differences of
   them) and the same problem as an OCP (T free, ``minimum_time=True``).
 
+Since the built-ins were rewritten on OCP (benchmarks/bench_builtins_ocp.py), VanDerPol and
+Brachistochrone are OCPs themselves: this script now compares two OCP constructions, and its
+RESULTS.md section stays the record of the hand-written transcriptions (at cae8e17).
+
 For each, the script times round robin (both variants called once per round) the DOCP-level
 evaluations the solvers call, ``eval_dynamics_jacobians`` and ``eval_stage_hessians`` (the
 Lagrangian's stage blocks), median per stage in ns, at two horizons; the OCP's set-up is its

@@ -378,6 +378,8 @@ class Result:
                     f"cond {cond['cond_original']:.3g} -> {cond['cond_scaled']:.3g} at the start point"
                     if "ratio" in cond else f"{scaling.get('method')}; {cond.get('note', '')}")
             lines.append(f"  scaling      : {text}")
+        if self.info.get("derivatives"):
+            lines.append(f"  derivatives  : {self.info['derivatives']}")
         for key in ("callback_time_s", "callback_share"):
             if key in self.info:
                 val = self.info[key]

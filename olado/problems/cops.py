@@ -1,6 +1,8 @@
 """Optimal-control problems of the COPS collection (Dolan, Moré and Munson, *Benchmarking
 optimization software with COPS 3.0*, Argonne ANL/MCS-TM-273, 2004), discretized by RK4 (or
-Euler) with piecewise-constant controls on the stages (:mod:`olado.problems.continuous`).
+Euler) with piecewise-constant controls on the stages: written on OCP
+(:mod:`olado.problems.continuous_ocp`, exact derivatives) or as ContinuousDOCPs
+(:mod:`olado.problems.continuous`: hang-glider, catalyst-mixing, hanging-chain).
 
 COPS itself discretizes by the trapezoidal rule (or collocation) on nh intervals; its tables give
 the optimal values of those discretizations, which the published values below quote together
@@ -25,7 +27,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .autodiff.functions import cos, exp, sin
 from .continuous import ContinuousDOCP, ExactHessians
+from .continuous_ocp import ContinuousOCP
 
 __all__ = ["Goddard", "HangGlider", "RobotArm", "ParticleSteering", "CatalystMixing", "HangingChain", "PROBLEMS"]
 
@@ -35,7 +39,7 @@ def _zeros(K, rows, cols):
 
 
 # ============================================================================ Goddard rocket
-class Goddard(ContinuousDOCP):
+class Goddard(ContinuousOCP):
     """Goddard rocket, maximal final altitude (COPS 3.0 'rocket'; Goddard 1919)::
 
         max h(T)   (here: min -h(T)),   T free,
@@ -66,32 +70,16 @@ class Goddard(ContinuousDOCP):
     TERMINAL_EQUALITIES = [0]
     DEFAULT_N = 61
 
-    def model(self, X, U, order):
-        h, v, m, u = X[:, 0], X[:, 1], X[:, 2], U[:, 0]
-        K = len(h)
-        e = np.exp(-self.HC * (h - 1.0))
-        D = self.DC * v * v * e
-        F = np.stack([v, (u - D) / m - 1.0 / (h * h), -u / self.C, np.zeros(K)], axis=1)
-        if order < 1:
-            return F, None, None
-        J = _zeros(K, 4, 4)
-        J[:, 0, 1] = 1.0
-        J[:, 1, 0] = self.HC * D / m + 2.0 / h ** 3
-        J[:, 1, 1] = -2.0 * self.DC * v * e / m
-        J[:, 1, 2] = -(u - D) / (m * m)
-        J[:, 1, 3] = 1.0 / m
-        J[:, 2, 3] = -1.0 / self.C
-        return F, J, None
+    def ode_rhs(self, x, u):
+        h, v, m = x[0], x[1], x[2]
+        D = self.DC * v * v * exp(-self.HC * (h - 1.0))
+        return [v, (u[0] - D) / m - 1.0 / (h * h), -u[0] / self.C]
 
-    def mayer(self, x, order):
-        g = np.zeros(self.n)
-        g[0] = -1.0
-        return -x[0], g, np.zeros((self.n, self.n))
+    def ode_final_cost(self, x, T):
+        return -x[0]
 
-    def terminal(self, x, order):
-        jac = np.zeros((1, self.n))
-        jac[0, 2] = 1.0
-        return np.array([x[2] - self.MF]), jac, np.zeros((1, self.n, self.n))
+    def ode_terminal(self, x, T):
+        return [x[2] - self.MF]
 
     def control_guess(self):
         return np.full((self.steps, 1), self.TMAX / 2.0)
@@ -189,7 +177,7 @@ class HangGlider(ContinuousDOCP):
 
 
 # ============================================================================ robot arm
-class RobotArm(ContinuousDOCP):
+class RobotArm(ContinuousOCP):
     """Minimum-time motion of a robot arm (Monika Mössner-Beigel's thesis, IWR Heidelberg; COPS
     3.0 'robot')::
 
@@ -219,37 +207,16 @@ class RobotArm(ContinuousDOCP):
     TERMINAL_EQUALITIES = list(range(6))
     DEFAULT_N = 61
 
-    def model(self, X, U, order):
-        rho, phi = X[:, 0], X[:, 2]
-        ur, ut, up = U[:, 0], U[:, 1], U[:, 2]
-        K = len(rho)
-        L = self.L
+    MINIMUM_TIME = True
+
+    def ode_rhs(self, x, u):
+        rho, phi, L = x[0], x[2], self.L
         Iphi = ((L - rho) ** 3 + rho ** 3) / 3.0
-        s2 = np.sin(phi) ** 2
-        Ith = Iphi * s2
-        F = np.stack([X[:, 3], X[:, 4], X[:, 5], ur / L, ut / Ith, up / Iphi, np.zeros(K)], axis=1)
-        if order < 1:
-            return F, None, None
-        dIphi = rho ** 2 - (L - rho) ** 2
-        J = _zeros(K, 7, 9)
-        J[:, 0, 3] = J[:, 1, 4] = J[:, 2, 5] = 1.0
-        J[:, 3, 6] = 1.0 / L
-        J[:, 4, 0] = -ut * dIphi * s2 / Ith ** 2
-        J[:, 4, 2] = -ut * Iphi * 2.0 * np.sin(phi) * np.cos(phi) / Ith ** 2
-        J[:, 4, 7] = 1.0 / Ith
-        J[:, 5, 0] = -up * dIphi / Iphi ** 2
-        J[:, 5, 8] = 1.0 / Iphi
-        return F, J, None
+        Ith = Iphi * sin(phi) ** 2
+        return [x[3], x[4], x[5], u[0] / L, u[1] / Ith, u[2] / Iphi]
 
-    def mayer(self, x, order):
-        g = np.zeros(self.n)
-        g[-1] = 1.0
-        return x[-1], g, np.zeros((self.n, self.n))
-
-    def terminal(self, x, order):
-        jac = np.zeros((6, self.n))
-        jac[np.arange(6), np.arange(6)] = 1.0
-        return x[:6] - np.asarray(self.XF), jac, np.zeros((6, self.n, self.n))
+    def ode_terminal(self, x, T):
+        return [x[i] - v for i, v in enumerate(self.XF)]
 
     def control_guess(self):
         return np.zeros((self.steps, 3))
@@ -262,7 +229,7 @@ class RobotArm(ContinuousDOCP):
 
 
 # ============================================================================ particle steering
-class ParticleSteering(ContinuousDOCP):
+class ParticleSteering(ContinuousOCP):
     """Minimum-time particle steering, the linear tangent steering problem (Bryson and Ho,
     *Applied Optimal Control*, 1975, sec. 2.4; COPS 3.0 'steering'; Betts 2010, ex. 'lts')::
 
@@ -288,30 +255,13 @@ class ParticleSteering(ContinuousDOCP):
     TERMINAL_EQUALITIES = [0, 1, 2]
     DEFAULT_N = 51
 
-    def model(self, X, U, order):
-        u = U[:, 0]
-        K = len(u)
-        c, s = np.cos(u), np.sin(u)
-        F = np.stack([X[:, 2], X[:, 3], self.A * c, self.A * s, np.zeros(K)], axis=1)
-        if order < 1:
-            return F, None, None
-        J = _zeros(K, 5, 5)
-        J[:, 0, 2] = J[:, 1, 3] = 1.0
-        J[:, 2, 4] = -self.A * s
-        J[:, 3, 4] = self.A * c
-        return F, J, None
+    MINIMUM_TIME = True      # (a fixed T, as in steering-too-short, leaves no objective)
 
-    def mayer(self, x, order):
-        g = np.zeros(self.n)
-        if self.free_time:
-            g[-1] = 1.0
-            return x[-1], g, np.zeros((self.n, self.n))
-        return 0.0, g, np.zeros((self.n, self.n))
+    def ode_rhs(self, x, u):
+        return [x[2], x[3], self.A * cos(u[0]), self.A * sin(u[0])]
 
-    def terminal(self, x, order):
-        jac = np.zeros((3, self.n))
-        jac[0, 1] = jac[1, 2] = jac[2, 3] = 1.0
-        return np.array([x[1] - 5.0, x[2] - 45.0, x[3]]), jac, np.zeros((3, self.n, self.n))
+    def ode_terminal(self, x, T):
+        return [x[1] - 5.0, x[2] - 45.0, x[3]]
 
     def control_guess(self):
         return np.zeros((self.steps, 1))

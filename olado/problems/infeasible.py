@@ -58,9 +58,7 @@ class CartTooShort(BangBangCart):
     name = "cart-too-short"
     T = 3.0
     DEFAULT_N = 50
-
-    def mayer(self, x, order):
-        return 0.0, np.zeros(self.n), np.zeros((self.n, self.n))
+    MINIMUM_TIME = False
 
 
 class CatalystOverfull(CatalystMixing):
@@ -101,16 +99,7 @@ class VanDerPolContradict(VanDerPol):
 
     def __init__(self, N=50, **options):
         options.setdefault("name", "vanderpol-contradict")
-        super().__init__(N, n_stage_constraints=2, **options)
-
-    def stage_constraints(self, k, x, u):
-        return np.stack([x[:, 0] - 0.2, 0.1 - x[:, 0]], axis=1)
-
-    def stage_constraints_jacobian(self, k, x, u):
-        K = x.shape[0]
-        gx = np.zeros((K, 2, 2))
-        gx[:, 0, 0], gx[:, 1, 0] = 1.0, -1.0
-        return gx, np.zeros((K, 2, 1))
+        super().__init__(N, path_constraints=lambda t, x, u, p: [x[0] - 0.2, 0.1 - x[0]], **options)
 
 
 class BatchOveryield(BatchReactor):
@@ -123,8 +112,8 @@ class BatchOveryield(BatchReactor):
     name = "batch-overyield"
     N_TERMINAL = 1
 
-    def terminal(self, x, order):
-        return np.array([x[1] - 1.05]), np.array([[0.0, 1.0]]), np.zeros((1, 2, 2))
+    def ode_terminal(self, x, T):
+        return [x[1] - 1.05]
 
 
 def _factory(cls, doc):

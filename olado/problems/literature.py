@@ -1,5 +1,7 @@
 """Optimal-control problems of the literature (Bryson and Ho; Betts; Luus; Sager; Kelly),
-discretized by RK4 (or Euler) with piecewise-constant controls (:mod:`olado.problems.continuous`).
+discretized by RK4 (or Euler) with piecewise-constant controls: written on OCP
+(:mod:`olado.problems.continuous_ocp`, exact derivatives) or as ContinuousDOCPs
+(:mod:`olado.problems.continuous`: lotka-fishing, alp-rider, free-flying-robot, obstacle).
 
 Each class states its source, its formulation and the published continuous-time optimal value,
 or says that none is published (or that the value is the analytic one, derived in the
@@ -30,7 +32,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .autodiff.functions import cos, sin
 from .continuous import ContinuousDOCP, ExactHessians
+from .continuous_ocp import ContinuousOCP
 
 __all__ = ["Brachistochrone", "BrachistochronePoint", "DoubleIntegrator", "BrysonDenham", "BangBangCart",
            "MoonLander", "LotkaFishing", "BatchReactor", "AlpRider", "FreeFlyingRobot", "Dubins",
@@ -48,17 +52,8 @@ def _select(n, idx):
     return jac
 
 
-class _MinTime:
-    """Mayer term T (the time-scaling state, last) of a minimum-time problem."""
-
-    def mayer(self, x, order):
-        g = np.zeros(self.n)
-        g[-1] = 1.0
-        return x[-1], g, np.zeros((self.n, self.n))
-
-
 # ============================================================================ brachistochrone
-class Brachistochrone(_MinTime, ContinuousDOCP):
+class Brachistochrone(ContinuousOCP):
     """Brachistochrone to a vertical line (Johann Bernoulli 1696; Bryson and Ho, *Applied
     Optimal Control*, 1975, sec. 2.6)::
 
@@ -85,23 +80,13 @@ class Brachistochrone(_MinTime, ContinuousDOCP):
     TERMINAL_EQUALITIES = [0]
     DEFAULT_N = 51
     TARGET = (1.0,)
+    MINIMUM_TIME = True
 
-    def model(self, X, U, order):
-        v, th = X[:, 2], U[:, 0]
-        K = len(v)
-        c, s = np.cos(th), np.sin(th)
-        F = np.stack([v * c, v * s, self.G * s, np.zeros(K)], axis=1)
-        if order < 1:
-            return F, None, None
-        J = _z(K, 4, 4)
-        J[:, 0, 2], J[:, 0, 3] = c, -v * s
-        J[:, 1, 2], J[:, 1, 3] = s, v * c
-        J[:, 2, 3] = self.G * c
-        return F, J, None
+    def ode_rhs(self, x, u):
+        return [x[2] * cos(u[0]), x[2] * sin(u[0]), self.G * sin(u[0])]
 
-    def terminal(self, x, order):
-        idx = list(range(len(self.TARGET)))
-        return x[idx] - np.asarray(self.TARGET), _select(self.n, idx), np.zeros((len(idx), self.n, self.n))
+    def ode_terminal(self, x, T):
+        return [x[i] - t for i, t in enumerate(self.TARGET)]
 
     def control_guess(self):
         return np.full((self.steps, 1), np.pi / 4)
@@ -123,7 +108,7 @@ class BrachistochronePoint(Brachistochrone):
 
 
 # ============================================================================ double integrator
-class DoubleIntegrator(ExactHessians, ContinuousDOCP):
+class DoubleIntegrator(ContinuousOCP):
     """Minimum-energy double integrator (Bryson and Ho 1975, sec. 3.11, without the state
     constraint)::
 
@@ -142,24 +127,14 @@ class DoubleIntegrator(ExactHessians, ContinuousDOCP):
     TERMINAL_EQUALITIES = [0, 1]
     DEFAULT_N = 50
 
-    def model(self, X, U, order):
-        v, u = X[:, 1], U[:, 0]
-        K = len(u)
-        F = np.stack([v, u, 0.5 * u * u], axis=1)
-        if order < 1:
-            return F, None, None
-        J = _z(K, 3, 3)
-        J[:, 0, 1] = 1.0
-        J[:, 1, 2] = 1.0
-        J[:, 2, 2] = u
-        H = None
-        if order >= 2:
-            H = np.zeros((K, 3, 3, 3))
-            H[:, 2, 2, 2] = 1.0
-        return F, J, H
+    def ode_rhs(self, x, u):
+        return [x[1], u[0]]
 
-    def terminal(self, x, order):
-        return np.array([x[0], x[1] + 1.0]), np.eye(2), np.zeros((2, 2, 2))
+    def ode_cost(self, x, u):
+        return 0.5 * u[0] * u[0]
+
+    def ode_terminal(self, x, T):
+        return [x[0], x[1] + 1.0]
 
 
 class BrysonDenham(DoubleIntegrator):
@@ -175,7 +150,7 @@ class BrysonDenham(DoubleIntegrator):
 
 
 # ============================================================================ minimum time cart
-class BangBangCart(_MinTime, ContinuousDOCP):
+class BangBangCart(ContinuousOCP):
     """Minimum-time control of a cart, x'' = u, |u| <= 1, to the origin (Bryson and Ho 1975,
     sec. 7.3; Pontryagin et al. 1962)::
 
@@ -198,26 +173,20 @@ class BangBangCart(_MinTime, ContinuousDOCP):
     N_TERMINAL = 2
     TERMINAL_EQUALITIES = [0, 1]
     DEFAULT_N = 51
+    MINIMUM_TIME = True
 
-    def model(self, X, U, order):
-        K = X.shape[0]
-        F = np.stack([X[:, 1], U[:, 0], np.zeros(K)], axis=1)
-        if order < 1:
-            return F, None, None
-        J = _z(K, 3, 3)
-        J[:, 0, 1] = 1.0
-        J[:, 1, 2] = 1.0
-        return F, J, None
+    def ode_rhs(self, x, u):
+        return [x[1], u[0]]
 
-    def terminal(self, x, order):
-        return x[:2].copy(), _select(self.n, [0, 1]), np.zeros((2, self.n, self.n))
+    def ode_terminal(self, x, T):
+        return [x[0], x[1]]
 
     def control_guess(self):
         return np.zeros((self.steps, 1))
 
 
 # ============================================================================ moon lander
-class MoonLander(ContinuousDOCP):
+class MoonLander(ContinuousOCP):
     """Minimum-fuel soft landing (Meditch, IEEE Trans. Automat. Control 9 (1964) 477-484, in the
     unit-mass form of many textbooks)::
 
@@ -243,20 +212,14 @@ class MoonLander(ContinuousDOCP):
     TERMINAL_EQUALITIES = [0, 1]
     DEFAULT_N = 51
 
-    def model(self, X, U, order):
-        v, u = X[:, 1], U[:, 0]
-        K = len(u)
-        F = np.stack([v, u - self.G, u], axis=1)
-        if order < 1:
-            return F, None, None
-        J = _z(K, 3, 3)
-        J[:, 0, 1] = 1.0
-        J[:, 1, 2] = 1.0
-        J[:, 2, 2] = 1.0
-        return F, J, None
+    def ode_rhs(self, x, u):
+        return [x[1], u[0] - self.G]
 
-    def terminal(self, x, order):
-        return x[:2].copy(), _select(self.n, [0, 1]), np.zeros((2, self.n, self.n))
+    def ode_cost(self, x, u):
+        return u[0]
+
+    def ode_terminal(self, x, T):
+        return [x[0], x[1]]
 
     def control_guess(self):
         return np.full((self.steps, 1), self.G)
@@ -310,7 +273,7 @@ class LotkaFishing(ExactHessians, ContinuousDOCP):
 
 
 # ============================================================================ batch reactor
-class BatchReactor(ExactHessians, ContinuousDOCP):
+class BatchReactor(ContinuousOCP):
     """Consecutive reactions A -> B -> C in a batch reactor (Ray, *Advanced Process Control*,
     McGraw-Hill 1981; Luus, *Iterative Dynamic Programming*, Chapman & Hall/CRC 2000)::
 
@@ -330,26 +293,11 @@ class BatchReactor(ExactHessians, ContinuousDOCP):
     U_BOUNDS = ((0.0,), (5.0,))
     DEFAULT_N = 50
 
-    def model(self, X, U, order):
-        x1, u = X[:, 0], U[:, 0]
-        K = len(u)
-        r = u + 0.5 * u * u
-        F = np.stack([-r * x1, u * x1, np.zeros(K)], axis=1)
-        if order < 1:
-            return F, None, None
-        J = _z(K, 3, 3)
-        J[:, 0, 0], J[:, 0, 2] = -r, -(1 + u) * x1
-        J[:, 1, 0], J[:, 1, 2] = u, x1
-        H = None
-        if order >= 2:
-            H = np.zeros((K, 3, 3, 3))
-            H[:, 0, 0, 2] = H[:, 0, 2, 0] = -(1 + u)
-            H[:, 0, 2, 2] = -x1
-            H[:, 1, 0, 2] = H[:, 1, 2, 0] = 1.0
-        return F, J, H
+    def ode_rhs(self, x, u):
+        return [-(u[0] + 0.5 * u[0] * u[0]) * x[0], u[0] * x[0]]
 
-    def mayer(self, x, order):
-        return -x[1], np.array([0.0, -1.0]), np.zeros((2, 2))
+    def ode_final_cost(self, x, T):
+        return -x[1]
 
 
 # ============================================================================ alp rider
@@ -519,7 +467,7 @@ class FreeFlyingRobot(ExactHessians, ContinuousDOCP):
 
 
 # ============================================================================ Dubins car
-class Dubins(_MinTime, ContinuousDOCP):
+class Dubins(ContinuousOCP):
     """Minimum-time Dubins car (Dubins, Amer. J. Math. 79 (1957) 497-516)::
 
         min T,   x' = cos th,  y' = sin th,  th' = w,   |w| <= 1   (unit speed and turning radius),
@@ -542,26 +490,20 @@ class Dubins(_MinTime, ContinuousDOCP):
     N_TERMINAL = 3
     TERMINAL_EQUALITIES = [0, 1, 2]
     DEFAULT_N = 51
+    MINIMUM_TIME = True
 
-    def model(self, X, U, order):
-        th = X[:, 2]
-        K = len(th)
-        F = np.stack([np.cos(th), np.sin(th), U[:, 0], np.zeros(K)], axis=1)
-        if order < 1:
-            return F, None, None
-        J = _z(K, 4, 4)
-        J[:, 0, 2], J[:, 1, 2], J[:, 2, 3] = -np.sin(th), np.cos(th), 1.0
-        return F, J, None
+    def ode_rhs(self, x, u):
+        return [cos(x[2]), sin(x[2]), u[0]]
 
-    def terminal(self, x, order):
-        return x[:3] - np.asarray(self.XF), _select(self.n, [0, 1, 2]), np.zeros((3, self.n, self.n))
+    def ode_terminal(self, x, T):
+        return [x[i] - xf for i, xf in enumerate(self.XF)]
 
     def control_guess(self):
         return np.full((self.steps, 1), 0.5)
 
 
 # ============================================================================ rigid body
-class RigidBody(_MinTime, ContinuousDOCP):
+class RigidBody(ContinuousOCP):
     """Minimum-time reorientation of an asymmetric rigid body (Fleming, Sekhavat and Ross,
     AIAA 2008-7012; Betts 2010, sec. 6.8)::
 
@@ -590,43 +532,18 @@ class RigidBody(_MinTime, ContinuousDOCP):
     N_TERMINAL = 6
     TERMINAL_EQUALITIES = list(range(6))
     DEFAULT_N = 61
+    MINIMUM_TIME = True
 
-    def model(self, X, U, order):
-        q, w = X[:, :4], X[:, 4:7]
-        K = X.shape[0]
+    def ode_rhs(self, x, u):
         Ix, Iy, Iz = self.INERTIA
-        w1, w2, w3 = w[:, 0], w[:, 1], w[:, 2]
-        q1, q2, q3, q4 = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-        F = np.empty((K, 8))
-        F[:, 0] = 0.5 * (w1 * q4 - w2 * q3 + w3 * q2)
-        F[:, 1] = 0.5 * (w1 * q3 + w2 * q4 - w3 * q1)
-        F[:, 2] = 0.5 * (-w1 * q2 + w2 * q1 + w3 * q4)
-        F[:, 3] = 0.5 * (-w1 * q1 - w2 * q2 - w3 * q3)
-        F[:, 4] = (U[:, 0] - (Iz - Iy) * w2 * w3) / Ix
-        F[:, 5] = (U[:, 1] - (Ix - Iz) * w1 * w3) / Iy
-        F[:, 6] = (U[:, 2] - (Iy - Ix) * w1 * w2) / Iz
-        F[:, 7] = 0.0
-        if order < 1:
-            return F, None, None
-        J = _z(K, 8, 10)
-        # d q'/d q (columns 0..3) and d q'/d w (columns 4..6)
-        J[:, 0, 1], J[:, 0, 2], J[:, 0, 3] = 0.5 * w3, -0.5 * w2, 0.5 * w1
-        J[:, 0, 4], J[:, 0, 5], J[:, 0, 6] = 0.5 * q4, -0.5 * q3, 0.5 * q2
-        J[:, 1, 0], J[:, 1, 2], J[:, 1, 3] = -0.5 * w3, 0.5 * w1, 0.5 * w2
-        J[:, 1, 4], J[:, 1, 5], J[:, 1, 6] = 0.5 * q3, 0.5 * q4, -0.5 * q1
-        J[:, 2, 0], J[:, 2, 1], J[:, 2, 3] = 0.5 * w2, -0.5 * w1, 0.5 * w3
-        J[:, 2, 4], J[:, 2, 5], J[:, 2, 6] = -0.5 * q2, 0.5 * q1, 0.5 * q4
-        J[:, 3, 0], J[:, 3, 1], J[:, 3, 2] = -0.5 * w1, -0.5 * w2, -0.5 * w3
-        J[:, 3, 4], J[:, 3, 5], J[:, 3, 6] = -0.5 * q1, -0.5 * q2, -0.5 * q3
-        J[:, 4, 5], J[:, 4, 6], J[:, 4, 7] = -(Iz - Iy) * w3 / Ix, -(Iz - Iy) * w2 / Ix, 1.0 / Ix
-        J[:, 5, 4], J[:, 5, 6], J[:, 5, 8] = -(Ix - Iz) * w3 / Iy, -(Ix - Iz) * w1 / Iy, 1.0 / Iy
-        J[:, 6, 4], J[:, 6, 5], J[:, 6, 9] = -(Iy - Ix) * w2 / Iz, -(Iy - Ix) * w1 / Iz, 1.0 / Iz
-        return F, J, None
+        q1, q2, q3, q4, w1, w2, w3 = (x[i] for i in range(7))
+        return [0.5 * (w1 * q4 - w2 * q3 + w3 * q2), 0.5 * (w1 * q3 + w2 * q4 - w3 * q1),
+                0.5 * (-w1 * q2 + w2 * q1 + w3 * q4), 0.5 * (-w1 * q1 - w2 * q2 - w3 * q3),
+                (u[0] - (Iz - Iy) * w2 * w3) / Ix, (u[1] - (Ix - Iz) * w1 * w3) / Iy, (u[2] - (Iy - Ix) * w1 * w2) / Iz]
 
-    def terminal(self, x, order):
-        idx = [0, 1, 2, 4, 5, 6]
-        target = np.array([np.sin(self.PHI / 2), 0, 0, 0, 0, 0])
-        return x[idx] - target, _select(self.n, idx), np.zeros((6, self.n, self.n))
+    def ode_terminal(self, x, T):
+        target = (np.sin(self.PHI / 2), 0.0, 0.0, 0.0, 0.0, 0.0)
+        return [x[i] - v for i, v in zip((0, 1, 2, 4, 5, 6), target)]
 
     def control_guess(self):
         U = np.zeros((self.steps, 3))
@@ -701,7 +618,7 @@ class Obstacle(ExactHessians, ContinuousDOCP):
 
 
 # ============================================================================ cart-pole
-class CartPole(ContinuousDOCP):
+class CartPole(ContinuousOCP):
     """Cart-pole swing-up (Kelly, *An introduction to trajectory optimization*, SIAM Review 59
     (2017) 849-904, sec. 6 and appendix E)::
 
@@ -711,9 +628,8 @@ class CartPole(ContinuousDOCP):
         (q1, q2, q1', q2')(0) = 0,   (q1, q2, q1', q2')(2) = (1, pi, 0, 0),   |u| <= 20,  |q1| <= 2,
 
     with m1 = 1, m2 = 0.3, l = 0.5, g = 9.81. No published optimal value (Kelly shows the
-    trajectory only). The model's Jacobian is by central differences of its values (the step
-    derivatives through RK4 are then exact given it). Start: u = 0 with the states linear from
-    the initial to the final values (Kelly's guess).
+    trajectory only). Start: u = 0 with the states linear from the initial to the final values
+    (Kelly's guess).
     """
 
     name = "cart-pole"
@@ -729,18 +645,20 @@ class CartPole(ContinuousDOCP):
     TERMINAL_EQUALITIES = [0, 1, 2, 3]
     DEFAULT_N = 50
 
-    def model(self, X, U, order):
-        q2, dq2, u = X[:, 1], X[:, 3], U[:, 0]
+    def ode_rhs(self, x, u):
+        q2, dq2, v = x[1], x[3], u[0]
         m1, m2, ln, g = self.M1, self.M2, self.LEN, self.G
-        s, c = np.sin(q2), np.cos(q2)
+        s, c = sin(q2), cos(q2)
         den = m1 + m2 * (1.0 - c * c)
-        a1 = (ln * m2 * s * dq2 ** 2 + u + m2 * g * c * s) / den
-        a2 = -(ln * m2 * c * s * dq2 ** 2 + u * c + (m1 + m2) * g * s) / (ln * den)
-        F = np.stack([X[:, 2], dq2, a1, a2, u * u], axis=1)
-        return F, None, None
+        a1 = (ln * m2 * s * dq2 ** 2 + v + m2 * g * c * s) / den
+        a2 = -(ln * m2 * c * s * dq2 ** 2 + v * c + (m1 + m2) * g * s) / (ln * den)
+        return [x[2], dq2, a1, a2]
 
-    def terminal(self, x, order):
-        return x - np.asarray(self.XF), np.eye(4), np.zeros((4, 4, 4))
+    def ode_cost(self, x, u):
+        return u[0] * u[0]
+
+    def ode_terminal(self, x, T):
+        return [x[i] - v for i, v in enumerate(self.XF)]
 
     def control_guess(self):
         return np.zeros((self.steps, 1))
@@ -751,7 +669,7 @@ class CartPole(ContinuousDOCP):
 
 
 # ============================================================================ orbit raising
-class OrbitRaising(ContinuousDOCP):
+class OrbitRaising(ContinuousOCP):
     """Maximal-radius low-thrust orbit transfer in fixed time (Moyer and Pinkham 1964; Bryson and
     Ho, *Applied Optimal Control*, 1975, sec. 2.5)::
 
@@ -776,34 +694,16 @@ class OrbitRaising(ContinuousDOCP):
     TERMINAL_EQUALITIES = [0, 1]
     DEFAULT_N = 50
 
-    def model(self, X, U, order):
-        r, vr, vt, t, ph = X[:, 0], X[:, 1], X[:, 2], X[:, 3], U[:, 0]
-        K = len(r)
-        den = 1.0 - self.MDOT * t
-        a = self.THRUST / den
-        s, c = np.sin(ph), np.cos(ph)
-        F = np.stack([vr, vt * vt / r - 1.0 / (r * r) + a * s, -vr * vt / r + a * c, np.ones(K), np.zeros(K)], axis=1)
-        if order < 1:
-            return F, None, None
-        da = self.THRUST * self.MDOT / den ** 2
-        J = _z(K, 5, 5)
-        J[:, 0, 1] = 1.0
-        J[:, 1, 0], J[:, 1, 2], J[:, 1, 3], J[:, 1, 4] = -vt * vt / r ** 2 + 2.0 / r ** 3, 2.0 * vt / r, da * s, a * c
-        J[:, 2, 0], J[:, 2, 1], J[:, 2, 2] = vr * vt / r ** 2, -vt / r, -vr / r
-        J[:, 2, 3], J[:, 2, 4] = da * c, -a * s
-        return F, J, None
+    def ode_rhs(self, x, u):
+        r, vr, vt, t, ph = x[0], x[1], x[2], x[3], u[0]
+        a = self.THRUST / (1.0 - self.MDOT * t)
+        return [vr, vt * vt / r - 1.0 / (r * r) + a * sin(ph), -vr * vt / r + a * cos(ph), 1.0 + 0.0 * r]
 
-    def mayer(self, x, order):
-        g = np.zeros(self.n)
-        g[0] = -1.0
-        return -x[0], g, np.zeros((self.n, self.n))
+    def ode_final_cost(self, x, T):
+        return -x[0]
 
-    def terminal(self, x, order):
-        r, vr, vt = x[0], x[1], x[2]
-        jac = np.zeros((2, self.n))
-        jac[0, 1] = 1.0
-        jac[1, 0], jac[1, 2] = 0.5 * r ** -1.5, 1.0
-        return np.array([vr, vt - r ** -0.5]), jac, None
+    def ode_terminal(self, x, T):
+        return [x[1], x[2] - x[0] ** -0.5]
 
     def control_guess(self):
         return np.zeros((self.steps, 1))

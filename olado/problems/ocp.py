@@ -38,8 +38,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ProblemDefinitionError
-from .autodiff.backends import require_backend
-from .autodiff.model import AutoDiffDOCP, StageModel
+from .autodiff.model import AutoDiffDOCP
+from .autodiff.vectors import vector_ops
 
 __all__ = ["OCP", "OCPSolution"]
 
@@ -102,8 +102,9 @@ def _call(fn, name, *args):
     except Exception as exc:
         raise ProblemDefinitionError(
             f"cannot be evaluated on symbolic arguments ({type(exc).__name__}: {str(exc).splitlines()[0][:200]}); "
-            "OCP functions are traced once with CasADi symbols: use + - * / ** and the functions of "
-            "olado.problems.autodiff (sin, exp, fmax, ...), no Python branch on t, x, u or p",
+            "OCP functions are traced once with CasADi symbols (or called on numpy arrays, one entry per "
+            "stage): use + - * / ** and the functions of olado.problems.autodiff (sin, exp, fmax, ...), "
+            "no Python branch on t, x, u or p",
             function=name) from exc
 
 
@@ -158,13 +159,16 @@ class OCP(AutoDiffDOCP):
     grid : interval boundaries normalized to [0, 1] (N+1 increasing values from 0 to 1);
         default uniform.
     mode : the CasADi back-end's evaluator ("llvm" default, "numba", "vm", "jit").
+    ad_backend : "auto" (default: "casadi" when CasADi is installed, else "numpy"), "casadi"
+        (exact derivatives) or "numpy" (the functions evaluated on numpy arrays over the stages,
+        derivatives by finite differences; no optional package needed).
     name : the problem's name in results and reports (default "ocp").
 
     ``ocp.N`` is the DOCP's number of stages (N + 1 with a parameter stage), ``ocp.intervals``
     the N given; :meth:`solution` reads a result back as t, x, u, t_f, p, x(t_0).
     """
 
-    ad_backend = "casadi"
+    ad_backend = "auto"
     name = "ocp"
 
     def __init__(self, rhs, x0, *, controls, N=50, T=None, running_cost=None, final_cost=None, initial_cost=None,
@@ -172,8 +176,8 @@ class OCP(AutoDiffDOCP):
                  x_bounds=None, u_bounds=None, parameters=0, p_bounds=None, p_guess=None,
                  free_x0=None, x0_bounds=None, T_bounds=(0.0, np.inf), T_guess=None,
                  minimum_time=False, t0=0.0, method="rk4", substeps=1, u_guess=None, x_guess=None,
-                 grid=None, mode="llvm", name=None):
-        require_backend("casadi")
+                 grid=None, mode="llvm", name=None, ad_backend="auto"):
+        self._set_backend(ad_backend)
         self._check_arguments(rhs, method, N=N, substeps=substeps, controls=controls, parameters=parameters)
         self.x_init = np.asarray(x0, dtype=float).reshape(-1)
         self.nx, self.nu, self.np_ = len(self.x_init), int(controls), int(parameters)
@@ -212,6 +216,13 @@ class OCP(AutoDiffDOCP):
         self.ad_options = {"mode": mode}
 
     # ------------------------------------------------------------------ construction helpers
+    def _set_backend(self, ad_backend):
+        if ad_backend not in ("auto", "casadi", "numpy"):
+            raise ProblemDefinitionError(f"ad_backend must be 'auto', 'casadi' or 'numpy', got {ad_backend!r}",
+                                         function="OCP", array="ad_backend")
+        self.ad_backend = ad_backend
+        self._ops = vector_ops(self.backend_used())
+
     @staticmethod
     def _check_arguments(rhs, method, **counts):
         if not callable(rhs):
@@ -285,15 +296,17 @@ class OCP(AutoDiffDOCP):
         """Call every user function once on symbols: wrong sizes and functions that cannot take
         symbolic arguments are refused here, by name; returns (r, r_N), the numbers of path and
         terminal constraints."""
-        import casadi as ca   # noqa: PLC0415 - the optional extra
-        t, x, u, p = ca.SX.sym("t"), ca.SX.sym("x", self.nx), ca.SX.sym("u", self.nu), ca.SX.sym("p", self.np_)
-        self._vec(_call(self._f, "rhs", t, x, u, p), self.nx, "rhs")
-        for fn, name, args in ((self._L, "running_cost", (t, x, u, p)), (self._phi, "final_cost", (t, x, p)),
-                               (self._phi0, "initial_cost", (t, x, p))):
-            if fn is not None:
-                self._vec(_call(fn, name, *args), 1, name)
-        r = len(StageModel._entries(_call(self._g, "path", t, x, u, p))) if self._g is not None else 0
-        rN = len(StageModel._entries(_call(self._psi, "terminal", t, x, p))) if self._psi is not None else 0
+        ops = self._ops
+        t = ops.sym("t", 1, [self.t0])[0]
+        x, u, p = ops.sym("x", self.nx, self.x_init), ops.sym("u", self.nu, self._u_ref), ops.sym("p", self.np_, self._p_guess)
+        with np.errstate(all="ignore"):    # numpy: the sample point only counts the entries
+            self._vec(_call(self._f, "rhs", t, x, u, p), self.nx, "rhs")
+            for fn, name, args in ((self._L, "running_cost", (t, x, u, p)), (self._phi, "final_cost", (t, x, p)),
+                                   (self._phi0, "initial_cost", (t, x, p))):
+                if fn is not None:
+                    self._vec(_call(fn, name, *args), 1, name)
+            r = len(ops.entries(_call(self._g, "path", t, x, u, p))) if self._g is not None else 0
+            rN = len(ops.entries(_call(self._psi, "terminal", t, x, p))) if self._psi is not None else 0
         return r, rN
 
     # ------------------------------------------------------------------ the traced DOCP
@@ -309,25 +322,23 @@ class OCP(AutoDiffDOCP):
 
     def _split_state(self, x):
         """(physical x, T (symbol or number), p) of the augmented DOCP state."""
-        import casadi as ca   # noqa: PLC0415
         n = self.nx
         T = x[n] if self.free_time else self.horizon
         j = n + int(self.free_time)
-        p = x[j:j + self.np_] if self.np_ else ca.SX(0, 1)
+        p = x[j:j + self.np_] if self.np_ else self._ops.empty()
         return x[:n], T, p
 
     def _vec(self, value, size, fn):
-        import casadi as ca   # noqa: PLC0415
-        entries = StageModel._entries(value)
+        entries = self._ops.entries(value)
         if len(entries) != size:
             raise ProblemDefinitionError(f"returned {len(entries)} entries, expected {size}", function=fn)
-        return ca.vertcat(*[ca.SX(e) for e in entries]) if size else ca.SX(0, 1)
+        return self._ops.vertcat(*entries) if size else self._ops.empty()
 
     def _field(self, t, x, u, p):
-        """(f, L) at one point, as an SX vector of n + 1 entries."""
-        import casadi as ca   # noqa: PLC0415
+        """(f, L) at one point: f a vector of n entries, L a scalar."""
         f = self._vec(_call(self._f, "rhs", t, x, u, p), self.nx, "rhs")
-        L = self._vec(_call(self._L, "running_cost", t, x, u, p), 1, "running_cost") if self._L is not None else ca.SX(0)
+        L = self._vec(_call(self._L, "running_cost", t, x, u, p), 1, "running_cost") if self._L is not None \
+            else self._ops.scalar(0.0)
         return f, L
 
     def _step(self, t, x, u, p, h):
@@ -356,18 +367,18 @@ class OCP(AutoDiffDOCP):
         return x, cost
 
     def stage(self, x, u, d):
-        import casadi as ca   # noqa: PLC0415
+        ops = self._ops
         X, T, p = self._split_state(x)
         m, M = self.nu, self.m
         flag = d[2] if self.has_parameter_stage else 0.0
         # on the parameter stage the integrator branch sees a fixed safe control, not u^0
-        uc = u[:m] if not self.has_parameter_stage or not m else (1 - flag) * u[:m] + flag * ca.DM(self._u_ref)
+        uc = u[:m] if not self.has_parameter_stage or not m else (1 - flag) * u[:m] + flag * ops.const(self._u_ref)
         xs, cost = self._integrate(X, uc, p, T, d)
         tail = [T] if self.free_time else []
-        x_next = ca.vertcat(xs, *tail, p)
-        cost = cost + 0.5 * ca.sumsqr(u[m:]) if M > m else cost
+        x_next = ops.vertcat(xs, *tail, p)
+        cost = cost + 0.5 * ops.sumsqr(u[m:]) if M > m else cost
         t = self.t0 + (T * d[0] if self.free_time else d[0])
-        g = self._vec(_call(self._g, "path", t, X, uc, p), self.r, "path") if self.r else ca.SX(0, 1)
+        g = self._vec(_call(self._g, "path", t, X, uc, p), self.r, "path") if self.r else ops.empty()
         if not self.has_parameter_stage:
             return x_next, cost, g
         par_next, par_cost = self._parameter_map(x, u)
@@ -381,17 +392,15 @@ class OCP(AutoDiffDOCP):
         """The path constraints' stand-ins on the parameter stage: 1 >= 0 for an inequality
         (inactive), u^0[n_par + i] = 0 for the i-th equality (a regular row on a control that has
         no other role), so that the constraint Jacobian keeps full rank there."""
-        import casadi as ca   # noqa: PLC0415
         rows, i = [], 0
         for eq in self._path_equalities:
-            rows.append(u[self.n_par + i] if eq else ca.SX(1.0))
+            rows.append(u[self.n_par + i] if eq else self._ops.scalar(1.0))
             i += int(eq)
-        return ca.vertcat(*rows)
+        return self._ops.vertcat(*rows)
 
     def _parameter_map(self, x, u):
         """Stage 0: X^1 = (x_0 with the free components from u, T and p from u); cost 1/2 |rest|^2
         plus the initial cost at (t_0, x(t_0), p)."""
-        import casadi as ca   # noqa: PLC0415
         n, j = self.nx, 0
         entries = [x[i] for i in range(self.n_aug)]
         if self.free_time:
@@ -402,21 +411,22 @@ class OCP(AutoDiffDOCP):
         j += self.np_
         for i, comp in enumerate(self.free_x0):
             entries[comp] = u[j + i]
-        X1 = ca.vertcat(*entries)
-        cost = 0.5 * ca.sumsqr(u[self.n_par:])
+        X1 = self._ops.vertcat(*entries)
+        cost = 0.5 * self._ops.sumsqr(u[self.n_par:])
         if self._phi0 is not None:
             x1, _, p = self._split_state(X1)
             cost = cost + self._vec(_call(self._phi0, "initial_cost", self.t0, x1, p), 1, "initial_cost")
         return X1, cost
 
     def final(self, x):
-        import casadi as ca   # noqa: PLC0415
+        ops = self._ops
         X, T, p = self._split_state(x)
         tf = self.t0 + T
-        cost = self._vec(_call(self._phi, "final_cost", tf, X, p), 1, "final_cost") if self._phi is not None else ca.SX(0)
+        cost = self._vec(_call(self._phi, "final_cost", tf, X, p), 1, "final_cost") if self._phi is not None \
+            else ops.scalar(0.0)
         if self.minimum_time:
             cost = cost + T
-        psi = self._vec(_call(self._psi, "terminal", tf, X, p), self.rN, "terminal") if self.rN else ca.SX(0, 1)
+        psi = self._vec(_call(self._psi, "terminal", tf, X, p), self.rN, "terminal") if self.rN else ops.empty()
         return cost, psi
 
     # ------------------------------------------------------------------ start point

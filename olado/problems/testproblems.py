@@ -1,5 +1,5 @@
-"""Built-in test problems with known answers: a linear-quadratic DOCP and nonlinear control problems
-from the literature, vectorized, with analytic first and second derivatives.
+"""Built-in test problems with known answers: a linear-quadratic DOCP with analytic derivatives
+and nonlinear control problems from the literature written on :class:`~olado.problems.ocp.OCP`.
 
 Registered in :data:`PROBLEMS` (name -> factory(N=..., **kwargs)):
 
@@ -25,9 +25,12 @@ cost is integrated by the same scheme as an extra quadrature state c' = L(x, u),
     x^{k+1} = Phi_h(x^k, u^k)  (first n components of the step of (f, L)),
     f_0^k(x^k, u^k) = c-component of that step  (h L(x^k, u^k) for Euler),
 
-i.e. paper 001 eqs. (1)-(2) with F^N = 0. Values (and the sequential simulation) run in one
-compiled pass over the stages; the first and second derivatives of the step map are propagated
-through the Runge-Kutta stages from the analytic derivatives of (f, L), all stages at once.
+i.e. paper 001 eqs. (1)-(2) with F^N = 0: OCP's transcription with one step per interval. The
+model (f, L) is written once (:meth:`ODEProblem.ode_rhs`, :meth:`ODEProblem.ode_cost`); with the
+``ad`` extra the values, the exact first derivatives and the Lagrangian Hessians of the step map
+are CasADi's, compiled and vectorized over the stages, and the sequential simulation one compiled
+loop (docs/continuous-time.md); without it the model is evaluated by numpy and differentiated
+by finite differences.
 """
 
 from __future__ import annotations
@@ -36,8 +39,9 @@ import numba as nb
 import numpy as np
 
 from ..errors import ProblemDefinitionError
+from .autodiff.functions import exp
 from .docp import DOCP
-from .integrators import rk_step_derivatives
+from .ocp import OCP
 
 __all__ = ["LinearQuadratic", "VanDerPol", "Rayleigh", "CSTR", "ODEProblem", "PROBLEMS",
            "REGRESSION_VALUES"]
@@ -164,81 +168,14 @@ def _linear_simulate(A, B, x0, U, X):
 
 
 # ============================================================================ ODE problems
-# Compiled right-hand sides (f, L) of the continuous-time problems, selected by a problem id, and
-# the Euler / RK4 step over all stages. One cached kernel for all problems (numba cannot cache a
-# kernel that takes a function argument).
-_VDP, _RAYLEIGH, _CSTR = 0, 1, 2
+class ODEProblem(OCP):
+    """Base of the discretized continuous-time Lagrange problems (module docstring), written on
+    :class:`~olado.problems.ocp.OCP`: ``N`` intervals of length h = T/N, one Euler or RK4 step
+    each, the running cost integrated by the same step (OCP's transcription with ``substeps=1``
+    is this module's). Exact derivatives with the ``ad`` extra, finite differences without it.
 
-
-@nb.njit(cache=True)
-def _rhs(pid, prm, x, u, out):
-    """out[:n] = f(x, u), out[n] = L(x, u) of problem ``pid``."""
-    if pid == 0:      # Van der Pol (Luus 2000)
-        x1, x2, v = x[0], x[1], u[0]
-        out[0] = (1.0 - x2 * x2) * x1 - x2 + v
-        out[1] = x1
-        out[2] = x1 * x1 + x2 * x2 + v * v
-    elif pid == 1:    # Rayleigh (Maurer and Augustin 2001)
-        x1, x2, v = x[0], x[1], u[0]
-        out[0] = x2
-        out[1] = -x1 + x2 * (prm[0] - prm[1] * x2 * x2) + prm[2] * v
-        out[2] = v * v + x1 * x1
-    else:             # CSTR (Lapidus and Luus 1967)
-        x1, x2, v = x[0], x[1], u[0]
-        e = np.exp(prm[0] * x1 / (x1 + 2.0))
-        out[0] = -(2.0 + v) * (x1 + 0.25) + (x2 + 0.5) * e
-        out[1] = 0.5 - x2 - (x2 + 0.5) * e
-        out[2] = x1 * x1 + x2 * x2 + prm[1] * v * v
-
-
-@nb.njit(cache=True)
-def _step(pid, prm, x, u, h, rk4, xn, work):
-    """One Euler or RK4 step of (f, L) from x under u: next state into xn, returns the cost."""
-    n = x.shape[0]
-    k1, k2, k3, k4, y = work[0], work[1], work[2], work[3], work[4]
-    _rhs(pid, prm, x, u, k1)
-    if not rk4:
-        for i in range(n):
-            xn[i] = x[i] + h * k1[i]
-        return h * k1[n]
-    for i in range(n):
-        y[i] = x[i] + 0.5 * h * k1[i]
-    _rhs(pid, prm, y[:n], u, k2)
-    for i in range(n):
-        y[i] = x[i] + 0.5 * h * k2[i]
-    _rhs(pid, prm, y[:n], u, k3)
-    for i in range(n):
-        y[i] = x[i] + h * k3[i]
-    _rhs(pid, prm, y[:n], u, k4)
-    for i in range(n):
-        xn[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
-    return (h / 6.0) * (k1[n] + 2.0 * k2[n] + 2.0 * k3[n] + k4[n])
-
-
-@nb.njit(cache=True)
-def _step_all(pid, prm, X, U, h, rk4, Xn, C):
-    """Steps from every row of X (K, n) under U (K, m): next states Xn and stage costs C."""
-    n = X.shape[1]
-    work = np.empty((5, n + 1))
-    for k in range(X.shape[0]):
-        C[k] = _step(pid, prm, X[k], U[k], h, rk4, Xn[k], work)
-
-
-@nb.njit(cache=True)
-def _simulate(pid, prm, x0, U, h, rk4, X):
-    n = x0.shape[0]
-    work = np.empty((5, n + 1))
-    for i in range(n):
-        X[0, i] = x0[i]
-    for k in range(U.shape[0]):
-        _step(pid, prm, X[k], U[k], h, rk4, X[k + 1], work)
-
-
-class ODEProblem(DOCP):
-    """Base of the discretized continuous-time Lagrange problems (module docstring).
-
-    Subclasses set ``_pid`` (their branch of the compiled right-hand side), ``T_DEFAULT``,
-    ``X0_DEFAULT``, ``params`` and implement :meth:`rhs_derivatives`.
+    Subclasses set ``T_DEFAULT``, ``X0_DEFAULT``, ``PARAMS`` and write :meth:`ode_rhs` and
+    :meth:`ode_cost` (``x``, ``u`` indexed entries, ``self.params`` numbers).
 
     Parameters
     ----------
@@ -247,15 +184,21 @@ class ODEProblem(DOCP):
     h : step length; default T/N (then the horizon is N*h).
     method : ``"rk4"`` (default) or ``"euler"``.
     x0 : initial state; default the literature's.
+    params : the model's constants (default ``PARAMS``).
+    path_constraints : OCP's ``path`` (g(t, x, u, p) >= 0 at k = 0..N-1; ``path`` is a variant's
+        flag in :class:`VanDerPol`).
+    x_bounds : DOCP's state bounds (stationary or per stage, rows 0..N; x0 may violate row 0).
+    u_bounds, path_equalities, u_guess, name, mode, ad_backend : as for
+        :class:`~olado.problems.ocp.OCP`.
     """
 
-    vectorized = True
-    _pid = -1
     T_DEFAULT = 1.0
     X0_DEFAULT = np.zeros(2)
+    PARAMS = ()
     M = 1
 
-    def __init__(self, N=50, *, T=None, h=None, method="rk4", x0=None, params=None, **options):
+    def __init__(self, N=50, *, T=None, h=None, method="rk4", x0=None, params=None, x_bounds=None,
+                 path_constraints=None, **options):
         if method not in ("rk4", "euler"):
             raise ProblemDefinitionError(f"method must be 'rk4' or 'euler', got {method!r}", function="__init__", array="method")
         if not isinstance(N, (int, np.integer)) or isinstance(N, bool) or N < 1:
@@ -268,77 +211,34 @@ class ODEProblem(DOCP):
         h = float(h)
         if not h > 0 or not np.isfinite(h):
             raise ProblemDefinitionError(f"h must be positive, got {h!r}", function="__init__", array="h")
-        self.h, self.T, self.method = h, h * N, method
-        self._rk4 = method == "rk4"
+        self.h, self.T = h, h * N
         self.params = np.array(self.PARAMS if params is None else params, dtype=float)
-        if "name" in options:
-            self.name = options.pop("name")
         x0 = self.X0_DEFAULT if x0 is None else x0
-        super().__init__(len(self.X0_DEFAULT), self.M, N, x0, **options)
+        options.setdefault("name", type(self).name)
+        super().__init__(self._rhs, x0, controls=self.M, N=int(N), T=self.T, running_cost=self._cost,
+                         method=method, path=path_constraints, **options)
+        # DOCP's state bounds, on every stage: also on the fixed x^0, which may lie outside them
+        # (moot there, issue 13; OCP would refuse such an x0)
+        self.x_bounds = x_bounds
 
-    # ------------------------------------------------------------------ continuous model
-    def rhs_derivatives(self, X, U, order):
-        """(F (K, n+1), J (K, n+1, n+m), H (K, n+1, n+m, n+m) or None) of (f, L) at the rows of
-        X (K, n), U (K, m): values, first and (order 2) second derivatives w.r.t. z = (x, u)."""
+    def _rhs(self, t, x, u, p):
+        return self.ode_rhs(x, u)
+
+    def _cost(self, t, x, u, p):
+        return self.ode_cost(x, u)
+
+    def ode_rhs(self, x, u):
+        """f(x, u), a list of n entries."""
         raise NotImplementedError
 
-    # ------------------------------------------------------------------ values
-    def _values(self, x, u):
-        x = np.ascontiguousarray(x, dtype=float)
-        u = np.ascontiguousarray(u, dtype=float)
-        Xn = np.empty_like(x)
-        C = np.empty(x.shape[0])
-        _step_all(self._pid, self.params, x, u, self.h, self._rk4, Xn, C)
-        return Xn, C
+    def ode_cost(self, x, u):
+        """L(x, u), the running cost."""
+        raise NotImplementedError
 
-    def dynamics(self, k, x, u):
-        return self._values(x, u)[0]
-
-    def stage_cost(self, k, x, u):
-        return self._values(x, u)[1]
-
-    def final_cost(self, x):
-        return 0.0
-
-    def simulate(self, U):
-        """States under controls U (one compiled pass: long horizons)."""
-        U = self.check_array(U, (self.N, self.m), "simulate", "u")
-        self.counters["dynamics"] += 1
-        X = np.empty((self.N + 1, self.n))
-        _simulate(self._pid, self.params, self.x0, np.ascontiguousarray(U), self.h, self._rk4, X)
-        return self._check_stacked(X, (self.N + 1, self.n), "simulate", "x")
-
-    # ------------------------------------------------------------------ step derivatives
-    def step_derivatives(self, X, U, order=1):
-        """Derivatives of the step map z = (x, u) -> (x+, c) by forward propagation through the
-        Euler / RK4 stages (:func:`olado.problems.integrators.rk_step_derivatives`):
-        (D (K, n+1, n+m), D2 (K, n+1, n+m, n+m) or None)."""
-        return rk_step_derivatives(self.rhs_derivatives, X, U, self.h, self._rk4, order)
-
-    def dynamics_jacobian(self, k, x, u):
-        D, _ = self.step_derivatives(x, u, 1)
-        n = self.n
-        return D[:, :n, :n], D[:, :n, n:]
-
-    def stage_cost_gradient(self, k, x, u):
-        D, _ = self.step_derivatives(x, u, 1)
-        n = self.n
-        return D[:, n, :n], D[:, n, n:]
-
-    def final_cost_gradient(self, x):
-        return np.zeros(self.n)
-
-    def stage_hessian(self, k, x, u, sigma, p, lam):
-        _, D2 = self.step_derivatives(x, u, 2)
-        n = self.n
-        wts = np.empty((D2.shape[0], n + 1))
-        wts[:, :n] = p
-        wts[:, n] = sigma
-        H = np.einsum("ka,kaij->kij", wts, D2)
-        return H[:, :n, :n], H[:, :n, n:], H[:, n:, n:]
-
-    def final_hessian(self, x, sigma, lam):
-        return np.zeros((self.n, self.n))
+    def stage_data(self):
+        """OCP's rows (t_k, h, 0) with t_k = k h and every step exactly h (not a difference of
+        grid points)."""
+        return np.column_stack([self.h * np.arange(self.N), np.full(self.N, self.h), np.zeros(self.N)])
 
     def describe(self):
         return super().describe() + f"\n  {self.method} steps h = {self.h:g}, horizon T = {self.T:g}"
@@ -361,7 +261,6 @@ class VanDerPol(ODEProblem):
     """
 
     name = "vanderpol"
-    _pid = _VDP
     T_DEFAULT = 5.0
     X0_DEFAULT = np.array([0.0, 1.0])
     PARAMS = (0.0,)
@@ -379,25 +278,11 @@ class VanDerPol(ODEProblem):
         options.setdefault("name", name)
         super().__init__(N, **options)
 
-    def rhs_derivatives(self, X, U, order):
-        x1, x2, v = X[:, 0], X[:, 1], U[:, 0]
-        K = len(x1)
-        F = np.stack([(1.0 - x2 * x2) * x1 - x2 + v, x1, x1 * x1 + x2 * x2 + v * v], axis=1)
-        J = np.zeros((K, 3, 3))
-        J[:, 0, 0] = 1.0 - x2 * x2
-        J[:, 0, 1] = -2.0 * x1 * x2 - 1.0
-        J[:, 0, 2] = 1.0
-        J[:, 1, 0] = 1.0
-        J[:, 2, 0] = 2.0 * x1
-        J[:, 2, 1] = 2.0 * x2
-        J[:, 2, 2] = 2.0 * v
-        H = None
-        if order >= 2:
-            H = np.zeros((K, 3, 3, 3))
-            H[:, 0, 0, 1] = H[:, 0, 1, 0] = -2.0 * x2
-            H[:, 0, 1, 1] = -2.0 * x1
-            H[:, 2, 0, 0] = H[:, 2, 1, 1] = H[:, 2, 2, 2] = 2.0
-        return F, J, H
+    def ode_rhs(self, x, u):
+        return [(1.0 - x[1] * x[1]) * x[0] - x[1] + u[0], x[0]]
+
+    def ode_cost(self, x, u):
+        return x[0] * x[0] + x[1] * x[1] + u[0] * u[0]
 
 
 class Rayleigh(ODEProblem):
@@ -415,7 +300,6 @@ class Rayleigh(ODEProblem):
     """
 
     name = "rayleigh"
-    _pid = _RAYLEIGH
     T_DEFAULT = 4.5
     X0_DEFAULT = np.array([-5.0, -5.0])
     PARAMS = (1.4, 0.14, 4.0)
@@ -426,24 +310,12 @@ class Rayleigh(ODEProblem):
         options.setdefault("name", "rayleigh-box" if box else "rayleigh")
         super().__init__(N, **options)
 
-    def rhs_derivatives(self, X, U, order):
+    def ode_rhs(self, x, u):
         a, p, b = self.params
-        x1, x2, v = X[:, 0], X[:, 1], U[:, 0]
-        K = len(x1)
-        F = np.stack([x2, -x1 + x2 * (a - p * x2 * x2) + b * v, v * v + x1 * x1], axis=1)
-        J = np.zeros((K, 3, 3))
-        J[:, 0, 1] = 1.0
-        J[:, 1, 0] = -1.0
-        J[:, 1, 1] = a - 3.0 * p * x2 * x2
-        J[:, 1, 2] = b
-        J[:, 2, 0] = 2.0 * x1
-        J[:, 2, 2] = 2.0 * v
-        H = None
-        if order >= 2:
-            H = np.zeros((K, 3, 3, 3))
-            H[:, 1, 1, 1] = -6.0 * p * x2
-            H[:, 2, 0, 0] = H[:, 2, 2, 2] = 2.0
-        return F, J, H
+        return [x[1], -x[0] + x[1] * (a - p * x[1] * x[1]) + b * u[0]]
+
+    def ode_cost(self, x, u):
+        return u[0] * u[0] + x[0] * x[0]
 
 
 class CSTR(ODEProblem):
@@ -469,51 +341,22 @@ class CSTR(ODEProblem):
     """
 
     name = "cstr"
-    _pid = _CSTR
     T_DEFAULT = 0.78
     X0_DEFAULT = np.array([0.09, 0.09])
     PARAMS = (25.0, 0.1)
 
     def __init__(self, N=50, *, u_init=2.0, **options):
         self.u_init = float(u_init)
+        options.setdefault("u_guess", self.u_init)
         super().__init__(N, **options)
 
-    def initial_guess(self):
-        """Constant control ``u_init`` (default 2: leads to the global minimum, see above)."""
-        return np.full((self.N, 1), self.u_init)
+    def ode_rhs(self, x, u):
+        g = self.params[0]
+        e = exp(g * x[0] / (x[0] + 2.0))
+        return [-(2.0 + u[0]) * (x[0] + 0.25) + (x[1] + 0.5) * e, 0.5 - x[1] - (x[1] + 0.5) * e]
 
-    def rhs_derivatives(self, X, U, order):
-        g, wu = self.params
-        x1, x2, v = X[:, 0], X[:, 1], U[:, 0]
-        K = len(x1)
-        d = x1 + 2.0
-        e = np.exp(g * x1 / d)
-        de = e * (2.0 * g / d ** 2)                       # d/dx1 exp(g x1/(x1+2))
-        c = x2 + 0.5
-        F = np.stack([-(2.0 + v) * (x1 + 0.25) + c * e, 0.5 - x2 - c * e,
-                      x1 * x1 + x2 * x2 + wu * v * v], axis=1)
-        J = np.empty((K, 3, 3))
-        J[:, 0, 0] = -(2.0 + v) + c * de
-        J[:, 0, 1] = e
-        J[:, 0, 2] = -(x1 + 0.25)
-        J[:, 1, 0] = -c * de
-        J[:, 1, 1] = -1.0 - e
-        J[:, 1, 2] = 0.0
-        J[:, 2, 0] = 2.0 * x1
-        J[:, 2, 1] = 2.0 * x2
-        J[:, 2, 2] = 2.0 * wu * v
-        H = None
-        if order >= 2:
-            d2e = de * (2.0 * g / d ** 2) - e * (4.0 * g / d ** 3)
-            H = np.zeros((K, 3, 3, 3))
-            H[:, 0, 0, 0] = c * d2e
-            H[:, 0, 0, 1] = H[:, 0, 1, 0] = de
-            H[:, 0, 0, 2] = H[:, 0, 2, 0] = -1.0
-            H[:, 1, 0, 0] = -c * d2e
-            H[:, 1, 0, 1] = H[:, 1, 1, 0] = -de
-            H[:, 2, 0, 0] = H[:, 2, 1, 1] = 2.0
-            H[:, 2, 2, 2] = 2.0 * wu
-        return F, J, H
+    def ode_cost(self, x, u):
+        return x[0] * x[0] + x[1] * x[1] + self.params[1] * u[0] * u[0]
 
 
 # ============================================================================ registry

@@ -8,8 +8,6 @@ constraints, for the robustness set.
 
 from __future__ import annotations
 
-import numpy as np
-
 from .testproblems import Rayleigh
 
 __all__ = ["RayleighMixed", "PROBLEMS"]
@@ -29,19 +27,8 @@ class RayleighMixed(Rayleigh):
 
     def __init__(self, N=50, **options):
         options.setdefault("name", "rayleigh-mixed")
-        super().__init__(N, n_stage_constraints=1, **options)
-
-    def stage_constraints(self, k, x, u):
-        return -u[:, :1] - x[:, :1] / 6.0
-
-    def stage_constraints_jacobian(self, k, x, u):
-        K = x.shape[0]
-        gx = np.zeros((K, 1, 2))
-        gx[:, 0, 0] = -1.0 / 6.0
-        return gx, np.full((K, 1, 1), -1.0)
-
-    def initial_guess(self):
-        return np.full((self.N, 1), -1.0)
+        options.setdefault("u_guess", -1.0)
+        super().__init__(N, path_constraints=lambda t, x, u, p: [-u[0] - x[0] / 6.0], **options)
 
 
 def _rayleigh_mixed(N=50, method="rk4"):

@@ -119,6 +119,9 @@ class Solver:
             result.N = problem.N
             result.solver = result.solver or self.name
             result.options = {k: v for k, v in self.options_dict().items()}
+            note = getattr(problem, "derivative_note", "")
+            if note:     # e.g. an AutoDiffDOCP without CasADi: finite-difference derivatives
+                result.info["derivatives"] = note
             ev = dict(problem.counters)
             ev.update(result.evaluations)
             result.evaluations = ev

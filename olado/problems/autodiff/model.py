@@ -8,7 +8,8 @@ import numpy as np
 
 from ...errors import ProblemDefinitionError
 from ..docp import DOCP
-from .backends import make_backend, require_backend
+from .backends import EXACT, make_backend, resolve_backend
+from .numpy_backend import FD_NOTE, NumpyModel
 
 
 class StageModel:
@@ -63,16 +64,20 @@ class StageModel:
 class AutoDiffDOCP(DOCP):
     """A DOCP written once as :meth:`stage` and :meth:`final` (module docstring); every DOCP
     function and derivative, the Lagrangian Hessian blocks included, comes from the back-end
-    :attr:`ad_backend` ("casadi" or "sympy"), vectorized over the stages.
+    :attr:`ad_backend` ("casadi" or "sympy"), vectorized over the stages; with "numpy" the
+    functions are evaluated on numpy arrays and the derivatives are DOCP's finite differences
+    (:mod:`~olado.problems.autodiff.numpy_backend`).
 
     The model is traced and compiled on first use (so a subclass may set its data after
     ``super().__init__``); :attr:`setup_time` holds the seconds that took. A missing back-end
-    raises :class:`~olado.errors.AutoDiffNotAvailableError` at construction.
+    raises :class:`~olado.errors.AutoDiffNotAvailableError` at construction; "auto" (the
+    default) is CasADi when it is installed, else "numpy" (a one-time warning says so, and
+    :attr:`derivative_note` goes into every result).
     """
 
     vectorized = True
-    #: "casadi" or "sympy"
-    ad_backend = "casadi"
+    #: "auto" (CasADi if installed, else "numpy"), "casadi", "sympy" or "numpy"
+    ad_backend = "auto"
     #: back-end options, e.g. ``{"mode": "vm"}`` (CasADi: "llvm" (default), "numba", "vm", "jit")
     ad_options: dict = {}
 
@@ -107,15 +112,35 @@ class AutoDiffDOCP(DOCP):
     def check_functions(self):
         """DOCP's check, and the back-end is installed (AutoDiffNotAvailableError otherwise)."""
         super().check_functions()
-        require_backend(self.ad_backend)
+        self.backend_used()
+
+    def backend_used(self) -> str:
+        """The back-end :attr:`ad_backend` stands for ("auto" resolved once)."""
+        cached = self.__dict__.get("_ad_backend_used")
+        if cached is None or cached[0] != self.ad_backend:
+            cached = self._ad_backend_used = (self.ad_backend, resolve_backend(self.ad_backend))
+        return cached[1]
+
+    @property
+    def derivative_note(self) -> str:
+        """A sentence for the results when the derivatives are finite differences (else "")."""
+        return "" if self.backend_used() in EXACT else FD_NOTE
+
+    def provides(self, name) -> bool:
+        """DOCP's answer with an exact back-end; False on the numeric one (finite differences)."""
+        return super().provides(name) and self.backend_used() in EXACT
 
     def ad_functions(self):
         """The compiled functions (built on first call; :attr:`setup_time` seconds)."""
         funs = self.__dict__.get("_ad_functions")
         if funs is None:
             t0 = time.perf_counter()
-            backend = make_backend(self.ad_backend, **self.ad_options)
-            funs = backend.build(StageModel(self, backend))
+            name = self.backend_used()
+            if name in EXACT:
+                backend = make_backend(name, **self.ad_options)
+                funs = backend.build(StageModel(self, backend))
+            else:
+                funs = NumpyModel(self).functions()
             self._ad_functions = funs
             self.setup_time = time.perf_counter() - t0
         return funs
@@ -134,7 +159,11 @@ class AutoDiffDOCP(DOCP):
         return x, u, D
 
     def _eval(self, name, k, x, u, *extra):
-        return self.ad_functions()[name](*self._stage_args(k, x, u), *extra)
+        fun = self.ad_functions().get(name)
+        if fun is None:
+            raise ProblemDefinitionError(f"the {self.backend_used()} back-end provides no {name} (finite "
+                                         "differences serve it)", function=name)
+        return fun(*self._stage_args(k, x, u), *extra)
 
     def simulate(self, U):
         """States X (N+1, n) from x^0 under controls U (eq. (2)): with the LLVM evaluator one compiled
@@ -181,7 +210,7 @@ class AutoDiffDOCP(DOCP):
 
     def _final(self, x):
         x = np.ascontiguousarray(np.asarray(x, dtype=np.float64).reshape(1, self.n))
-        return [o[0] for o in self.ad_functions()["final"](x)]
+        return [None if o is None else o[0] for o in self.ad_functions()["final"](x)]
 
     def final_cost(self, x):
         return float(self._final(x)[0])
@@ -203,6 +232,9 @@ class AutoDiffDOCP(DOCP):
 
     def derivative_sources(self) -> dict:
         """As :meth:`DOCP.derivative_sources`, naming the AD back-end instead of "analytic"."""
-        what = f"automatic differentiation ({self.ad_backend}, {self.ad_options.get('mode', 'llvm')})" \
-            if self.ad_backend == "casadi" else f"automatic differentiation ({self.ad_backend})"
+        name = self.backend_used()
+        if name not in EXACT:
+            return {meth: f"{src} of the numpy-evaluated model" for meth, src in super().derivative_sources().items()}
+        what = f"automatic differentiation ({name}, {self.ad_options.get('mode', 'llvm')})" \
+            if name == "casadi" else f"automatic differentiation ({name})"
         return {meth: what if src == "analytic" else src for meth, src in super().derivative_sources().items()}
