@@ -44,7 +44,7 @@ from ..errors import ProblemDefinitionError
 from .docp import DOCP
 from .integrators import rk_step, rk_step_derivatives
 
-__all__ = ["ContinuousDOCP", "ExactHessians"]
+__all__ = ["ContinuousData", "ContinuousDOCP", "ExactHessians"]
 
 
 def _bounds_pair(spec, size):
@@ -55,18 +55,11 @@ def _bounds_pair(spec, size):
     return lo, hi
 
 
-class ContinuousDOCP(DOCP):
-    """A continuous-time optimal control problem discretized by Euler or RK4 (module docstring).
+class ContinuousData:
+    """The class-attribute data of a literature problem, shared by :class:`ContinuousDOCP` and
+    :class:`~olado.problems.continuous_ocp.ContinuousOCP`: names, start, final time, bounds, the
+    numbers and equality masks of the path and terminal constraints, the default N."""
 
-    Parameters
-    ----------
-    N : number of stages; the integration steps are N (fixed final time) or N - 1 (free final
-        time: stage 0 is the parameter stage). Default ``DEFAULT_N``.
-    method : ``"rk4"`` (default) or ``"euler"``.
-    T : the final time of a fixed-time problem (default the literature's ``T``).
-    """
-
-    vectorized = True
     name = "continuous"
     STATES: tuple = ()
     CONTROLS: tuple = ()
@@ -82,6 +75,20 @@ class ContinuousDOCP(DOCP):
     N_TERMINAL = 0
     TERMINAL_EQUALITIES = None
     DEFAULT_N = 50
+
+
+class ContinuousDOCP(ContinuousData, DOCP):
+    """A continuous-time optimal control problem discretized by Euler or RK4 (module docstring).
+
+    Parameters
+    ----------
+    N : number of stages; the integration steps are N (fixed final time) or N - 1 (free final
+        time: stage 0 is the parameter stage). Default ``DEFAULT_N``.
+    method : ``"rk4"`` (default) or ``"euler"``.
+    T : the final time of a fixed-time problem (default the literature's ``T``).
+    """
+
+    vectorized = True
 
     def __init__(self, N=None, *, method="rk4", T=None, **options):
         N = self.DEFAULT_N if N is None else N

@@ -27,12 +27,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ProblemDefinitionError
+from .continuous import ContinuousData
 from .ocp import OCP
 
 __all__ = ["ContinuousOCP"]
 
 
-class ContinuousOCP(OCP):
+class ContinuousOCP(ContinuousData, OCP):
     """A ContinuousDOCP-style problem on OCP (module docstring).
 
     Parameters
@@ -44,20 +45,6 @@ class ContinuousOCP(OCP):
     mode, ad_backend, name : as for :class:`~olado.problems.ocp.OCP`.
     """
 
-    name = "continuous"
-    STATES: tuple = ()
-    CONTROLS: tuple = ()
-    X0: tuple = ()
-    T: float | None = 1.0
-    T_BOUNDS = (0.0, np.inf)
-    T_GUESS = 1.0
-    X_BOUNDS = None
-    U_BOUNDS = None
-    N_PATH = 0
-    PATH_EQUALITIES = None
-    N_TERMINAL = 0
-    TERMINAL_EQUALITIES = None
-    DEFAULT_N = 50
     MINIMUM_TIME = False
 
     def __init__(self, N=None, *, method="rk4", T=None, **options):

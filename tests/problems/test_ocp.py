@@ -22,6 +22,7 @@ casadi = pytest.importorskip("casadi")
 
 from olado.problems.autodiff import cos, sin  # noqa: E402
 from olado.problems.ocp import OCP  # noqa: E402
+from fixtures.ocp_problems import everything  # noqa: E402
 from olado.problems.testproblems import REGRESSION_VALUES, VanDerPol  # noqa: E402
 
 SQP, IPOPT, PDMIN = "configs/sqp-ip.ini", "configs/ipopt.ini", "configs/pdmin-lbfgs.ini"
@@ -171,21 +172,6 @@ def test_vanderpol_on_ocp_same_optimum(path):
 
 
 # ---------------------------------------------------------------------------- derivatives
-def everything(method="rk4", substeps=2, equality=False):
-    """Time-dependent dynamics, free final time, two parameters, a free initial component, a
-    path constraint (and a path equality), initial and final costs and terminal constraints:
-    every branch of the class."""
-    path = [lambda t, x, u, p: 1.0 - x[0] ** 2 - u[0] ** 2 * t, lambda t, x, u, p: 2.0 + x[1] * u[1]]
-    if equality:
-        path.append(lambda t, x, u, p: u[1] - 0.5 * x[0] * u[0] - 0.1 * t)
-    return OCP(lambda t, x, u, p: [x[1] * cos(x[0]) + p[0] * sin(t), -p[1] * x[1] + u[0] * u[1] + 0.1 * x[0] ** 2],
-               [0.2, 0.0], controls=2, parameters=2, N=6, T=None, T_bounds=(0.5, 3.0), T_guess=1.4,
-               free_x0=[1], p_guess=[0.3, 0.7], running_cost=lambda t, x, u, p: x[0] ** 2 * t + u[0] ** 2 + p[0] * u[1] ** 2,
-               path=lambda t, x, u, p: [g(t, x, u, p) for g in path], path_equalities=[2] if equality else None,
-               final_cost=lambda t, x, p: t * x[0] ** 2 + p[1] ** 2,
-               initial_cost=lambda t, x, p: (x[1] - 0.1) ** 2 + t * p[0] ** 2 * x[1],
-               terminal=lambda t, x, p: [x[0] - 0.1 * t, 1.0 - x[1] ** 2 - p[0]], terminal_equalities=[0],
-               method=method, substeps=substeps, t0=0.5, u_bounds=(-2, 2), p_bounds=(0.1, 2.0))
 
 
 @pytest.mark.parametrize("method,substeps,equality", [("rk4", 2, False), ("euler", 3, False), ("rk4", 1, True)])

@@ -20,25 +20,9 @@ from olado.errors import AutoDiffNotAvailableError, ProblemDefinitionError
 from olado.problems import check_derivatives
 from olado.problems.autodiff import AutoDiffDOCP, backends, cos, sin
 from olado.problems.ocp import OCP
+from fixtures.ocp_problems import everything
 
 SQP, IPOPT = "configs/sqp-ip.ini", "configs/ipopt.ini"
-
-
-def everything(backend, method="rk4", substeps=2, equality=False):
-    """Every branch of OCP (tests/problems/test_ocp.py's problem): time-dependent dynamics, free
-    final time, two parameters, a free initial component, path constraints (and an equality),
-    initial and final costs, terminal constraints."""
-    path = [lambda t, x, u, p: 1.0 - x[0] ** 2 - u[0] ** 2 * t, lambda t, x, u, p: 2.0 + x[1] * u[1]]
-    if equality:
-        path.append(lambda t, x, u, p: u[1] - 0.5 * x[0] * u[0] - 0.1 * t)
-    return OCP(lambda t, x, u, p: [x[1] * cos(x[0]) + p[0] * sin(t), -p[1] * x[1] + u[0] * u[1] + 0.1 * x[0] ** 2],
-               [0.2, 0.0], controls=2, parameters=2, N=6, T=None, T_bounds=(0.5, 3.0), T_guess=1.4,
-               free_x0=[1], p_guess=[0.3, 0.7], running_cost=lambda t, x, u, p: x[0] ** 2 * t + u[0] ** 2 + p[0] * u[1] ** 2,
-               path=lambda t, x, u, p: [g(t, x, u, p) for g in path], path_equalities=[2] if equality else None,
-               final_cost=lambda t, x, p: t * x[0] ** 2 + p[1] ** 2,
-               initial_cost=lambda t, x, p: (x[1] - 0.1) ** 2 + t * p[0] ** 2 * x[1],
-               terminal=lambda t, x, p: [x[0] - 0.1 * t, 1.0 - x[1] ** 2 - p[0]], terminal_equalities=[0],
-               method=method, substeps=substeps, t0=0.5, u_bounds=(-2, 2), p_bounds=(0.1, 2.0), ad_backend=backend)
 
 
 def power_limited_car(backend):
@@ -61,7 +45,7 @@ def test_numpy_back_end_is_the_casadi_docp(method, substeps, equality):
     first derivatives to 1e-8 and Hessian blocks to 1e-6 (central differences, step eps^(1/3),
     second differences eps^(1/4))."""
     pytest.importorskip("casadi")
-    a, b = everything("numpy", method, substeps, equality), everything("casadi", method, substeps, equality)
+    a, b = everything(method, substeps, equality, ad_backend="numpy"), everything(method, substeps, equality, ad_backend="casadi")
     assert a.backend_used() == "numpy" and not a.provides("dynamics_jacobian") and b.provides("dynamics_jacobian")
     assert all("finite differences" in s for s in a.derivative_sources().values())
     np.testing.assert_array_equal(a.initial_guess(), b.initial_guess())
