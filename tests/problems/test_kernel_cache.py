@@ -133,14 +133,40 @@ def test_disabled_cache_writes_nothing(cache_dir, loads, monkeypatch):
         np.testing.assert_array_equal(a, b)
 
 
-def test_key_depends_on_the_ir_and_the_target(monkeypatch):
+def test_key_depends_on_the_ir_and_the_pipeline(monkeypatch):
     fun = _function()
     text = sx_llvm_ir(fun)
     key = object_cache.object_key(text)
     assert key == object_cache.object_key(text)
     assert key != object_cache.object_key(text.replace("kernel", "kernel2"))
     monkeypatch.setattr(object_cache, "PIPELINE", object_cache.PIPELINE + "-other")
-    assert key != object_cache.object_key(text)
+    object_cache._target_signature.cache_clear()
+    try:
+        assert key != object_cache.object_key(text)
+    finally:
+        monkeypatch.undo()
+        object_cache._target_signature.cache_clear()
+
+
+def test_functions_differing_in_one_bit_of_data_get_their_own_kernels(cache_dir, loads):
+    """The user's data are constants of the traced function: a kernel of other data is never
+    served (keys differ, each kernel computes its own constant)."""
+    x = ca.SX.sym("x")
+    c1 = 0.1
+    c2 = float(np.nextafter(c1, 1.0))
+    funs = [ca.Function("f", [x], [x * c]) for c in (c1, c2)]
+    keys = [object_cache.function_key(f) for f in funs]
+    assert keys[0] != keys[1]
+    kernels = [llvm_kernels.LLVMKernel(f) for f in funs]
+    assert loads == [False, False]
+    again = [llvm_kernels.LLVMKernel(f) for f in funs]          # same process: no new compile
+    assert loads == [False, False] and [k.address for k in again] == [k.address for k in kernels]
+    outs = []
+    for k in kernels:
+        out = np.empty((1, 1))
+        k(np.ones((1, 1)), out)
+        outs.append(out[0, 0])
+    assert outs == [c1, c2]
 
 
 def _vanderpol_derivatives():

@@ -3,7 +3,7 @@ numba's own dependency: no C compiler, a fraction of a second of set-up."""
 
 from __future__ import annotations
 
-from .object_cache import load_object, object_key, store_object
+from .object_cache import function_key, load_object, object_key, store_object
 from .sx import instructions
 
 
@@ -16,8 +16,8 @@ _LLVM_LIBM2 = {"POW": "pow", "CONSTPOW": "pow", "ATAN2": "atan2", "FMOD": "fmod"
 _LLVM_ARITH = {"ADD": "fadd", "SUB": "fsub", "MUL": "fmul", "DIV": "fdiv"}
 _LLVM_CMP = {"LT": "<", "LE": "<=", "EQ": "=="}
 #: the execution engines of the compiled kernels (a kernel's code lives as long as its engine)
-#: and the kernels' addresses by their IR: a model built again in the same process is not
-#: compiled again
+#: and the kernels' addresses by their cache key (object_cache.function_key): a model built
+#: again in the same process is not compiled again
 _ENGINES = []
 _COMPILED = {}
 
@@ -110,31 +110,33 @@ class LLVMKernel:
 
     def __init__(self, fun):
         from .trampoline import call_kernel   # noqa: PLC0415 - loads numba
-        text = sx_llvm_ir(fun)
+        key = function_key(fun)
         self.call = call_kernel
-        self.address = _COMPILED.get(text)
+        self.address = _COMPILED.get(key)
         if self.address is None:        # not compiled before in this process
-            self.address = _COMPILED[text] = compile_ir(text)
+            self.address = _COMPILED[key] = compile_ir(lambda: sx_llvm_ir(fun), key)
 
     def __call__(self, *arrays):
         self.call(self.address, arrays)
 
 
-def compile_ir(text):
-    """The address of ``kernel`` compiled from the IR ``text`` (its engine kept in _ENGINES): the
-    machine code from the disk cache (:mod:`.object_cache`) when an intact entry exists, else
-    LLVM's O3 pipeline and code generation, the object code then stored for the next run."""
+def compile_ir(text, key=None):
+    """The address of ``kernel`` compiled from the IR ``text`` (a string, or a callable returning
+    it, called only when the object code is not cached; ``key`` then names it, by default
+    :func:`object_key` of the text). Its engine is kept in _ENGINES. The machine code comes from
+    the disk cache (:mod:`.object_cache`) when an intact entry exists, else from LLVM's O3
+    pipeline and code generation, the object code then stored for the next run."""
     import llvmlite.binding as llvm   # noqa: PLC0415
     llvm.initialize_native_target()
     llvm.initialize_native_asmprinter()
     machine = llvm.Target.from_default_triple().create_target_machine(opt=3)
-    key = object_key(text)
+    key = key or object_key(text)
     cached = load_object(key)
     if cached is not None:
         address = _engine_address(machine, _empty_module(machine), cached, [])
         if address:
             return address
-    module = llvm.parse_assembly(text)
+    module = llvm.parse_assembly(text() if callable(text) else text)
     module.verify()
     builder = llvm.create_pass_builder(machine, llvm.create_pipeline_tuning_options(speed_level=2))
     builder.getModulePassManager().run(module, builder)

@@ -2,8 +2,11 @@
 ``ExecutionEngine.set_object_cache`` hands MCJIT the object code compiled by an earlier run, so a
 model built again skips LLVM's optimization and code generation (most of its set-up time).
 
-An entry is named by the SHA-256 of the kernel's IR text, the llvmlite and LLVM versions, the
-target triple, host CPU and features and the pipeline settings (:func:`object_key`); it holds a
+An entry is named by the SHA-256 of what the kernel is compiled from -- the CasADi function's
+serialization (its algorithm, every constant to the bit) with the CasADi version and the source
+of the translation to IR (:func:`function_key`), or the IR text itself -- and of the llvmlite
+and LLVM versions, the target triple, host CPU and features and the pipeline settings
+(:func:`object_key`): the user's data baked into the function are part of the key. It holds a
 magic line, the SHA-256 of the object code and the object code, and is written atomically (a
 temporary file, then ``os.replace``), so concurrent processes never see half a file. An entry
 that cannot be read or whose digest does not match is ignored, and the kernel is compiled and
@@ -11,6 +14,7 @@ stored again. ``OLADO_KERNEL_CACHE=0`` (or no writable cache directory) turns th
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import tempfile
@@ -22,6 +26,7 @@ PIPELINE = "mcjit-opt3-speed2-v1"
 _MAGIC = b"olado-llvm-object-1\n"
 
 
+@functools.lru_cache(maxsize=None)
 def _target_signature():
     """Text naming the code generator: llvmlite and LLVM versions, triple, host CPU, features."""
     import llvmlite   # noqa: PLC0415
@@ -34,12 +39,32 @@ def _target_signature():
                       llvm.get_default_triple(), llvm.get_host_cpu_name(), features])
 
 
-def object_key(ir_text):
-    """The cache key of the kernel compiled from ``ir_text`` on this machine (hex SHA-256)."""
+def object_key(source):
+    """The cache key of the kernel compiled from ``source`` (its IR text, or any text that fixes
+    the IR: :func:`function_key`) on this machine (hex SHA-256)."""
     digest = hashlib.sha256(_target_signature().encode("utf-8"))
     digest.update(b"\0")
-    digest.update(ir_text.encode("utf-8"))
+    digest.update(source.encode("utf-8"))
     return digest.hexdigest()
+
+
+@functools.lru_cache(maxsize=None)
+def _translator_signature():
+    """CasADi's version and the source of the SX -> IR translation (llvm_kernels.py, sx.py)."""
+    import casadi   # noqa: PLC0415
+    digest = hashlib.sha256(casadi.__version__.encode("utf-8"))
+    here = os.path.dirname(os.path.abspath(__file__))
+    for name in ("llvm_kernels.py", "sx.py"):
+        with open(os.path.join(here, name), "rb") as fh:
+            digest.update(fh.read())
+    return digest.hexdigest()
+
+
+def function_key(fun):
+    """The cache key of the kernel of the CasADi SX function ``fun`` (:func:`object_key` of its
+    serialization and the translator): known without translating ``fun`` to IR, which is most
+    of the set-up left once the object code is cached (hashing serializes in C++, 20x faster)."""
+    return object_key("casadi-sx\0" + _translator_signature() + "\0" + fun.serialize())
 
 
 def _path(key):
