@@ -17,7 +17,6 @@ from __future__ import annotations
 import functools
 import hashlib
 import os
-import tempfile
 
 from .numba_kernels import cache_directory
 
@@ -90,22 +89,15 @@ def load_object(key):
 
 
 def store_object(key, obj):
-    """Write the object code ``obj`` of ``key`` atomically; a failure to write is ignored (the
+    """Write the object code ``obj`` of ``key`` atomically (olado's one atomic writer: a
+    temporary file beside the entry, then ``os.replace``); a failure to write is ignored (the
     cache is an optimization)."""
+    from ...result import atomic_write_bytes   # noqa: PLC0415 - the one atomic writer
     path = _path(key)
     if path is None or not obj:
         return
     obj = bytes(obj)
     try:
-        fd, tmp = tempfile.mkstemp(prefix=os.path.basename(path) + ".", suffix=".tmp", dir=os.path.dirname(path))
+        atomic_write_bytes(path, _MAGIC + hashlib.sha256(obj).digest() + obj)
     except OSError:
-        return
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(_MAGIC + hashlib.sha256(obj).digest() + obj)
-        os.replace(tmp, path)
-    except OSError:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
+        pass
