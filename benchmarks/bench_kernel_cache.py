@@ -122,7 +122,7 @@ def main(argv=None):
                 f"Commit: {commit()}  ", f"Date: {time.strftime('%Y-%m-%d')}  ", f"Machine: {machine(False)}", "",
                 "Fresh process per row, N = 50, best of the repeats by set-up; warm values and derivatives "
                 "equal the cold ones to the bit (checked).", ""]
-        write_section(SECTION, "\n".join(head) + text + "\n")
+        write_section(SECTION, "\n".join(head) + "\n" + text + "\n")
 
 
 if __name__ == "__main__":
