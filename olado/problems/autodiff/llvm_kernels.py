@@ -124,8 +124,9 @@ def compile_ir(text, key=None):
     """The address of ``kernel`` compiled from the IR ``text`` (a string, or a callable returning
     it, called only when the object code is not cached; ``key`` then names it, by default
     :func:`object_key` of the text). Its engine is kept in _ENGINES. The machine code comes from
-    the disk cache (:mod:`.object_cache`) when an intact entry exists, else from LLVM's O3
-    pipeline and code generation, the object code then stored for the next run."""
+    the disk cache (:mod:`.object_cache`) when an intact entry exists, else from LLVM's
+    optimization pipeline (speed level 2, O3 code generation), the object code then stored for
+    the next run."""
     import llvmlite.binding as llvm   # noqa: PLC0415
     llvm.initialize_native_target()
     llvm.initialize_native_asmprinter()
