@@ -3,6 +3,7 @@ numba's own dependency: no C compiler, a fraction of a second of set-up."""
 
 from __future__ import annotations
 
+from .object_cache import function_key, load_object, object_key, store_object
 from .sx import instructions
 
 
@@ -15,8 +16,8 @@ _LLVM_LIBM2 = {"POW": "pow", "CONSTPOW": "pow", "ATAN2": "atan2", "FMOD": "fmod"
 _LLVM_ARITH = {"ADD": "fadd", "SUB": "fsub", "MUL": "fmul", "DIV": "fdiv"}
 _LLVM_CMP = {"LT": "<", "LE": "<=", "EQ": "=="}
 #: the execution engines of the compiled kernels (a kernel's code lives as long as its engine)
-#: and the kernels' addresses by their IR: a model built again in the same process is not
-#: compiled again
+#: and the kernels' addresses by their cache key (object_cache.function_key): a model built
+#: again in the same process is not compiled again
 _ENGINES = []
 _COMPILED = {}
 
@@ -108,24 +109,63 @@ class LLVMKernel:
     float64 (K, size) matrix (through the compiled trampoline of :mod:`.trampoline`)."""
 
     def __init__(self, fun):
-        import llvmlite.binding as llvm   # noqa: PLC0415
         from .trampoline import call_kernel   # noqa: PLC0415 - loads numba
-        llvm.initialize_native_target()
-        llvm.initialize_native_asmprinter()
-        text = sx_llvm_ir(fun)
+        key = function_key(fun)
         self.call = call_kernel
-        self.address = _COMPILED.get(text)
-        if self.address is not None:        # the same function compiled before in this process
-            return
-        machine = llvm.Target.from_default_triple().create_target_machine(opt=3)
-        module = llvm.parse_assembly(text)
-        module.verify()
-        builder = llvm.create_pass_builder(machine, llvm.create_pipeline_tuning_options(speed_level=2))
-        builder.getModulePassManager().run(module, builder)
-        engine = llvm.create_mcjit_compiler(module, machine)
-        engine.finalize_object()
-        _ENGINES.append(engine)
-        self.address = _COMPILED[text] = engine.get_function_address("kernel")
+        self.address = _COMPILED.get(key)
+        if self.address is None:        # not compiled before in this process
+            self.address = _COMPILED[key] = compile_ir(lambda: sx_llvm_ir(fun), key)
 
     def __call__(self, *arrays):
         self.call(self.address, arrays)
+
+
+def compile_ir(text, key=None):
+    """The address of ``kernel`` compiled from the IR ``text`` (a string, or a callable returning
+    it, called only when the object code is not cached; ``key`` then names it, by default
+    :func:`object_key` of the text). Its engine is kept in _ENGINES. The machine code comes from
+    the disk cache (:mod:`.object_cache`) when an intact entry exists, else from LLVM's
+    optimization pipeline (speed level 2, O3 code generation), the object code then stored for
+    the next run."""
+    import llvmlite.binding as llvm   # noqa: PLC0415
+    llvm.initialize_native_target()
+    llvm.initialize_native_asmprinter()
+    machine = llvm.Target.from_default_triple().create_target_machine(opt=3)
+    key = key or object_key(text)
+    cached = load_object(key)
+    if cached is not None:
+        address = _engine_address(machine, _empty_module(machine), cached, [])
+        if address:
+            return address
+    module = llvm.parse_assembly(text() if callable(text) else text)
+    module.verify()
+    builder = llvm.create_pass_builder(machine, llvm.create_pipeline_tuning_options(speed_level=2))
+    builder.getModulePassManager().run(module, builder)
+    compiled = []
+    address = _engine_address(machine, module, None, compiled)
+    if compiled:
+        store_object(key, compiled[0])
+    return address
+
+
+def _empty_module(machine):
+    """An empty module for the target: MCJIT loads the cached object code in its place (numba
+    loads its cached functions the same way)."""
+    import llvmlite.binding as llvm   # noqa: PLC0415
+    module = llvm.parse_assembly("")
+    module.triple, module.data_layout = machine.triple, str(machine.target_data)
+    return module
+
+
+def _engine_address(machine, module, cached, compiled):
+    """Finalize an MCJIT engine for ``module`` with the object cache hooks (``cached``: the object
+    code to load instead of generating it; ``compiled`` collects the generated object code) and
+    return the address of ``kernel`` (0 when absent)."""
+    import llvmlite.binding as llvm   # noqa: PLC0415
+    engine = llvm.create_mcjit_compiler(module, machine)
+    engine.set_object_cache(lambda _module, buf: compiled.append(bytes(buf)), lambda _module: cached)
+    engine.finalize_object()
+    address = engine.get_function_address("kernel")
+    if address:
+        _ENGINES.append(engine)
+    return address

@@ -70,7 +70,10 @@ def sx_source(fun, name="kernel"):
 
 def cache_directory():
     """Where the compiled kernels of AD models are kept between runs: ``$OLADO_CACHE_DIR/autodiff``
-    or ``~/.cache/olado/autodiff``; None (no disk cache) when neither can be written."""
+    or ``~/.cache/olado/autodiff``; None (no disk cache) when it cannot be written or
+    ``OLADO_KERNEL_CACHE`` is 0 (off, no, false)."""
+    if os.environ.get("OLADO_KERNEL_CACHE", "1").strip().lower() in ("0", "off", "no", "false"):
+        return None
     root = os.environ.get("OLADO_CACHE_DIR") or os.path.join(os.path.expanduser("~"), ".cache", "olado")
     path = os.path.join(root, "autodiff")
     try:
