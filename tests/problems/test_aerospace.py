@@ -129,6 +129,28 @@ def test_shuttle_with_heat_limit_against_ipopt_and_betts():
         assert 30.6255 - 0.08 < e.crossrange_deg < 30.6255
 
 
+@pytest.mark.slow
+def test_shuttle_with_heat_limit_n200_sqp_ip_reaches_a_kkt_point_ipopt_accepts():
+    """N = 200 with sqp-ip (issue 13; docs/structure-exploiting-sqp.md, Known limitations): SUCCESS
+    (60 iterations at f1e9f2e), the heat limit active, and a KKT point that IPOPT, started from it
+    with mu_init = 1e-9 and bound_push = bound_frac = 1e-10, accepts within a few iterations at
+    the same objective (1e-6). It is another local minimum than IPOPT's cold start reaches
+    (crossrange 30.5765 against 30.6112 deg, objective -0.5336608 against -0.5342666): the bounds
+    below allow both."""
+    ipopt = _ipopt()
+    p = shuttle_entry(N=200, heating=True)
+    r = olado.solve(p, config=SQP)
+    assert r.status.value == "success", r.message
+    e = entry_result(p, r)
+    assert e.max_heat_rate <= 70.0 * (1 + 1e-6)
+    assert e.max_heat_rate > 69.99
+    assert 30.5 < e.crossrange_deg < 30.6255
+    w = olado.solve(p, config=ipopt, guess=(r.x, r.u), mu_init=1e-9, bound_push=1e-10, bound_frac=1e-10)
+    assert w.status.value == "success", w.message
+    assert w.iterations <= 5
+    assert w.objective == pytest.approx(r.objective, abs=1e-6)
+
+
 # ---------------------------------------------------------------------------- the reused problems
 def test_reused_problems_carry_the_seeds_data():
     """seed 002 sec. 4.1 (T = 0.1405, |m'| = 0.0749, t_f = 3.32, (r, u, v)(0) = (1, 0, 1)) and
