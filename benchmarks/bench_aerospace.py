@@ -151,7 +151,10 @@ def run(entries, configs):
     rows = []
     for e in entries:
         problem = e.build()
-        problem.simulate(problem.initial_guess())
+        try:                               # compiles the model; the raw shuttle's guess simulates to -inf
+            problem.simulate(problem.initial_guess())
+        except olado.errors.NonFiniteEvaluationError:
+            pass
         for cfg in configs:
             t0 = time.perf_counter()
             r = olado.solve(problem, config=config_of(cfg))
