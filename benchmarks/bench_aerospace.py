@@ -5,10 +5,14 @@ Each entry of ``ENTRIES`` builds one problem and reads its result in the problem
 (crossrange, final time, radius, range); every entry is solved by every preset of ``CONFIGS``
 (configs/<name>.ini). To add a problem, append an :class:`Entry`; to add a column, a
 ``(heading, function(entry, problem, result) -> str)`` pair to ``COLUMNS``; to add a solver or a
-scaled variant, a preset name to ``CONFIGS`` (or ``--configs``).
+scaled variant, a preset name to ``CONFIGS`` (or ``--configs``). A config name ``preset+word``
+is the preset with an override each ``+``: ``sqp-ip+auto`` is configs/sqp-ip.ini with
+``scaling=auto`` (a bare word is a scaling method, docs/scaling.md), ``ipopt+tol=1e-10`` any
+option of the preset's solver (:func:`config_of`).
 
     python benchmarks/bench_aerospace.py                       # prints the table
     python benchmarks/bench_aerospace.py --entries shuttle-entry --configs ipopt
+    python benchmarks/bench_aerospace.py --entries shuttle-entry-raw --configs sqp-ip sqp-ip+auto ipopt ipopt+auto
     python benchmarks/bench_aerospace.py --write               # and writes the RESULTS.md section
 
 The machine is shared: the times are orders of magnitude; compare iterations and values.
@@ -65,11 +69,11 @@ def _shuttle_readout(problem, result, scaled=True):
     return {"crossrange (deg)": e.crossrange_deg, "t_f (s)": e.tf_s, "max q (BTU/ft^2/s)": e.max_heat_rate}
 
 
-def _raw_shuttle(heating):
+def _raw_shuttle(heating, heat_limit="linear"):
     """The shuttle in Betts's raw units (ft, ft/s, s: badly scaled on purpose, seed 004's subject)."""
     from olado.problems.aerospace import shuttle_entry
 
-    return shuttle_entry(N=50, heating=heating, scaled=False)
+    return shuttle_entry(N=50, heating=heating, scaled=False, heat_limit=heat_limit)
 
 
 ENTRIES = [
@@ -86,6 +90,19 @@ ENTRIES = [
     Entry("shuttle-entry-heating-raw", lambda: _raw_shuttle(True),
           lambda p, r: _shuttle_readout(p, r, scaled=False),
           seed="no valid solution without scaling (seed 004 Table 1 'SS', NONE and AUTO rows)",
+          published="crossrange 30.6255 deg, t_f = 2198.67 s (Betts 2010 ex. 6.1, heat-limited)"),
+    # the heat limit written 70/q - 1 >= 0 and declared positive: the log / inverse-power
+    # transforms of seed 004 sec. 5 apply to it under scaling (olado.problems.aerospace.heat_limit_row)
+    Entry("shuttle-entry-heating-ratio-raw", lambda: _raw_shuttle(True, "ratio"),
+          lambda p, r: _shuttle_readout(p, r, scaled=False),
+          seed="no valid solution without scaling (seed 004 Table 1 'SS', NONE and AUTO rows)",
+          published="crossrange 30.6255 deg, t_f = 2198.67 s (Betts 2010 ex. 6.1, heat-limited)"),
+    # scaled units at N = 100 (the N = 200 rows above are long for sqp-ip)
+    Entry("shuttle-entry-100", lambda: PROBLEMS["shuttle-entry"](N=100), _shuttle_readout,
+          seed="not solved without the heat limit (seed 004 Table 1 has the heat-limited case only)",
+          published="crossrange 34.1412 deg, t_f = 2008.59 s (Betts 2010 ex. 6.1)"),
+    Entry("shuttle-entry-heating-100", lambda: PROBLEMS["shuttle-entry-heating"](N=100), _shuttle_readout,
+          seed="J = -30.6385 deg (seed 004 Table 1 'SS', 50 Radau nodes, SNOPT and IPOPT)",
           published="crossrange 30.6255 deg, t_f = 2198.67 s (Betts 2010 ex. 6.1, heat-limited)"),
     Entry("rigid-body", lambda: PROBLEMS["rigid-body"](), _final_state({"t_f": -1}),
           seed="J = t_f = 29.990 .. 30.713 (seed 004 Table 1 'AB', with an unstated angular-speed limit)",
@@ -118,16 +135,29 @@ def _grid(problem):
     return [str(getattr(problem, "intervals", problem.N)), str(getattr(problem, "method", "-"))]
 
 
+def config_of(name):
+    """The SolverConfig of a config name: ``preset`` or ``preset+override+...`` (module
+    docstring); an override without ``=`` is ``scaling=<it>``."""
+    from olado.config import load_config
+
+    preset, *extra = name.split("+")
+    overrides = [item if "=" in item else f"scaling={item}" for item in extra]
+    return load_config(HERE.parent / "configs" / f"{preset}.ini", overrides)
+
+
 def run(entries, configs):
     """Table rows: one per (entry, config); the problem is built (and its model compiled) once per
     entry, outside the solve times."""
     rows = []
     for e in entries:
         problem = e.build()
-        problem.simulate(problem.initial_guess())
+        try:                               # compiles the model; the raw shuttle's guess simulates to -inf
+            problem.simulate(problem.initial_guess())
+        except olado.errors.NonFiniteEvaluationError:
+            pass
         for cfg in configs:
             t0 = time.perf_counter()
-            r = olado.solve(problem, config=str(HERE.parent / "configs" / f"{cfg}.ini"))
+            r = olado.solve(problem, config=config_of(cfg))
             wall = time.perf_counter() - t0
             cells = [e.name] + _grid(problem) + [cfg] + [f(e, problem, r) for _, f in COLUMNS] + [e.seed, e.published]
             rows.append("| " + " | ".join(cells) + " |")
@@ -142,14 +172,18 @@ def table_main(argv, *, entries, section, script, preamble):
     ap.add_argument("--entries", nargs="+", default=[e.name for e in entries])
     ap.add_argument("--configs", nargs="+", default=CONFIGS)
     ap.add_argument("--write", action="store_true", help=f"write the '{section}' section of RESULTS.md")
+    ap.add_argument("--section", default=section, help="the RESULTS.md section --write writes (a subset of "
+                    "the entries or configs in a section of its own keeps the full table's section)")
     args = ap.parse_args(argv)
+    section = args.section
     chosen = [e for e in entries if e.name in args.entries]
     head = ["problem", "intervals", "scheme", "config"] + [h for h, _ in COLUMNS] + ["seed reports", "published"]
     table = ["| " + " | ".join(head) + " |", "|" + "|".join(":--" for _ in head) + "|"] + run(chosen, args.configs)
     if args.write:
         cmd = f"python benchmarks/{script} --write" + (
             "" if chosen == entries else " --entries " + " ".join(args.entries)) + (
-            "" if args.configs == CONFIGS else " --configs " + " ".join(args.configs))
+            "" if args.configs == CONFIGS else " --configs " + " ".join(args.configs)) + (
+            "" if section == ap.get_default("section") else f" --section '{section}'")
         write_section(section, f"## {section}\n\nCommand: `{cmd}`  \nCommit: {commit()}  \n"
                       f"Date: {time.strftime('%Y-%m-%d')}  \nMachine: {machine()} (shared with other jobs: "
                       f"times are orders of magnitude)\n\n{preamble}\n\n" + "\n".join(table) + "\n")

@@ -7,7 +7,7 @@ start point and the solves with and without each scaling method, per problem and
 
 The machine is shared: compare iterations, objectives, statuses and condition numbers, not times.
 To add a problem, add a line to ENTRIES: (label, robustness-suite entry name or None, built-in
-problem name, its N) -- e.g. the aerospace problems once they are in olado/problems.
+problem name, its keyword arguments).
 """
 
 from __future__ import annotations
@@ -20,14 +20,26 @@ import time
 from _common import machine, write_section
 from _robustness import CONFIGS, olado_commit
 
-#: (label, entry of the robustness suite (its N and start point) or None, built-in name, N)
+#: (label, entry of the robustness suite (its N and start point) or None, built-in name, its keywords)
 ENTRIES = [
     ("hang-glider", "hang-glider", None, None),
     ("goddard", "goddard", None, None),
     ("rigid-body", "rigid-body", None, None),
     ("orbit-raising", "orbit-raising", None, None),
-    ("lq-box-400", None, "lq-box", 400),
-    ("lq-box-800", None, "lq-box", 800),
+    ("lq-box-400", None, "lq-box", {"N": 400}),
+    ("lq-box-800", None, "lq-box", {"N": 800}),
+    # the seeds' aerospace problems (docs/aerospace.md) at seed 004's size (50 intervals): the
+    # shuttle in scaled units and in Betts's raw units (ft, ft/s, s), the heat limit written
+    # 70/q - 1 >= 0 and declared positive (olado.problems.aerospace.heat_limit_row) or 1 - q/70 >= 0
+    ("shuttle-entry-50", None, "shuttle-entry", {"N": 50}),
+    ("shuttle-entry-raw-50", None, "shuttle-entry", {"N": 50, "scaled": False}),
+    ("shuttle-entry-heating-50", None, "shuttle-entry-heating", {"N": 50}),
+    ("shuttle-entry-heating-raw-50", None, "shuttle-entry-heating", {"N": 50, "scaled": False}),
+    ("shuttle-entry-heating-ratio-50", None, "shuttle-entry-heating", {"N": 50, "heat_limit": "ratio"}),
+    ("shuttle-entry-heating-ratio-raw-50", None, "shuttle-entry-heating",
+     {"N": 50, "scaled": False, "heat_limit": "ratio"}),
+    ("low-thrust-geo-100", None, "low-thrust-geo", {"N": 100}),
+    ("hypersonic-landing-200", None, "hypersonic-landing", {"N": 200}),
 ]
 METHODS = ("none", "iso", "jrn", "pjrn", "auto")
 #: Jacobians up to this many entries get the dense SVD here (lq-box at N = 400: 1601 x 2400)
@@ -37,14 +49,14 @@ SECTION = "Automatic scaling (issue 15 item 3, seed 004)"
 
 def build(label):
     """(problem, guess) of an ENTRIES label."""
-    _, entry, name, N = next(e for e in ENTRIES if e[0] == label)
+    _, entry, name, kwargs = next(e for e in ENTRIES if e[0] == label)
     if entry is not None:
         from olado.problems.suites import load_suite
 
         return next(e for e in load_suite("robustness") if e.name == entry).build()
     from olado.problems import get_problems
 
-    return get_problems()[name](N=N), None
+    return get_problems()[name](**kwargs), None
 
 
 def solve(label, config, method, time_limit):

@@ -115,7 +115,7 @@ class EntryResult:
     max_heat_rate: float
 
 
-def shuttle_entry(N=100, heating=False, scaled=True, substeps=1, mode="llvm"):
+def shuttle_entry(N=100, heating=False, scaled=True, substeps=1, mode="llvm", heat_limit="linear"):
     """Space Shuttle entry, maximum crossrange (Betts 2010 ex. 6.1; seed 004 'SS')::
 
         max theta(t_f),  t_f free,   x = (h, phi, theta, v, gamma, psi),  u = (alpha, beta),
@@ -132,7 +132,9 @@ def shuttle_entry(N=100, heating=False, scaled=True, substeps=1, mode="llvm"):
     final time by time scaling. ``scaled``: states in (1e5 ft, rad, rad, 1e4 ft/s, rad, rad) and
     time in 100 s (the model is the same; only the NLP's units change); ``scaled=False`` is the
     problem in Betts's raw units, badly scaled on purpose (seed 004's subject). The objective is
-    -theta(t_f) in rad, the heat limit is written 1 - q/70 >= 0. Start: alpha = 17 deg, beta = -75
+    -theta(t_f) in rad, the heat limit is written 1 - q/70 >= 0 (``heat_limit="linear"``) or
+    70/q - 1 >= 0 (``heat_limit="ratio"``, declared intrinsically positive for the nonlinear
+    scaling of seed 004 sec. 5: :func:`heat_limit_row`). Start: alpha = 17 deg, beta = -75
     deg, t_f = 2000 s, states linear from x(0) to (h_f, 0, 30 deg, v_f, gamma_f, 0), the longitude to 75 deg.
     """
     M = ShuttleEntry
@@ -150,19 +152,40 @@ def shuttle_entry(N=100, heating=False, scaled=True, substeps=1, mode="llvm"):
         xp = phys(x)
         return [(xp[0] - M.HF) / units[0], (xp[3] - M.VF) / units[3], xp[4] - M.GAMMAF]
 
-    path = (lambda t, x, u, p: [1.0 - M.heat_rate(phys(x), u) / M.Q_MAX]) if heating else None
+    path = heat_limit_row(heat_limit, phys) if heating else None
     x0 = np.array(M.X0) / units
     lo = np.array([0.0, -np.inf, -89.0 * DEG, 1.0, -89.0 * DEG, -np.inf]) / units
     hi = np.array([np.inf, np.inf, 89.0 * DEG, np.inf, 89.0 * DEG, np.inf]) / units
     xf_guess = np.array([M.HF, 0.0, 30.0 * DEG, M.VF, M.GAMMAF, 0.0]) / units
     x_guess = x0 + np.linspace(0.0, 1.0, N + 1)[:, None] * (xf_guess - x0)
     x_guess[:, 1] = np.linspace(0.0, 1.3, N + 1)       # longitude: about 75 deg downrange
-    return OCP(rhs, x0, controls=2, N=N, T=None, T_bounds=(100.0 / tu, 4000.0 / tu), T_guess=2000.0 / tu,
-               final_cost=lambda t, x, p: -x[2], terminal=terminal, terminal_equalities=[0, 1, 2],
-               path=path, x_bounds=(lo, hi), u_bounds=((M.ALPHA_BOUNDS[0], M.BETA_BOUNDS[0]),
-                                                       (M.ALPHA_BOUNDS[1], M.BETA_BOUNDS[1])),
-               u_guess=(17.0 * DEG, -75.0 * DEG), x_guess=x_guess, substeps=substeps, mode=mode,
-               name="shuttle-entry-heating" if heating else "shuttle-entry")
+    ocp = OCP(rhs, x0, controls=2, N=N, T=None, T_bounds=(100.0 / tu, 4000.0 / tu), T_guess=2000.0 / tu,
+              final_cost=lambda t, x, p: -x[2], terminal=terminal, terminal_equalities=[0, 1, 2],
+              path=path, x_bounds=(lo, hi), u_bounds=((M.ALPHA_BOUNDS[0], M.BETA_BOUNDS[0]),
+                                                      (M.ALPHA_BOUNDS[1], M.BETA_BOUNDS[1])),
+              u_guess=(17.0 * DEG, -75.0 * DEG), x_guess=x_guess, substeps=substeps, mode=mode,
+              name="shuttle-entry-heating" if heating else "shuttle-entry")
+    if heating and heat_limit == "ratio":
+        ocp.positive_constraints = {"stage": [0]}
+    return ocp
+
+
+def heat_limit_row(form, phys):
+    """The path constraint q <= 70 BTU/ft^2/s of Betts's example 6.1 as g >= 0 at scaled x.
+
+    ``"linear"``: g = 1 - q/70. ``"ratio"``: g = 70/q - 1, intrinsically positive in the sense of
+    seed 004 eq. (11) (g > -1 wherever it is evaluated): q = q_a q_r > 0 on the whole box of the
+    bounds, because q_r = 17700 sqrt(rho) (v/1e4)^3.07 > 0 for v >= 1 ft/s and the cubic
+    q_a(alpha) is decreasing on [-90, 90] deg (its derivative has no real root) with
+    q_a(90 deg) = 0.325. The log transform of sec. 5 then gives log(1 + g) = log 70 - log q,
+    the seed's eq. (9) on the heat rate itself. The linear form has the domain q < 140 only (g > -1),
+    which the iterates can leave (q reaches 167 on the unconstrained optimum), so it is not declared."""
+    M = ShuttleEntry
+    if form == "linear":
+        return lambda t, x, u, p: [1.0 - M.heat_rate(phys(x), u) / M.Q_MAX]
+    if form == "ratio":
+        return lambda t, x, u, p: [M.Q_MAX / M.heat_rate(phys(x), u) - 1.0]
+    raise ValueError(f"heat_limit must be 'linear' or 'ratio', not {form!r}")
 
 
 def entry_result(ocp, result, scaled=True) -> EntryResult:
@@ -180,8 +203,8 @@ def _shuttle(N=100, heating=False, scaled=True):
     return shuttle_entry(N=N, heating=heating, scaled=scaled)
 
 
-def _shuttle_heating(N=100, scaled=True):
-    return shuttle_entry(N=N, heating=True, scaled=scaled)
+def _shuttle_heating(N=100, scaled=True, heat_limit="linear"):
+    return shuttle_entry(N=N, heating=True, scaled=scaled, heat_limit=heat_limit)
 
 
 _shuttle.__doc__ = "Space Shuttle entry, maximum crossrange, free final time (Betts 2010 ex. 6.1; seed 004)."
