@@ -24,6 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from olado.problems.autodiff.backends import split_final
+
 #: the peers, by the name the tables use -> CasADi's plugin name
 PEERS = {"casadi-ipopt": "ipopt", "casadi-fatrop": "fatrop"}
 
@@ -90,8 +92,7 @@ class CasadiPeer:
             stage_out.append(ca.vertcat(*_entries(out[2], r)))
         F = ca.Function("stage", [x, u, d], stage_out)
         xN = ca.SX.sym("xN", n)
-        fin = p.final(xN)
-        fin, gN = (fin if isinstance(fin, (tuple, list)) else (fin, []))
+        fin, gN = split_final(p.final(xN))
         FN = ca.Function("final", [xN], [fin, ca.vertcat(*_entries(gN, rN)) if rN else ca.SX(0, 1)])
 
         W = ca.MX.sym("w", N * (n + m) + n)

@@ -1,6 +1,7 @@
 """The automatic-differentiation back-ends by name, the check that the optional package of one
 is installed (its extra named otherwise), and the choice of ``"auto"``: CasADi when it is
-installed, else the numeric back-end (finite differences) with a one-time note."""
+installed, else the numeric back-end (finite differences) with a one-time note; and how every
+back-end reads a model's ``final`` (:func:`split_final`)."""
 
 from __future__ import annotations
 
@@ -62,3 +63,13 @@ def make_backend(name, **options):
         from .sympy_backend import SympyBackend   # noqa: PLC0415
         return SympyBackend(**options)
     raise ProblemDefinitionError(f"the {name!r} back-end does not differentiate", function="autodiff", array="backend")
+
+
+def split_final(value):
+    """(F^N, g^N) from what a model's ``final`` returns: a cost, or a pair (cost, gN); g^N is ()
+    when the model gives only the cost."""
+    if isinstance(value, (tuple, list)):
+        if len(value) != 2:
+            raise ProblemDefinitionError("must return cost or (cost, gN)", function="final")
+        return value[0], value[1]
+    return value, ()

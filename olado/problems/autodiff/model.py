@@ -8,7 +8,7 @@ import numpy as np
 
 from ...errors import ProblemDefinitionError
 from ..docp import DOCP
-from .backends import EXACT, make_backend, resolve_backend
+from .backends import EXACT, make_backend, resolve_backend, split_final
 from .numpy_backend import FD_NOTE, NumpyModel
 
 
@@ -27,13 +27,7 @@ class StageModel:
         self.f = self._vector(out[0], self.n, "stage", "x_next")
         self.l = self._scalar(out[1], "stage", "cost")
         self.g = self._vector(out[2] if len(out) == 3 else (), self.r, "stage", "g")
-        fin = problem.final(self.xN)
-        if isinstance(fin, (tuple, list)):
-            if len(fin) != 2:
-                raise ProblemDefinitionError("must return cost or (cost, gN)", function="final")
-            fin, gN = fin
-        else:
-            gN = ()
+        fin, gN = split_final(problem.final(self.xN))
         self.F = self._scalar(fin, "final", "cost")
         self.gN = self._vector(gN, self.rN, "final", "gN")
 

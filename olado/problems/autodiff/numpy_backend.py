@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...errors import ProblemDefinitionError
+from .backends import split_final
 
 #: the result note of a problem on this back-end (the solvers copy it to ``result.info``)
 FD_NOTE = ("derivatives by central finite differences of the numpy-evaluated model (the 'numpy' "
@@ -121,13 +122,7 @@ class NumpyModel:
 
     def final(self, x):
         with np.errstate(all="ignore"):
-            fin = self.problem.final(x.T)
-        if isinstance(fin, (tuple, list)):
-            if len(fin) != 2:
-                raise ProblemDefinitionError("must return cost or (cost, gN)", function="final")
-            fin, gN = fin
-        else:
-            gN = ()
+            fin, gN = split_final(self.problem.final(x.T))
         F = self._rows(fin, 1, x.shape[0], "final", "cost")[:, 0]
         return F, None, self._rows(gN, self.rN, x.shape[0], "final", "gN"), None
 
