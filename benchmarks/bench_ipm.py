@@ -1,5 +1,5 @@
 """The interior-point NLP solver (``configs/ipm.ini``, olado.solvers.ipm) against olado's IPOPT
-wrapper (``configs/ipopt.ini``) on zambezi12: iterations, objectives, time (best of ``--repeats``
+wrapper (``configs/ipopt.ini``) on zambezi12: iterations, objectives, time (best ``time_s`` of ``--repeats``
 after a warm-up; the machine is shared, so times are orders of magnitude).
 
     python benchmarks/bench_ipm.py                      # N = 24, 120, 252; writes RESULTS.md
@@ -10,26 +10,12 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import time
-
-from _common import commit, machine, write_section
+from _common import HERE, best_of, commit, machine, write_section
 
 from olado.config import load_config, make_solver
 from olado.problems.zambezi import zambezi_problem
 
 SECTION = "Interior-point NLP on the Riccati kernel (ipm) against IPOPT"
-
-
-def best_of(solver, N, repeats):
-    """The result of a solve and the best wall time of ``repeats`` solves after a warm-up."""
-    solver.solve(zambezi_problem(N=N))
-    best, result = float("inf"), None
-    for _ in range(repeats):
-        p = zambezi_problem(N=N)
-        t0 = time.perf_counter()
-        result = solver.solve(p)
-        best = min(best, time.perf_counter() - t0)
-    return result, best
 
 
 def main(argv=None):
@@ -38,11 +24,15 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args(argv)
-    solvers = {name: make_solver(load_config(f"configs/{name}.ini")) for name in ("ipm", "ipopt")}
+    solvers = {name: make_solver(load_config(HERE.parent / "configs" / f"{name}.ini")) for name in ("ipm", "ipopt")}
     rows = ["| N | preset | status | iterations | objective | rel. to IPOPT | time (ms) | ms / iteration | factorizations |",
             "|--:|:--|:--|--:|--:|--:|--:|--:|--:|"]
     for N in args.N:
-        res = {name: best_of(s, N, args.repeats) for name, s in solvers.items()}
+        res = {}
+        for name, s in solvers.items():
+            s.solve(zambezi_problem(N=N))                      # warm-up
+            best = best_of(s, N, args.repeats)
+            res[name] = (best, best.time_s)
         ref = res["ipopt"][0].objective
         for name, (r, t) in res.items():
             rel = abs(r.objective - ref) / abs(ref)

@@ -228,12 +228,12 @@ class ODEProblem(OCP):
         return self.ode_cost(x, u)
 
     def ode_rhs(self, x, u):
-        """f(x, u), a list of n entries."""
-        raise NotImplementedError
+        """f(x, u), a list of n entries (every subclass writes it)."""
+        raise ProblemDefinitionError(f"{type(self).__name__} must define ode_rhs(x, u)", function="ode_rhs")
 
     def ode_cost(self, x, u):
-        """L(x, u), the running cost."""
-        raise NotImplementedError
+        """L(x, u), the running cost (every subclass writes it: these are Lagrange problems)."""
+        raise ProblemDefinitionError(f"{type(self).__name__} must define ode_cost(x, u)", function="ode_cost")
 
     def stage_data(self):
         """OCP's rows (t_k, h, 0) with t_k = k h and every step exactly h (not a difference of

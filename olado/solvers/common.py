@@ -205,17 +205,20 @@ def complementarity_residual(nlp, y, c, lam, zl, zu) -> float:
     return max(parts)
 
 
-def stage_gradient_terms(p, pt, lam, Lg, LgN):
-    """grad J + Jc^T lam stage by stage, without bound multipliers: (rx (N+1, n), ru (N, m)).
+def stage_gradient_terms(p, pt, lam, Lg, LgN, sigma=1.0):
+    """sigma grad J + Jc^T lam stage by stage, without bound multipliers: (rx (N+1, n), ru (N, m)).
 
     ``pt`` holds the derivatives per stage (lx (N, n), lu (N, m), lN (n,), A, B, Cx, Cu, CN, the
     names of the SQP's and the certificate's points); ``lam`` (N, n) is the multiplier of the
-    dynamics row h^k = f^k - x^{k+1}, ``Lg`` (N, r) and ``LgN`` (rN,) those of g and g^N."""
+    dynamics row h^k = f^k - x^{k+1}, ``Lg`` (N, r) and ``LgN`` (rN,) those of g and g^N;
+    ``sigma`` scales the objective (IPOPT's objective scaling; 0: the gradient of the constraint
+    terms alone, the objective's derivatives not read)."""
     rx = np.empty((p.N + 1, p.n))
-    rx[:-1] = pt.lx + np.einsum("kij,ki->kj", pt.A, lam)
+    lx, lu, lN = (sigma * pt.lx, sigma * pt.lu, sigma * pt.lN) if sigma else (0.0, 0.0, 0.0)
+    rx[:-1] = lx + np.einsum("kij,ki->kj", pt.A, lam)
     rx[1:-1] -= lam[:-1]
-    rx[-1] = pt.lN - lam[-1]
-    ru = pt.lu + np.einsum("kij,ki->kj", pt.B, lam)
+    rx[-1] = lN - lam[-1]
+    ru = lu + np.einsum("kij,ki->kj", pt.B, lam)
     if p.r:
         rx[:-1] += np.einsum("kij,ki->kj", pt.Cx, Lg)
         ru += np.einsum("kij,ki->kj", pt.Cu, Lg)

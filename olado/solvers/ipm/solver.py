@@ -39,7 +39,7 @@ from ...interrupts import Limits
 from ...options import option
 from ...result import Result, Status
 from ..base import Solver, SolverOptions
-from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION, stop_outcome
+from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION, stage_gradient_terms, stop_outcome
 from ..sqp.residuals import stage_kkt
 from ..sqp.state import BoundMultipliers, Clock, Multipliers, Point
 from .barrier import Bounds, Layout
@@ -191,14 +191,9 @@ def full_multipliers(L, st):
 def lagrangian_gradient(setup, st):
     """The gradient of the Lagrangian s_f J + lam.h + Lg.g + LgN.gN - y_d.s over v (without the
     bound multipliers), flat."""
-    pt, lam, L = st.pt, st.lam, setup.layout
-    q, r = objective_gradient(pt, st.s_obj) if st.s_obj else (np.zeros_like(pt.X), np.zeros_like(pt.U))
+    L = setup.layout
     Lg, LgN = full_multipliers(L, st)
-    gx = q.copy()
-    gx[:-1] += np.einsum("kij,ki->kj", pt.A, lam[1:]) + np.einsum("kij,ki->kj", pt.Cx, Lg)
-    gx[1:] -= lam[1:]
-    gx[-1] += pt.CN.T @ LgN
-    gu = r + np.einsum("kij,ki->kj", pt.B, lam[1:]) + np.einsum("kij,ki->kj", pt.Cu, Lg)
+    gx, gu = stage_gradient_terms(setup.problem, st.pt, st.lam[1:], Lg, LgN, sigma=st.s_obj)
     return L.pack(gx, gu, -st.yd, -st.ydN)
 
 
