@@ -51,7 +51,7 @@ from .merit import armijo_backtracking, augmented_lagrangian, penalty_and_slope,
 class FQLNKOptions(SolverOptions):
     """Options of FQLNK (the seed's values as defaults, seed 002 sec. 4 and 4.6)."""
 
-    max_iter: int = option(200, "maximum number of Newton iterations", min=0)
+    max_iter: int = option(500, "maximum number of Newton iterations", min=0)
     hessian: str = option("bfgs", "the (1,1) block of the KKT matrix: bfgs (damped BFGS, seed sec. 3.2), exact (the "
                           "problem's second derivatives: the seed's AD) or fd (second central differences of the "
                           "Lagrangian's values, seed eq. (3.2))", choices=("bfgs", "exact", "fd"))
