@@ -1,0 +1,135 @@
+"""Seed 002's Table 4.5 for olado's FQLNK (``fqlnk``, docs/fqlnk.md) on the Earth-to-Mars
+maximum-radius transfer (``orbit-raising``): per grid size and Hessian (fd, exact -- the seed's
+"AD" --, bfgs) the Newton iterations, the average GMRES iterations per Newton iteration, the
+average Hessian-form and KKT-solve times with their shares of the total, the total time and the
+speedup over FD, next to sqp-ip and IPOPT (configs/) on the same problem; which local solution
+each reaches (r(t_f) against IPOPT's, and a second-order check: the smallest eigenvalue of the
+Lagrangian Hessian on the null space of the constraint Jacobian).
+
+The problem is the seed's (sec. 4.1): olado's built-in without its safeguard r >= 0.5 (inactive
+at every solution here), i.e. equality constraints only, as the seed solves it; ``--bound`` keeps
+the bound (fqlnk then treats it by squared slacks, seed eq. (4.6)). One solve per entry: the
+machine is shared, so times are orders of magnitude.
+
+    python benchmarks/bench_fqlnk.py                    # N = 8, 16, 32, 64; writes RESULTS.md
+    python benchmarks/bench_fqlnk.py --N 8 16 --no-write
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import sys
+
+import numpy as np
+from _common import HERE, commit, machine, write_section
+from scipy.linalg import null_space
+
+from olado.config import load_config, make_solver
+from olado.problems import PROBLEMS
+from olado.solvers.fqlnk.layout import Layout
+from olado.solvers.sqp.state import Point
+
+SECTION = "FQLNK (seed 002) on the Earth-to-Mars transfer: seed 002's Table 4.5"
+HESSIANS = ("fd", "exact", "bfgs")
+PEERS = ("sqp-ip", "ipopt")
+#: r(t_f) equal to IPOPT's to this (relative): the same (physical) solution
+SAME = 1e-6
+
+
+def problem(N, bound):
+    p = PROBLEMS["orbit-raising"](N=N)
+    if not bound:
+        p.x_bounds = None        # the seed's problem: no r >= 0.5
+    return p
+
+
+def reduced_hessian_min(p, result):
+    """Smallest eigenvalue of Z' H Z at the result (H the exact Lagrangian Hessian with the
+    result's multipliers, Z a basis of the null space of G): > 0 a strict local minimum, < 0 a
+    saddle. Equality-only problems (no slacks) only; None otherwise."""
+    if p.r or (~p.final_equality_mask).any() or np.isfinite(p.x_lower[1:]).any():
+        return None
+    L = Layout(p, slacks=False)
+    v = L.pack(result.x, result.u)
+    pt = Point(p, result.x, result.u)
+    lam = np.concatenate([result.multipliers["dynamics"].ravel(), result.multipliers["final_constraints"][L.eqN]])
+    Z = null_space(L.jacobian(pt, v).toarray())
+    H = L.hessian(pt, v, lam).toarray()
+    return float(np.linalg.eigvalsh(Z.T @ H @ Z)[0])
+
+
+def which(r_tf, ref, lowest):
+    kind = "" if lowest is None else (", local min" if lowest > 0 else ", saddle")
+    if abs(r_tf - ref) <= SAME * abs(ref):
+        return f"IPOPT's (physical){kind}"
+    return f"other KKT point{kind}"
+
+
+def fqlnk_row(N, hessian, bound, fd_total):
+    s = make_solver(load_config(HERE.parent / "configs" / "fqlnk.ini"))
+    s.options.hessian = hessian
+    s.options.inequalities = "squared-slacks" if bound else "refuse"
+    p = problem(N, bound)
+    r = s.solve(p)
+    i = r.info
+    total = i["solve_time_s"]
+    return r, p, dict(its=i["newton_iterations"], gm=i["avg_gmres_iterations"], hf=i["avg_hessian_time_s"],
+                      hf_share=i["hessian_time_s"] / total, kkt=i["avg_kkt_time_s"], kkt_share=i["kkt_time_s"] / total,
+                      total=total)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--N", type=int, nargs="+", default=[8, 16, 32, 64])
+    ap.add_argument("--hessians", nargs="+", default=list(HESSIANS), choices=HESSIANS)
+    ap.add_argument("--bound", action="store_true", help="keep olado's r >= 0.5 (squared slacks in fqlnk)")
+    ap.add_argument("--no-write", action="store_true")
+    args = ap.parse_args(argv)
+    head = ["| Hessian | N | status | Newton its | avg GMRES its | avg Hessian form (s) | avg KKT solve (s) | "
+            "total (s) | speedup over FD | r(t_f) | solution |",
+            "|:--|--:|:--|--:|--:|--:|--:|--:|--:|--:|:--|"]
+    rows = []
+    peers = {name: make_solver(load_config(HERE.parent / "configs" / f"{name}.ini")) for name in PEERS}
+    for s in peers.values():           # warm-up: compiled kernels, imports
+        s.solve(problem(min(args.N), args.bound))
+    fqlnk_row(min(args.N), "exact", args.bound, None)
+    for N in args.N:
+        ref_results = {name: s.solve(problem(N, args.bound)) for name, s in peers.items()}
+        ref = float(ref_results["ipopt"].x[-1, 0])
+        fd_total = None
+        for h in args.hessians:
+            r, p, f = fqlnk_row(N, h, args.bound, fd_total)
+            if h == "fd":
+                fd_total = f["total"]
+            speed = f"{fd_total / f['total']:.1f}x" if fd_total and h != "fd" else "--"
+            lowest = reduced_hessian_min(p, r) if r.status.success and N <= 64 else None
+            r_tf = float(r.x[-1, 0])
+            rows.append(f"| {h} | {N} | {r.status.value} | {f['its']} | {f['gm']:.1f} | {f['hf']:.2e} "
+                        f"({100 * f['hf_share']:.0f}%) | {f['kkt']:.2e} ({100 * f['kkt_share']:.0f}%) | "
+                        f"{f['total']:.2f} | {speed} | {r_tf:.6f} | {which(r_tf, ref, lowest) if r.status.success else r.message[:80]}"
+                        f"{'' if lowest is None else f' (min eig {lowest:.1e})'} |")
+            print(rows[-1], flush=True)
+        for name, r in ref_results.items():
+            r_tf = float(r.x[-1, 0])
+            rows.append(f"| {name} | {N} | {r.status.value} | {r.iterations} (its) | -- | -- | -- | {r.time_s:.2f} | "
+                        f"-- | {r_tf:.6f} | {which(r_tf, ref, None) if r.status.success else r.message[:80]} |")
+            print(rows[-1], flush=True)
+    shown = " ".join(argv if argv is not None else sys.argv[1:])
+    command = f"python benchmarks/bench_fqlnk.py {shown}".strip()
+    what = ("olado's built-in with r >= 0.5 as squared slacks" if args.bound
+            else "the seed's problem: olado's built-in without its (inactive) bound r >= 0.5, equality constraints only")
+    text = (f"## {SECTION}\n\n`{command}` at {commit()}, {datetime.date.today()}, {machine()}; one solve per row after a warm-up, "
+            f"the machine shared with other jobs (times: orders of magnitude). Problem: {what}; N RK4 intervals "
+            "(the seed: N trapezoidal subintervals). configs/fqlnk.ini with hessian = fd / exact / bfgs; "
+            "'total' is the solve loop (the in-loop certificates included); sqp-ip and IPOPT: iterations and "
+            "Result.time_s. 'solution': r(t_f) equal to IPOPT's to 1e-6 or not, and the smallest eigenvalue of "
+            "the Lagrangian Hessian on the null space of the constraint Jacobian (> 0: a strict local minimum).\n\n"
+            + "\n".join(head + rows) + "\n")
+    if not args.no_write:
+        write_section(SECTION, text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
