@@ -57,16 +57,22 @@ def damped_bfgs_update(B, s, y) -> Update:
 
 
 def positive_definite_start(H, margin=1e-4):
-    """B^(0) from a Hessian H (the seed builds it "by using the AD approach", sec. 4.6, and says
-    no more; BFGS needs B^(0) positive definite): H itself when its smallest eigenvalue is at
-    least margin max(1, max|H_ii|), else H + delta I with delta the smallest shift that lifts
-    the smallest eigenvalue to that margin. Returns (B0 dense, delta)."""
+    """B^(0) from a Hessian H. The seed builds it "by using the AD approach" (sec. 4.6) and says
+    no more, but its BFGS needs B^(0) positive definite, and the Earth-to-Mars start's Hessian is
+    indefinite. B^(0) = V max(|Lambda|, floor) V' for H = V Lambda V' (the modified Hessian of
+    Nocedal and Wright sec. 3.4: negative eigenvalues flipped, the small ones raised to
+    floor = margin max(1, max|H_ii|)), which keeps H's scale in every direction (a shift by
+    -lambda_min I does not: it took twice the Newton iterations on Earth-to-Mars). Returns
+    (B0 dense, the most negative eigenvalue of H or 0)."""
     B = H.toarray() if sp.issparse(H) else np.array(H, dtype=float)
     B = 0.5 * (B + B.T)
+    if not B.size:
+        return B, 0.0
     floor = margin * max(1.0, float(np.max(np.abs(np.diag(B)), initial=0.0)))
-    lowest = float(np.linalg.eigvalsh(B)[0]) if B.size else floor
-    delta = max(0.0, floor - lowest)
-    return B + delta * np.eye(B.shape[0]), delta
+    w, V = np.linalg.eigh(B)
+    if w[0] >= floor:
+        return B, 0.0
+    return (V * np.maximum(np.abs(w), floor)) @ V.T, float(max(0.0, -w[0]))
 
 
 def scaled_identity_start(nv, s=None, y=None):

@@ -55,8 +55,8 @@ class FQLNKOptions(SolverOptions):
     hessian: str = option("bfgs", "the (1,1) block of the KKT matrix: bfgs (damped BFGS, seed sec. 3.2), exact (the "
                           "problem's second derivatives: the seed's AD) or fd (second central differences of the "
                           "Lagrangian's values, seed eq. (3.2))", choices=("bfgs", "exact", "fd"))
-    bfgs_init: str = option("exact", "B^(0) of the BFGS matrix: exact (the problem's Hessian at the start, shifted to "
-                            "be positive definite; the seed's choice) or identity (y'y/s'y I after the first step)",
+    bfgs_init: str = option("exact", "B^(0) of the BFGS matrix: exact (the problem's Hessian at the start, its "
+                            "eigenvalues made positive; the seed's choice) or identity (y'y/s'y I after the first step)",
                             choices=("exact", "identity"))
     atol: float = option(1e-6, "absolute tolerance of the seed's stopping test ||F||_2 <= atol", min=0.0)
     rtol: float = option(1e-6, "relative tolerance of the seed's stopping test ||F||_2 <= rtol ||F_0||_2", min=0.0)
@@ -150,7 +150,7 @@ class FQLNKState:
     residual_searches: int = 0
     damped_updates: int = 0
     skipped_updates: int = 0
-    bfgs_shift: float = 0.0
+    bfgs_negative_eigenvalue: float = 0.0
     certificates: int = 0
     certificate: object = None
     status: Status = Status.MAX_ITERATIONS
@@ -214,7 +214,7 @@ def initial_state(setup, X0, U0, clock) -> FQLNKState:
     if setup.options.hessian == "bfgs":
         t0 = time.perf_counter()
         if setup.options.bfgs_init == "exact":
-            st.B, st.bfgs_shift = positive_definite_start(L.hessian(pt, v, lam))
+            st.B, st.bfgs_negative_eigenvalue = positive_definite_start(L.hessian(pt, v, lam))
         else:
             st.B = scaled_identity_start(L.nv)
         st.hessian_time += time.perf_counter() - t0
@@ -408,7 +408,7 @@ def finish(setup, st) -> Result:
             "kkt_time_s": st.kkt_time, "avg_hessian_time_s": st.hessian_time / k, "avg_kkt_time_s": st.kkt_time / k,
             "rho": st.rho, "residual_merit_searches": st.residual_searches,
             "damped_bfgs_updates": st.damped_updates, "skipped_bfgs_updates": st.skipped_updates,
-            "bfgs_initial_shift": st.bfgs_shift, "variables": setup.layout.nv, "constraints": setup.layout.nc,
+            "bfgs_initial_negative_eigenvalue": st.bfgs_negative_eigenvalue, "variables": setup.layout.nv, "constraints": setup.layout.nc,
             "slacks": setup.layout.ns, "kkt": "ilutp-gmres"}
     multipliers = {"dynamics": mult.lam[1:].copy(), "stage_constraints": mult.Lg, "final_constraints": mult.LgN,
                    "bound_lower_x": z.zl_x, "bound_lower_u": z.zl_u, "bound_upper_x": z.zu_x, "bound_upper_u": z.zu_u}

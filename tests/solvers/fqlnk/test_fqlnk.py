@@ -63,11 +63,15 @@ def test_damped_update_keeps_positive_definiteness():
         assert np.linalg.eigvalsh(up.B).min() > 0.0
 
 
-def test_positive_definite_start_shifts_to_the_margin():
-    H = np.diag([-1.0, 2.0, 0.5])
-    B, delta = positive_definite_start(H, margin=1e-4)
-    assert delta == pytest.approx(1.0 + 2e-4, rel=1e-12)          # lowest eigenvalue -1 lifted to 1e-4 * max|H_ii|
-    assert np.linalg.eigvalsh(B).min() == pytest.approx(2e-4, rel=1e-9)
+def test_positive_definite_start_flips_negative_eigenvalues():
+    """B^(0) = V max(|Lambda|, floor) V': for H with eigenvalues (-1, 3, 1e-9) in a rotated basis
+    the start has eigenvalues (1, 3, floor = 1e-4 max(1, max|H_ii|)) on the same eigenvectors."""
+    Q, _ = np.linalg.qr(np.random.default_rng(1).standard_normal((3, 3)))
+    H = Q @ np.diag([-1.0, 3.0, 1e-9]) @ Q.T
+    B, lowest = positive_definite_start(H, margin=1e-4)
+    floor = 1e-4 * max(1.0, np.abs(np.diag(H)).max())
+    assert lowest == pytest.approx(1.0, rel=1e-12)
+    np.testing.assert_allclose(B, Q @ np.diag([1.0, 3.0, floor]) @ Q.T, atol=1e-13)
     B2, d2 = positive_definite_start(np.diag([1.0, 3.0]))
     assert d2 == 0.0 and np.array_equal(B2, np.diag([1.0, 3.0]))
 
