@@ -72,16 +72,21 @@ def problem(N, bound):
     return p
 
 
-def reduced_hessian_min(p, result):
+def reduced_hessian_min(p, result, bound):
     """Smallest eigenvalue of Z' H Z at the result (H the exact Lagrangian Hessian with the
-    result's multipliers, Z a basis of the null space of G): > 0 a strict local minimum, < 0 a
-    saddle. Equality-only problems (no slacks) only; None otherwise."""
-    if p.r or (~p.final_equality_mask).any() or np.isfinite(p.x_lower[1:]).any():
-        return None
-    L = Layout(p, slacks=False)
-    v = L.pack(result.x, result.u)
+    result's multipliers, Z a basis of the null space of G, both in fqlnk's full space -- with
+    the squared slacks of the bounds when ``bound``): > 0 a strict local minimum, < 0 a saddle."""
+    L = Layout(p, slacks=bound)
+    b = L.bounds
+    y = L.pack(result.x, result.u)[:L.ny]
+    s = np.sqrt(np.maximum(b.sign * (y[b.col] - b.value), 0.0))
+    v = np.concatenate([y, s])
     pt = Point(p, result.x, result.u)
-    lam = np.concatenate([result.multipliers["dynamics"].ravel(), result.multipliers["final_constraints"][L.eqN]])
+    m = result.multipliers
+    z = {1.0: L.pack(m["bound_lower_x"], m["bound_lower_u"])[:L.ny], -1.0: L.pack(m["bound_upper_x"], m["bound_upper_u"])[:L.ny]}
+    mb = np.array([-z[sg][c] for sg, c in zip(b.sign, b.col)])
+    lam = np.concatenate([m["dynamics"].ravel(), m["stage_constraints"][:, L.eq].ravel(),
+                          m["final_constraints"][L.eqN], mb])
     Z = null_space(L.jacobian(pt, v).toarray())
     H = L.hessian(pt, v, lam).toarray()
     return float(np.linalg.eigvalsh(Z.T @ H @ Z)[0])
@@ -131,7 +136,7 @@ def main(argv=None):
             if h == "fd":
                 fd_total = f["total"] if r.status.success else None
             speed = f"{fd_total / f['total']:.1f}x" if fd_total and h != "fd" and r.status.success else "--"
-            lowest = reduced_hessian_min(p, r) if r.status.success and N <= 64 else None
+            lowest = reduced_hessian_min(p, r, args.bound) if r.status.success and N <= 128 else None
             r_tf = float(r.x[-1, 0])
             rows.append(f"| {h} | {N} | {r.status.value} | {f['its']} | {f['gm']:.1f} | {f['hf']:.2e} "
                         f"({100 * f['hf_share']:.0f}%) | {f['kkt']:.2e} ({100 * f['kkt_share']:.0f}%) | "
@@ -147,7 +152,8 @@ def main(argv=None):
     command = f"python benchmarks/bench_fqlnk.py {shown}".strip()
     what = ("olado's built-in with r >= 0.5 as squared slacks" if args.bound
             else "the seed's problem: olado's built-in without its (inactive) bound r >= 0.5, equality constraints only")
-    text = (f"## {SECTION}\n\n`{command}` at {commit()}, {datetime.date.today()}, {machine()}; one solve per row after a warm-up, "
+    title = SECTION_BOUND if args.bound else SECTION
+    text = (f"## {title}\n\n`{command}` at {commit()}, {datetime.date.today()}, {machine()}; one solve per row after a warm-up, "
             f"the machine shared with other jobs (times: orders of magnitude). Problem: {what}; N RK4 intervals "
             "(the seed: N trapezoidal subintervals). configs/fqlnk.ini with hessian = fd / exact / bfgs; "
             "'total' is the solve loop (the in-loop certificates included); sqp-ip and IPOPT: iterations and "
@@ -157,7 +163,7 @@ def main(argv=None):
             "'*': an unphysical local minimum, r(t_f) 1.504 / 1.516 against the physical 1.525; the speedup is over FD):"
             "\n\n" + seed_table() + "\n")
     if not args.no_write:
-        write_section(SECTION_BOUND if args.bound else SECTION, text)
+        write_section(title, text)
     print(text)
 
 

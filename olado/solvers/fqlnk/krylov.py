@@ -41,18 +41,32 @@ def kkt_matrix(H, G):
     return sp.bmat([[H, G.T], [G, None]], format="csc")
 
 
+def incomplete_lu(K, o):
+    """SuperLU's ILUTP of K; a factorization that fails ("Factor is exactly singular": a pivot
+    dropped to zero, typically where the fill limit cut a column short -- the dense BFGS block
+    at large N) is tried again with the fill factor tripled, ``ilu_retries`` times. A sentence
+    when every try fails."""
+    fill = o.ilu_fill_factor
+    for attempt in range(o.ilu_retries + 1):
+        try:
+            return spla.spilu(K, drop_tol=o.ilu_drop_tol, fill_factor=fill, permc_spec=o.ilu_permc_spec,
+                              diag_pivot_thresh=o.ilu_pivot_threshold)
+        except RuntimeError as exc:        # SuperLU: "Factor is exactly singular" and the like
+            error = exc
+            fill *= 3.0
+    return (f"the ILUTP factorization of the KKT matrix failed ({error}; fill factor up to "
+            f"{fill / 3.0:g}, drop tolerance {o.ilu_drop_tol:g})")
+
+
 def solve_kkt(K, F, options) -> KKTSolve:
     """dp with || F + K dp || <= eta || F || (module docstring); ``options``: the solver's
     (forcing, ilu_drop_tol, ilu_fill_factor, ilu_permc_spec, ilu_pivot_threshold, gmres_restart,
     gmres_max_iter)."""
     o = options
     t0 = time.perf_counter()
-    try:
-        ilu = spla.spilu(K, drop_tol=o.ilu_drop_tol, fill_factor=o.ilu_fill_factor, permc_spec=o.ilu_permc_spec,
-                         diag_pivot_thresh=o.ilu_pivot_threshold)
-    except RuntimeError as exc:        # SuperLU: "Factor is exactly singular" and the like
-        return KKTSolve(None, 0, np.inf, False, f"the ILUTP factorization of the KKT matrix failed ({exc})",
-                        time.perf_counter() - t0, 0.0)
+    ilu = incomplete_lu(K, o)
+    if isinstance(ilu, str):
+        return KKTSolve(None, 0, np.inf, False, ilu, time.perf_counter() - t0, 0.0)
     t1 = time.perf_counter()
     M = spla.LinearOperator(K.shape, matvec=ilu.solve, dtype=float)
     count = [0]

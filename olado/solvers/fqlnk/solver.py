@@ -67,6 +67,8 @@ class FQLNKOptions(SolverOptions):
     ilu_drop_tol: float = option(1e-6, "ILUTP drop tolerance tau (SuperLU's ILU, scipy spilu)", min=0.0)
     ilu_fill_factor: float = option(10.0, "ILUTP fill factor (nonzeros of the factors over those of K at most)",
                                     min=1.0)
+    ilu_retries: int = option(2, "a failed ILUTP factorization is tried again with the fill factor tripled, this "
+                              "many times", min=0)
     ilu_permc_spec: str = option("COLAMD", "ILUTP column ordering", choices=("COLAMD", "MMD_AT_PLUS_A", "MMD_ATA",
                                                                            "NATURAL"))
     ilu_pivot_threshold: float = option(0.1, "ILUTP threshold of the partial pivoting (1: always the largest entry)",
