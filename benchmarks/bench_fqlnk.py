@@ -13,6 +13,7 @@ machine is shared, so times are orders of magnitude.
 
     python benchmarks/bench_fqlnk.py                    # N = 8 .. 128; writes RESULTS.md
     python benchmarks/bench_fqlnk.py --N 8 16 --no-write
+    python benchmarks/bench_fqlnk.py --others           # the equality-only built-ins, another section
 """
 
 from __future__ import annotations
@@ -32,6 +33,9 @@ from olado.solvers.sqp.state import Point
 
 SECTION = "FQLNK (seed 002) on the Earth-to-Mars transfer: seed 002's Table 4.5"
 SECTION_BOUND = SECTION + ", with r >= 0.5 as squared slacks"
+SECTION_OTHERS = "FQLNK (seed 002) on olado's equality-only built-ins"
+#: the built-ins without bounds or inequality rows (their default N)
+OTHERS = ("lq", "vanderpol", "rayleigh", "cstr", "hanging-chain", "double-integrator")
 #: seed 002's Table 4.5 (MATLAB; trapezoidal subintervals; * an unphysical local minimum):
 #: (Hessian, subintervals, Newton its, avg GMRES its, avg Hessian form s (share), avg KKT solve s (share), total s, speedup)
 SEED_TABLE = [
@@ -117,8 +121,12 @@ def main(argv=None):
     ap.add_argument("--N", type=int, nargs="+", default=[8, 16, 32, 64, 128])
     ap.add_argument("--hessians", nargs="+", default=list(HESSIANS), choices=HESSIANS)
     ap.add_argument("--bound", action="store_true", help="keep olado's r >= 0.5 (squared slacks in fqlnk)")
+    ap.add_argument("--others", action="store_true", help="fqlnk (three Hessians) and IPOPT on the equality-only "
+                    "built-ins instead")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args(argv)
+    if args.others:
+        return others(args, argv)
     head = ["| Hessian | N | status | Newton its | avg GMRES its | avg Hessian form (s) | avg KKT solve (s) | "
             "total (s) | speedup over FD | r(t_f) | solution |",
             "|:--|--:|:--|--:|--:|--:|--:|--:|--:|--:|:--|"]
@@ -164,6 +172,32 @@ def main(argv=None):
             "\n\n" + seed_table() + "\n")
     if not args.no_write:
         write_section(title, text)
+    print(text)
+
+
+def others(args, argv):
+    """Newton iterations, status and objective of fqlnk with each Hessian against IPOPT on the
+    built-ins that have neither bounds nor inequality rows."""
+    ipopt = make_solver(load_config(HERE.parent / "configs" / "ipopt.ini"))
+    rows = ["| problem | N | IPOPT its | IPOPT objective | " + " | ".join(f"{h}: status, its, rel. diff" for h in HESSIANS) + " |",
+            "|:--|--:|--:|--:|" + ":--|" * len(HESSIANS)]
+    for name in OTHERS:
+        ref = ipopt.solve(PROBLEMS[name]())
+        cells = []
+        for h in HESSIANS:
+            s = make_solver(load_config(HERE.parent / "configs" / "fqlnk.ini"))
+            s.options.hessian = h
+            r = s.solve(PROBLEMS[name]())
+            rel = abs(r.objective - ref.objective) / max(1.0, abs(ref.objective))
+            cells.append(f"{r.status.value}, {r.iterations}, {rel:.0e}")
+        rows.append(f"| {name} | {PROBLEMS[name]().N} | {ref.iterations} | {ref.objective:.10g} | " + " | ".join(cells) + " |")
+        print(rows[-1], flush=True)
+    command = f"python benchmarks/bench_fqlnk.py {' '.join(argv if argv is not None else sys.argv[1:])}".strip()
+    text = (f"## {SECTION_OTHERS}\n\n`{command}` at {commit()}, {datetime.date.today()}, {machine()}. configs/fqlnk.ini "
+            "with hessian = fd / exact / bfgs against configs/ipopt.ini; rel. diff = |J - J_IPOPT| / max(1, |J_IPOPT|).\n\n"
+            + "\n".join(rows) + "\n")
+    if not args.no_write:
+        write_section(SECTION_OTHERS, text)
     print(text)
 
 

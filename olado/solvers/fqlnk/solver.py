@@ -237,7 +237,7 @@ def hessian_block(setup, st):
 
 
 def trial(setup, st, dp, alpha):
-    """(Iterate values at p + alpha dp without derivatives: (v, lam, pt, c)) or None where the
+    """The values at p + alpha dp, without derivatives: (v, lam, pt, c); None where the
     functions are not finite."""
     L = setup.layout
     v = st.it.v + alpha * dp[:L.nv]
@@ -419,7 +419,7 @@ def finish(setup, st) -> Result:
                  kkt_residual=max(kkt.stationarity, kkt.complementarity), iterations=int(st.k),
                  evaluations={kd: int(st.clock.counts[kd]) for kd in EVALUATION_KINDS}, history=list(st.history),
                  info=info)
-    if st.status is Status.SUCCESS and st.certificate is not None:
+    if st.status in (Status.SUCCESS, Status.UNCERTIFIED) and st.certificate is not None:
         res.certificate = st.certificate
     return res
 
