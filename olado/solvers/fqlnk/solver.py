@@ -253,13 +253,18 @@ def trial(setup, st, dp, alpha):
 
 
 def search(setup, st, dp, K):
-    """Step 5 of Algorithm 1: alpha by Armijo backtracking on the merit; (alpha, trial) or None."""
+    """Step 5 of Algorithm 1: alpha by Armijo backtracking on the merit. (alpha, trial values,
+    merit kind), or (None, the reason in words)."""
     o, it, L = setup.options, st.it, setup.layout
     if o.line_search == "none":
         t = trial(setup, st, dp, 1.0)
-        return (1.0, t, "none") if t is not None else None
+        return (1.0, t, "none") if t is not None else (None, "its full step reaches a point where the problem's "
+                                                             "functions are not finite (line_search = none)")
     slope = penalty_and_slope(it.F, it.c, it.G @ dp[:L.nv], dp, st.rho, F=it.F, Kdp=K @ dp)
     st.rho = slope.rho
+    st.residual_searches += slope.kind == "residual"
+    if not slope.derivative < 0.0:
+        return None, "its step is no descent direction of the merit function"
     cache = {}
 
     def merit(alpha):
@@ -274,12 +279,9 @@ def search(setup, st, dp, K):
 
     m0 = (augmented_lagrangian(it.pt.J, it.lam, it.c, st.rho) if slope.kind == "augmented-lagrangian"
           else residual_merit(it.F))
-    st.residual_searches += slope.kind == "residual"
-    if not slope.derivative < 0.0:
-        return None
     res = armijo_backtracking(merit, m0, slope.derivative, o.armijo, o.alpha_min, check=setup.limits.check)
     if res.alpha is None:
-        return None
+        return None, f"its line search reached alpha_min = {o.alpha_min:g}"
     return res.alpha, cache[res.alpha], slope.kind
 
 
@@ -367,12 +369,10 @@ def iterate(setup, st) -> bool:
     if sol.dp is None:
         return st.stop(Status.NUMERICAL_ERROR, f"Newton iteration {st.k + 1}: {sol.message}")
     found = search(setup, st, sol.dp, K)
-    if found is None:
-        why = (f"the step of Newton iteration {st.k + 1} is no descent direction of the merit function"
-               f"{' (' + sol.message + ')' if sol.message else ''}")
-        if o.line_search == "merit" and sol.converged:
-            why = f"the line search of Newton iteration {st.k + 1} reached alpha_min = {o.alpha_min:g}"
-        return st.stop(Status.NUMERICAL_ERROR, f"{why}; ||F|| = {st.it.norm:.2e}")
+    if found[0] is None:
+        gmres = f" ({sol.message})" if sol.message else ""
+        return st.stop(Status.NUMERICAL_ERROR, f"Newton iteration {st.k + 1}: {found[1]}{gmres}; "
+                       f"||F|| = {st.it.norm:.2e}")
     alpha, (v, lam, pt, _), kind = found
     old = st.it
     st.it = make_iterate(setup, v, lam, pt)

@@ -204,3 +204,30 @@ def test_earth_to_mars_exact_newton_from_ipopts_point_converges_fast():
                     inequalities="squared-slacks", guess=U)
     assert r.status is Status.SUCCESS and r.iterations <= 8, r.message
     assert r.x[-1, 0] == pytest.approx(ref.x[-1, 0], rel=1e-8)
+
+
+def test_full_steps_without_line_search():
+    """line_search = none (the seed's "without backtracking", Fig. 4.10): near IPOPT's optimum of
+    van der Pol every step is full and the exact Newton iteration converges to it; from the
+    default start the full steps diverge, which ends as NUMERICAL_ERROR with a sentence, while the
+    merit's backtracking converges."""
+    ref = olado.solve(PROBLEMS["vanderpol"](N=20), config=IPOPT)
+    near = ref.u + 1e-2 * np.sin(np.arange(20))[:, None]
+    r = olado.solve(PROBLEMS["vanderpol"](N=20), solver="fqlnk", hessian="exact", line_search="none", guess=near)
+    assert r.status is Status.SUCCESS, r.message
+    assert all(e["alpha"] == 1.0 and e["merit"] == "none" for e in r.history)
+    assert r.objective == pytest.approx(ref.objective, rel=1e-8)
+    far = olado.solve(PROBLEMS["vanderpol"](N=20), solver="fqlnk", hessian="exact", line_search="none")
+    assert far.status is Status.NUMERICAL_ERROR and far.message.startswith("Newton iteration ")
+    assert olado.solve(PROBLEMS["vanderpol"](N=20), solver="fqlnk", hessian="exact").status is Status.SUCCESS
+
+
+def test_seed_test_without_the_certificate_is_uncertified():
+    """The seed's stopping test holds, olado's certificate cannot (a scaled stationarity of 1e-30
+    asked for): after certificate_attempts further iterations the status is UNCERTIFIED with the
+    certificate's sentence, never SUCCESS."""
+    r = olado.solve(PROBLEMS["vanderpol"](N=10), solver="fqlnk", hessian="exact", tol=1e-30, certificate_tol=1e-30,
+                    certificate_acceptable_tol=1e-30, certificate_attempts=2)
+    assert r.status is Status.UNCERTIFIED
+    assert "the seed's stopping test holds" in r.message and "after 2 further iterations" in r.message
+    assert "stationarity" in r.message and r.certificate is not None and r.certificate.level != "success"
