@@ -14,6 +14,7 @@ machine is shared, so times are orders of magnitude.
     python benchmarks/bench_fqlnk.py                    # N = 8 .. 128; writes RESULTS.md
     python benchmarks/bench_fqlnk.py --N 8 16 --no-write
     python benchmarks/bench_fqlnk.py --others           # the equality-only built-ins, another section
+    python benchmarks/bench_fqlnk.py --backtracking --N 16 32 64    # merit vs full steps, another section
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from olado.solvers.sqp.state import Point
 SECTION = "FQLNK (seed 002) on the Earth-to-Mars transfer: seed 002's Table 4.5"
 SECTION_BOUND = SECTION + ", with r >= 0.5 as squared slacks"
 SECTION_OTHERS = "FQLNK (seed 002) on olado's equality-only built-ins"
+SECTION_BACKTRACKING = "FQLNK (seed 002) on the Earth-to-Mars transfer with and without backtracking (seed's Fig. 4.10)"
 #: the built-ins without bounds or inequality rows (their default N)
 OTHERS = ("lq", "vanderpol", "rayleigh", "cstr", "hanging-chain", "double-integrator")
 #: seed 002's Table 4.5 (MATLAB; trapezoidal subintervals; * an unphysical local minimum):
@@ -123,10 +125,14 @@ def main(argv=None):
     ap.add_argument("--bound", action="store_true", help="keep olado's r >= 0.5 (squared slacks in fqlnk)")
     ap.add_argument("--others", action="store_true", help="fqlnk (three Hessians) and IPOPT on the equality-only "
                     "built-ins instead")
+    ap.add_argument("--backtracking", action="store_true", help="exact and bfgs with the merit's backtracking "
+                    "and with full steps (line_search = none) instead")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args(argv)
     if args.others:
         return others(args, argv)
+    if args.backtracking:
+        return backtracking(args, argv)
     head = ["| Hessian | N | status | Newton its | avg GMRES its | avg Hessian form (s) | avg KKT solve (s) | "
             "total (s) | speedup over FD | r(t_f) | solution |",
             "|:--|--:|:--|--:|--:|--:|--:|--:|--:|--:|:--|"]
@@ -172,6 +178,29 @@ def main(argv=None):
             "\n\n" + seed_table() + "\n")
     if not args.no_write:
         write_section(title, text)
+    print(text)
+
+
+def backtracking(args, argv):
+    """The seed's Fig. 4.10 as a table: Newton iterations, status and r(t_f) of the exact and BFGS
+    variants with Armijo backtracking on the merit and with full steps."""
+    rows = ["| N | Hessian | line search | status | Newton its | r(t_f) | stop |", "|--:|:--|:--|:--|--:|--:|:--|"]
+    for N in args.N:
+        for h in ("exact", "bfgs"):
+            for ls in ("merit", "none"):
+                s = make_solver(load_config(HERE.parent / "configs" / "fqlnk.ini"))
+                s.options.hessian, s.options.line_search = h, ls
+                s.options.inequalities = "squared-slacks" if args.bound else "refuse"
+                r = s.solve(problem(N, args.bound))
+                rows.append(f"| {N} | {h} | {ls} | {r.status.value} | {r.iterations} | {float(r.x[-1, 0]):.6f} | "
+                            f"{'' if r.success else r.message[:110]} |")
+                print(rows[-1], flush=True)
+    command = f"python benchmarks/bench_fqlnk.py {' '.join(argv if argv is not None else sys.argv[1:])}".strip()
+    text = (f"## {SECTION_BACKTRACKING}\n\n`{command}` at {commit()}, {datetime.date.today()}, {machine()}. "
+            "configs/fqlnk.ini with hessian = exact / bfgs and line_search = merit (Armijo backtracking on the "
+            "augmented Lagrangian) / none (full steps); the seed's problem (no r >= 0.5).\n\n" + "\n".join(rows) + "\n")
+    if not args.no_write:
+        write_section(SECTION_BACKTRACKING, text)
     print(text)
 
 
