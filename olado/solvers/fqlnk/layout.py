@@ -91,11 +91,6 @@ class Layout:
         X[1:] = blocks[:, self.m:]
         return X, blocks[:, :self.m].copy(), v[self.ny:].copy()
 
-    def split_slacks(self, s):
-        """(s of the stage rows (N, ni), of the final rows (niN,), of the bounds (nb,))."""
-        a = self.N * self.ni
-        return s[:a].reshape(self.N, self.ni), s[a:a + self.niN], s[a + self.niN:]
-
     def slack_row_values(self, pt, v):
         """The inequality rows' values before the slacks: g_I (N, ni), g^N_I, the bound gaps."""
         b = self.bounds
@@ -207,7 +202,3 @@ class Layout:
             rows.append(self.slack_cols); cc.append(self.slack_cols); vals.append(-2.0 * lam[self.slack_rows])
         return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cc))),
                              shape=(self.nv, self.nv))
-
-    def kkt_residual(self, pt, v, lam):
-        """The seed's F (eq. (3.1)): (grad_v L, c)."""
-        return np.concatenate([self.lagrangian_gradient(pt, v, lam), self.constraints(pt, v)])

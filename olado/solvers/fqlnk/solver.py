@@ -354,7 +354,7 @@ def converged(setup, st) -> bool:
 
 def iterate(setup, st) -> bool:
     """One Newton iteration of Algorithm 1; True when the solve ends."""
-    o, L = setup.options, setup.layout
+    o = setup.options
     setup.limits.check()
     if converged(setup, st):
         return True
