@@ -21,6 +21,10 @@ SOLVERS = LazyRegistry("solver", {
                 "conjugate directions in the control space, strong Wolfe line search, restarts"),
     "ddp": Entry(f"{_CONTROL}.ddp:DDPSolver",
                  "differential dynamic programming (unconstrained DOCPs), shifted Q_uu, O(N) per iteration"),
+    "fqlnk": Entry("olado.solvers.fqlnk.solver:FQLNKSolver",
+                   "full-space quasi Lagrange-Newton-Krylov (seed 002): Newton on the KKT conditions, damped BFGS "
+                   "(or exact / FD) Hessian, ILUTP-preconditioned GMRES, augmented Lagrangian merit; equality "
+                   "constraints (inequalities refused, or squared slacks)"),
     "gradient": Entry(f"{_CONTROL}.reduced_gradient:GradientSolver",
                       "steepest descent in the control space (adjoint gradient), strong Wolfe line search"),
     "ipm": Entry("olado.solvers.ipm.solver:IPMSolver",

@@ -98,7 +98,7 @@ def test_the_ddp_rollout_raises_the_typed_error():
 
 SOLVERS = [("sqp", {}), ("ddp", {}), ("stagewise-newton", {}), ("newton", {}), ("gradient", {}), ("cg", {}),
            ("penalty", {}), ("pdmin", {"direction": "steepest-descent", "initial_step": 30.0}), ("ipopt", {}),
-           ("ipm", {})]
+           ("ipm", {}), ("fqlnk", {})]
 
 
 @pytest.mark.parametrize("solver, options", SOLVERS, ids=[s for s, _ in SOLVERS])
@@ -123,7 +123,7 @@ def test_a_non_finite_initial_point_is_an_invalid_problem_for_the_control_space_
     assert "non-finite" in r.message
 
 
-@pytest.mark.parametrize("solver", ["sqp", "ddp", "ipopt", "ipm"])
+@pytest.mark.parametrize("solver", ["sqp", "ddp", "ipopt", "ipm", "fqlnk"])
 def test_a_non_finite_initial_point_raises_the_typed_error(solver):
     if solver == "ipopt":
         pytest.importorskip("cyipopt")
@@ -131,7 +131,7 @@ def test_a_non_finite_initial_point_raises_the_typed_error(solver):
         olado.solve(NaNCostAtStart(), solver=solver)
 
 
-@pytest.mark.parametrize("solver", ["sqp", "newton", "penalty", "ipopt", "ipm"])
+@pytest.mark.parametrize("solver", ["sqp", "newton", "penalty", "ipopt", "ipm", "fqlnk"])
 def test_a_definition_bug_at_a_trial_point_propagates(solver):
     """The same trial points with a wrong-shape return instead of NaN: not a recoverable
     evaluation failure, the solve stops with the ProblemDefinitionError."""

@@ -34,6 +34,7 @@ CASES = {
     "trust-constr": lambda: Pendulum(N=20), "penalty": lambda: Pendulum(N=20),
     "gradient": VanDerPol, "cg": VanDerPol, "variable-metric": VanDerPol, "newton": VanDerPol,
     "ddp": VanDerPol, "stagewise-newton": VanDerPol, "pdmin": BoundedPendulum, "ipm": BoundedPendulum,
+    "fqlnk": VanDerPol,
 }
 SOLVERS = sorted(CASES)
 K = 2       # the iteration at which the interrupt comes

@@ -16,7 +16,7 @@ from olado.solvers.control.penalty import INNER_METHODS, _inner_solver_class
 from olado.solvers.registry import SOLVERS, get_solver_class
 from fixtures import CONFIGS, REPO
 
-NAMES = ["cg", "ddp", "gradient", "ipm", "ipopt", "newton", "pdmin", "penalty", "slsqp", "sqp", "stagewise-newton",
+NAMES = ["cg", "ddp", "fqlnk", "gradient", "ipm", "ipopt", "newton", "pdmin", "penalty", "slsqp", "sqp", "stagewise-newton",
          "trust-constr", "variable-metric"]
 
 

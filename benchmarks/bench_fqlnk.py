@@ -1,0 +1,234 @@
+"""Seed 002's Table 4.5 for olado's FQLNK (``fqlnk``, docs/fqlnk.md) on the Earth-to-Mars
+maximum-radius transfer (``orbit-raising``): per grid size and Hessian (fd, exact -- the seed's
+"AD" --, bfgs) the Newton iterations, the average GMRES iterations per Newton iteration, the
+average Hessian-form and KKT-solve times with their shares of the total, the total time and the
+speedup over FD, next to sqp-ip and IPOPT (configs/) on the same problem; which local solution
+each reaches (r(t_f) against IPOPT's, and a second-order check: the smallest eigenvalue of the
+Lagrangian Hessian on the null space of the constraint Jacobian).
+
+The problem is the seed's (sec. 4.1): olado's built-in without its safeguard r >= 0.5 (inactive
+at every solution here), i.e. equality constraints only, as the seed solves it; ``--bound`` keeps
+the bound (fqlnk then treats it by squared slacks, seed eq. (4.6)). One solve per entry: the
+machine is shared, so times are orders of magnitude.
+
+    python benchmarks/bench_fqlnk.py                    # N = 8 .. 128; writes RESULTS.md
+    python benchmarks/bench_fqlnk.py --N 8 16 --no-write
+    python benchmarks/bench_fqlnk.py --others           # the equality-only built-ins, another section
+    python benchmarks/bench_fqlnk.py --backtracking --N 16 32 64    # merit vs full steps, another section
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import sys
+
+import numpy as np
+from _common import HERE, commit, machine, write_section
+from scipy.linalg import null_space
+
+from olado.config import load_config, make_solver
+from olado.problems import PROBLEMS
+from olado.solvers.fqlnk.layout import Layout
+from olado.solvers.sqp.state import Point
+
+SECTION = "FQLNK (seed 002) on the Earth-to-Mars transfer: seed 002's Table 4.5"
+SECTION_BOUND = SECTION + ", with r >= 0.5 as squared slacks"
+SECTION_OTHERS = "FQLNK (seed 002) on olado's equality-only built-ins"
+SECTION_BACKTRACKING = "FQLNK (seed 002) on the Earth-to-Mars transfer with and without backtracking (seed's Fig. 4.10)"
+#: the built-ins without bounds or inequality rows (their default N)
+OTHERS = ("lq", "vanderpol", "rayleigh", "cstr", "hanging-chain", "double-integrator")
+#: seed 002's Table 4.5 (MATLAB; trapezoidal subintervals; * an unphysical local minimum):
+#: (Hessian, subintervals, Newton its, avg GMRES its, avg Hessian form s (share), avg KKT solve s (share), total s, speedup)
+SEED_TABLE = [
+    ("FD", "8", 6, 1.2, "0.29 (97.2%)", "0.001 (<1%)", 1.79, "--"),
+    ("FD", "16", 8, 1.4, "0.98 (99.1%)", "0.002 (<1%)", 7.91, "--"),
+    ("FD", "32", 8, 1.8, "3.62 (99.5%)", "0.003 (<1%)", 29.11, "--"),
+    ("FD", "64", 14, 2.0, "13.81 (99.6%)", "0.010 (<1%)", 194.07, "--"),
+    ("FD", "128*", 21, 2.1, "52.60 (99.8%)", "0.051 (<1%)", 1107.38, "--"),
+    ("AD", "8", 6, 1.2, "0.28 (94.4%)", "0.007 (<1%)", 1.78, "1.0x"),
+    ("AD", "16", 8, 1.4, "0.50 (95.7%)", "0.004 (<1%)", 4.13, "1.9x"),
+    ("AD", "32", 8, 1.8, "1.20 (98.5%)", "0.005 (<1%)", 9.75, "3.0x"),
+    ("AD", "64", 14, 2.0, "3.18 (98.7%)", "0.010 (<1%)", 45.12, "4.3x"),
+    ("AD", "128*", 21, 2.1, "18.92 (99.4%)", "0.045 (<1%)", 399.71, "2.8x"),
+    ("BFGS", "8", 14, 1.3, "0.03 (76.3%)", "0.003 (7.6%)", 0.55, "3.3x"),
+    ("BFGS", "16", 17, 1.8, "0.04 (72.3%)", "0.003 (5.4%)", 0.94, "8.4x"),
+    ("BFGS", "32", 16, 2.0, "0.10 (78.4%)", "0.009 (7.1%)", 2.04, "14.3x"),
+    ("BFGS", "64", 14, 2.0, "0.27 (77.9%)", "0.043 (12.4%)", 4.85, "40.2x"),
+    ("BFGS", "128", 15, 2.1, "1.45 (83.0%)", "0.231 (13.1%)", 26.22, "42.2x"),
+    ("BFGS", "256", 25, 3.0, "7.21 (83.2%)", "1.320 (15.2%)", 216.62, "--"),
+]
+
+
+def seed_table() -> str:
+    rows = ["| Hessian | subint. | Newton its | avg GMRES its | avg Hessian form (s) | avg KKT solve (s) | total (s) | speedup |",
+            "|:--|--:|--:|--:|--:|--:|--:|--:|"]
+    rows += [f"| {h} | {n} | {its} | {gm} | {hf} | {kkt} | {tot} | {sp} |" for h, n, its, gm, hf, kkt, tot, sp in SEED_TABLE]
+    return "\n".join(rows)
+HESSIANS = ("fd", "exact", "bfgs")
+PEERS = ("sqp-ip", "ipopt")
+#: r(t_f) equal to IPOPT's to this (relative): the same (physical) solution
+SAME = 1e-6
+
+
+def problem(N, bound):
+    p = PROBLEMS["orbit-raising"](N=N)
+    if not bound:
+        p.x_bounds = None        # the seed's problem: no r >= 0.5
+    return p
+
+
+def reduced_hessian_min(p, result, bound):
+    """Smallest eigenvalue of Z' H Z at the result (H the exact Lagrangian Hessian with the
+    result's multipliers, Z a basis of the null space of G, both in fqlnk's full space -- with
+    the squared slacks of the bounds when ``bound``): > 0 a strict local minimum, < 0 a saddle."""
+    L = Layout(p, slacks=bound)
+    b = L.bounds
+    y = L.pack(result.x, result.u)[:L.ny]
+    s = np.sqrt(np.maximum(b.sign * (y[b.col] - b.value), 0.0))
+    v = np.concatenate([y, s])
+    pt = Point(p, result.x, result.u)
+    m = result.multipliers
+    z = {1.0: L.pack(m["bound_lower_x"], m["bound_lower_u"])[:L.ny], -1.0: L.pack(m["bound_upper_x"], m["bound_upper_u"])[:L.ny]}
+    mb = np.array([-z[sg][c] for sg, c in zip(b.sign, b.col)])
+    lam = np.concatenate([m["dynamics"].ravel(), m["stage_constraints"][:, L.eq].ravel(),
+                          m["final_constraints"][L.eqN], mb])
+    Z = null_space(L.jacobian(pt, v).toarray())
+    H = L.hessian(pt, v, lam).toarray()
+    return float(np.linalg.eigvalsh(Z.T @ H @ Z)[0])
+
+
+def which(r_tf, ref, lowest):
+    kind = "" if lowest is None else (", local min" if lowest > 0 else ", saddle")
+    if abs(r_tf - ref) <= SAME * abs(ref):
+        return f"IPOPT's (physical){kind}"
+    return f"other KKT point{kind}"
+
+
+def fqlnk_row(N, hessian, bound, fd_total):
+    s = make_solver(load_config(HERE.parent / "configs" / "fqlnk.ini"))
+    s.options.hessian = hessian
+    s.options.inequalities = "squared-slacks" if bound else "refuse"
+    p = problem(N, bound)
+    r = s.solve(p)
+    i = r.info
+    total = i["solve_time_s"]
+    return r, p, dict(its=i["newton_iterations"], gm=i["avg_gmres_iterations"], hf=i["avg_hessian_time_s"],
+                      hf_share=i["hessian_time_s"] / total, kkt=i["avg_kkt_time_s"], kkt_share=i["kkt_time_s"] / total,
+                      total=total)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--N", type=int, nargs="+", default=[8, 16, 32, 64, 128])
+    ap.add_argument("--hessians", nargs="+", default=list(HESSIANS), choices=HESSIANS)
+    ap.add_argument("--bound", action="store_true", help="keep olado's r >= 0.5 (squared slacks in fqlnk)")
+    ap.add_argument("--others", action="store_true", help="fqlnk (three Hessians) and IPOPT on the equality-only "
+                    "built-ins instead")
+    ap.add_argument("--backtracking", action="store_true", help="exact and bfgs with the merit's backtracking "
+                    "and with full steps (line_search = none) instead")
+    ap.add_argument("--no-write", action="store_true")
+    args = ap.parse_args(argv)
+    if args.others:
+        return others(args, argv)
+    if args.backtracking:
+        return backtracking(args, argv)
+    head = ["| Hessian | N | status | Newton its | avg GMRES its | avg Hessian form (s) | avg KKT solve (s) | "
+            "total (s) | speedup over FD | r(t_f) | solution |",
+            "|:--|--:|:--|--:|--:|--:|--:|--:|--:|--:|:--|"]
+    rows = []
+    peers = {name: make_solver(load_config(HERE.parent / "configs" / f"{name}.ini")) for name in PEERS}
+    for s in peers.values():           # warm-up: compiled kernels, imports
+        s.solve(problem(min(args.N), args.bound))
+    fqlnk_row(min(args.N), "exact", args.bound, None)
+    for N in args.N:
+        ref_results = {name: s.solve(problem(N, args.bound)) for name, s in peers.items()}
+        ref = float(ref_results["ipopt"].x[-1, 0])
+        fd_total = None
+        for h in args.hessians:
+            r, p, f = fqlnk_row(N, h, args.bound, fd_total)
+            if h == "fd":
+                fd_total = f["total"] if r.status.success else None
+            speed = f"{fd_total / f['total']:.1f}x" if fd_total and h != "fd" and r.status.success else "--"
+            lowest = reduced_hessian_min(p, r, args.bound) if r.status.success and N <= 128 else None
+            r_tf = float(r.x[-1, 0])
+            rows.append(f"| {h} | {N} | {r.status.value} | {f['its']} | {f['gm']:.1f} | {f['hf']:.2e} "
+                        f"({100 * f['hf_share']:.0f}%) | {f['kkt']:.2e} ({100 * f['kkt_share']:.0f}%) | "
+                        f"{f['total']:.2f} | {speed} | {r_tf:.6f} | {which(r_tf, ref, lowest) if r.status.success else r.message[:80]}"
+                        f"{'' if lowest is None else f' (min eig {lowest:.1e})'} |")
+            print(rows[-1], flush=True)
+        for name, r in ref_results.items():
+            r_tf = float(r.x[-1, 0])
+            rows.append(f"| {name} | {N} | {r.status.value} | {r.iterations} (its) | -- | -- | -- | {r.time_s:.2f} | "
+                        f"-- | {r_tf:.6f} | {which(r_tf, ref, None) if r.status.success else r.message[:80]} |")
+            print(rows[-1], flush=True)
+    shown = " ".join(argv if argv is not None else sys.argv[1:])
+    command = f"python benchmarks/bench_fqlnk.py {shown}".strip()
+    what = ("olado's built-in with r >= 0.5 as squared slacks" if args.bound
+            else "the seed's problem: olado's built-in without its (inactive) bound r >= 0.5, equality constraints only")
+    title = SECTION_BOUND if args.bound else SECTION
+    text = (f"## {title}\n\n`{command}` at {commit()}, {datetime.date.today()}, {machine()}; one solve per row after a warm-up, "
+            f"the machine shared with other jobs (times: orders of magnitude). Problem: {what}; N RK4 intervals "
+            "(the seed: N trapezoidal subintervals). configs/fqlnk.ini with hessian = fd / exact / bfgs; "
+            "'total' is the solve loop (the in-loop certificates included); sqp-ip and IPOPT: iterations and "
+            "Result.time_s. 'solution': r(t_f) equal to IPOPT's to 1e-6 or not, and the smallest eigenvalue of "
+            "the Lagrangian Hessian on the null space of the constraint Jacobian (> 0: a strict local minimum).\n\n"
+            + "\n".join(head + rows) + "\n\nSeed 002's own Table 4.5 (MATLAB, trapezoidal subintervals, FD Jacobians; "
+            "'*': an unphysical local minimum, r(t_f) 1.504 / 1.516 against the physical 1.525; the speedup is over FD):"
+            "\n\n" + seed_table() + "\n")
+    if not args.no_write:
+        write_section(title, text)
+    print(text)
+
+
+def backtracking(args, argv):
+    """The seed's Fig. 4.10 as a table: Newton iterations, status and r(t_f) of the exact and BFGS
+    variants with Armijo backtracking on the merit and with full steps."""
+    rows = ["| N | Hessian | line search | status | Newton its | r(t_f) | stop |", "|--:|:--|:--|:--|--:|--:|:--|"]
+    for N in args.N:
+        for h in ("exact", "bfgs"):
+            for ls in ("merit", "none"):
+                s = make_solver(load_config(HERE.parent / "configs" / "fqlnk.ini"))
+                s.options.hessian, s.options.line_search = h, ls
+                s.options.inequalities = "squared-slacks" if args.bound else "refuse"
+                r = s.solve(problem(N, args.bound))
+                rows.append(f"| {N} | {h} | {ls} | {r.status.value} | {r.iterations} | {float(r.x[-1, 0]):.6f} | "
+                            f"{'' if r.success else r.message[:110]} |")
+                print(rows[-1], flush=True)
+    command = f"python benchmarks/bench_fqlnk.py {' '.join(argv if argv is not None else sys.argv[1:])}".strip()
+    text = (f"## {SECTION_BACKTRACKING}\n\n`{command}` at {commit()}, {datetime.date.today()}, {machine()}. "
+            "configs/fqlnk.ini with hessian = exact / bfgs and line_search = merit (Armijo backtracking on the "
+            "augmented Lagrangian) / none (full steps); the seed's problem (no r >= 0.5).\n\n" + "\n".join(rows) + "\n")
+    if not args.no_write:
+        write_section(SECTION_BACKTRACKING, text)
+    print(text)
+
+
+def others(args, argv):
+    """Newton iterations, status and objective of fqlnk with each Hessian against IPOPT on the
+    built-ins that have neither bounds nor inequality rows."""
+    ipopt = make_solver(load_config(HERE.parent / "configs" / "ipopt.ini"))
+    rows = ["| problem | N | IPOPT its | IPOPT objective | " + " | ".join(f"{h}: status, its, rel. diff" for h in HESSIANS) + " |",
+            "|:--|--:|--:|--:|" + ":--|" * len(HESSIANS)]
+    for name in OTHERS:
+        ref = ipopt.solve(PROBLEMS[name]())
+        cells = []
+        for h in HESSIANS:
+            s = make_solver(load_config(HERE.parent / "configs" / "fqlnk.ini"))
+            s.options.hessian = h
+            r = s.solve(PROBLEMS[name]())
+            rel = abs(r.objective - ref.objective) / max(1.0, abs(ref.objective))
+            cells.append(f"{r.status.value}, {r.iterations}, {rel:.0e}")
+        rows.append(f"| {name} | {PROBLEMS[name]().N} | {ref.iterations} | {ref.objective:.10g} | " + " | ".join(cells) + " |")
+        print(rows[-1], flush=True)
+    command = f"python benchmarks/bench_fqlnk.py {' '.join(argv if argv is not None else sys.argv[1:])}".strip()
+    text = (f"## {SECTION_OTHERS}\n\n`{command}` at {commit()}, {datetime.date.today()}, {machine()}. configs/fqlnk.ini "
+            "with hessian = fd / exact / bfgs against configs/ipopt.ini; rel. diff = |J - J_IPOPT| / max(1, |J_IPOPT|).\n\n"
+            + "\n".join(rows) + "\n")
+    if not args.no_write:
+        write_section(SECTION_OTHERS, text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
