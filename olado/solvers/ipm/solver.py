@@ -89,10 +89,11 @@ class IPMOptions(SolverOptions):
                                                   "shortened steps (IPOPT's; 0: never)", min=0)
     watchdog_trial_iter_max: int = option(3, "full steps the watchdog takes at most before it returns to "
                                           "where it started (IPOPT's)", min=1)
-    restoration: str = option("gauss-newton", "the restoration phase: l1 (IPOPT's l1 restoration problem, solved by this "
-                              "method) or gauss-newton (minimum-distance Gauss-Newton steps)",
-                              choices=("l1", "gauss-newton"))
-    max_restoration_iter: int = option(50, "iterations of one feasibility restoration phase at most", min=1)
+    restoration: str = option("l1", "the restoration phase: l1 (IPOPT's l1 restoration problem, solved by this "
+                              "method; INFEASIBLE where it converges at a positive violation) or gauss-newton "
+                              "(minimum-distance Gauss-Newton steps)", choices=("l1", "gauss-newton"))
+    max_restoration_iter: int = option(50, "iterations of one Gauss-Newton restoration phase at most (the l1 "
+                                       "phase shares max_iter, as IPOPT's)", min=1)
 
 
 @dataclasses.dataclass
@@ -127,6 +128,7 @@ class IPMState:
     errors: tuple = (math.inf, math.inf, math.inf)
     shortened: int = 0          # successive iterations whose line search shortened the step
     watch: object = None        # the watchdog (Watchdog) while it runs
+    infeasibility_certificate: dict = None   # the converged l1 restoration's figures (restoration.restore_l1)
 
     def stop(self, status, message):
         self.status, self.message = status, message
@@ -144,6 +146,8 @@ class Setup:
         self.l1_restoration = options.restoration == "l1"
         self.bounds = Bounds.of(problem, self.layout, options.bound_relax_factor, options.constr_viol_tol)
         self.t_start = time.perf_counter()
+        #: called after mu decreased (the l1 restoration problem's objective follows mu)
+        self.on_mu_change = None
 
 
 # ---------------------------------------------------------------------------- evaluations
@@ -287,6 +291,8 @@ def update_barrier(setup, st):
             break
         st.mu, st.tau = mu, max(o.tau_min, 1.0 - mu)
         st.filt.reset()
+        if setup.on_mu_change is not None:
+            setup.on_mu_change()
 
 
 def converged(setup, st):
@@ -526,6 +532,13 @@ def iterate(setup, st):
     # the objective after the iteration (IPOPT's log), the errors at its start
     entry = {"iter": st.it, "inf_pr": st.errors[2], "inf_du": st.errors[1], "mu": st.mu, "delta_w": st.delta,
              "watchdog": st.watch is not None}
+    if accepted is None and st.acceptable:
+        # IPOPT's ACCEPTABLE_POINT_REACHED: no restoration phase from an acceptable iterate
+        st.history.append(dict(entry, alpha=float("nan"), alpha_z=float("nan"), soc=0, restoration=False,
+                               objective=float(st.pt.J)))
+        return st.stop(Status.ACCEPTABLE, f"acceptable: the line search failed at an iterate with scaled "
+                       f"optimality error {st.errors[0]:.2e} <= acceptable_tol = {o.acceptable_tol:g} after "
+                       f"{st.it} iterations (tol = {o.tol:g} not met)")
     if accepted is None:
         why = ("the inertia correction found no shift up to 1e20" if kkt is None
                else "the filter line search reached alpha_min")
@@ -572,6 +585,8 @@ def finish(setup, st) -> Result:
             "multiplier_convention": MULTIPLIER_CONVENTION, "mu": st.mu, "objective_scaling": st.s_obj,
             "factorizations": st.factorizations, "restorations": st.restorations,
             "scaled_optimality_error": st.errors[0], "kkt": "riccati"}
+    if st.infeasibility_certificate is not None:
+        info["infeasibility_certificate"] = dict(st.infeasibility_certificate)
     multipliers = {"dynamics": mult.lam[1:].copy(), "stage_constraints": mult.Lg, "final_constraints": mult.LgN,
                    "bound_lower_x": z.zl_x, "bound_lower_u": z.zl_u, "bound_upper_x": z.zu_x, "bound_upper_u": z.zu_u}
     return Result(status=st.status, message=st.message, objective=float(pt.J), x=pt.X.copy(), u=pt.U.copy(),
