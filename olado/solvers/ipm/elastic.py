@@ -10,9 +10,10 @@ decreases), D_R = diag(min(1, 1 / |x_R|)) (IPOPT's resto_penalty_parameter and p
 weights). The dynamics and stage elastic variables are extra controls of their stage (the
 structure of the QP's elastic mode, olado.qp.elastic); the final rows depend on x^N alone, which
 no control of stage N-1 reaches directly, so their elastic variables are carried by extra
-states e = (p_N, n_N) with e^0 = 0, e^{k+1} = e^k + w^k and controls w^k >= 0 costing rho each:
-e^N = sum_k w^k >= 0 and rho sum_k w^k = rho (p_N + n_N) -- the same l1 term, and the problem
-stays an LQ-DOCP per Newton step (one Riccati factorization). The inequality rows keep the
+states e = (p_N, n_N) with e^{k+1} = w^k, controls w^k >= 0 costing rho each: e^N = w^{N-1} is
+IPOPT's pair (one variable, one barrier term), and the w^k of the other stages enter nothing but
+their own terms rho w - mu ln w, so they sit at w = mu / rho (their start) and leave the
+restoration problem IPOPT's; it stays an LQ-DOCP per Newton step (one Riccati factorization). The inequality rows keep the
 slacks of the original problem (IPOPT relaxes d(x) - s), and the elastic variables start at the
 closed form (33) for the residuals c of the current point (p - n = c).
 """
@@ -72,9 +73,8 @@ class ElasticDOCP:
     def start(self, X, U, res, mu):
         """The states and controls of the restoration problem's start at the original point (X, U)
         with residuals ``res`` (olado.solvers.ipm.newton.Residuals: h, equality rows, inequality
-        rows d - s): every elastic pair from eq. (33) for its residual, w^k = e^N / N. The final
-        rows' pair is carried by N controls w^k, whose barrier terms weigh N mu ln(e^N / N): (33)
-        with N mu, so that every z = mu / w^k is its stationary value rho -/+ y there too."""
+        rows d - s): every elastic pair from eq. (33) for its residual, the final rows' pair as
+        w^{N-1} = e^N, the other w^k = mu / rho (their minimizer)."""
         p, N = self.base, self.N
         ph, nh = elastic_start(res.h, mu)
         cg = np.zeros((N, self.r))
@@ -84,10 +84,11 @@ class ElasticDOCP:
         cN = np.zeros(self.rN)
         cN[self.final_equality_mask] = res.eN
         cN[~self.final_equality_mask] = res.dN
-        pN, nN = elastic_start(cN, N * mu)      # the N barrier terms of w^0..w^{N-1} (see below)
-        eN = np.concatenate([pN, nN])
-        w = np.broadcast_to(eN / N, (N, eN.size))
-        E = np.arange(N + 1)[:, None] * (eN / N)[None, :]
+        pN, nN = elastic_start(cN, mu)
+        w = np.full((N, 2 * self.rN), mu / RHO)
+        w[-1] = np.concatenate([pN, nN])
+        E = np.zeros((N + 1, 2 * self.rN))
+        E[1:] = w
         return np.concatenate([X, E], axis=1), np.concatenate([U, ph, nh, pg, ng, w], axis=1)
 
     def elastic_sum(self, X, U):
@@ -106,7 +107,7 @@ class ElasticDOCP:
     def eval_dynamics(self, X, U):
         u, ph, nh, _, _, w = self.split(U)
         x, e = self.split_states(X)
-        return np.concatenate([self.base.eval_dynamics(x, u) - ph + nh, e[:-1] + w], axis=1)
+        return np.concatenate([self.base.eval_dynamics(x, u) - ph + nh, w], axis=1)
 
     def eval_stage_constraints(self, X, U):
         u, _, _, pg, ng, _ = self.split(U)
@@ -135,7 +136,6 @@ class ElasticDOCP:
         N, n0, n, m0, r, ne = self.N, self.n0, self.n, self.m0, self.r, 2 * self.rN
         A = np.zeros((N, n, n))
         A[:, :n0, :n0] = A0
-        A[:, n0:, n0:] = np.eye(ne)
         B = np.zeros((N, n, self.m))
         B[:, :n0, :m0] = B0
         B[:, :n0, m0:m0 + n0] = -np.eye(n0)
