@@ -290,6 +290,8 @@ def _run_l1_phase(setup, st, fns, phase):
     first = True
     while True:
         point = None if first else _original_point(setup, fns, phase, st.clock)
+        if not first:
+            _record(st, phase, point)
         if point is not None and _acceptable(setup, st, fns, phase, point):
             _return_to_filter_method(setup, st, *point[:2])
             return None
@@ -307,6 +309,16 @@ def _run_l1_phase(setup, st, fns, phase):
             continue
         return _converged_outcome(setup, st, phase, point)
     return _failed_outcome(setup, st, fns, phase, point)
+
+
+def _record(st, phase, point):
+    """The history entry of an iteration of the restoration problem (IPOPT's "r" lines): its step,
+    mu and shift, with the original problem's objective and max-norm violation at the new point."""
+    ist = phase.ist
+    entry = dict(ist.history[-1], iter=st.it + ist.it, restoration=True, watchdog=False)
+    if point is not None:
+        entry.update(objective=float(point[1].J), inf_pr=point[2].max())
+    st.history.append(entry)
 
 
 def _converged_outcome(setup, st, phase, point):

@@ -545,9 +545,11 @@ def iterate(setup, st):
         st.filt.add(theta(setup, st.pt, st.v), barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0])
         st.restorations += 1
         fns = Restoration(evaluate, theta, barrier_value, residuals, lagrangian_gradient)
-        outcome = (restore_l1 if setup.l1_restoration else restore)(setup, st, fns)
+        # the entry of the phase's start (IPOPT's "r" line: the point where it starts); the l1
+        # phase appends one entry per iteration of the restoration problem after it
         entry.update(restoration=True, alpha=float("nan"), alpha_z=float("nan"), soc=0, objective=float(st.pt.J))
         st.history.append(entry)
+        outcome = (restore_l1 if setup.l1_restoration else restore)(setup, st, fns)
         if outcome is not None:
             return st.stop(*outcome(why))
     else:
