@@ -1,9 +1,15 @@
 """The least-squares multiplier estimate of the start (Waechter and Biegler 2006, sec. 3.6,
-eq. (36)) and the feasibility restoration phase (sec. 3.3), both as LQ-DOCPs on the Riccati
-back-end (:class:`~olado.solvers.ipm.newton.KKTMatrix`).
+eq. (36)) and the feasibility restoration phases (sec. 3.3), on the Riccati back-end
+(:class:`~olado.solvers.ipm.newton.KKTMatrix`).
 
-Restoration: olado's phase is not IPOPT's l1 restoration NLP (eq. (30)) but a sequence of
-minimum-distance Gauss-Newton steps towards the linearized constraints,
+``restore_l1`` (the default, ``restoration = l1``) is IPOPT's phase: the l1 restoration problem
+(30) of :mod:`olado.solvers.ipm.elastic`, solved by this interior-point method, with IPOPT's
+start, its convergence test on the original point and its return (bound-multiplier step of the
+whole phase, constraint multipliers 0); a converged restoration problem at a positive violation
+is a stationary point of the l1 violation: INFEASIBLE (docs/interior-point-nlp.md).
+
+``restore`` (``restoration = gauss-newton``; also the restoration problem's own phase) is
+olado's earlier phase, minimum-distance Gauss-Newton steps towards the linearized constraints,
 
     min 1/2 d^T (Sigma + zeta I) d   s.t.  J d = -c,        zeta = sqrt(mu)
 
@@ -11,10 +17,9 @@ minimum-distance Gauss-Newton steps towards the linearized constraints,
 c every constraint residual, slacks included), with the fraction-to-boundary rule and
 backtracking on theta -- one Riccati factorization per step, always positive definite. It
 returns to the filter method once theta has fallen to kappa_resto = 0.9 of its value at the
-start of the phase and the point is acceptable to the filter (sec. 3.3); the multipliers are
-then estimated afresh (least squares), the bound multipliers kept. The theory of sec. 2 allows
-any restoration procedure that reduces theta; a phase that cannot (no step inside the bounds
-reduces the violation) reports the problem as locally infeasible.
+start of the phase and the point is acceptable to the filter; the multipliers are then estimated
+afresh (least squares), the bound multipliers kept. It reports INFEASIBLE only at a stationary
+point of |c|^2 / 2 on the bounds.
 """
 
 from __future__ import annotations
