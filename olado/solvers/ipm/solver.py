@@ -42,6 +42,8 @@ from ..base import Solver, SolverOptions
 from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION, stage_gradient_terms, stop_outcome
 from ..sqp.residuals import stage_kkt
 from ..sqp.state import BoundMultipliers, Clock, Multipliers, Point
+from .adaptive import (FILTER_MARGIN_FACT, FILTER_MAX_MARGIN, MONOTONE_INIT_FACTOR, MU_MAX_FACT, MU_MIN, AdaptiveMu,
+                       QualityFunction, average_complementarity, quality_function_sigma)
 from .barrier import Bounds, Layout
 from .filter import Filter
 from .newton import Constraints, KKTMatrix, Residuals, stage_blocks
@@ -56,8 +58,9 @@ class IPMOptions(SolverOptions):
     """Options of the interior-point NLP solver (IPOPT's names where IPOPT has the option)."""
 
     mu_init: float = option(0.1, "initial barrier parameter (IPOPT mu_init)", min=0.0, min_exclusive=True)
-    mu_strategy: str = option("monotone", "barrier parameter update: monotone Fiacco-McCormick (eq. (7)); "
-                              "the adaptive rule is not implemented yet", choices=("monotone",))
+    mu_strategy: str = option("monotone", "barrier parameter update: monotone Fiacco-McCormick (eq. (7)) or "
+                              "adaptive (IPOPT's quality-function oracle with the obj-constr-filter "
+                              "globalization, olado.solvers.ipm.adaptive)", choices=("monotone", "adaptive"))
     barrier_tol_factor: float = option(10.0, "kappa_epsilon: mu is decreased once the barrier problem's "
                                        "optimality error is below kappa_epsilon * mu", min=0.0, min_exclusive=True)
     mu_linear_decrease_factor: float = option(0.2, "kappa_mu of eq. (7)", min=0.0, max=1.0, min_exclusive=True)
@@ -129,6 +132,7 @@ class IPMState:
     shortened: int = 0          # successive iterations whose line search shortened the step
     watch: object = None        # the watchdog (Watchdog) while it runs
     infeasibility_certificate: dict = None   # the converged l1 restoration's figures (restoration.restore_l1)
+    adaptive: AdaptiveMu = None  # the adaptive mu update's memory (mu_strategy = adaptive)
 
     def stop(self, status, message):
         self.status, self.message = status, message
@@ -289,10 +293,57 @@ def update_barrier(setup, st):
         mu = max(o.tol / 10.0, min(o.mu_linear_decrease_factor * st.mu, st.mu ** o.mu_superlinear_decrease_power))
         if mu >= st.mu:
             break
-        st.mu, st.tau = mu, max(o.tau_min, 1.0 - mu)
-        st.filt.reset()
-        if setup.on_mu_change is not None:
-            setup.on_mu_change()
+        set_mu(setup, st, mu, max(o.tau_min, 1.0 - mu))
+
+
+def set_mu(setup, st, mu, tau):
+    """A new barrier parameter: mu, tau, the filter cleared, the restoration problem's objective
+    told (Setup.on_mu_change)."""
+    st.mu, st.tau = mu, tau
+    st.filt.reset()
+    if setup.on_mu_change is not None:
+        setup.on_mu_change()
+
+
+def adaptive_barrier(setup, st, kkt):
+    """IPOPT's adaptive update (olado.solvers.ipm.adaptive; AdaptiveMuUpdate::UpdateBarrierParameter):
+    the obj-constr filter decides between the free mode (mu from the quality-function oracle on
+    the factored Newton matrix ``kkt``, tau = max(tau_min, 1 - E_0)) and the monotone mode (mu =
+    0.8 avg(s z), then rule (7)); the filter of the line search is cleared whenever mu is set."""
+    o, b = setup.options, setup.bounds
+    ad = st.adaptive = st.adaptive or AdaptiveMu()
+    mu_min = min(MU_MIN, 0.5 * min(o.tol, o.compl_inf_tol * st.s_obj))
+    if b.count == 0:
+        st.mu, st.tau = mu_min, o.tau_min
+        return
+    avg = average_complementarity(b, st.v, st.zl, st.zu)
+    if ad.mu_max < 0:
+        ad.mu_max = MU_MAX_FACT * avg
+    f, th = st.s_obj * st.pt.J, theta(setup, st.pt, st.v)
+    e0 = optimality_errors(setup, st, 0.0)[0]
+    progress = ad.acceptable(f, th, FILTER_MARGIN_FACT * min(FILTER_MAX_MARGIN, e0))
+    if progress:
+        ad.free = True
+        ad.remember(f, th)
+    elif ad.free:
+        ad.free = False
+        mu = min(max(MONOTONE_INIT_FACTOR * avg, mu_min), ad.mu_max)
+        return set_mu(setup, st, mu, max(o.tau_min, 1.0 - mu))
+    else:
+        if optimality_errors(setup, st, st.mu)[0] <= o.barrier_tol_factor * st.mu:
+            mu = min(o.mu_linear_decrease_factor * st.mu, st.mu ** o.mu_superlinear_decrease_power)
+            mu = max(mu, min(o.compl_inf_tol * st.s_obj, o.tol) / (o.barrier_tol_factor + 1.0))
+            set_mu(setup, st, mu, max(o.tau_min, 1.0 - mu))
+        return None
+    tau = max(o.tau_min, 1.0 - e0)
+    st.tau = tau
+    res = residuals(setup, st.pt, st.v)
+    dv0, dv1 = (step_vector(setup, kkt.solve(g.q, g.r, res, g.gs, g.gsN))
+                for g in (barrier_gradient(setup, st, 0.0), barrier_gradient(setup, st, avg)))
+    dual = lagrangian_gradient(setup, st) - st.zl + st.zu
+    q = QualityFunction(b, st.v, st.zl, st.zu, tau, avg, dv0, dv1, dual, res)
+    sigma = quality_function_sigma(q, avg, mu_min, ad.mu_max)
+    return set_mu(setup, st, min(max(sigma * avg, mu_min), ad.mu_max), tau)
 
 
 def converged(setup, st):
@@ -334,11 +385,11 @@ class Direction(NamedTuple):
     grad: np.ndarray
 
 
-def barrier_gradient(setup, st) -> Direction:
-    """grad phi_mu at the iterate, split for the Newton system."""
+def barrier_gradient(setup, st, mu=None) -> Direction:
+    """grad phi_mu at the iterate (mu: the iterate's unless given), split for the Newton system."""
     L = setup.layout
     q, r = objective_gradient(st.pt, st.s_obj)
-    _, bgrad = setup.bounds.barrier(st.v, st.mu)
+    _, bgrad = setup.bounds.barrier(st.v, st.mu if mu is None else mu)
     bx, bu, gs, gsN = L.split(bgrad, np.zeros(L.n))
     q, r = q + bx, r + bu
     return Direction(q, r, gs, gsN, L.pack(q, r, gs, gsN))
@@ -525,8 +576,13 @@ def iterate(setup, st):
     if st.it >= o.max_iter:
         return st.stop(Status.MAX_ITERATIONS, f"iteration limit {o.max_iter} reached; scaled optimality error "
                        f"{st.errors[0]:.2e}, constraint violation {st.errors[2]:.2e}")
-    update_barrier(setup, st)
-    kkt = newton_system(setup, st)
+    if o.mu_strategy == "adaptive":
+        kkt = newton_system(setup, st)      # the matrix does not depend on mu: the oracle uses it
+        if kkt is not None:
+            adaptive_barrier(setup, st, kkt)
+    else:
+        update_barrier(setup, st)
+        kkt = newton_system(setup, st)
     accepted = None if kkt is None else line_search(setup, st, kkt, barrier_gradient(setup, st))
     st.it += 1
     # the objective after the iteration (IPOPT's log), the errors at its start

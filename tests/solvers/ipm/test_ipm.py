@@ -479,3 +479,33 @@ def test_the_l1_restoration_passes_where_ipopt_s_does(ipm, ipopt):
     np.testing.assert_allclose(got, [ref_by_iter[k]["objective"] for k in range(1, 23)], rtol=1e-5)
     assert [h["restoration"] for h in r.history[:16]] == [False] * 6 + [True] * 9 + [False]
     assert len(r.history) == r.iterations and abs(r.iterations - ref.iterations) <= 3
+
+
+# ---------------------------------------------------------------------------- the adaptive mu update
+@pytest.mark.parametrize("name", ["lq-box", "rayleigh-box", "zambezi12-24"])
+def test_adaptive_mu_follows_ipopts_iterates(name, ipopt):
+    """mu_strategy = adaptive (IPOPT's quality-function oracle, obj-constr-filter globalization):
+    the barrier parameter and the objective after every iteration are IPOPT's with
+    mu_strategy = adaptive (to 1e-8), and so is the iteration count."""
+    a = olado.solve(CASES[name](), solver="ipm", mu_strategy="adaptive")
+    b = make_solver(load_config(CONFIGS / "ipopt.ini", ["ipopt.mu_strategy=adaptive"])).solve(CASES[name]())
+    assert a.status is Status.SUCCESS and b.status is Status.SUCCESS and a.iterations == b.iterations
+    ref = {h["iter"]: h for h in b.history}
+    np.testing.assert_allclose([h["objective"] for h in a.history],
+                               [ref[k]["objective"] for k in range(1, a.iterations + 1)], rtol=1e-8)
+    np.testing.assert_allclose([h["mu"] for h in a.history], [ref[k]["mu"] for k in range(1, a.iterations + 1)],
+                               rtol=1e-6)
+
+
+def test_the_quality_function_oracle_minimizes_over_sigma():
+    """The golden-section search of the oracle (olado.solvers.ipm.adaptive) on a function with a
+    known minimizer: inside the interval it lands within the section tolerance of the minimizer;
+    when the minimum is at an end of the interval, that end is returned."""
+    from olado.solvers.ipm.adaptive import golden_section, quality_function_sigma
+
+    sigma = golden_section(lambda s: (s - 0.3) ** 2, 1e-6, 0.99)
+    assert abs(sigma - 0.3) < 0.02
+    assert golden_section(lambda s: s, 1e-6, 0.99) == pytest.approx(1e-6, abs=0.01)
+    assert golden_section(lambda s: -s, 1.0, 50.0) == 50.0
+    # q decreasing through sigma = 1: the upper side, capped by mu_max / avg
+    assert quality_function_sigma(lambda s: (s - 5.0) ** 2, 1.0, 1e-11, 1e3) == pytest.approx(5.0, rel=0.05)
