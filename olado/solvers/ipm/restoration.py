@@ -219,7 +219,7 @@ def _start_l1_phase(setup, st, fns, res0) -> L1Phase:
     ep = ElasticDOCP(p, st.pt.X, st.pt.U, mu)
     Xe, Ue = ep.start(st.pt.X, st.pt.U, res0, mu)
     opts = dataclasses.replace(o, mu_init=mu, obj_scaling="none", max_iter=max(o.max_iter - st.it, 0),
-                               restoration="gauss-newton", mu_strategy="monotone")
+                               restoration="gauss-newton")
     inner = Setup(opts, ep, setup.limits, lambda info: False)
     v = inner.layout.pack(Xe, Ue, s, sN)
     pt = fns.evaluate(inner, v, st.clock, derivatives=True)
