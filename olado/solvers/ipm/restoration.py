@@ -221,6 +221,7 @@ def _start_l1_phase(setup, st, fns, res0) -> L1Phase:
     opts = dataclasses.replace(o, mu_init=mu, obj_scaling="none", max_iter=max(o.max_iter - st.it, 0),
                                restoration="gauss-newton")
     inner = Setup(opts, ep, setup.limits, lambda info: False)
+    _share_bounds(setup, inner)
     v = inner.layout.pack(Xe, Ue, s, sN)
     pt = fns.evaluate(inner, v, st.clock, derivatives=True)
     zl = _start_bound_multipliers(setup, inner, st.zl, Ue, mu, RHO)
@@ -233,6 +234,18 @@ def _start_l1_phase(setup, st, fns, res0) -> L1Phase:
     inner.on_mu_change = lambda: _follow_mu(ep, ist)
     phi0 = fns.barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0]
     return L1Phase(ep, inner, ist, res0.l1(), phi0, res0.max())
+
+
+def _share_bounds(setup, inner):
+    """The restoration problem's bounds on x, u and the slacks are the original problem's as they
+    are now (relaxed, and moved by slack_move, barrier.Bounds.move_tiny), so that the current point
+    is inside them."""
+    L, Li, n0, m0 = setup.layout, inner.layout, setup.layout.n, setup.layout.m
+    for side in ("lo", "hi"):
+        X, U, s, sN = L.split(getattr(setup.bounds, side), np.zeros(n0))
+        Xe, Ue, _, _ = Li.split(getattr(inner.bounds, side), np.zeros(Li.n))
+        Xe[:, :n0], Ue[:, :m0] = X, U
+        setattr(inner.bounds, side, Li.pack(Xe, Ue, s, sN))
 
 
 def _start_bound_multipliers(setup, inner, z, Ue, mu, rho):
