@@ -382,13 +382,20 @@ def _failed_outcome(setup, st, fns, phase, point):
 
 def _adopt_restoration_point(setup, st, phase, v, pt):
     """The restoration's last point becomes the iterate the solve returns (IPOPT copies it), with
-    the restoration problem's constraint multipliers (the l1 problem's, |y| <= rho)."""
-    L, ist = setup.layout, phase.ist
+    the restoration problem's multipliers: the constraint multipliers y of the l1 problem (|y| <=
+    rho, y = rho sign(c) on a violated equality row) and its bound multipliers, multiplied by s_f
+    so that the Result (which divides by s_f) holds them as they are."""
+    L, Li, ist = setup.layout, phase.inner.layout, phase.ist
     pt.add_derivatives(setup.problem)
     st.v, st.pt = v, pt
-    st.lam = ist.lam[:, :L.n].copy()
-    st.nu, st.nuN, st.yd, st.ydN = ist.nu.copy(), ist.nuN.copy(), ist.yd.copy(), ist.ydN.copy()
-    st.zl, st.zu = setup.bounds.safeguard(v, st.zl, st.zu, st.mu)
+    f = st.s_obj
+    st.lam = f * ist.lam[:, :L.n]
+    st.nu, st.nuN, st.yd, st.ydN = f * ist.nu, f * ist.nuN, f * ist.yd, f * ist.ydN
+    zl, zu = [], []
+    for z in (ist.zl, ist.zu):
+        Xz, Uz, sz, szN = Li.split(z, np.zeros(Li.n))
+        (zl if z is ist.zl else zu).append(f * L.pack(Xz[:, :L.n], Uz[:, :L.m], sz, szN))
+    st.zl, st.zu = zl[0], zu[0]
 
 
 def _return_to_filter_method(setup, st, v, pt):

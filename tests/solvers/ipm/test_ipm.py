@@ -460,6 +460,30 @@ def test_the_l1_restoration_proves_infeasibility_where_ipopt_does(name, ipm, ipo
     assert cert["restoration_optimality_error"] <= cert["restoration_tol"] <= 1e-8
     assert cert["max_violation"] > 1e-1 and cert["max_violation"] == pytest.approx(r.max_constraint_violation, rel=1e-6)
     assert cert["max_violation"] == pytest.approx(ref.max_constraint_violation, rel=0.05)
+    _assert_l1_stationary(problem, r)
+
+
+def _assert_l1_stationary(problem, r, rho=1000.0):
+    """An independent check of the infeasibility claim at the returned point and multipliers
+    (those of the l1 restoration problem): the first-order conditions of min rho |c|_1 on the
+    bounds (Waechter and Biegler 2006, eq. (30) at mu -> 0) -- every multiplier within rho,
+    y = rho sign(c) on every dynamics row that stays violated, and grad_(x,u) of y.c balanced by the
+    bound multipliers up to the proximity term sqrt(mu) D_R (x - x_R) (<= 1e-6 rho)."""
+    from olado.solvers.common import stage_gradient_terms
+    from olado.solvers.sqp.state import Point
+
+    pt = Point(problem, r.x, r.u)
+    m = r.multipliers
+    lam, Lg, LgN = m["dynamics"], m["stage_constraints"], m["final_constraints"]
+    for y in (lam, Lg, LgN):
+        assert np.all(np.abs(y) <= rho * (1 + 1e-6))
+    viol = np.abs(pt.h) > 1e-6
+    assert viol.any()
+    np.testing.assert_allclose(lam[viol], rho * np.sign(pt.h[viol]), rtol=1e-6)
+    rx, ru = stage_gradient_terms(problem, pt, lam, Lg, LgN, sigma=0.0)
+    rx = rx - m["bound_lower_x"] + m["bound_upper_x"]
+    ru = ru - m["bound_lower_u"] + m["bound_upper_u"]
+    assert max(np.abs(rx[1:]).max(), np.abs(ru).max()) <= 1e-6 * rho
 
 
 def test_the_l1_restoration_passes_where_ipopt_s_does(ipm, ipopt):
