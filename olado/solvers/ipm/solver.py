@@ -9,7 +9,8 @@ The barrier problem (eq. (3)) of the DOCP,
 
 y = (x^1..x^N, u^0..u^{N-1}) (x^0 fixed), h the dynamics residuals, g_E the stage and final
 equalities, g_I the inequalities with their slacks s (sec. 3.4), is solved approximately for
-a decreasing sequence of mu (the monotone Fiacco-McCormick rule (7)); each iteration takes a
+a decreasing sequence of mu (the monotone Fiacco-McCormick rule (7); or IPOPT's adaptive update,
+:mod:`olado.solvers.ipm.adaptive`); each iteration takes a
 primal-dual Newton step (eqs. (11)-(13), :mod:`olado.solvers.ipm.newton`: the Riccati recursion
 on the LQ-DOCP the system is), the fraction-to-boundary rule (15), the multiplier safeguard
 (16), and a filter line search with second-order corrections (sec. 2.3-2.4,
@@ -21,7 +22,8 @@ watchdog lets full steps through after a run of shortened ones.
 Code layout: ``barrier.py`` (the flat iterate, bounds, barrier function, Sigma, step rules),
 ``newton.py`` (the KKT matrix on the Riccati back-end with the slacks eliminated, Algorithm IC),
 ``filter.py`` (the filter and IPOPT's acceptance safeguards), ``restoration.py`` (least-squares
-multipliers, the restoration phases), ``elastic.py`` (the l1 restoration problem as a DOCP), this
+multipliers, the restoration phases), ``elastic.py`` (the l1 restoration problem as a DOCP),
+``adaptive.py`` (the quality-function oracle of the adaptive mu update), this
 module (options, the per-solve state, the loop, the watchdog, the Result).
 """
 
@@ -150,7 +152,7 @@ class Setup:
         self.l1_restoration = options.restoration == "l1"
         self.bounds = Bounds.of(problem, self.layout, options.bound_relax_factor, options.constr_viol_tol)
         self.t_start = time.perf_counter()
-        #: called after mu decreased (the l1 restoration problem's objective follows mu)
+        #: called after mu changed (the l1 restoration problem's objective follows mu)
         self.on_mu_change = None
 
 
@@ -325,16 +327,17 @@ def adaptive_barrier(setup, st, kkt):
     if progress:
         ad.free = True
         ad.remember(f, th)
-    elif ad.free:
+    elif ad.free:       # no progress: the monotone mode from mu = 0.8 avg(s z)
         ad.free = False
         mu = min(max(MONOTONE_INIT_FACTOR * avg, mu_min), ad.mu_max)
-        return set_mu(setup, st, mu, max(o.tau_min, 1.0 - mu))
-    else:
+        set_mu(setup, st, mu, max(o.tau_min, 1.0 - mu))
+        return
+    else:               # the monotone mode: rule (7), once per iteration
         if optimality_errors(setup, st, st.mu)[0] <= o.barrier_tol_factor * st.mu:
             mu = min(o.mu_linear_decrease_factor * st.mu, st.mu ** o.mu_superlinear_decrease_power)
             mu = max(mu, min(o.compl_inf_tol * st.s_obj, o.tol) / (o.barrier_tol_factor + 1.0))
             set_mu(setup, st, mu, max(o.tau_min, 1.0 - mu))
-        return None
+        return
     tau = max(o.tau_min, 1.0 - e0)
     st.tau = tau
     res = residuals(setup, st.pt, st.v)
@@ -343,7 +346,7 @@ def adaptive_barrier(setup, st, kkt):
     dual = lagrangian_gradient(setup, st) - st.zl + st.zu
     q = QualityFunction(b, st.v, st.zl, st.zu, tau, avg, dv0, dv1, dual, res)
     sigma = quality_function_sigma(q, avg, mu_min, ad.mu_max)
-    return set_mu(setup, st, min(max(sigma * avg, mu_min), ad.mu_max), tau)
+    set_mu(setup, st, min(max(sigma * avg, mu_min), ad.mu_max), tau)
 
 
 def converged(setup, st):
