@@ -56,8 +56,10 @@ class Filter:
     filter_rejections: int = 0      # acceptances in a row that followed a rejection by the filter
 
     @classmethod
-    def start(cls, theta0, const=None):
-        f = cls(1e4 * max(1.0, theta0), 1e-4 * max(1.0, theta0), const or FilterConstants())
+    def start(cls, theta0, const=None, theta_max_fact=1e4):
+        """F_0 at the start theta0; theta_max = theta_max_fact max(1, theta0) (IPOPT's theta_max_fact:
+        1e4, 1e8 in the restoration problem)."""
+        f = cls(theta_max_fact * max(1.0, theta0), 1e-4 * max(1.0, theta0), const or FilterConstants())
         f.reset()
         return f
 
@@ -109,6 +111,11 @@ class Filter:
             return False, False
         self._reset_heuristic()
         return True, switching and armijo
+
+    def acceptable_to_iterate(self, theta, phi, theta_t, phi_t) -> bool:
+        """Sufficient decrease (18) of (theta_t, phi_t) with respect to the iterate (theta, phi) (IPOPT's
+        IsAcceptableToCurrentIterate, also the restoration phase's test against the original iterate)."""
+        return self._decrease(theta, phi, theta_t, phi_t)
 
     def _decrease(self, theta, phi, theta_t, phi_t):
         """Sufficient decrease (18) with respect to the current point, after IPOPT's obj_max_inc test."""

@@ -1,9 +1,15 @@
 """The least-squares multiplier estimate of the start (Waechter and Biegler 2006, sec. 3.6,
-eq. (36)) and the feasibility restoration phase (sec. 3.3), both as LQ-DOCPs on the Riccati
-back-end (:class:`~olado.solvers.ipm.newton.KKTMatrix`).
+eq. (36)) and the feasibility restoration phases (sec. 3.3), on the Riccati back-end
+(:class:`~olado.solvers.ipm.newton.KKTMatrix`).
 
-Restoration: olado's phase is not IPOPT's l1 restoration NLP (eq. (30)) but a sequence of
-minimum-distance Gauss-Newton steps towards the linearized constraints,
+``restore_l1`` (the default, ``restoration = l1``) is IPOPT's phase: the l1 restoration problem
+(30) of :mod:`olado.solvers.ipm.elastic`, solved by this interior-point method, with IPOPT's
+start, its convergence test on the original point and its return (bound-multiplier step of the
+whole phase, constraint multipliers 0); a converged restoration problem at a positive violation
+is a stationary point of the l1 violation: INFEASIBLE (docs/interior-point-nlp.md).
+
+``restore`` (``restoration = gauss-newton``; also the restoration problem's own phase) is
+olado's earlier phase, minimum-distance Gauss-Newton steps towards the linearized constraints,
 
     min 1/2 d^T (Sigma + zeta I) d   s.t.  J d = -c,        zeta = sqrt(mu)
 
@@ -11,10 +17,9 @@ minimum-distance Gauss-Newton steps towards the linearized constraints,
 c every constraint residual, slacks included), with the fraction-to-boundary rule and
 backtracking on theta -- one Riccati factorization per step, always positive definite. It
 returns to the filter method once theta has fallen to kappa_resto = 0.9 of its value at the
-start of the phase and the point is acceptable to the filter (sec. 3.3); the multipliers are
-then estimated afresh (least squares), the bound multipliers kept. The theory of sec. 2 allows
-any restoration procedure that reduces theta; a phase that cannot (no step inside the bounds
-reduces the violation) reports the problem as locally infeasible.
+start of the phase and the point is acceptable to the filter; the multipliers are then estimated
+afresh (least squares), the bound multipliers kept. It reports INFEASIBLE only at a stationary
+point of |c|^2 / 2 on the bounds.
 """
 
 from __future__ import annotations
@@ -154,73 +159,258 @@ def infeasibility_stationarity(setup, fns, pt, v):
     return float(np.abs(g).max(initial=0.0)) / max(1.0, res.max() * max(1.0, jmax))
 
 
+#: IPOPT's bound_mult_reset_threshold: bound multipliers above it after the restoration phase are reset to 1
+BOUND_MULT_RESET = 1e3
+#: IPOPT's theta_max_fact of the restoration problem (resto.theta_max_fact)
+RESTO_THETA_MAX_FACT = 1e8
+
+
+@dataclasses.dataclass
+class L1Phase:
+    """One l1 restoration phase: the restoration problem ``ep``, its solver set-up and state, and
+    the original iterate's values the phase is judged against (theta, phi, max-norm violation)."""
+
+    ep: object
+    inner: object
+    ist: object
+    theta0: float
+    phi0: float
+    inf_pr0: float
+
+
 def restore_l1(setup, st, fns: Restoration):
-    """IPOPT's restoration phase (sec. 3.3): the l1 restoration problem of
-    :mod:`olado.solvers.ipm.elastic` solved by this interior-point method from the current point,
-    until an iterate (with the slacks of the inequalities max(g, mu)) is acceptable to the
-    original filter with theta at most kappa_resto times its start. Returns None (``st``
-    updated) or a function of the reason the line search gave up that returns (Status, message);
-    the restoration problem's own line-search failures fall back to the Gauss-Newton phase."""
-    from .elastic import ElasticDOCP          # noqa: PLC0415
-    from .solver import Setup, initial_state, iterate   # noqa: PLC0415 - the solver module imports this one
+    """IPOPT's restoration phase (sec. 3.3; IPOPT's MinC_1NrmRestorationPhase and
+    RestoConvergenceCheck): the l1 restoration problem of :mod:`olado.solvers.ipm.elastic`,
+    solved by this interior-point method from the current point. At every iterate of the
+    restoration problem but its start, the original problem's point (x, u and the slacks s of
+    the restoration problem) ends the phase when its max-norm violation is at most max(kappa_resto
+    times the one where the phase started, min(tol, constr_viol_tol)) and it is acceptable to the
+    original filter and to the original iterate (sufficient decrease of theta or phi, eq. (18));
+    the bound multipliers then take the Newton step of the whole phase, the constraint multipliers
+    start at 0. If instead the restoration problem converges (its own optimality test, eq. (5)),
+    the point is a stationary point of the l1 violation: INFEASIBLE when the violation there
+    exceeds 100 tol (after the restoration's tolerance was once tightened by 100), otherwise a
+    FAILED restoration (a feasible point the filter does not accept). Returns None (``st``
+    updated) or a function of the reason the line search gave up that returns (Status, message).
+    The restoration's iterations count as iterations (IPOPT's count)."""
+    o = setup.options
+    res0 = fns.residuals(setup, st.pt, st.v)
+    if res0.l1() <= 0.1 * o.constr_viol_tol:
+        return restore(setup, st, fns)
+    phase = _start_l1_phase(setup, st, fns, res0)
+    try:
+        return _run_l1_phase(setup, st, fns, phase)
+    finally:
+        st.it += phase.ist.it
+
+
+def _start_l1_phase(setup, st, fns, res0) -> L1Phase:
+    """The restoration problem at the current point and its starting iterate (IPOPT's
+    RestoIterateInitializer): mu = max(mu, |c|_inf, |d - s|_inf); x, u and the slacks as they are;
+    the elastic variables of eq. (33); the bound multipliers min(rho, z) on the original
+    variables and mu / p, mu / n on the elastic ones; the constraint multipliers 0."""
+    from .elastic import RHO, ElasticDOCP   # noqa: PLC0415
+    from .filter import Filter              # noqa: PLC0415
+    from .solver import IPMState, Setup     # noqa: PLC0415 - the solver module imports this one
 
     p, o, L = setup.problem, setup.options, setup.layout
-    th0 = fns.theta(setup, st.pt, st.v)
-    if th0 <= 0.1 * o.constr_viol_tol:
-        return restore(setup, st, fns)
-    X, U = st.pt.X.copy(), st.pt.U.copy()
-    mu = max(st.mu, fns.residuals(setup, st.pt, st.v).max())
-    ep = ElasticDOCP(p, X, U, mu)
-    opts = dataclasses.replace(o, mu_init=mu, obj_scaling="none", max_iter=o.max_restoration_iter)
+    X, U, s, sN = L.split(st.v)
+    mu = max(st.mu, res0.max())
+    ep = ElasticDOCP(p, st.pt.X, st.pt.U, mu)
+    Xe, Ue = ep.start(st.pt.X, st.pt.U, res0, mu)
+    opts = dataclasses.replace(o, mu_init=mu, obj_scaling="none", max_iter=max(o.max_iter - st.it, 0),
+                               restoration="gauss-newton")
     inner = Setup(opts, ep, setup.limits, lambda info: False)
-    inner.l1_restoration = False
-    ist = initial_state(inner, X, ep.start_controls(X, U, mu), st.clock)
-    done, th = False, th0
-    while not done:
-        if np.sqrt(ist.mu) < ep.zeta:       # the proximity weight follows the restoration's mu (IPOPT)
-            ep.zeta = float(np.sqrt(ist.mu))
-            ist.pt.J = ep.objective(ist.pt.X, ist.pt.U)
-            ist.pt.lx, ist.pt.lu = ep.eval_stage_cost_gradients(ist.pt.X, ist.pt.U)
-            ist.pt.lN = ep.eval_final_cost_gradient(ist.pt.X[-1])
-        done = iterate(inner, ist)
-        Xi, Ui = ist.pt.X, ep.split(ist.pt.U)[0]
-        try:
-            pt = fns.evaluate(setup, L.pack(Xi, Ui, np.zeros((L.N, L.ni)), np.zeros(L.niN)), st.clock)
-        except NonFiniteEvaluationError:
-            continue
-        v = L.pack(Xi, Ui, np.maximum(pt.g[:, L.ineq], st.mu), np.maximum(pt.gN[L.ineqN], st.mu))
-        th = fns.theta(setup, pt, v)
-        phi = fns.barrier_value(setup, pt, v, st.mu, st.s_obj)[0]
-        if np.isfinite(phi) and th <= KAPPA_RESTO * th0 and st.filt.acceptable(th, phi):
-            _return_to_filter_method(setup, st, v, pt)
+    _share_bounds(setup, inner)
+    v = inner.layout.pack(Xe, Ue, s, sN)
+    pt = fns.evaluate(inner, v, st.clock, derivatives=True)
+    zl = _start_bound_multipliers(setup, inner, st.zl, Ue, mu, RHO)
+    zu = _start_bound_multipliers(setup, inner, st.zu, None, mu, RHO)
+    N, Li = p.N, inner.layout
+    ist = IPMState(v=v, pt=pt, lam=np.zeros((N + 1, ep.n)), zl=zl, zu=zu, mu=mu, tau=max(o.tau_min, 1.0 - mu),
+                   filt=Filter.start(fns.theta(inner, pt, v), theta_max_fact=RESTO_THETA_MAX_FACT), s_obj=1.0,
+                   clock=st.clock, nu=np.zeros((N, Li.ne)), nuN=np.zeros(Li.neN), yd=np.zeros((N, Li.ni)),
+                   ydN=np.zeros(Li.niN))
+    inner.on_mu_change = lambda: _follow_mu(ep, ist)
+    phi0 = fns.barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0]
+    return L1Phase(ep, inner, ist, res0.l1(), phi0, res0.max())
+
+
+def _share_bounds(setup, inner):
+    """The restoration problem's bounds on x, u and the slacks are the original problem's as they
+    are now (relaxed, and moved by slack_move, barrier.Bounds.move_tiny), so that the current point
+    is inside them."""
+    L, Li, n0, m0 = setup.layout, inner.layout, setup.layout.n, setup.layout.m
+    for side in ("lo", "hi"):
+        X, U, s, sN = L.split(getattr(setup.bounds, side), np.zeros(n0))
+        Xe, Ue, _, _ = Li.split(getattr(inner.bounds, side), np.zeros(Li.n))
+        Xe[:, :n0], Ue[:, :m0] = X, U
+        setattr(inner.bounds, side, Li.pack(Xe, Ue, s, sN))
+
+
+def _start_bound_multipliers(setup, inner, z, Ue, mu, rho):
+    """The restoration problem's bound multipliers of one side: min(rho, z) on the original
+    variables and slacks, mu / value on the elastic controls (lower side, ``Ue`` given), 0 where
+    the side is infinite."""
+    L, Li = setup.layout, inner.layout
+    n0, m0 = L.n, L.m
+    Xz, Uz, sz, szN = L.split(np.minimum(z, rho), np.zeros(n0))
+    Xe = np.zeros((L.N + 1, Li.n)); Xe[:, :n0] = Xz
+    Uel = np.zeros((L.N, Li.m)); Uel[:, :m0] = Uz
+    if Ue is not None:
+        Uel[:, m0:] = mu / Ue[:, m0:]
+    has = inner.bounds.has_lo if Ue is not None else inner.bounds.has_hi
+    return np.where(has, Li.pack(Xe, Uel, sz, szN), 0.0)
+
+
+def _follow_mu(ep, ist):
+    """The proximity weight zeta = sqrt(mu) follows the restoration's barrier parameter (IPOPT's
+    RestoIpoptNLP): the objective and its gradient at the current point again."""
+    ep.zeta = float(np.sqrt(ist.mu))
+    pt = ist.pt
+    pt.J = ep.objective(pt.X, pt.U)
+    if pt.derivs:
+        pt.lx, pt.lu = ep.eval_stage_cost_gradients(pt.X, pt.U)
+        pt.lN = ep.eval_final_cost_gradient(pt.X[-1])
+
+
+def _original_point(setup, fns, phase, clock):
+    """The original problem's (v, point, residuals) at the restoration's iterate: its x, u and the
+    slacks s; None where a function is not finite."""
+    L = setup.layout
+    Xe, Ue, s, sN = phase.inner.layout.split(phase.ist.v)
+    v = L.pack(Xe[:, :L.n], Ue[:, :L.m], s, sN)
+    try:
+        pt = fns.evaluate(setup, v, clock)
+    except NonFiniteEvaluationError:
+        return None
+    return v, pt, fns.residuals(setup, pt, v)
+
+
+def _acceptable(setup, st, fns, phase, point):
+    """IPOPT's RestoConvergenceCheck: the max-norm violation reduced to max(kappa_resto times its
+    start, min(tol, constr_viol_tol)), then acceptable to the original filter and to the original
+    iterate (RestoFilterConvergenceCheck::TestOrigProgress)."""
+    o = setup.options
+    v, pt, res = point
+    if res.max() > max(KAPPA_RESTO * phase.inf_pr0, min(o.tol, o.constr_viol_tol)):
+        return False
+    th, phi = res.l1(), fns.barrier_value(setup, pt, v, st.mu, st.s_obj)[0]
+    return bool(np.isfinite(phi) and st.filt.acceptable(th, phi)
+                and st.filt.acceptable_to_iterate(phase.theta0, phase.phi0, th, phi))
+
+
+def _run_l1_phase(setup, st, fns, phase):
+    """The restoration problem's iterations with the convergence test of :func:`restore_l1`."""
+    from .solver import iterate              # noqa: PLC0415
+
+    o, ist, inner = setup.options, phase.ist, phase.inner
+    first = True
+    while True:
+        point = None if first else _original_point(setup, fns, phase, st.clock)
+        if not first:
+            _record(st, phase, point)
+        if point is not None and _acceptable(setup, st, fns, phase, point):
+            _return_to_filter_method(setup, st, *point[:2])
             return None
-    elastic = ep.elastic_sum(ist.pt.U)
-    pt.add_derivatives(p)
-    stat = infeasibility_stationarity(setup, fns, pt, v) if ist.status.success else np.inf
-    if ist.status.success and elastic > 10 * o.constr_viol_tol and stat <= INFEASIBLE_TOL:
-        _return_to_filter_method(setup, st, v, pt)
-        return lambda why: (Status.INFEASIBLE,
-                            f"{why} after {st.it} iterations; the restoration phase converged to a local minimizer "
-                            f"of the l1 constraint violation ({elastic:.3e} in the elastic variables, theta "
-                            f"{th:.3e}) where the projected gradient of |c|^2/2 is {stat:.1e} (relative): the "
-                            "problem is locally infeasible")
-    return lambda why: (Status.FAILED,
+        first = False
+        if not iterate(inner, ist):
+            continue
+        point = _original_point(setup, fns, phase, st.clock)
+        if not ist.status.success or point is None:
+            break
+        inf_pr = point[2].max()
+        if inf_pr <= 1e2 * inner.options.tol and inner.options.tol > 0.1 * o.tol:
+            # once: the restoration problem solved more tightly when the violation is small (IPOPT)
+            inner.options = dataclasses.replace(inner.options, tol=1e-2 * inner.options.tol)
+            ist.status, ist.acceptable = Status.MAX_ITERATIONS, 0
+            continue
+        return _converged_outcome(setup, st, phase, point)
+    return _failed_outcome(setup, st, fns, phase, point)
+
+
+def _record(st, phase, point):
+    """The history entry of an iteration of the restoration problem (IPOPT's "r" lines): its step,
+    mu and shift, with the original problem's objective and max-norm violation at the new point."""
+    ist = phase.ist
+    entry = dict(ist.history[-1], iter=st.it + ist.it, restoration=True, watchdog=False)
+    if point is not None:
+        entry.update(objective=float(point[1].J), inf_pr=point[2].max())
+    st.history.append(entry)
+
+
+def _converged_outcome(setup, st, phase, point):
+    """The restoration problem converged without a point the filter method accepts: INFEASIBLE at
+    a violation above 100 tol (a stationary point of the l1 violation: the restoration's
+    optimality error (5) is the l1 problem's stationarity, its multipliers bounded by rho), else
+    FAILED (IPOPT's RESTORATION_CONVERGED_TO_FEASIBLE_POINT)."""
+    ist, inner = phase.ist, phase.inner
+    v, pt, res = point
+    inf_pr, l1 = res.max(), res.l1()
+    e0 = ist.errors[0]
+    _adopt_restoration_point(setup, st, phase, v, pt)
+    st.infeasibility_certificate = {
+        "restoration_optimality_error": float(e0), "restoration_tol": float(inner.options.tol),
+        "restoration_status": ist.status.value, "max_violation": float(inf_pr), "l1_violation": float(l1),
+        "elastic_sum": phase.ep.elastic_sum(ist.pt.X, ist.pt.U)}
+    if inf_pr <= 1e2 * inner.options.tol:
+        return lambda why: (Status.FAILED,
+                            f"{why} after {st.it} iterations; the restoration phase converged to a point of "
+                            f"small violation ({inf_pr:.2e}, max-norm) that the filter does not accept")
+    level = (f"<= tol = {inner.options.tol:g}" if ist.status is Status.SUCCESS else
+             f"<= acceptable_tol = {inner.options.acceptable_tol:g}, IPOPT's acceptable level")
+    return lambda why: (Status.INFEASIBLE,
+                        f"{why} after {st.it} iterations; the restoration phase converged (scaled optimality "
+                        f"error of the l1 restoration problem {e0:.1e} {level}) to a stationary "
+                        f"point of the l1 constraint violation where it is {l1:.3e} (largest residual "
+                        f"{inf_pr:.3e}): the problem is locally infeasible")
+
+
+def _failed_outcome(setup, st, fns, phase, point):
+    """The restoration problem stopped without converging: MAX_ITERATIONS at its iteration limit,
+    otherwise FAILED, the sentence naming its status."""
+    ist = phase.ist
+    if point is not None:
+        _adopt_restoration_point(setup, st, phase, *point[:2])
+    th = fns.theta(setup, st.pt, st.v)
+    status = Status.MAX_ITERATIONS if ist.status is Status.MAX_ITERATIONS else Status.FAILED
+    return lambda why: (status,
                         f"{why} after {st.it} iterations and the restoration phase ended without a point "
-                        f"acceptable to the filter ({ist.status.value}: {ist.message}; theta {th0:.3e} -> {th:.3e}; "
-                        f"projected gradient of |c|^2/2 {stat:.1e}, so infeasibility is not shown)")
+                        f"acceptable to the filter ({ist.status.value}: {ist.message}; constraint violation "
+                        f"{phase.theta0:.3e} -> {th:.3e}, 1-norm), so infeasibility is not shown")
+
+
+def _adopt_restoration_point(setup, st, phase, v, pt):
+    """The restoration's last point becomes the iterate the solve returns (IPOPT copies it), with
+    the restoration problem's multipliers: the constraint multipliers y of the l1 problem (|y| <=
+    rho, y = rho sign(c) on a violated equality row) and its bound multipliers, multiplied by s_f
+    so that the Result (which divides by s_f) holds them as they are."""
+    L, Li, ist = setup.layout, phase.inner.layout, phase.ist
+    pt.add_derivatives(setup.problem)
+    st.v, st.pt = v, pt
+    f = st.s_obj
+    st.lam = f * ist.lam[:, :L.n]
+    st.nu, st.nuN, st.yd, st.ydN = f * ist.nu, f * ist.nuN, f * ist.yd, f * ist.ydN
+    zl, zu = [], []
+    for z in (ist.zl, ist.zu):
+        Xz, Uz, sz, szN = Li.split(z, np.zeros(Li.n))
+        (zl if z is ist.zl else zu).append(f * L.pack(Xz[:, :L.n], Uz[:, :L.m], sz, szN))
+    st.zl, st.zu = zl[0], zu[0]
 
 
 def _return_to_filter_method(setup, st, v, pt):
-    """Back from the restoration: the new iterate, the bound multipliers kept (safeguarded), the
-    constraint multipliers estimated afresh (least squares, 0 when too large)."""
-    b, o = setup.bounds, setup.options
+    """Back from the restoration (IPOPT's MinC_1NrmRestorationPhase): the new iterate; the bound
+    multipliers as if the whole phase were one primal-dual Newton step (eq. (13) with dv the
+    phase's change of v, the fraction-to-boundary rule (15)), all reset to 1 when one exceeds
+    bound_mult_reset_threshold = 1e3; the constraint multipliers 0 (constr_mult_reset_threshold
+    = 0)."""
+    b = setup.bounds
     pt.add_derivatives(setup.problem)
-    st.v, st.pt = v, pt
+    dzl, dzu = b.dual_step(st.v, v - st.v, st.zl, st.zu, st.mu)
+    alpha = min(b.max_dual_step(st.zl, dzl, st.tau), b.max_dual_step(st.zu, dzu, st.tau))
+    zl, zu = st.zl + alpha * dzl, st.zu + alpha * dzu
+    if max(float(np.abs(zl).max(initial=0.0)), float(np.abs(zu).max(initial=0.0))) > BOUND_MULT_RESET:
+        zl, zu = b.has_lo.astype(float), b.has_hi.astype(float)
+    st.v, st.pt, st.zl, st.zu = v, pt, zl, zu
     b.move_tiny(v)
-    sl, su = b.slacks(v)
-    zl = np.where(b.has_lo & (st.zl <= 0), st.mu / sl, st.zl)
-    st.zl, st.zu = b.safeguard(v, zl, st.zu, st.mu)
-    mult = least_squares_multipliers(setup, pt, st.zl, st.zu, st.s_obj)
-    if max(float(np.abs(a).max(initial=0.0)) for a in mult) > o.constr_mult_init_max:
-        mult = tuple(np.zeros_like(a) for a in mult)
-    st.lam, st.nu, st.nuN, st.yd, st.ydN = mult
+    st.lam, st.nu, st.nuN, st.yd, st.ydN = (np.zeros_like(a) for a in (st.lam, st.nu, st.nuN, st.yd, st.ydN))

@@ -9,7 +9,8 @@ The barrier problem (eq. (3)) of the DOCP,
 
 y = (x^1..x^N, u^0..u^{N-1}) (x^0 fixed), h the dynamics residuals, g_E the stage and final
 equalities, g_I the inequalities with their slacks s (sec. 3.4), is solved approximately for
-a decreasing sequence of mu (the monotone Fiacco-McCormick rule (7)); each iteration takes a
+a decreasing sequence of mu (the monotone Fiacco-McCormick rule (7); or IPOPT's adaptive update,
+:mod:`olado.solvers.ipm.adaptive`); each iteration takes a
 primal-dual Newton step (eqs. (11)-(13), :mod:`olado.solvers.ipm.newton`: the Riccati recursion
 on the LQ-DOCP the system is), the fraction-to-boundary rule (15), the multiplier safeguard
 (16), and a filter line search with second-order corrections (sec. 2.3-2.4,
@@ -21,7 +22,8 @@ watchdog lets full steps through after a run of shortened ones.
 Code layout: ``barrier.py`` (the flat iterate, bounds, barrier function, Sigma, step rules),
 ``newton.py`` (the KKT matrix on the Riccati back-end with the slacks eliminated, Algorithm IC),
 ``filter.py`` (the filter and IPOPT's acceptance safeguards), ``restoration.py`` (least-squares
-multipliers, the restoration phases), ``elastic.py`` (the l1 restoration problem as a DOCP), this
+multipliers, the restoration phases), ``elastic.py`` (the l1 restoration problem as a DOCP),
+``adaptive.py`` (the quality-function oracle of the adaptive mu update), this
 module (options, the per-solve state, the loop, the watchdog, the Result).
 """
 
@@ -42,6 +44,8 @@ from ..base import Solver, SolverOptions
 from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION, stage_gradient_terms, stop_outcome
 from ..sqp.residuals import stage_kkt
 from ..sqp.state import BoundMultipliers, Clock, Multipliers, Point
+from .adaptive import (FILTER_MARGIN_FACT, FILTER_MAX_MARGIN, MONOTONE_INIT_FACTOR, MU_MAX_FACT, MU_MIN, AdaptiveMu,
+                       QualityFunction, average_complementarity, quality_function_sigma)
 from .barrier import Bounds, Layout
 from .filter import Filter
 from .newton import Constraints, KKTMatrix, Residuals, stage_blocks
@@ -56,8 +60,9 @@ class IPMOptions(SolverOptions):
     """Options of the interior-point NLP solver (IPOPT's names where IPOPT has the option)."""
 
     mu_init: float = option(0.1, "initial barrier parameter (IPOPT mu_init)", min=0.0, min_exclusive=True)
-    mu_strategy: str = option("monotone", "barrier parameter update: monotone Fiacco-McCormick (eq. (7)); "
-                              "the adaptive rule is not implemented yet", choices=("monotone",))
+    mu_strategy: str = option("monotone", "barrier parameter update: monotone Fiacco-McCormick (eq. (7)) or "
+                              "adaptive (IPOPT's quality-function oracle with the obj-constr-filter "
+                              "globalization, olado.solvers.ipm.adaptive)", choices=("monotone", "adaptive"))
     barrier_tol_factor: float = option(10.0, "kappa_epsilon: mu is decreased once the barrier problem's "
                                        "optimality error is below kappa_epsilon * mu", min=0.0, min_exclusive=True)
     mu_linear_decrease_factor: float = option(0.2, "kappa_mu of eq. (7)", min=0.0, max=1.0, min_exclusive=True)
@@ -89,10 +94,11 @@ class IPMOptions(SolverOptions):
                                                   "shortened steps (IPOPT's; 0: never)", min=0)
     watchdog_trial_iter_max: int = option(3, "full steps the watchdog takes at most before it returns to "
                                           "where it started (IPOPT's)", min=1)
-    restoration: str = option("gauss-newton", "the restoration phase: l1 (IPOPT's l1 restoration problem, solved by this "
-                              "method) or gauss-newton (minimum-distance Gauss-Newton steps)",
-                              choices=("l1", "gauss-newton"))
-    max_restoration_iter: int = option(50, "iterations of one feasibility restoration phase at most", min=1)
+    restoration: str = option("l1", "the restoration phase: l1 (IPOPT's l1 restoration problem, solved by this "
+                              "method; INFEASIBLE where it converges at a positive violation) or gauss-newton "
+                              "(minimum-distance Gauss-Newton steps)", choices=("l1", "gauss-newton"))
+    max_restoration_iter: int = option(50, "iterations of one Gauss-Newton restoration phase at most (the l1 "
+                                       "phase shares max_iter, as IPOPT's)", min=1)
 
 
 @dataclasses.dataclass
@@ -127,6 +133,8 @@ class IPMState:
     errors: tuple = (math.inf, math.inf, math.inf)
     shortened: int = 0          # successive iterations whose line search shortened the step
     watch: object = None        # the watchdog (Watchdog) while it runs
+    infeasibility_certificate: dict = None   # the converged l1 restoration's figures (restoration.restore_l1)
+    adaptive: AdaptiveMu = None  # the adaptive mu update's memory (mu_strategy = adaptive)
 
     def stop(self, status, message):
         self.status, self.message = status, message
@@ -144,6 +152,8 @@ class Setup:
         self.l1_restoration = options.restoration == "l1"
         self.bounds = Bounds.of(problem, self.layout, options.bound_relax_factor, options.constr_viol_tol)
         self.t_start = time.perf_counter()
+        #: called after mu changed (the l1 restoration problem's objective follows mu)
+        self.on_mu_change = None
 
 
 # ---------------------------------------------------------------------------- evaluations
@@ -285,8 +295,58 @@ def update_barrier(setup, st):
         mu = max(o.tol / 10.0, min(o.mu_linear_decrease_factor * st.mu, st.mu ** o.mu_superlinear_decrease_power))
         if mu >= st.mu:
             break
-        st.mu, st.tau = mu, max(o.tau_min, 1.0 - mu)
-        st.filt.reset()
+        set_mu(setup, st, mu, max(o.tau_min, 1.0 - mu))
+
+
+def set_mu(setup, st, mu, tau):
+    """A new barrier parameter: mu, tau, the filter cleared, the restoration problem's objective
+    told (Setup.on_mu_change)."""
+    st.mu, st.tau = mu, tau
+    st.filt.reset()
+    if setup.on_mu_change is not None:
+        setup.on_mu_change()
+
+
+def adaptive_barrier(setup, st, kkt):
+    """IPOPT's adaptive update (olado.solvers.ipm.adaptive; AdaptiveMuUpdate::UpdateBarrierParameter):
+    the obj-constr filter decides between the free mode (mu from the quality-function oracle on
+    the factored Newton matrix ``kkt``, tau = max(tau_min, 1 - E_0)) and the monotone mode (mu =
+    0.8 avg(s z), then rule (7)); the filter of the line search is cleared whenever mu is set."""
+    o, b = setup.options, setup.bounds
+    ad = st.adaptive = st.adaptive or AdaptiveMu()
+    mu_min = min(MU_MIN, 0.5 * min(o.tol, o.compl_inf_tol * st.s_obj))
+    if b.count == 0:
+        st.mu, st.tau = mu_min, o.tau_min
+        return
+    avg = average_complementarity(b, st.v, st.zl, st.zu)
+    if ad.mu_max < 0:
+        ad.mu_max = MU_MAX_FACT * avg
+    f, th = st.s_obj * st.pt.J, theta(setup, st.pt, st.v)
+    e0 = optimality_errors(setup, st, 0.0)[0]
+    progress = ad.acceptable(f, th, FILTER_MARGIN_FACT * min(FILTER_MAX_MARGIN, e0))
+    if progress:
+        ad.free = True
+        ad.remember(f, th)
+    elif ad.free:       # no progress: the monotone mode from mu = 0.8 avg(s z)
+        ad.free = False
+        mu = min(max(MONOTONE_INIT_FACTOR * avg, mu_min), ad.mu_max)
+        set_mu(setup, st, mu, max(o.tau_min, 1.0 - mu))
+        return
+    else:               # the monotone mode: rule (7), once per iteration
+        if optimality_errors(setup, st, st.mu)[0] <= o.barrier_tol_factor * st.mu:
+            mu = min(o.mu_linear_decrease_factor * st.mu, st.mu ** o.mu_superlinear_decrease_power)
+            mu = max(mu, min(o.compl_inf_tol * st.s_obj, o.tol) / (o.barrier_tol_factor + 1.0))
+            set_mu(setup, st, mu, max(o.tau_min, 1.0 - mu))
+        return
+    tau = max(o.tau_min, 1.0 - e0)
+    st.tau = tau
+    res = residuals(setup, st.pt, st.v)
+    dv0, dv1 = (step_vector(setup, kkt.solve(g.q, g.r, res, g.gs, g.gsN))
+                for g in (barrier_gradient(setup, st, 0.0), barrier_gradient(setup, st, avg)))
+    dual = lagrangian_gradient(setup, st) - st.zl + st.zu
+    q = QualityFunction(b, st.v, st.zl, st.zu, tau, avg, dv0, dv1, dual, res)
+    sigma = quality_function_sigma(q, avg, mu_min, ad.mu_max)
+    set_mu(setup, st, min(max(sigma * avg, mu_min), ad.mu_max), tau)
 
 
 def converged(setup, st):
@@ -328,11 +388,11 @@ class Direction(NamedTuple):
     grad: np.ndarray
 
 
-def barrier_gradient(setup, st) -> Direction:
-    """grad phi_mu at the iterate, split for the Newton system."""
+def barrier_gradient(setup, st, mu=None) -> Direction:
+    """grad phi_mu at the iterate (mu: the iterate's unless given), split for the Newton system."""
     L = setup.layout
     q, r = objective_gradient(st.pt, st.s_obj)
-    _, bgrad = setup.bounds.barrier(st.v, st.mu)
+    _, bgrad = setup.bounds.barrier(st.v, st.mu if mu is None else mu)
     bx, bu, gs, gsN = L.split(bgrad, np.zeros(L.n))
     q, r = q + bx, r + bu
     return Direction(q, r, gs, gsN, L.pack(q, r, gs, gsN))
@@ -519,22 +579,36 @@ def iterate(setup, st):
     if st.it >= o.max_iter:
         return st.stop(Status.MAX_ITERATIONS, f"iteration limit {o.max_iter} reached; scaled optimality error "
                        f"{st.errors[0]:.2e}, constraint violation {st.errors[2]:.2e}")
-    update_barrier(setup, st)
-    kkt = newton_system(setup, st)
+    if o.mu_strategy == "adaptive":
+        kkt = newton_system(setup, st)      # the matrix does not depend on mu: the oracle uses it
+        if kkt is not None:
+            adaptive_barrier(setup, st, kkt)
+    else:
+        update_barrier(setup, st)
+        kkt = newton_system(setup, st)
     accepted = None if kkt is None else line_search(setup, st, kkt, barrier_gradient(setup, st))
     st.it += 1
     # the objective after the iteration (IPOPT's log), the errors at its start
     entry = {"iter": st.it, "inf_pr": st.errors[2], "inf_du": st.errors[1], "mu": st.mu, "delta_w": st.delta,
              "watchdog": st.watch is not None}
+    if accepted is None and st.acceptable:
+        # IPOPT's ACCEPTABLE_POINT_REACHED: no restoration phase from an acceptable iterate
+        st.history.append(dict(entry, alpha=float("nan"), alpha_z=float("nan"), soc=0, restoration=False,
+                               objective=float(st.pt.J)))
+        return st.stop(Status.ACCEPTABLE, f"acceptable: the line search failed at an iterate with scaled "
+                       f"optimality error {st.errors[0]:.2e} <= acceptable_tol = {o.acceptable_tol:g} after "
+                       f"{st.it} iterations (tol = {o.tol:g} not met)")
     if accepted is None:
         why = ("the inertia correction found no shift up to 1e20" if kkt is None
                else "the filter line search reached alpha_min")
         st.filt.add(theta(setup, st.pt, st.v), barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0])
         st.restorations += 1
         fns = Restoration(evaluate, theta, barrier_value, residuals, lagrangian_gradient)
-        outcome = (restore_l1 if setup.l1_restoration else restore)(setup, st, fns)
+        # the entry of the phase's start (IPOPT's "r" line: the point where it starts); the l1
+        # phase appends one entry per iteration of the restoration problem after it
         entry.update(restoration=True, alpha=float("nan"), alpha_z=float("nan"), soc=0, objective=float(st.pt.J))
         st.history.append(entry)
+        outcome = (restore_l1 if setup.l1_restoration else restore)(setup, st, fns)
         if outcome is not None:
             return st.stop(*outcome(why))
     else:
@@ -572,6 +646,8 @@ def finish(setup, st) -> Result:
             "multiplier_convention": MULTIPLIER_CONVENTION, "mu": st.mu, "objective_scaling": st.s_obj,
             "factorizations": st.factorizations, "restorations": st.restorations,
             "scaled_optimality_error": st.errors[0], "kkt": "riccati"}
+    if st.infeasibility_certificate is not None:
+        info["infeasibility_certificate"] = dict(st.infeasibility_certificate)
     multipliers = {"dynamics": mult.lam[1:].copy(), "stage_constraints": mult.Lg, "final_constraints": mult.LgN,
                    "bound_lower_x": z.zl_x, "bound_lower_u": z.zl_u, "bound_upper_x": z.zu_x, "bound_upper_u": z.zu_u}
     return Result(status=st.status, message=st.message, objective=float(pt.J), x=pt.X.copy(), u=pt.U.copy(),

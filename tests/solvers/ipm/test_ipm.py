@@ -359,54 +359,177 @@ def test_the_iterates_follow_ipopts_through_watchdog_and_second_order_correction
     assert a.history[17]["soc"] >= 1 and a.history[17]["delta_w"] == pytest.approx(a.history[14]["delta_w"] / 3)
 
 
+def _fd_columns(fun, Z, eps=1e-6):
+    """Central differences of fun (stacked over stages) with respect to every column of Z."""
+    cols = []
+    for j in range(Z.shape[-1]):
+        dZ = np.zeros_like(Z); dZ[..., j] = eps
+        cols.append((fun(Z + dZ) - fun(Z - dZ)) / (2 * eps))
+    return np.stack(cols, axis=-1)
+
+
 def test_the_l1_restoration_problem_is_a_docp_with_consistent_derivatives():
-    """The elastic restoration problem (olado.solvers.ipm.elastic): its Jacobians and cost
+    """The elastic restoration problem (olado.solvers.ipm.elastic) of a problem with dynamics,
+    a stage inequality and a final equality: its Jacobians (states, controls, final) and cost
     gradients are the finite differences of its functions, its stage Hessian the difference of
-    the Lagrangian gradients; at the start of eq. (33) the elastic variables reproduce the
-    dynamics residuals (x^{k+1} = f - p + n)."""
-    from olado.solvers.ipm.elastic import ElasticDOCP
+    the Lagrangian gradients; at its start (eq. (33)) every relaxed row holds: x^{k+1} = f - p + n,
+    g - p + n = s (the original slacks), g^N - p_N + n_N = 0, with p, n > 0 and the final pair
+    the last stage's w (IPOPT's single pair)."""
+    from olado.solvers.ipm.elastic import RHO, ElasticDOCP
+    from olado.solvers.ipm.newton import Residuals
 
     p = Pendulum(N=4)
     rng = np.random.default_rng(2)
     X = rng.standard_normal((5, 2)) * 0.3
     X[0] = p.x0
     U = rng.uniform(-1, 1, (4, 1))
+    s = rng.uniform(0.1, 1.0, (4, 1))
+    g, gN = p.eval_stage_constraints(X, U), p.eval_final_constraints(X[-1])
+    res = Residuals(p.eval_dynamics(X, U) - X[1:], np.zeros((4, 0)), gN, g - s, np.zeros(0))
     ep = ElasticDOCP(p, X, U, mu=0.1)
-    U2 = ep.start_controls(X, U, 0.1)
-    assert U2.shape == (4, ep.m) and np.all(U2[:, 1:] > 0)
-    np.testing.assert_allclose(ep.eval_dynamics(X, U2), X[1:], atol=1e-12)
-    eps = 1e-6
-    A, B = ep.eval_dynamics_jacobians(X, U2)
-    Cx, Cu = ep.eval_stage_constraint_jacobians(X, U2)
-    lx, lu = ep.eval_stage_cost_gradients(X, U2)
-    for j in range(ep.m):
-        dU = np.zeros_like(U2); dU[:, j] = eps
-        fd = (ep.eval_dynamics(X, U2 + dU) - ep.eval_dynamics(X, U2 - dU)) / (2 * eps)
-        np.testing.assert_allclose(B[:, :, j], fd, atol=1e-7)
-        fd = (ep.eval_stage_constraints(X, U2 + dU) - ep.eval_stage_constraints(X, U2 - dU)) / (2 * eps)
-        np.testing.assert_allclose(Cu[:, :, j], fd, atol=1e-7)
-        fd = (ep.objective(X, U2 + dU) - ep.objective(X, U2 - dU)) / (2 * eps)
-        assert lu[:, j].sum() == pytest.approx(fd, rel=1e-6, abs=1e-6)
-    lN = ep.eval_final_cost_gradient(X[-1])
-    dX = np.zeros_like(X); dX[-1, 0] = eps
-    assert lN[0] == pytest.approx((ep.objective(X + dX, U2) - ep.objective(X - dX, U2)) / (2 * eps), rel=1e-6)
+    Xe, Ue = ep.start(X, U, res, 0.1)
+    assert Xe.shape == (5, ep.n) and Ue.shape == (4, ep.m) and np.all(Ue[:, 1:] > 0)
+    np.testing.assert_allclose(ep.eval_dynamics(Xe, Ue), Xe[1:], atol=1e-12)
+    np.testing.assert_allclose(ep.eval_stage_constraints(Xe, Ue), s, atol=1e-12)
+    np.testing.assert_allclose(ep.eval_final_constraints(Xe[-1]), 0.0, atol=1e-12)
+    w = ep.split(Ue)[-1]
+    np.testing.assert_allclose(w[:-1], 0.1 / RHO)
+    assert ep.elastic_sum(Xe, Ue) == pytest.approx(np.abs(res.h).sum() + np.abs(res.d).sum() + abs(gN[0]), rel=1e-3)
+    Xe = Xe + 0.01 * rng.standard_normal(Xe.shape)       # a generic point
+    Xe[0] = ep.x0
+    A, B = ep.eval_dynamics_jacobians(Xe, Ue)
+    Cx, Cu = ep.eval_stage_constraint_jacobians(Xe, Ue)
+    lx, lu = ep.eval_stage_cost_gradients(Xe, Ue)
+    np.testing.assert_allclose(B, _fd_columns(lambda UU: ep.eval_dynamics(Xe, UU), Ue), atol=1e-7)
+    np.testing.assert_allclose(Cu, _fd_columns(lambda UU: ep.eval_stage_constraints(Xe, UU), Ue), atol=1e-7)
+
+    def with_states(XX):
+        full = Xe.copy(); full[:-1] = XX
+        return full
+
+    np.testing.assert_allclose(A, _fd_columns(lambda XX: ep.eval_dynamics(with_states(XX), Ue), Xe[:-1]), atol=1e-7)
+    np.testing.assert_allclose(Cx, _fd_columns(lambda XX: ep.eval_stage_constraints(with_states(XX), Ue), Xe[:-1]),
+                               atol=1e-7)
+    np.testing.assert_allclose(ep.eval_final_constraint_jacobian(Xe[-1]),
+                               _fd_columns(ep.eval_final_constraints, Xe[-1]), atol=1e-7)
+    fd_lu = _fd_columns(lambda UU: np.array([ep.objective(Xe, UU)]), Ue)
+    np.testing.assert_allclose(lu.sum(axis=0), fd_lu[0], rtol=1e-6, atol=1e-6)
+    fd_lN = _fd_columns(lambda xN: np.array([ep.objective(np.vstack([Xe[:-1], xN]), Ue)]), Xe[-1])[0]
+    np.testing.assert_allclose(ep.eval_final_cost_gradient(Xe[-1]), fd_lN, rtol=1e-6, atol=1e-6)
     # stage Hessian: derivative of the Lagrangian's u-gradient (sigma = 1, multipliers P, L)
-    P, L = rng.standard_normal((4, 2)), rng.standard_normal((4, 1))
-    Hxx, Hxu, Huu = ep.eval_stage_hessians(X, U2, 1.0, P, L)
+    P, L = rng.standard_normal((4, ep.n)), rng.standard_normal((4, 1))
+    Hxx, Hxu, Huu = ep.eval_stage_hessians(Xe, Ue, 1.0, P, L)
 
     def grad_u(UU):
-        _, B_ = ep.eval_dynamics_jacobians(X, UU)
-        _, Cu_ = ep.eval_stage_constraint_jacobians(X, UU)
-        _, lu_ = ep.eval_stage_cost_gradients(X, UU)
+        _, B_ = ep.eval_dynamics_jacobians(Xe, UU)
+        _, Cu_ = ep.eval_stage_constraint_jacobians(Xe, UU)
+        _, lu_ = ep.eval_stage_cost_gradients(Xe, UU)
         return lu_ + np.einsum("kij,ki->kj", B_, P) + np.einsum("kij,ki->kj", Cu_, L)
 
-    dU = np.zeros_like(U2); dU[:, 0] = eps
-    np.testing.assert_allclose(Huu[:, :, 0], (grad_u(U2 + dU) - grad_u(U2 - dU)) / (2 * eps), atol=1e-6)
+    np.testing.assert_allclose(Huu, _fd_columns(grad_u, Ue), atol=1e-6)
 
 
 def test_l1_restoration_option_keeps_the_statuses_honest():
-    """restoration = l1 on the unreachable bound: no false success, no infeasibility claim without
-    a converged restoration problem -- INFEASIBLE or FAILED with the sentence."""
-    r = olado.solve(Unreachable(), solver="ipm", restoration="l1")
+    """The Gauss-Newton phase (restoration = gauss-newton) on the unreachable bound: no false
+    success, no infeasibility claim without a stationary point -- INFEASIBLE or FAILED with the
+    sentence."""
+    r = olado.solve(Unreachable(), solver="ipm", restoration="gauss-newton")
     assert r.status in (Status.INFEASIBLE, Status.FAILED) and r.info["restorations"] >= 1
-    assert "restoration phase" in r.message
+    assert "restoration" in r.message
+
+
+# ---------------------------------------------------------------------------- the l1 restoration against IPOPT
+def _entry(name):
+    from olado.problems.suites import load_suite
+
+    return next(e for e in load_suite("robustness") if e.name == name).build()
+
+
+@pytest.mark.parametrize("name", ["lq-unreachable", "cart-too-short"])
+def test_the_l1_restoration_proves_infeasibility_where_ipopt_does(name, ipm, ipopt):
+    """Deliberately infeasible entries (proofs in olado/problems/infeasible.py): INFEASIBLE as
+    IPOPT says, with the certificate of the claim -- the l1 restoration problem converged (its
+    scaled optimality error, the stationarity of the l1 violation, within its tolerance) at a
+    point whose constraint violation stays far from 0 (at IPOPT's l1 minimizer's level)."""
+    problem, guess = _entry(name)
+    r = ipm.solve(problem, guess=guess)
+    ref = ipopt.solve(problem, guess=guess)
+    assert ref.status is Status.INFEASIBLE
+    assert r.status is Status.INFEASIBLE and "locally infeasible" in r.message
+    cert = r.info["infeasibility_certificate"]
+    assert cert["restoration_optimality_error"] <= cert["restoration_tol"] <= 1e-8
+    assert cert["max_violation"] > 1e-1 and cert["max_violation"] == pytest.approx(r.max_constraint_violation, rel=1e-6)
+    assert cert["max_violation"] == pytest.approx(ref.max_constraint_violation, rel=0.05)
+    _assert_l1_stationary(problem, r)
+
+
+def _assert_l1_stationary(problem, r, rho=1000.0):
+    """An independent check of the infeasibility claim at the returned point and multipliers
+    (those of the l1 restoration problem): the first-order conditions of min rho |c|_1 on the
+    bounds (Waechter and Biegler 2006, eq. (30) at mu -> 0) -- every multiplier within rho,
+    y = rho sign(c) on every dynamics row that stays violated, and grad_(x,u) of y.c balanced by the
+    bound multipliers up to the proximity term sqrt(mu) D_R (x - x_R) (<= 1e-6 rho)."""
+    from olado.solvers.common import stage_gradient_terms
+    from olado.solvers.sqp.state import Point
+
+    pt = Point(problem, r.x, r.u)
+    m = r.multipliers
+    lam, Lg, LgN = m["dynamics"], m["stage_constraints"], m["final_constraints"]
+    for y in (lam, Lg, LgN):
+        assert np.all(np.abs(y) <= rho * (1 + 1e-6))
+    viol = np.abs(pt.h) > 1e-6
+    assert viol.any()
+    np.testing.assert_allclose(lam[viol], rho * np.sign(pt.h[viol]), rtol=1e-6)
+    rx, ru = stage_gradient_terms(problem, pt, lam, Lg, LgN, sigma=0.0)
+    rx = rx - m["bound_lower_x"] + m["bound_upper_x"]
+    ru = ru - m["bound_lower_u"] + m["bound_upper_u"]
+    assert max(np.abs(rx[1:]).max(), np.abs(ru).max()) <= 1e-6 * rho
+
+
+def test_the_l1_restoration_passes_where_ipopt_s_does(ipm, ipopt):
+    """bang-bang-cart: ipm's iterates are IPOPT's up to IPOPT's restoration phase at iteration 7;
+    the l1 restoration takes IPOPT's eight restoration iterations (8r-15r: the original objective
+    after each to 1e-5), returns to the filter method where IPOPT does (the original violation
+    reduced to 0.9 of its start, acceptable to the original filter) and goes on along IPOPT's
+    iterates (16-22); the solve ends at IPOPT's optimum, certified, in IPOPT's count to a few."""
+    problem, guess = _entry("bang-bang-cart")
+    r = ipm.solve(problem, guess=guess)
+    ref = ipopt.solve(problem, guess=guess)
+    assert r.status is Status.SUCCESS and ref.status is Status.SUCCESS and r.info["restorations"] >= 1
+    assert r.certificate.level == "success"
+    assert r.objective == pytest.approx(ref.objective, rel=1e-7)
+    ref_by_iter = {h["iter"]: h for h in ref.history}      # IPOPT logs the phase's last iteration twice
+    got = [h["objective"] for h in r.history[:22]]
+    np.testing.assert_allclose(got, [ref_by_iter[k]["objective"] for k in range(1, 23)], rtol=1e-5)
+    assert [h["restoration"] for h in r.history[:16]] == [False] * 6 + [True] * 9 + [False]
+    assert len(r.history) == r.iterations and abs(r.iterations - ref.iterations) <= 3
+
+
+# ---------------------------------------------------------------------------- the adaptive mu update
+@pytest.mark.parametrize("name", ["lq-box", "rayleigh-box", "zambezi12-24"])
+def test_adaptive_mu_follows_ipopts_iterates(name, ipopt):
+    """mu_strategy = adaptive (IPOPT's quality-function oracle, obj-constr-filter globalization):
+    the barrier parameter and the objective after every iteration are IPOPT's with
+    mu_strategy = adaptive (to 1e-8), and so is the iteration count."""
+    a = olado.solve(CASES[name](), solver="ipm", mu_strategy="adaptive")
+    b = make_solver(load_config(CONFIGS / "ipopt.ini", ["ipopt.mu_strategy=adaptive"])).solve(CASES[name]())
+    assert a.status is Status.SUCCESS and b.status is Status.SUCCESS and a.iterations == b.iterations
+    ref = {h["iter"]: h for h in b.history}
+    np.testing.assert_allclose([h["objective"] for h in a.history],
+                               [ref[k]["objective"] for k in range(1, a.iterations + 1)], rtol=1e-8)
+    np.testing.assert_allclose([h["mu"] for h in a.history], [ref[k]["mu"] for k in range(1, a.iterations + 1)],
+                               rtol=1e-6)
+
+
+def test_the_quality_function_oracle_minimizes_over_sigma():
+    """The golden-section search of the oracle (olado.solvers.ipm.adaptive) on a function with a
+    known minimizer: inside the interval it lands within the section tolerance of the minimizer;
+    when the minimum is at an end of the interval, that end is returned."""
+    from olado.solvers.ipm.adaptive import golden_section, quality_function_sigma
+
+    sigma = golden_section(lambda s: (s - 0.3) ** 2, 1e-6, 0.99)
+    assert abs(sigma - 0.3) < 0.02
+    assert golden_section(lambda s: s, 1e-6, 0.99) == pytest.approx(1e-6, abs=0.01)
+    assert golden_section(lambda s: -s, 1.0, 50.0) == 50.0
+    # q decreasing through sigma = 1: the upper side, capped by mu_max / avg
+    assert quality_function_sigma(lambda s: (s - 5.0) ** 2, 1.0, 1e-11, 1e3) == pytest.approx(5.0, rel=0.05)
