@@ -41,7 +41,7 @@ REWRITTEN = [("testproblems", c) for c in ("VanDerPol", "Rayleigh", "CSTR")] + \
     [("variants", "RayleighMixed")] + \
     [("literature", c) for c in ("Brachistochrone", "BrachistochronePoint", "DoubleIntegrator", "BrysonDenham",
                                  "BangBangCart", "MoonLander", "LotkaFishing", "BatchReactor", "AlpRider",
-                                 "FreeFlyingRobot", "Dubins", "RigidBody", "Obstacle", "CartPole", "OrbitRaising")] + \
+                                 "Dubins", "RigidBody", "Obstacle", "CartPole", "OrbitRaising")] + \
     [("cops", c) for c in ("Goddard", "HangGlider", "RobotArm", "ParticleSteering", "CatalystMixing", "HangingChain")] + \
     [("infeasible", c) for c in ("CartTooShort", "SteeringTooShort", "VanDerPolContradict", "BatchOveryield",
                                  "CatalystOverfull")]

@@ -1,6 +1,7 @@
 """Optimal-control problems of the literature (Bryson and Ho; Betts; Luus; Sager; Kelly),
 discretized by RK4 (or Euler) with piecewise-constant controls: written on OCP
-(:mod:`olado.problems.continuous_ocp`, exact derivatives).
+(:mod:`olado.problems.continuous_ocp`, exact derivatives), except free-flying-robot, a
+ContinuousDOCP (:mod:`olado.problems.continuous`; its docstring says why).
 
 Each class states its source, its formulation and the published continuous-time optimal value,
 or says that none is published (or that the value is the analytic one, derived in the
@@ -32,11 +33,16 @@ from __future__ import annotations
 import numpy as np
 
 from .autodiff.functions import cos, exp, sin
+from .continuous import ContinuousDOCP, ExactHessians
 from .continuous_ocp import ContinuousOCP
 
 __all__ = ["Brachistochrone", "BrachistochronePoint", "DoubleIntegrator", "BrysonDenham", "BangBangCart",
            "MoonLander", "LotkaFishing", "BatchReactor", "AlpRider", "FreeFlyingRobot", "Dubins",
            "RigidBody", "Obstacle", "CartPole", "OrbitRaising", "PROBLEMS"]
+
+
+def _z(K, rows, cols):
+    return np.zeros((K, rows, cols))
 
 
 # ============================================================================ brachistochrone
@@ -334,7 +340,7 @@ class AlpRider(ContinuousOCP):
 
 
 # ============================================================================ free-flying robot
-class FreeFlyingRobot(ContinuousOCP):
+class FreeFlyingRobot(ExactHessians, ContinuousDOCP):
     """Sakawa's free-flying robot (Sakawa, Optim. Control Appl. Meth. 20 (1999) 235-248; Betts
     2010, sec. 6.13, ex. 'ffrb')::
 
@@ -346,6 +352,17 @@ class FreeFlyingRobot(ContinuousOCP):
 
     The thrusts |F1| + |F2| of Sakawa are split into nonnegative parts (Betts's form). Published:
     7.91055654 (Betts 2010). Exact second derivatives. Start: u = 0 (states simulated).
+
+    It stays a ContinuousDOCP (hand-written model and second derivatives) while the other
+    literature problems are ContinuousOCPs, on a measurement: its rewrite on ContinuousOCP is the
+    same DOCP (values and first derivatives equal to 3.6e-16 relative, Hessians to 2.2e-16;
+    ``benchmarks/bench_builtins_ocp.py``), but IPOPT (configs/ipopt.ini) from the robustness start
+    then leaves this implementation's path at its second iteration -- the inertia correction on a
+    nearly singular KKT matrix settles on delta_w = 1e8 instead of 3.3e7 and the line search
+    sends IPOPT into restoration at once -- and stops at its 3000-iteration limit at 9.38
+    (KKT residual 0.2) instead of converging to 7.7074 in 283 iterations (sqp-ip, sqp-as and ipm
+    reach 7.7074 on both). IPOPT's path on this problem amplifies last-bit differences; the
+    robustness reference (IPOPT's run) is this implementation's.
     """
 
     name = "free-flying-robot"
@@ -360,19 +377,44 @@ class FreeFlyingRobot(ContinuousOCP):
     TERMINAL_EQUALITIES = list(range(6))
     DEFAULT_N = 60
 
-    def ode_rhs(self, x, u):
-        F1, F2 = u[0] - u[1], u[2] - u[3]
+    def model(self, X, U, order):
+        th = X[:, 2]
+        K = len(th)
+        F1, F2 = U[:, 0] - U[:, 1], U[:, 2] - U[:, 3]
         S = F1 + F2
-        return [x[3], x[4], x[5], S * cos(x[2]), S * sin(x[2]), self.ALPHA * F1 - self.BETA * F2]
+        c, s = np.cos(th), np.sin(th)
+        F = np.stack([X[:, 3], X[:, 4], X[:, 5], S * c, S * s, self.ALPHA * F1 - self.BETA * F2,
+                      U.sum(axis=1)], axis=1)
+        if order < 1:
+            return F, None, None
+        sign = np.array([1.0, -1.0, 1.0, -1.0])
+        J = _z(K, 7, 10)
+        J[:, 0, 3] = J[:, 1, 4] = J[:, 2, 5] = 1.0
+        J[:, 3, 2], J[:, 4, 2] = -S * s, S * c
+        J[:, 3, 6:] = c[:, None] * sign
+        J[:, 4, 6:] = s[:, None] * sign
+        J[:, 5, 6:] = [self.ALPHA, -self.ALPHA, -self.BETA, self.BETA]
+        J[:, 6, 6:] = 1.0
+        H = None
+        if order >= 2:
+            H = np.zeros((K, 7, 10, 10))
+            H[:, 3, 2, 2], H[:, 4, 2, 2] = -S * c, -S * s
+            H[:, 3, 2, 6:] = H[:, 3, 6:, 2] = -s[:, None] * sign
+            H[:, 4, 2, 6:] = H[:, 4, 6:, 2] = c[:, None] * sign
+        return F, J, H
 
-    def ode_cost(self, x, u):
-        return u[0] + u[1] + u[2] + u[3]
+    def path(self, X, U, order):
+        K = X.shape[0]
+        G = np.stack([1.0 - U[:, 0] - U[:, 1], 1.0 - U[:, 2] - U[:, 3]], axis=1)
+        if order < 1:
+            return G, None, None, None
+        Gu = np.zeros((K, 2, 4))
+        Gu[:, 0, :2] = Gu[:, 1, 2:] = -1.0
+        Gzz = np.zeros((K, 2, self.n + 4, self.n + 4)) if order >= 2 else None
+        return G, np.zeros((K, 2, self.n)), Gu, Gzz
 
-    def ode_path(self, x, u):
-        return [1.0 - u[0] - u[1], 1.0 - u[2] - u[3]]
-
-    def ode_terminal(self, x, T):
-        return [x[i] for i in range(6)]
+    def terminal(self, x, order):
+        return x.copy(), np.eye(6), np.zeros((6, 6, 6))
 
     def control_guess(self):
         return np.zeros((self.steps, 4))
