@@ -361,8 +361,10 @@ class FreeFlyingRobot(ExactHessians, ContinuousDOCP):
     nearly singular KKT matrix settles on delta_w = 1e8 instead of 3.3e7 and the line search
     sends IPOPT into restoration at once -- and stops at its 3000-iteration limit at 9.38
     (KKT residual 0.2) instead of converging to 7.7074 in 283 iterations (sqp-ip, sqp-as and ipm
-    reach 7.7074 on both). IPOPT's path on this problem amplifies last-bit differences; the
-    robustness reference (IPOPT's run) is this implementation's.
+    reach 7.7074 on both). That success is itself fragile: on this implementation, from the
+    robustness start perturbed by 1e-12 (seeds 1, 2, 3) IPOPT also stops at its iteration limit
+    (8.50, 8.06, 12.48). The class is kept so that the robustness reference (IPOPT's run, 7.7074)
+    stays reproducible, not because the hand-written model is better.
     """
 
     name = "free-flying-robot"
