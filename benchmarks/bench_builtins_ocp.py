@@ -42,7 +42,8 @@ REWRITTEN = [("testproblems", c) for c in ("VanDerPol", "Rayleigh", "CSTR")] + \
     [("literature", c) for c in ("Brachistochrone", "BrachistochronePoint", "DoubleIntegrator", "BrysonDenham",
                                  "BangBangCart", "MoonLander", "LotkaFishing", "BatchReactor", "AlpRider",
                                  "Dubins", "RigidBody", "Obstacle", "CartPole", "OrbitRaising")] + \
-    [("cops", c) for c in ("Goddard", "HangGlider", "RobotArm", "ParticleSteering", "CatalystMixing", "HangingChain")] + \
+    [("cops", c) for c in ("Goddard", "HangGlider", "RobotArm", "ParticleSteering", "CatalystMixing",
+                           "HangingChain")] + \
     [("infeasible", c) for c in ("CartTooShort", "SteeringTooShort", "VanDerPolContradict", "BatchOveryield",
                                  "CatalystOverfull")]
 #: problems built with settings: (module, class, keyword arguments)
