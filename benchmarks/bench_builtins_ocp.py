@@ -40,12 +40,16 @@ MODULES = ("testproblems", "literature", "cops", "infeasible")
 REWRITTEN = [("testproblems", c) for c in ("VanDerPol", "Rayleigh", "CSTR")] + \
     [("variants", "RayleighMixed")] + \
     [("literature", c) for c in ("Brachistochrone", "BrachistochronePoint", "DoubleIntegrator", "BrysonDenham",
-                                 "BangBangCart", "MoonLander", "BatchReactor", "Dubins", "RigidBody", "CartPole",
-                                 "OrbitRaising")] + \
-    [("cops", c) for c in ("Goddard", "RobotArm", "ParticleSteering")] + \
-    [("infeasible", c) for c in ("CartTooShort", "SteeringTooShort", "VanDerPolContradict", "BatchOveryield")]
+                                 "BangBangCart", "MoonLander", "LotkaFishing", "BatchReactor", "AlpRider",
+                                 "Dubins", "RigidBody", "Obstacle", "CartPole", "OrbitRaising")] + \
+    [("cops", c) for c in ("Goddard", "HangGlider", "RobotArm", "ParticleSteering", "CatalystMixing",
+                           "HangingChain")] + \
+    [("infeasible", c) for c in ("CartTooShort", "SteeringTooShort", "VanDerPolContradict", "BatchOveryield",
+                                 "CatalystOverfull")]
+#: problems built with settings: (module, class, keyword arguments)
+REWRITTEN_WITH = [("cops", "HangingChain", {"length": 2.0, "name": "chain-too-short"})]
 #: problems whose state blows up under a perturbed start (compared at the literature's start)
-AT_START = ("Goddard",)
+AT_START = ("Goddard", "HangGlider")
 
 
 def load_before(rev):
@@ -102,9 +106,9 @@ def compare(before, solve=True):
     now = {"testproblems": testproblems, "literature": literature, "cops": cops, "infeasible": infeasible,
            "variants": variants}
     rows = []
-    for mod, cls in REWRITTEN:
+    for mod, cls, kw in [r + ({},) for r in REWRITTEN] + REWRITTEN_WITH:
         for method in ("rk4", "euler"):
-            a, b = getattr(now[mod], cls)(method=method), getattr(before[mod], cls)(method=method)
+            a, b = getattr(now[mod], cls)(method=method, **kw), getattr(before[mod], cls)(method=method, **kw)
             first, hess = same_docp(a, b, method)
             row = {"problem": a.name, "method": method, "first": first, "hessian": hess}
             if solve and method == "rk4":
@@ -153,8 +157,8 @@ def markdown(rev, rows, trows):
              f"Commit: {commit()}  ", f"Date: {time.strftime('%Y-%m-%d')}  ", f"Machine: {machine()}", "",
              f"Every rewritten problem against its implementation at {rev}: the same dimensions, x^0, bounds, start "
              "point (controls and states) and equality masks (asserted), values and first derivatives "
-             "(largest relative difference at a perturbed start; goddard at the literature's "
-             "start), the stage and final Hessians (the old ones are finite differences for the "
+             "(largest relative difference at a perturbed start; goddard and hang-glider at the "
+             "literature's start), the stage and final Hessians (the old ones are finite differences for the "
              "ContinuousDOCPs without ExactHessians); sqp-ip and IPOPT at the default N (RK4).", "",
              "| problem | scheme | values, 1st derivatives | Hessians | sqp-ip before | sqp-ip OCP | IPOPT before | IPOPT OCP |",
              "|:--|:--|--:|--:|:--|:--|:--|:--|"]

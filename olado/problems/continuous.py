@@ -1,6 +1,12 @@
-"""Discretized continuous-time optimal control problems: the base class of the literature
-problems (:mod:`olado.problems.cops`, :mod:`olado.problems.literature`,
-:mod:`olado.problems.infeasible`).
+"""Discretized continuous-time optimal control problems with hand-written derivatives:
+:class:`ContinuousDOCP`, and :class:`ContinuousData`, the class data it shares with
+:class:`~olado.problems.continuous_ocp.ContinuousOCP`.
+
+Write a new problem on :class:`~olado.problems.continuous_ocp.ContinuousOCP` (the same class
+data, the model once as expressions, exact first and second derivatives by automatic
+differentiation) or on :class:`olado.OCP` (docs/continuous-time.md). ContinuousDOCP stays for
+subclasses that supply their own derivatives; of the built-in problems only free-flying-robot
+(:mod:`olado.problems.literature`, its docstring says why) is one.
 
 A problem is written as its continuous-time model
 

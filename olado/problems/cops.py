@@ -1,8 +1,7 @@
 """Optimal-control problems of the COPS collection (Dolan, Moré and Munson, *Benchmarking
 optimization software with COPS 3.0*, Argonne ANL/MCS-TM-273, 2004), discretized by RK4 (or
 Euler) with piecewise-constant controls on the stages: written on OCP
-(:mod:`olado.problems.continuous_ocp`, exact derivatives) or as ContinuousDOCPs
-(:mod:`olado.problems.continuous`: hang-glider, catalyst-mixing, hanging-chain).
+(:mod:`olado.problems.continuous_ocp`, exact derivatives).
 
 COPS itself discretizes by the trapezoidal rule (or collocation) on nh intervals; its tables give
 the optimal values of those discretizations, which the published values below quote together
@@ -27,15 +26,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .autodiff.functions import cos, exp, sin
-from .continuous import ContinuousDOCP, ExactHessians
+from .autodiff.functions import cos, exp, sin, sqrt
 from .continuous_ocp import ContinuousOCP
 
 __all__ = ["Goddard", "HangGlider", "RobotArm", "ParticleSteering", "CatalystMixing", "HangingChain", "PROBLEMS"]
-
-
-def _zeros(K, rows, cols):
-    return np.zeros((K, rows, cols))
 
 
 # ============================================================================ Goddard rocket
@@ -90,7 +84,7 @@ class Goddard(ContinuousOCP):
 
 
 # ============================================================================ hang glider
-class HangGlider(ContinuousDOCP):
+class HangGlider(ContinuousOCP):
     """Range of a hang glider in a thermal updraft (Bulirsch, Nerz, Pesch and von Stryk 1993;
     COPS 3.0 'glider'; Betts, *Practical Methods for Optimal Control and Estimation Using
     Nonlinear Programming*, 2nd ed., SIAM 2010, sec. 6.5 / ex. 10.54)::
@@ -127,46 +121,21 @@ class HangGlider(ContinuousDOCP):
     TERMINAL_EQUALITIES = [0, 1, 2]
     DEFAULT_N = 101
 
-    def model(self, X, U, order):
-        x, vx, vy, cL = X[:, 0], X[:, 2], X[:, 3], U[:, 0]
-        K = len(x)
-        s = x / self.R - 2.5
+    def ode_rhs(self, x, u):
+        vx, vy, cL = x[2], x[3], u[0]
+        s = x[0] / self.R - 2.5
         Xa = s * s
-        ex = np.exp(-Xa)
-        ua = self.UM * (1.0 - Xa) * ex
-        w = vy - ua
-        vr = np.sqrt(vx * vx + w * w)
+        w = vy - self.UM * (1.0 - Xa) * exp(-Xa)
+        vr = sqrt(vx * vx + w * w)
         q = 0.5 * self.RHO * self.S / self.MASS
         cD = self.C0 + self.KD * cL * cL
-        a = cL * w + cD * vx            # vx' = -q vr a
-        b = cL * vx - cD * w            # vy' = q vr b - g
-        F = np.stack([vx, vy, -q * vr * a, q * vr * b - self.G, np.zeros(K)], axis=1)
-        if order < 1:
-            return F, None, None
-        dua_dx = self.UM * ex * (Xa - 2.0) * (2.0 * s / self.R)
-        dvr_dvx, dvr_dw = vx / vr, w / vr
-        # derivatives w.r.t. (vx, w, cL) of vx' and vy'
-        fvx = (-q * (dvr_dvx * a + vr * cD), -q * (dvr_dw * a + vr * cL), -q * vr * (w + 2.0 * self.KD * cL * vx))
-        fvy = (q * (dvr_dvx * b + vr * cL), q * (dvr_dw * b - vr * cD), q * vr * (vx - 2.0 * self.KD * cL * w))
-        J = _zeros(K, 5, 5)
-        J[:, 0, 2] = 1.0
-        J[:, 1, 3] = 1.0
-        for row, d in ((2, fvx), (3, fvy)):
-            J[:, row, 0] = -d[1] * dua_dx        # dw/dx = -dua/dx
-            J[:, row, 2] = d[0]
-            J[:, row, 3] = d[1]                  # dw/dvy = 1
-            J[:, row, 4] = d[2]
-        return F, J, None
+        return [vx, vy, -q * vr * (cL * w + cD * vx), q * vr * (cL * vx - cD * w) - self.G]
 
-    def mayer(self, x, order):
-        g = np.zeros(self.n)
-        g[0] = -1.0
-        return -x[0], g, np.zeros((self.n, self.n))
+    def ode_final_cost(self, x, T):
+        return -x[0]
 
-    def terminal(self, x, order):
-        jac = np.zeros((3, self.n))
-        jac[0, 1] = jac[1, 2] = jac[2, 3] = 1.0
-        return np.array([x[1] - 900.0, x[2] - self.VX, x[3] - self.VY]), jac, np.zeros((3, self.n, self.n))
+    def ode_terminal(self, x, T):
+        return [x[1] - 900.0, x[2] - self.VX, x[3] - self.VY]
 
     def control_guess(self):
         return np.full((self.steps, 1), 0.7)
@@ -272,7 +241,7 @@ class ParticleSteering(ContinuousOCP):
 
 
 # ============================================================================ catalyst mixing
-class CatalystMixing(ExactHessians, ContinuousDOCP):
+class CatalystMixing(ContinuousOCP):
     """Catalyst mixing in a tubular plug-flow reactor (Gunn and Thomas 1965; COPS 3.0
     'catmix')::
 
@@ -292,33 +261,19 @@ class CatalystMixing(ExactHessians, ContinuousDOCP):
     U_BOUNDS = ((0.0,), (1.0,))
     DEFAULT_N = 50
 
-    def model(self, X, U, order):
-        x1, x2, u = X[:, 0], X[:, 1], U[:, 0]
-        K = len(u)
-        F = np.stack([u * (10 * x2 - x1), u * (x1 - 10 * x2) - (1 - u) * x2, np.zeros(K)], axis=1)
-        if order < 1:
-            return F, None, None
-        J = _zeros(K, 3, 3)
-        J[:, 0, 0], J[:, 0, 1], J[:, 0, 2] = -u, 10 * u, 10 * x2 - x1
-        J[:, 1, 0], J[:, 1, 1], J[:, 1, 2] = u, -10 * u - (1 - u), x1 - 10 * x2 + x2
-        H = None
-        if order >= 2:
-            H = np.zeros((K, 3, 3, 3))
-            H[:, 0, 0, 2] = H[:, 0, 2, 0] = -1.0
-            H[:, 0, 1, 2] = H[:, 0, 2, 1] = 10.0
-            H[:, 1, 0, 2] = H[:, 1, 2, 0] = 1.0
-            H[:, 1, 1, 2] = H[:, 1, 2, 1] = -9.0
-        return F, J, H
+    def ode_rhs(self, x, u):
+        x1, x2, v = x[0], x[1], u[0]
+        return [v * (10 * x2 - x1), v * (x1 - 10 * x2) - (1 - v) * x2]
 
-    def mayer(self, x, order):
-        return -1.0 + x[0] + x[1], np.array([1.0, 1.0]), np.zeros((2, 2))
+    def ode_final_cost(self, x, T):
+        return -1.0 + x[0] + x[1]
 
     def control_guess(self):
         return np.zeros((self.steps, 1))
 
 
 # ============================================================================ hanging chain
-class HangingChain(ExactHessians, ContinuousDOCP):
+class HangingChain(ContinuousOCP):
     """Hanging chain of length L between two points (Cesari 1983; COPS 3.0 'chain')::
 
         min int_0^1 x sqrt(1 + u^2) dt   (potential energy),   x' = u,   l' = sqrt(1 + u^2),
@@ -344,29 +299,14 @@ class HangingChain(ExactHessians, ContinuousDOCP):
         self.length = self.LENGTH if length is None else float(length)
         super().__init__(N, **options)
 
-    def model(self, X, U, order):
-        x, u = X[:, 0], U[:, 0]
-        K = len(u)
-        s = np.sqrt(1.0 + u * u)
-        F = np.stack([u, s, x * s], axis=1)
-        if order < 1:
-            return F, None, None
-        J = _zeros(K, 3, 3)
-        J[:, 0, 2] = 1.0
-        J[:, 1, 2] = u / s
-        J[:, 2, 0] = s
-        J[:, 2, 2] = x * u / s
-        H = None
-        if order >= 2:
-            H = np.zeros((K, 3, 3, 3))
-            H[:, 1, 2, 2] = 1.0 / s ** 3
-            H[:, 2, 0, 2] = H[:, 2, 2, 0] = u / s
-            H[:, 2, 2, 2] = x / s ** 3
-        return F, J, H
+    def ode_rhs(self, x, u):
+        return [u[0], sqrt(1.0 + u[0] * u[0])]
 
-    def terminal(self, x, order):
-        return (np.array([x[0] - self.B, x[1] - self.length]), np.eye(2),
-                np.zeros((2, 2, 2)))
+    def ode_cost(self, x, u):
+        return x[0] * sqrt(1.0 + u[0] * u[0])
+
+    def ode_terminal(self, x, T):
+        return [x[0] - self.B, x[1] - self.length]
 
     def control_guess(self):
         t = (np.arange(self.steps) + 0.5) / self.steps

@@ -72,8 +72,8 @@ class CatalystOverfull(CatalystMixing):
     name = "catalyst-overfull"
     N_TERMINAL = 1
 
-    def terminal(self, x, order):
-        return np.array([x[0] + x[1] - 1.05]), np.array([[1.0, 1.0]]), np.zeros((1, 2, 2))
+    def ode_terminal(self, x, T):
+        return [x[0] + x[1] - 1.05]
 
 
 class SteeringTooShort(ParticleSteering):

@@ -168,23 +168,58 @@ class Operations(AutoDiffDOCP):
         return x[0] * x[0] - autodiff.exp(x[1]) * x[0], [x[0] ** 2 + x[1] ** 2 - 1]
 
 
-def test_continuous_model_by_ad_equals_the_hand_written_model(casadi):
-    """ADModel supplies ContinuousDOCP.model's (F, J, H): LotkaFishing's right-hand side written
-    once gives its hand-written model, and the DOCP built on it (RK4 through the model) the same
-    derivatives and exact Hessians."""
-    from olado.problems.autodiff import ADModel
+def _hand_lotka():
+    """LotkaFishing (olado.problems.literature) as the ContinuousDOCP it was: its class data with
+    the model's hand-written (F, J, H), the reference of the ADModel test (the built-in is a
+    ContinuousOCP now)."""
+    from olado.problems.continuous import ContinuousDOCP, ExactHessians
     from olado.problems.literature import LotkaFishing
 
-    c0, c1 = LotkaFishing.C0, LotkaFishing.C1
+    data = {k: getattr(LotkaFishing, k) for k in ("name", "STATES", "CONTROLS", "C0", "C1", "X0", "T",
+                                                   "U_BOUNDS", "DEFAULT_N", "control_guess")}
 
-    class LotkaAD(LotkaFishing):
+    def model(self, X, U, order):
+        a, b, w = X[:, 0], X[:, 1], U[:, 0]
+        K = len(w)
+        F = np.stack([a - a * b - self.C0 * a * w, -b + a * b - self.C1 * b * w,
+                      (a - 1) ** 2 + (b - 1) ** 2], axis=1)
+        if order < 1:
+            return F, None, None
+        J = np.zeros((K, 3, 3))
+        J[:, 0, 0], J[:, 0, 1], J[:, 0, 2] = 1 - b - self.C0 * w, -a, -self.C0 * a
+        J[:, 1, 0], J[:, 1, 1], J[:, 1, 2] = b, -1 + a - self.C1 * w, -self.C1 * b
+        J[:, 2, 0], J[:, 2, 1] = 2 * (a - 1), 2 * (b - 1)
+        H = None
+        if order >= 2:
+            H = np.zeros((K, 3, 3, 3))
+            H[:, 0, 0, 1] = H[:, 0, 1, 0] = -1.0
+            H[:, 0, 0, 2] = H[:, 0, 2, 0] = -self.C0
+            H[:, 1, 0, 1] = H[:, 1, 1, 0] = 1.0
+            H[:, 1, 1, 2] = H[:, 1, 2, 1] = -self.C1
+            H[:, 2, 0, 0] = H[:, 2, 1, 1] = 2.0
+        return F, J, H
+
+    return type("LotkaHand", (ExactHessians, ContinuousDOCP), dict(data, model=model)), LotkaFishing
+
+
+def test_continuous_model_by_ad_equals_the_hand_written_model(casadi):
+    """ADModel supplies ContinuousDOCP.model's (F, J, H): the Lotka-Volterra fishing right-hand
+    side written once gives the hand-written model, and the DOCP built on it (RK4 through the
+    model) the same derivatives and exact Hessians as the hand-written one -- and as the built-in
+    lotka-fishing, a ContinuousOCP (its DOCP by OCP's own differentiation)."""
+    from olado.problems.autodiff import ADModel
+
+    LotkaHand, LotkaFishing = _hand_lotka()
+    c0, c1 = LotkaHand.C0, LotkaHand.C1
+
+    class LotkaAD(LotkaHand):
         _ad_model = ADModel(lambda x, u: ([x[0] - x[0] * x[1] - c0 * x[0] * u[0], -x[1] + x[0] * x[1] - c1 * x[1] * u[0]],
                                      (x[0] - 1) ** 2 + (x[1] - 1) ** 2), 2, 1)
 
         def model(self, X, U, order):
             return self._ad_model(X, U, order)
 
-    hand, ad = LotkaFishing(N=20), LotkaAD(N=20)
+    hand, ad = LotkaHand(N=20), LotkaAD(N=20)
     rng = np.random.default_rng(4)
     X, U = rng.random((7, 2)) + 0.2, rng.random((7, 1))
     for order in (0, 1, 2):
@@ -193,8 +228,9 @@ def test_continuous_model_by_ad_equals_the_hand_written_model(casadi):
             if a is not None:
                 np.testing.assert_allclose(a, b, rtol=1e-14, atol=1e-15)
     Xs, Us = _point(hand, scale=0.2)
-    report = check_derivatives(ad, hand, Xs, Us, rtol=1e-12, atol=1e-14)
-    assert report.ok, str(report)
+    for other in (ad, LotkaFishing(N=20)):
+        report = check_derivatives(other, hand, Xs, Us, rtol=1e-12, atol=1e-14)
+        assert report.ok, str(report)
 
 
 @pytest.mark.parametrize("mode", ["llvm", pytest.param("numba", marks=pytest.mark.slow)])

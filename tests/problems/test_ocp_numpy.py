@@ -108,6 +108,39 @@ def test_autodiff_docp_on_the_numpy_back_end():
         a.dynamics_jacobian(np.arange(a.N), X[:-1], U)
 
 
+class _Blowup(AutoDiffDOCP):
+    """x+ = x + log(x)/2 - u from x0 = 2 under u = 1: x^3 < 0, so x^4 is NaN."""
+
+    ad_backend = "numpy"
+
+    def __init__(self):
+        super().__init__(1, 1, 6, np.array([2.0]))
+
+    def stage(self, x, u, d):
+        return [x[0] + 0.5 * np.log(x[0]) - u[0]], u[0] * u[0]
+
+
+def test_numpy_simulation_is_docps_loop():
+    """simulate on the numpy back-end (NumpyModel.simulate: one model call per stage without
+    DOCP's per-call handling) gives DOCP's loop of one-stage calls to the last bit -- stage data,
+    parameter stage and substeps included -- and the same error, naming the first stage whose
+    x^{k+1} is not finite."""
+    from olado.errors import NonFiniteEvaluationError
+    from olado.problems.docp import DOCP
+    for p in (everything("rk4", 2, True, ad_backend="numpy"), everything("euler", 3, ad_backend="numpy"),
+              power_limited_car("numpy")):
+        U = p.initial_guess() + 0.2 * np.random.default_rng(1).standard_normal((p.N, p.m))
+        calls = p.counters["dynamics"]
+        np.testing.assert_array_equal(p.simulate(U), DOCP.simulate(p, U))
+        assert p.counters["dynamics"] == calls + 2
+    p = _Blowup()
+    with pytest.raises(NonFiniteEvaluationError) as ours:
+        p.simulate(np.ones((6, 1)))
+    with pytest.raises(NonFiniteEvaluationError) as docps:
+        DOCP.simulate(p, np.ones((6, 1)))
+    assert str(ours.value) == str(docps.value) and "stage k=3" in str(ours.value)
+
+
 @pytest.fixture
 def no_casadi(monkeypatch):
     """CasADi reported missing (importlib's spec lookup), the one-time note not yet given."""

@@ -134,7 +134,8 @@ class AutoDiffDOCP(DOCP):
                 backend = make_backend(name, **self.ad_options)
                 funs = backend.build(StageModel(self, backend))
             else:
-                funs = NumpyModel(self).functions()
+                self._ad_numpy_model = NumpyModel(self)
+                funs = self._ad_numpy_model.functions()
             self._ad_functions = funs
             self.setup_time = time.perf_counter() - t0
         return funs
@@ -161,9 +162,14 @@ class AutoDiffDOCP(DOCP):
 
     def simulate(self, U):
         """States X (N+1, n) from x^0 under controls U (eq. (2)): with the LLVM evaluator one compiled
-        loop over the stages (:func:`~olado.problems.autodiff.trampoline.simulate_stages`), else
-        DOCP's loop of one-stage calls (about 10 us per stage in Python)."""
-        address = getattr(getattr(self.ad_functions()["dynamics"], "kernel", None), "address", None)
+        loop over the stages (:func:`~olado.problems.autodiff.trampoline.simulate_stages`); on the
+        numpy back-end its loop of model calls (:meth:`NumpyModel.simulate`, the states checked
+        once); else DOCP's loop of one-stage calls (about 10 us per stage in Python)."""
+        funs = self.ad_functions()
+        model = self.__dict__.get("_ad_numpy_model")
+        if model is not None and type(self).dynamics is AutoDiffDOCP.dynamics:
+            return self._simulate_numpy(model, U)
+        address = getattr(getattr(funs["dynamics"], "kernel", None), "address", None)
         if address is None:
             return super().simulate(U)
         from .trampoline import simulate_stages   # noqa: PLC0415 - loads numba
@@ -173,6 +179,19 @@ class AutoDiffDOCP(DOCP):
         self.counters["dynamics"] += 1
         simulate_stages(address, X, U, self._data())
         return self._check_stacked(X, (self.N + 1, self.n), "simulate", "x")
+
+    def _simulate_numpy(self, model, U):
+        """DOCP.simulate's states and errors (a non-finite x^{k+1} named as dynamics() at stage k)
+        from the numpy model's loop."""
+        U = np.ascontiguousarray(self.check_array(U, (self.N, self.m), "simulate", "u"), dtype=np.float64)
+        X = np.empty((self.N + 1, self.n))
+        X[0] = self.x0
+        self.counters["dynamics"] += 1
+        model.simulate(X, U, self._data())
+        if not np.all(np.isfinite(X)):
+            k = int(np.argwhere(~np.isfinite(X))[0, 0]) - 1
+            self.check_array(X[k + 1], (self.n,), "dynamics", "x_next", stage=k)
+        return X
 
     # ------------------------------------------------------------------ DOCP functions
     def dynamics(self, k, x, u):

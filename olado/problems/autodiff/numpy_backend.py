@@ -35,17 +35,21 @@ def entries(value):
 
 def vertcat(*items):
     """A (size, K) array of vectors (2-D arrays) and scalar entries (numbers, (K,) arrays),
-    broadcast to the largest K."""
-    rows = []
+    broadcast to the largest K. Each item is copied once, as a block of rows (this runs a few
+    times per stage call: its cost per call is what DOCP.simulate's loop pays per stage)."""
+    blocks, size, K = [], 0, 1
     for it in items:
-        a = np.asarray(it, dtype=float)
-        rows.extend(list(a) if a.ndim == 2 else [a])
-    if not rows:
+        a = it if type(it) is np.ndarray else np.asarray(it, dtype=float)
+        rows, k = (a.shape[0], a.shape[1]) if a.ndim == 2 else (1, a.shape[0] if a.ndim else 1)
+        if rows:
+            blocks.append((size, size + rows, a))
+            size += rows
+            K = max(K, k)
+    if not size:
         return np.zeros((0, 1))
-    K = max((r.shape[-1] if r.ndim else 1) for r in rows)
-    out = np.empty((len(rows), K))
-    for i, r in enumerate(rows):
-        out[i] = r.reshape(-1) if r.ndim == 1 and r.shape[0] == K else r
+    out = np.empty((size, K))
+    for i, j, a in blocks:
+        out[i:j] = a
     return out
 
 
@@ -119,6 +123,20 @@ class NumpyModel:
         g = self._rows(out[2] if len(out) == 3 else (), self.r, K, "stage", "g")
         self._last = ((X.copy(), U.copy(), D.copy()), (f, cost, g))
         return f, cost, g
+
+    def simulate(self, X, U, D):
+        """X[k+1] = f(X[k], U[k], D[k]) for k = 0..N-1, in place from X[0]: the sequential
+        recursion of eq. (2) as one :meth:`stage` call of the model per stage on (size, 1)
+        columns, without DOCP's per-call argument handling, stage-point cache and checks (the
+        caller checks X once). Returns X."""
+        stage, n = self.problem.stage, self.n
+        with np.errstate(all="ignore"):
+            for k in range(U.shape[0]):
+                out = stage(X[k, :, None], U[k, :, None], D[k, :, None])
+                if not isinstance(out, (tuple, list)) or len(out) not in (2, 3):
+                    raise ProblemDefinitionError("must return (x_next, cost) or (x_next, cost, g)", function="stage")
+                X[k + 1] = self._rows(out[0], n, 1, "stage", "x_next")[0]
+        return X
 
     def final(self, x):
         with np.errstate(all="ignore"):
