@@ -233,7 +233,7 @@ class InteriorPointQP:
             alpha, alpha_dual = ctx.step_length(d)
             if ctx.first is not None and ctx.n_refine == 0 and min(alpha, alpha_dual) >= 0.1:
                 pending = (ctx.res, alpha, alpha_dual) + ctx.first
-            it = it.plus(alpha, d) if alpha_dual == alpha else it.plus_split(alpha, alpha_dual, d)
+            it = it.step_into(alpha, alpha_dual, d, P.iterate_buffer(it.v, best_it.v))
             last_d = d
             k += 1
             entry = {"iter": k, "mu": mu, "primal": pr, "dual": du, "gap": gap, "objective": obj, "alpha": alpha,
@@ -314,7 +314,7 @@ class InteriorPointQP:
         res = P.residual_buffer()
         st = P.stats
         P.kernels.kkt_map(P.sizes, P.kkt_data, it.arrays, P.offsets, res.arrays, P.work_w, st)
-        pr, du, znorm, hnorm, obj, comp = (float(v) for v in st)
+        pr, du, znorm, hnorm, obj, comp = st.tolist()
         res._size = max(pr, du)
         scales = (1.0 + max(P.p_data, znorm), 1.0 + max(P.d_data, hnorm))
         return res, pr, du, scales, obj, znorm, comp

@@ -177,7 +177,7 @@ class _StepContext:
         big = k.complementarity_residual(rho_l, rho_u, it.slacks, d.slacks, P.work_el, P.work_eu)
         return e, P.work_el, P.work_eu, max(e._size, big)
 
-    def solve(self, res, rho_l, rho_u, out=None):
+    def solve(self, res, rho_l, rho_u, out=None, rho_size=None):
         """Direction for the residuals ``res`` and complementarity right-hand sides rho_l,
         rho_u (flat, 0 on infinite sides).  The Newton residual of the unreduced system is
         measured after the solve; only if it exceeds max(1e-3 tol (1 + |rhs|), refinement_tol
@@ -188,12 +188,15 @@ class _StepContext:
         is below 10 % of their target (their relative errors stay within a small factor of the
         first one's: same matrix, same conditioning).  The first solve itself may skip it on
         ``rel_prior``, a bound carried over from the last measured iteration (see
-        :meth:`InteriorPointQP.solve`).  ``out``: as in :meth:`_reduced_solve`."""
+        :meth:`InteriorPointQP.solve`).  ``out``: as in :meth:`_reduced_solve`; ``rho_size``:
+        max |rho_l, rho_u| when the caller knows it (the kernels that form them return it)."""
         d = self._reduced_solve(res, rho_l, rho_u, out)
         if self.refinement_steps == 0:
             return d
-        max_abs = self.P.kernels.max_abs
-        rhs = max(res.size(), max_abs(rho_l), max_abs(rho_u))
+        if rho_size is None:
+            max_abs = self.P.kernels.max_abs
+            rho_size = max(max_abs(rho_l), max_abs(rho_u))
+        rhs = max(res.size(), rho_size)
         target = max(1e-3 * self.tol * (1.0 + rhs), self.refinement_tol * rhs)
         if self.first is None:
             self.first = (rhs, target)
