@@ -142,12 +142,13 @@ class _Point:
 
     def step_into(self, alpha, alpha_dual, d, out):
         """The point + alpha d on (X, U, tl, tu) and + alpha_dual d on (lam, nu, zl, zu) (the
-        values of :meth:`plus`, :meth:`plus_split`), written into the flat vector ``out`` (not
-        this point's nor d's) in one pass that also finds whether it is finite."""
+        values of :meth:`plus`, :meth:`plus_split`), written into the point ``out`` of the same
+        form (a reused one, not this point nor d: every field overwritten) in one pass that also
+        finds whether it is finite. Returns ``out``."""
         form = self._form
-        p = _Point(form, out)
-        p._finite = form.kernels.step_into(self.v, float(alpha), float(alpha_dual), d.v, form.dual_mask, out)
-        return p
+        out.max_step = out.max_split = None
+        out._finite = form.kernels.step_into(self.v, float(alpha), float(alpha_dual), d.v, form.dual_mask, out.v)
+        return out
 
     def finite(self):
         if self._finite is None:

@@ -198,7 +198,7 @@ class _Prepared:
         self.res_pool, self.res_turn = None, 0
         self.rho_l, self.rho_u = np.empty(self.nw), np.empty(self.nw)
         self.dir_aff = self.dir_main = self.dir_corr = self.dir_refine = None
-        self.iterate_pool = None   # the flat vectors of the iterates (iterate_buffer)
+        self.iterate_pool = None   # the points of the iterates (iterate_buffer)
         self.work_el, self.work_eu, self.work_w = np.empty(self.nw), np.empty(self.nw), np.empty(self.nw)
         self.Q_final = self.Q.copy() if ncN else self.Q   # Q with C_N^T diag(D) C_N added to Q_N
         self.shift = 0.0   # delta added to the Hessian by the nonconvex = "shift" mode
@@ -226,17 +226,18 @@ class _Prepared:
     def point(self, v):
         return _Point(self.point_form, v)
 
-    def iterate_buffer(self, *busy):
-        """A flat point vector for the next iterate that is none of the vectors ``busy`` (the
-        current iterate's and the best one's): one of three made on first use, so that the
-        iterations allocate nothing."""
-        if self.iterate_pool is None:
+    def iterate_buffer(self, current, best):
+        """A point for the next iterate that is neither ``current`` nor ``best`` (the current
+        iterate and the best one so far): one of three made on first use, so that the iterations
+        allocate nothing (Point.step_into overwrites it)."""
+        pool = self.iterate_pool
+        if pool is None:
             size = self.point_layout.size
-            self.iterate_pool = tuple(np.empty(size) for _ in range(3))
-        for v in self.iterate_pool:
-            if not any(v is b for b in busy):
-                return v
-        raise AssertionError("no free iterate buffer")   # three buffers, at most two busy
+            pool = self.iterate_pool = tuple(_Point(self.point_form, np.empty(size)) for _ in range(3))
+        for p in pool:
+            if p is not current and p is not best:
+                return p
+        raise AssertionError("no free iterate buffer")   # three points, at most two busy
 
     def directions(self):
         """The reused direction objects (predictor, main, corrector, refinement), made on first use."""

@@ -233,7 +233,7 @@ class InteriorPointQP:
             alpha, alpha_dual = ctx.step_length(d)
             if ctx.first is not None and ctx.n_refine == 0 and min(alpha, alpha_dual) >= 0.1:
                 pending = (ctx.res, alpha, alpha_dual) + ctx.first
-            it = it.step_into(alpha, alpha_dual, d, P.iterate_buffer(it.v, best_it.v))
+            it = it.step_into(alpha, alpha_dual, d, P.iterate_buffer(it, best_it))
             last_d = d
             k += 1
             entry = {"iter": k, "mu": mu, "primal": pr, "dual": du, "gap": gap, "objective": obj, "alpha": alpha,

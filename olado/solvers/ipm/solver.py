@@ -42,7 +42,7 @@ from ..base import Solver, SolverOptions
 from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION, stage_gradient_terms, stop_outcome
 from ..sqp.residuals import stage_kkt
 from ..sqp.state import BoundMultipliers, Clock, Multipliers, Point
-from .barrier import Bounds, Layout
+from .barrier import Bounds, Layout, dot
 from .filter import Filter
 from .newton import Constraints, KKTMatrix, Residuals, stage_blocks
 from .restoration import Restoration, least_squares_multipliers, restore, restore_l1
@@ -377,7 +377,7 @@ def direction(setup, st, kkt, g) -> Search:
     step = kkt.solve(g.q, g.r, res, g.gs, g.gsN)
     dv = step_vector(setup, step)
     phi = barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0]
-    return Search(kkt, g, res, step, dv, float(g.grad @ dv), res.l1(), phi, setup.bounds.max_step(st.v, dv, st.tau))
+    return Search(kkt, g, res, step, dv, dot(g.grad, dv), res.l1(), phi, setup.bounds.max_step(st.v, dv, st.tau))
 
 
 def line_search(setup, st, kkt, g):
