@@ -197,20 +197,29 @@ def lagrangian_gradient(setup, st):
     return L.pack(gx, gu, -st.yd, -st.ydN)
 
 
-def optimality_errors(setup, st, mu):
-    """(E_mu scaled (eq. (5)), dual infeasibility unscaled, constraint violation max-norm,
-    complementarity unscaled) at the current iterate."""
+def error_parts(setup, st):
+    """The parts of :func:`optimality_errors` that do not depend on mu, at the current iterate:
+    (dual infeasibility, constraint violation, s_d, s_c) -- computed once per iteration for the
+    stopping test and the barrier update."""
     b = setup.bounds
     dual = lagrangian_gradient(setup, st) - st.zl + st.zu
     inf_du = float(np.abs(dual).max(initial=0.0))
     inf_pr = residuals(setup, st.pt, st.v).max()
-    compl = b.complementarity(st.v, st.zl, st.zu, mu)
     nz = max(b.count, 1)
     zsum = float(np.abs(st.zl).sum() + np.abs(st.zu).sum())
     ysum = sum(float(np.abs(a).sum()) for a in (st.lam[1:], st.nu, st.nuN, st.yd, st.ydN))
     ny = st.lam[1:].size + st.nu.size + st.nuN.size + st.yd.size + st.ydN.size
     s_d = max(S_MAX, (ysum + zsum) / (ny + nz)) / S_MAX
     s_c = max(S_MAX, zsum / nz) / S_MAX
+    return inf_du, inf_pr, s_d, s_c
+
+
+def optimality_errors(setup, st, mu, parts=None):
+    """(E_mu scaled (eq. (5)), dual infeasibility unscaled, constraint violation max-norm,
+    complementarity unscaled) at the current iterate; ``parts``: its :func:`error_parts` when
+    the caller has them."""
+    inf_du, inf_pr, s_d, s_c = error_parts(setup, st) if parts is None else parts
+    compl = setup.bounds.complementarity(st.v, st.zl, st.zu, mu)
     return max(inf_du / s_d, inf_pr, compl / s_c), inf_du / st.s_obj, inf_pr, compl / st.s_obj
 
 
@@ -277,11 +286,13 @@ def newton_system(setup, st):
     return kkt
 
 
-def update_barrier(setup, st):
+def update_barrier(setup, st, parts=None):
     """The monotone rule (7): while the barrier problem is solved to kappa_eps mu, mu <- max(tol / 10,
-    min(kappa_mu mu, mu^theta_mu)), tau <- max(tau_min, 1 - mu), and the filter starts afresh."""
+    min(kappa_mu mu, mu^theta_mu)), tau <- max(tau_min, 1 - mu), and the filter starts afresh
+    (``parts``: :func:`error_parts` of the iterate, when the caller has them)."""
     o = setup.options
-    while optimality_errors(setup, st, st.mu)[0] <= o.barrier_tol_factor * st.mu:
+    parts = error_parts(setup, st) if parts is None else parts
+    while optimality_errors(setup, st, st.mu, parts)[0] <= o.barrier_tol_factor * st.mu:
         mu = max(o.tol / 10.0, min(o.mu_linear_decrease_factor * st.mu, st.mu ** o.mu_superlinear_decrease_power))
         if mu >= st.mu:
             break
@@ -289,12 +300,12 @@ def update_barrier(setup, st):
         st.filt.reset()
 
 
-def converged(setup, st):
+def converged(setup, st, parts=None):
     """IPOPT's stopping test: E_0 <= tol and the unscaled dual infeasibility, constraint
     violation and complementarity within dual_inf_tol, constr_viol_tol, compl_inf_tol; or
     acceptable_iter acceptable iterates in a row."""
     o = setup.options
-    e0, inf_du, inf_pr, compl = st.errors = optimality_errors(setup, st, 0.0)
+    e0, inf_du, inf_pr, compl = st.errors = optimality_errors(setup, st, 0.0, parts)
     if e0 <= o.tol and inf_du <= o.dual_inf_tol and inf_pr <= o.constr_viol_tol and compl <= o.compl_inf_tol:
         return st.stop(Status.SUCCESS, f"optimal: scaled optimality error {e0:.2e} <= tol = {o.tol:g} "
                        f"after {st.it} iterations")
@@ -514,12 +525,13 @@ def iterate(setup, st):
     """One iteration of Algorithm A; True when the solve ends."""
     o = setup.options
     setup.limits.check()
-    if converged(setup, st):
+    parts = error_parts(setup, st)     # for the stopping test and the barrier update
+    if converged(setup, st, parts):
         return True
     if st.it >= o.max_iter:
         return st.stop(Status.MAX_ITERATIONS, f"iteration limit {o.max_iter} reached; scaled optimality error "
                        f"{st.errors[0]:.2e}, constraint violation {st.errors[2]:.2e}")
-    update_barrier(setup, st)
+    update_barrier(setup, st, parts)
     kkt = newton_system(setup, st)
     accepted = None if kkt is None else line_search(setup, st, kkt, barrier_gradient(setup, st))
     st.it += 1
