@@ -10,10 +10,22 @@ from __future__ import annotations
 
 import dataclasses
 
+import numba as nb
 import numpy as np
 
 #: kappa_d of sec. 3.7: the linear damping of variables with one finite bound only
 KAPPA_D = 1e-5
+
+
+@nb.njit(cache=True)
+def _slacks(v, lo, hi, has_lo, has_hi):
+    """(v - lo, hi - v) with 1 on the infinite sides, in one pass (Bounds.slacks)."""
+    sl = np.empty(v.shape[0])
+    su = np.empty(v.shape[0])
+    for i in range(v.shape[0]):
+        sl[i] = v[i] - lo[i] if has_lo[i] else 1.0
+        su[i] = hi[i] - v[i] if has_hi[i] else 1.0
+    return sl, su
 
 
 def dot(a, b):
@@ -119,8 +131,10 @@ class Bounds:
         return moved
 
     def slacks(self, v):
-        """(s_L, s_U), 1 where a side is infinite (they carry no multiplier)."""
-        return np.where(self.has_lo, v - self.lo, 1.0), np.where(self.has_hi, self.hi - v, 1.0)
+        """(s_L, s_U), 1 where a side is infinite (they carry no multiplier); one compiled pass
+        (an iteration takes them some nine times: two numpy passes each were 10 % of an
+        iteration at zambezi N = 12 000)."""
+        return _slacks(np.asarray(v, dtype=float), self.lo, self.hi, self.has_lo, self.has_hi)
 
     def barrier(self, v, mu):
         """The barrier terms of phi_mu at v (+inf outside the bounds) and their gradient."""
