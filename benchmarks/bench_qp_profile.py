@@ -108,11 +108,13 @@ def _replay(calls):
     return its
 
 
-def profile_sqp_ip(family, N, repeats):
+def profile_sqp_ip(family, N, repeats, stages=True):
     calls = _record_qps(family, N)
     its = _replay(calls)
     best = min(_timed(lambda: _replay(calls)) for _ in range(repeats))
     timers = Timers()
+    if not stages:
+        return f"sqp-ip, {len(calls)} QPs, {its} QP iterations", best / its, None, 0
     P, S = presolve._Prepared, ip_solver.InteriorPointQP
     undo = timers.wrap_kernels()
     undo += _patch(timers, [(P, "__init__", "QP set-up (_Prepared)"), (S, "_initial_point", "starting point"),
@@ -126,7 +128,7 @@ def profile_sqp_ip(family, N, repeats):
     return f"sqp-ip, {len(calls)} QPs, {its} QP iterations", best / its, timers, repeats * its
 
 
-def profile_ipm(family, N, repeats):
+def profile_ipm(family, N, repeats, stages=True):
     solver = make_solver(load_config(HERE.parent / "configs" / "ipm.ini"))
     solver.solve(zambezi_problem(family, N=min(N, 24), start="balance"))       # warm-up
     problems = [zambezi_problem(family, N=N, start="balance") for _ in range(2 * repeats + 1)]
@@ -134,6 +136,8 @@ def profile_ipm(family, N, repeats):
     its = res.iterations
     best = min(_timed(lambda: solver.solve(problems.pop())) for _ in range(repeats))
     timers = Timers()
+    if not stages:
+        return f"ipm, {its} iterations", best / its, None, 0
     K = ipm_newton.KKTMatrix
     undo = timers.wrap_kernels()
     undo += _patch(timers, [(ipm_solver, "evaluate", "evaluations (functions, Jacobians)"),
@@ -178,6 +182,7 @@ def main(argv=None):
     ap.add_argument("--cases", nargs="*", default=CASES, help="family:N")
     ap.add_argument("--solvers", nargs="*", default=["sqp-ip", "ipm"], choices=["sqp-ip", "ipm"])
     ap.add_argument("--repeats", type=int, default=None, help="default: 20 below N = 1 000, else 1")
+    ap.add_argument("--totals", action="store_true", help="only the time per iteration (no stages; not written)")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args(argv)
     out = []
@@ -187,10 +192,15 @@ def main(argv=None):
         repeats = args.repeats or (20 if N < 1000 else 1)
         for name in args.solvers:
             run = profile_sqp_ip if name == "sqp-ip" else profile_ipm
-            label, per_it, timers, n_its = run(family, N, repeats)
+            label, per_it, timers, n_its = run(family, N, repeats, stages=not args.totals)
+            if args.totals:
+                print(f"{family} N = {N}, {label}: {1e6 * per_it:.1f} us per iteration", flush=True)
+                continue
             rows = _rows(f"{family} N = {N}, {label}", per_it, timers, n_its)
             print("\n".join(rows) + "\n", flush=True)
             out += rows + [""]
+    if args.totals:
+        return
     shown = " ".join(argv if argv is not None else __import__("sys").argv[1:])
     text = (f"## {SECTION}\n\n`python benchmarks/bench_qp_profile.py {shown}`".rstrip() +
             f" at {commit()}, {datetime.date.today()}, {machine()}; process time, the machine shared with "
