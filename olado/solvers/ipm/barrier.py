@@ -144,8 +144,15 @@ class Bounds:
         # log(1) = 0 and 1/1 times a zero mask on the infinite sides
         value = (-mu * (np.log(sl).sum() + np.log(su).sum())
                  + KAPPA_D * mu * (dot(self.one_lo_f, sl) + dot(self.one_hi_f, su)))
-        grad = mu * (self.hi_f / su - self.lo_f / sl) + KAPPA_D * mu * (self.one_lo_f - self.one_hi_f)
-        return value, grad
+        return value, self._gradient(sl, su, mu)
+
+    def gradient(self, v, mu):
+        """The gradient of the barrier terms at v (inside the bounds): :meth:`barrier`'s without
+        its value (whose logarithms cost as much again)."""
+        return self._gradient(*self.slacks(v), mu)
+
+    def _gradient(self, sl, su, mu):
+        return mu * (self.hi_f / su - self.lo_f / sl) + KAPPA_D * mu * (self.one_lo_f - self.one_hi_f)
 
     def sigma(self, v, zl, zu):
         """Sigma = Z_L / S_L + Z_U / S_U (eq. (12))."""

@@ -343,7 +343,7 @@ def barrier_gradient(setup, st) -> Direction:
     """grad phi_mu at the iterate, split for the Newton system."""
     L = setup.layout
     q, r = objective_gradient(st.pt, st.s_obj)
-    _, bgrad = setup.bounds.barrier(st.v, st.mu)
+    bgrad = setup.bounds.gradient(st.v, st.mu)
     bx, bu, gs, gsN = L.split(bgrad, np.zeros(L.n))
     q, r = q + bx, r + bu
     return Direction(q, r, gs, gsN, L.pack(q, r, gs, gsN))
