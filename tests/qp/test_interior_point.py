@@ -610,12 +610,14 @@ def test_step_into_writes_the_step_and_finds_non_finite_entries(split):
 
 
 def test_iterate_buffers_are_never_the_current_or_the_best_iterate():
-    """Three reused points: the one handed out is neither argument, and stays the same object
-    for the same arguments (no allocation)."""
+    """Three points in turn -- the starting point and two more --: the one handed out is neither
+    argument, always one of the three (no allocation after the first call)."""
     P, it, _ = _prepared_with_direction()
     a = P.iterate_buffer(it, it)
     b = P.iterate_buffer(a, it)
-    c = P.iterate_buffer(a, b)
-    assert len({id(a), id(b), id(c)}) == 3 and it not in (a, b, c)
-    assert P.iterate_buffer(b, c) is a and P.iterate_buffer(c, a) is b
-    assert P.iterate_buffer(a, b) is c
+    pool = (it, a, b)
+    assert len({id(p) for p in pool}) == 3
+    for cur in pool:
+        for best in pool:
+            got = P.iterate_buffer(cur, best)
+            assert got is not cur and got is not best and any(got is p for p in pool)

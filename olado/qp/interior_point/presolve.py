@@ -228,12 +228,14 @@ class _Prepared:
 
     def iterate_buffer(self, current, best):
         """A point for the next iterate that is neither ``current`` nor ``best`` (the current
-        iterate and the best one so far): one of three made on first use, so that the iterations
-        allocate nothing (Point.step_into overwrites it)."""
+        iterate and the best one so far): one of three -- the first iterate (the starting point,
+        adopted at the first call) and two made then --, so that the iterations allocate nothing
+        (Point.step_into overwrites it) and at most three points are alive, as many as when every
+        iterate was a new vector (the memory of N = 10^6)."""
         pool = self.iterate_pool
         if pool is None:
             size = self.point_layout.size
-            pool = self.iterate_pool = tuple(_Point(self.point_form, np.empty(size)) for _ in range(3))
+            pool = self.iterate_pool = (current,) + tuple(_Point(self.point_form, np.empty(size)) for _ in range(2))
         for p in pool:
             if p is not current and p is not best:
                 return p
