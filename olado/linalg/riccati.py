@@ -144,7 +144,8 @@ class RiccatiFactorization:
         only when a refactor replaced one of its arrays; the other roles (Costs, Dynamics,
         EqualityRows) are built once, in the constructor."""
         d, ipt = self.data, self._ipt
-        if ipt is None or not all(a is b for a, b in zip(ipt, (d.Dx, d.Du, d.Ci, d.sig, d.ni))):
+        if (ipt is None or ipt[0] is not d.Dx or ipt[1] is not d.Du or ipt[2] is not d.Ci or ipt[3] is not d.sig
+                or ipt[4] is not d.ni):
             ipt = self._ipt = tuple(IPTerms(Dx=d.Dx, Du=d.Du, Ci=d.Ci, sig=d.sig, ni=d.ni))
         return ipt
 

@@ -535,3 +535,89 @@ def test_acceptable_result_is_polished_on_its_active_set(cls, seed, fixed):
     assert res.kkt["complementarity"] <= 1e-14 and res.kkt["dual_sign"] == 0.0
     assert res.iterations > plain.iterations          # the polishing Newton steps are counted
     assert max(np.abs(plain.X - ref.X).max(), np.abs(plain.U - ref.U).max()) > 1e-9   # it did improve
+
+
+def _prepared_with_direction(seed=5):
+    """A prepared random QP (some infinite sides), its cold start and a Newton direction."""
+    qp = random_qp(seed, nc=2, ncN=1)
+    solver = MehrotraQP()
+    P = _Prepared(qp)
+    it = solver._initial_point(P)
+    res, *_ = solver._residuals(P, it)
+    ctx = _StepContext(solver, P, it, res, 1.0)
+    d = ctx._reduced_solve(res, -it.zl * it.tl, -it.zu * it.tu)
+    return P, it, d
+
+
+def test_right_hand_side_kernels_return_the_max_norm_of_what_they_write():
+    """The predictor, corrector and combined right-hand sides: the numpy formulas (-t z, target -
+    scale dt dz, their sum; 0 on infinite sides) and max |rho_l, rho_u| as their return value
+    (which the solve's refinement test reads instead of a pass of its own)."""
+    from olado.qp.interior_point.kernels import _combined_rhs, _corrector_rhs, _predictor_rhs
+
+    P, it, d = _prepared_with_direction()
+    assert (~P.fl).any() and (~P.fu).any()
+    rl, ru = np.full(P.nw, np.nan), np.full(P.nw, np.nan)
+    big = _predictor_rhs(it.slacks, rl, ru)
+    np.testing.assert_array_equal(rl, -it.zl * it.tl)
+    np.testing.assert_array_equal(ru, -it.zu * it.tu)
+    assert big == max(np.abs(rl).max(), np.abs(ru).max())
+    for kernel, base in ((_corrector_rhs, 0.0), (_combined_rhs, 1.0)):
+        args = (P.fl, P.fu, d.slacks, 0.3, 0.7, rl, ru) if kernel is _corrector_rhs else \
+            (it.slacks, P.fl, P.fu, d.slacks, 0.3, 0.7, rl, ru)
+        big = kernel(*args)
+        want_l = np.where(P.fl, 0.3 - base * it.tl * it.zl - 0.7 * (d.tl * d.zl), 0.0)
+        want_u = np.where(P.fu, 0.3 - base * it.tu * it.zu - 0.7 * (d.tu * d.zu), 0.0)
+        np.testing.assert_allclose(rl, want_l, rtol=1e-15, atol=0.0)
+        np.testing.assert_allclose(ru, want_u, rtol=1e-15, atol=0.0)
+        assert big == max(np.abs(rl).max(), np.abs(ru).max())
+
+
+def test_scaling_writes_the_diagonal_terms_of_the_base_regularization():
+    """_scaling: 1/t on the finite sides, D = zl/tl + zu/tu, and Dx = (reg; D_x + reg),
+    Du = D_u + reg -- what the factorization's numpy adds wrote before (same values)."""
+    from olado.qp.interior_point.kernels import _scaling
+
+    P, it, _ = _prepared_with_direction()
+    inv_l, inv_u, D = np.empty(P.nw), np.empty(P.nw), np.empty(P.nw)
+    Dx, Du = np.full((P.N + 1, P.n), np.nan), np.full((P.N, P.m), np.nan)
+    reg = 1e-7
+    _scaling(it.slacks, P.fl, P.fu, inv_l, inv_u, D, reg, Dx, Du)
+    with np.errstate(divide="ignore"):
+        np.testing.assert_array_equal(inv_l, np.where(P.fl, 1.0 / it.tl, 0.0))
+        np.testing.assert_array_equal(inv_u, np.where(P.fu, 1.0 / it.tu, 0.0))
+    np.testing.assert_array_equal(D, it.zl * inv_l + it.zu * inv_u)
+    np.testing.assert_array_equal(Dx[0], reg)
+    np.testing.assert_array_equal(Dx[1:], D[P.sl_x].reshape(P.N, P.n) + reg)
+    np.testing.assert_array_equal(Du, D[P.sl_u].reshape(P.N, P.m) + reg)
+
+
+@pytest.mark.parametrize("split", [False, True])
+def test_step_into_writes_the_step_and_finds_non_finite_entries(split):
+    """Point.step_into: the values of plus / plus_split in a reused point, and the finiteness
+    of the new point from the same pass."""
+    P, it, d = _prepared_with_direction()
+    ap, ad = (0.7, 0.4) if split else (0.6, 0.6)
+    want = it.plus_split(ap, ad, d) if split else it.plus(ap, d)
+    out = P.iterate_buffer(it, it)
+    out.max_step = 1.0
+    got = it.step_into(ap, ad, d, out)
+    assert got is out and out.max_step is None
+    np.testing.assert_array_equal(got.v, want.v)
+    assert got.finite()
+    d.v[3] = np.inf
+    assert not it.step_into(ap, ad, d, out).finite()
+
+
+def test_iterate_buffers_are_never_the_current_or_the_best_iterate():
+    """Three points in turn -- the starting point and two more --: the one handed out is neither
+    argument, always one of the three (no allocation after the first call)."""
+    P, it, _ = _prepared_with_direction()
+    a = P.iterate_buffer(it, it)
+    b = P.iterate_buffer(a, it)
+    pool = (it, a, b)
+    assert len({id(p) for p in pool}) == 3
+    for cur in pool:
+        for best in pool:
+            got = P.iterate_buffer(cur, best)
+            assert got is not cur and got is not best and any(got is p for p in pool)

@@ -6,9 +6,6 @@ weights through the solver's hooks.
 
 from __future__ import annotations
 
-import numpy as np
-
-
 
 def predictor_corrector(solver, ctx, combined):
     """Mehrotra's predictor-corrector direction with the Salahi-Peng-Terlaky safeguard (see
@@ -21,10 +18,10 @@ def predictor_corrector(solver, ctx, combined):
     P.directions()
     # predictor (affine scaling, sigma = 0); the right-hand sides of every solve are written
     # into P.rho_l, P.rho_u (each solve is done with them before the next one is formed)
+    # (the kernels forming them return max |rho_l, rho_u|, which the solve's refinement test reads)
     rho_l, rho_u = P.rho_l, P.rho_u
-    np.multiply(np.negative(it.zl, out=rho_l), it.tl, out=rho_l)
-    np.multiply(np.negative(it.zu, out=rho_u), it.tu, out=rho_u)
-    d_aff = ctx.solve(ctx.res, rho_l, rho_u, P.dir_aff)
+    size = P.kernels.predictor_rhs(it.slacks, rho_l, rho_u)
+    d_aff = ctx.solve(ctx.res, rho_l, rho_u, P.dir_aff, size)
     a_aff = min(1.0, ctx.max_step(d_aff))
     if P.n_comp == 0:
         return d_aff, {"alpha_aff": a_aff, "sigma": 0.0, "safeguard": False, "correctors": 0, "omega": 1.0}
@@ -37,19 +34,19 @@ def predictor_corrector(solver, ctx, combined):
     if not safeguard:
         sigma = (1.0 - a_aff) ** 3
         if combined:
-            P.kernels.combined_rhs(it.slacks, fl, fu, d_aff.slacks, sigma * mu, 1.0, rho_l, rho_u)
-            d = ctx.solve(ctx.res, rho_l, rho_u, P.dir_main)
+            size = P.kernels.combined_rhs(it.slacks, fl, fu, d_aff.slacks, sigma * mu, 1.0, rho_l, rho_u)
+            d = ctx.solve(ctx.res, rho_l, rho_u, P.dir_main, size)
         else:
-            P.kernels.corrector_rhs(fl, fu, d_aff.slacks, sigma * mu, 1.0, rho_l, rho_u)
-            d_c = ctx.solve(ctx.zero_res, rho_l, rho_u, P.dir_corr)
+            size = P.kernels.corrector_rhs(fl, fu, d_aff.slacks, sigma * mu, 1.0, rho_l, rho_u)
+            d_c = ctx.solve(ctx.zero_res, rho_l, rho_u, P.dir_corr, size)
             omega = solver._corrector_weight(ctx, d_aff, d_c, a_aff)
             d = d_aff.plus(omega, d_c)
         safeguard = min(1.0, ctx.max_step(d)) < opts.safeguard_step
     if safeguard:
         gam = opts.safeguard_gamma
         sigma = gam / (1.0 - gam)
-        P.kernels.corrector_rhs(fl, fu, d_aff.slacks, sigma * mu, a_aff, rho_l, rho_u)
-        d_c = ctx.solve(ctx.zero_res, rho_l, rho_u, P.dir_corr)
+        size = P.kernels.corrector_rhs(fl, fu, d_aff.slacks, sigma * mu, a_aff, rho_l, rho_u)
+        d_c = ctx.solve(ctx.zero_res, rho_l, rho_u, P.dir_corr, size)
         omega = solver._corrector_weight(ctx, d_aff, d_c, a_aff)
         d = d_aff.plus(omega, d_c)
     d, ncorr = solver._centrality_correctors(ctx, d, sigma * mu)

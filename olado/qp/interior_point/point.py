@@ -6,6 +6,8 @@ a residual vector has the views of the equations of the Newton system (22).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ...linalg.backend import RHS, Solution
@@ -24,11 +26,24 @@ class _Layout:
             raise ValueError(f"layout of {bundle.__name__}: fields {tuple(shapes)}, expected {bundle._fields}")
         self.bundle, self.spans, o = bundle, {}, 0
         for name, shape in shapes.items():
-            size = int(np.prod(shape))
+            size = math.prod(shape)
             self.spans[name] = (o, o + size, shape)
             o += size
         self.size = o
         self._cuts = tuple((slice(a, b), None if len(shape) == 1 else shape) for a, b, shape in self.spans.values())
+
+    @classmethod
+    def of(cls, bundle, **shapes):
+        """The layout of ``bundle`` for these shapes: made once per (bundle, shapes) and shared
+        (a layout is never changed after construction; the QPs of one problem have the same
+        shapes in every SQP iteration)."""
+        key = (bundle, tuple(shapes.items()))
+        layout = _LAYOUTS.get(key)
+        if layout is None:
+            if len(_LAYOUTS) >= 64:
+                _LAYOUTS.clear()
+            layout = _LAYOUTS[key] = cls(bundle, **shapes)
+        return layout
 
     def views(self, v):
         """The fields' views into the flat vector v (1-d fields as slices), a plain tuple in the
@@ -46,6 +61,9 @@ class _Layout:
             a, b, _ = self.spans[name]
             out[a:b] = True
         return out
+
+
+_LAYOUTS: dict = {}   # _Layout.of
 
 
 # the complementarity pairs are the fields tl..zu of a point, in the order of bundles.Slacks, and
@@ -77,6 +95,20 @@ class _PointForm:
         self.layout, self.dual_mask = layout, layout.mask(DUAL_FIELDS)
         self.kernels = kernels   # the prepared QP's KernelSet (presolve._KERNELS)
 
+    @classmethod
+    def of(cls, layout, kernels):
+        """The form of ``layout`` (a shared :meth:`_Layout.of`) with ``kernels``, made once per pair."""
+        key = (id(layout), id(kernels))
+        form = _FORMS.get(key)
+        if form is None or form.layout is not layout or form.kernels is not kernels:
+            if len(_FORMS) >= 64:
+                _FORMS.clear()
+            form = _FORMS[key] = cls(layout, kernels)
+        return form
+
+
+_FORMS: dict = {}   # _PointForm.of
+
 
 class _Point:
     """An iterate, or a direction (the fields of bundles.PointArrays): views into one flat vector
@@ -84,7 +116,7 @@ class _Point:
     fields), ``slacks`` (the complementarity pairs, bundles.Slacks) and ``solution`` (the
     arrays a KKT back-end solves into, olado.linalg.backend.Solution)."""
 
-    __slots__ = ("v", "arrays", "slacks", "solution", *PointArrays._fields, "_form", "max_step", "max_split")
+    __slots__ = ("v", "arrays", "slacks", "solution", *PointArrays._fields, "_form", "max_step", "max_split", "_finite")
 
     def __init__(self, form, v):
         """``form``: the _PointForm of the prepared problem (not the problem itself: a point held
@@ -94,6 +126,7 @@ class _Point:
         self._form, self.v = form, v
         self.max_step = None    # cache of _StepContext.max_step for a direction
         self.max_split = None   # and of its (primal, dual) step lengths (set by _reduced_solve)
+        self._finite = None     # whether every entry is finite (set by step_into)
         a = self.arrays = form.layout.views(v)
         _set_point_fields(self, a)
         self.slacks = a[_SLACKS]
@@ -107,8 +140,20 @@ class _Point:
         form = self._form
         return _Point(form, form.kernels.axpy_split(self.v, float(alpha), float(alpha_dual), d.v, form.dual_mask))
 
+    def step_into(self, alpha, alpha_dual, d, out):
+        """The point + alpha d on (X, U, tl, tu) and + alpha_dual d on (lam, nu, zl, zu) (the
+        values of :meth:`plus`, :meth:`plus_split`), written into the point ``out`` of the same
+        form (a reused one, not this point nor d: every field overwritten) in one pass that also
+        finds whether it is finite. Returns ``out``."""
+        form = self._form
+        out.max_step = out.max_split = None
+        out._finite = form.kernels.step_into(self.v, float(alpha), float(alpha_dual), d.v, form.dual_mask, out.v)
+        return out
+
     def finite(self):
-        return self._form.kernels.all_finite(self.v)
+        if self._finite is None:
+            self._finite = self._form.kernels.all_finite(self.v)
+        return self._finite
 
 
 class _Rhs:

@@ -12,7 +12,7 @@ from ...linalg.codegen import fixed_size_tags, kernel_set
 from ..stageqp import StageQP
 from .kernels import (_all_finite, _axpy, _axpy_split, _combined_rhs, _complementarity_residual, _corrector_rhs,
                       _implied_newton_residual, _max_abs, _max_step, _max_step_split, _neighbourhood_step, _newton_rhs,
-                      _recover_step, _scaling, _symmetric_stage_hessians)
+                      _predictor_rhs, _recover_step, _scaling, _step_into, _symmetric_stage_hessians)
 from .kkt_map import _kkt_map
 from .bundles import KKTData, PointArrays, Residuals
 from .point import _Layout, _Point, _PointForm, _Rhs
@@ -26,7 +26,8 @@ _KERNELS = {"kkt_map": _kkt_map, "scaling": _scaling, "newton_rhs": _newton_rhs,
             "complementarity_residual": _complementarity_residual, "max_abs": _max_abs, "max_step": _max_step,
             "max_step_split": _max_step_split, "neighbourhood_step": _neighbourhood_step,
             "combined_rhs": _combined_rhs, "corrector_rhs": _corrector_rhs, "axpy": _axpy, "axpy_split": _axpy_split,
-            "all_finite": _all_finite, "implied_newton_residual": _implied_newton_residual}
+            "all_finite": _all_finite, "implied_newton_residual": _implied_newton_residual,
+            "predictor_rhs": _predictor_rhs, "step_into": _step_into}
 
 
 def _equal_bounds(lo, hi):
@@ -143,7 +144,7 @@ class _Prepared:
         self.sl_x, self.sl_u, self.sl_s, self.sl_sN = (slice(int(o[i]), int(o[i + 1])) for i in range(4))
         self.nw = int(o[-1])
         self.n_z = N * (n + m) + n
-        fin = lambda a: float(np.max(np.abs(a), initial=0.0))  # noqa: E731
+        fin = lambda a: float(np.abs(a).max(initial=0.0))  # noqa: E731
         self.p_data = max(fin(self.c), fin(self.x0), fin(self.e), fin(self.eN), fin(self.lo), fin(self.hi))
         self.d_data = max(fin(self.q), fin(self.r))
         self.h_scale = max(fin(self.Q), fin(self.R), fin(self.S))
@@ -165,14 +166,14 @@ class _Prepared:
         self.C = np.ascontiguousarray(self.C); self.CN = np.ascontiguousarray(self.CN); self.Ct = tr(self.C)
         self.neg_lo = -self.lo
         nw = self.nw
-        self.point_layout = _Layout(PointArrays, X=(N + 1, n), U=(N, m), lam=(N + 1, n), nu=(N + 1, self.n_nu),
-                                    tl=(nw,), tu=(nw,), zl=(nw,), zu=(nw,))
-        self.rhs_layout = _Layout(Residuals, rx=(N + 1, n), ru=(N, m), dyn=(N, n), x0r=(n,), rE=(N, ne),
-                                  rEN=(self.neN,), rl=(nw,), rup=(nw,))
+        self.point_layout = _Layout.of(PointArrays, X=(N + 1, n), U=(N, m), lam=(N + 1, n), nu=(N + 1, self.n_nu),
+                                       tl=(nw,), tu=(nw,), zl=(nw,), zu=(nw,))
+        self.rhs_layout = _Layout.of(Residuals, rx=(N + 1, n), ru=(N, m), dyn=(N, n), x0r=(n,), rE=(N, ne),
+                                     rEN=(self.neN,), rl=(nw,), rup=(nw,))
         pl = self.point_layout
         self.part_slices = (pl.span("X", "U"), pl.span("lam", "nu"), pl.span("zl", "zu"))
         self.qr = np.concatenate([self.q.ravel(), self.r.ravel()])   # the gradient, laid out as (X, U)
-        self.point_form = _PointForm(pl, self.kernels)
+        self.point_form = _PointForm.of(pl, self.kernels)
         # the bundles of the residual kernel: the stage data, and the offsets of the iterate's
         # residuals (q, r, c, x0, e, eN; -lo, hi)
         self.kkt_data = tuple(KKTData(H=self.H, QN=self.QN, AB=self.AB, EF=self.EF, EFt=self.EFt, eqm=self.eqm, EN=self.EN,
@@ -197,6 +198,7 @@ class _Prepared:
         self.res_pool, self.res_turn = None, 0
         self.rho_l, self.rho_u = np.empty(self.nw), np.empty(self.nw)
         self.dir_aff = self.dir_main = self.dir_corr = self.dir_refine = None
+        self.iterate_pool = None   # the points of the iterates (iterate_buffer)
         self.work_el, self.work_eu, self.work_w = np.empty(self.nw), np.empty(self.nw), np.empty(self.nw)
         self.Q_final = self.Q.copy() if ncN else self.Q   # Q with C_N^T diag(D) C_N added to Q_N
         self.shift = 0.0   # delta added to the Hessian by the nonconvex = "shift" mode
@@ -223,6 +225,21 @@ class _Prepared:
 
     def point(self, v):
         return _Point(self.point_form, v)
+
+    def iterate_buffer(self, current, best):
+        """A point for the next iterate that is neither ``current`` nor ``best`` (the current
+        iterate and the best one so far): one of three -- the first iterate (the starting point,
+        adopted at the first call) and two made then --, so that the iterations allocate nothing
+        (Point.step_into overwrites it) and at most three points are alive, as many as when every
+        iterate was a new vector (the memory of N = 10^6)."""
+        pool = self.iterate_pool
+        if pool is None:
+            size = self.point_layout.size
+            pool = self.iterate_pool = (current,) + tuple(_Point(self.point_form, np.empty(size)) for _ in range(2))
+        for p in pool:
+            if p is not current and p is not best:
+                return p
+        raise AssertionError("no free iterate buffer")   # three points, at most two busy
 
     def directions(self):
         """The reused direction objects (predictor, main, corrector, refinement), made on first use."""

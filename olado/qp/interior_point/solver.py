@@ -145,6 +145,10 @@ class InteriorPointQP:
         best_merit, best_it, best_k = math.inf, it, 0
         pr_prev = du_prev = math.inf
         n_slow = 0
+        # running counts of the history's tails the stopping tests read: successive steps (both
+        # lengths) below 1e-8 and below _CRAWL_A, and the largest regularization so far
+        n_tiny = n_short = 0
+        max_reg = 0.0
         huge = 1e10 * (1.0 + P.p_data + P.d_data)
         status, message = Status.MAX_ITERATIONS, Status.MAX_ITERATIONS.sentence
         while True:
@@ -179,14 +183,12 @@ class InteriorPointQP:
                 stall += 1
             if merit < best_merit:
                 best_merit, best_it, best_k = merit, it, k
-            if stall >= 10 or (len(history) >= 3 and all(max(h["alpha"], h["alpha_dual"]) < 1e-8 for h in history[-3:])):
+            if stall >= 10 or n_tiny >= 3:
                 status, message = self._certificates(P, it, last_d, loose=True) or self._stall_status(
                     pr / scales[0], du / scales[1], gap / (1.0 + abs(obj)))
                 break
             # crawling (see solve): only a convex QP whose Newton systems were never regularized
-            if (crawl_exit and P.shift == 0.0 and len(history) >= _CRAWL_W
-                    and all(max(h["alpha"], h["alpha_dual"]) < _CRAWL_A for h in history[-_CRAWL_W:])
-                    and all(h["regularization"] <= opts.regularization for h in history)):
+            if crawl_exit and P.shift == 0.0 and n_short >= _CRAWL_W and max_reg <= opts.regularization:
                 status = Status.NUMERICAL_ERROR
                 message = (f"{status.sentence} The iterates {_CRAWLED} ({_CRAWL_W} successive steps shorter than "
                            f"{_CRAWL_A:g}; scaled primal {pr / scales[0]:.3g}, dual {du / scales[1]:.3g}, gap "
@@ -233,7 +235,7 @@ class InteriorPointQP:
             alpha, alpha_dual = ctx.step_length(d)
             if ctx.first is not None and ctx.n_refine == 0 and min(alpha, alpha_dual) >= 0.1:
                 pending = (ctx.res, alpha, alpha_dual) + ctx.first
-            it = it.plus(alpha, d) if alpha_dual == alpha else it.plus_split(alpha, alpha_dual, d)
+            it = it.step_into(alpha, alpha_dual, d, P.iterate_buffer(it, best_it))
             last_d = d
             k += 1
             entry = {"iter": k, "mu": mu, "primal": pr, "dual": du, "gap": gap, "objective": obj, "alpha": alpha,
@@ -243,6 +245,10 @@ class InteriorPointQP:
             entry["refinements"] = ctx.n_refine
             entry["regularization"] = ctx.reg
             history.append(entry)
+            longer = max(alpha, alpha_dual)
+            n_tiny = n_tiny + 1 if longer < 1e-8 else 0
+            n_short = n_short + 1 if longer < _CRAWL_A else 0
+            max_reg = max(max_reg, ctx.reg)
             if opts.verbose >= 2:
                 print(f"{self.name} {k:3d}  mu {mu:9.2e}  pr {pr:9.2e}  du {du:9.2e}  alpha {alpha:6.4f}/{alpha_dual:6.4f}  "
                       f"sigma {info['sigma']:7.1e}  corr {info['correctors']}  solves {ctx.n_solves}")
@@ -261,7 +267,7 @@ class InteriorPointQP:
         # the total shift (plus the delta at which a factorization failed on top of it), or the
         # largest Newton-system regularization
         res.regularization = (P.shift + failed_reg if P.shift > 0.0
-                              else max([failed_reg] + [h["regularization"] for h in history]))
+                              else max(failed_reg, max_reg))
         if opts.polish and status == Status.ACCEPTABLE and P.shift == 0.0:
             polished = self._polish(qp, res, limits)
             if polished is not None:
@@ -314,7 +320,7 @@ class InteriorPointQP:
         res = P.residual_buffer()
         st = P.stats
         P.kernels.kkt_map(P.sizes, P.kkt_data, it.arrays, P.offsets, res.arrays, P.work_w, st)
-        pr, du, znorm, hnorm, obj, comp = (float(v) for v in st)
+        pr, du, znorm, hnorm, obj, comp = st.tolist()
         res._size = max(pr, du)
         scales = (1.0 + max(P.p_data, znorm), 1.0 + max(P.d_data, hnorm))
         return res, pr, du, scales, obj, znorm, comp

@@ -49,7 +49,10 @@ class _StepContext:
         self.rel_prior = None   # bound on it from an earlier iteration's measurement (set by the caller)
         self.first = None       # (|rhs|, target) of the first solve
         self.inv_tl, self.inv_tu, D = P.inv_tl, P.inv_tu, P.D
-        P.kernels.scaling(it.slacks, P.fl, P.fu, self.inv_tl, self.inv_tu, D)
+        rungs = P.reg_rungs(solver.options)
+        # D, and the diagonal terms Dx, Du with the base regularization, in one pass
+        P.kernels.scaling(it.slacks, P.fl, P.fu, self.inv_tl, self.inv_tu, D, rungs[0], P.work_Dx, P.work_Du)
+        self._diag_reg = rungs[0]   # the regularization in work_Dx, work_Du
         self.Ds = P.Ds
         if P.ncN:
             P.Q_final[-1] = P.Q[-1] + P.CN.T @ (D[P.sl_sN][:, None] * P.CN)
@@ -70,7 +73,6 @@ class _StepContext:
         # iteration's, climbs from there to a success and bisects below it (positive
         # definiteness is monotone in delta): an iteration that needs the same delta as the last
         # costs three factorizations instead of one per rung.
-        rungs = P.reg_rungs(solver.options)
         self._failure = None
         factorize = self._factorize
         if factorize(rungs[0]):
@@ -108,8 +110,10 @@ class _StepContext:
         of the prepared problem, D + reg); False (the error kept in ``_failure``) if not positive definite."""
         P = self.P
         Dx, Du = P.work_Dx, P.work_Du
-        Dx[0] = reg; np.add(P.Dxb, reg, out=Dx[1:])
-        np.add(P.Dub, reg, out=Du)
+        if reg != self._diag_reg:
+            Dx[0] = reg; np.add(P.Dxb, reg, out=Dx[1:])
+            np.add(P.Dub, reg, out=Du)
+            self._diag_reg = reg
         try:
             if P.fact is not None:
                 P.fact.refactor(Dx=Dx, Du=Du, sigma=self.Ds if P.nc else None)
@@ -156,7 +160,8 @@ class _StepContext:
         # the work arrays were validated when the QP was prepared: the solution goes straight into
         # the direction's arrays
         defect = self.fact.solve_into(res.kkt_rhs, d.solution)
-        _check_rows(P, defect, res, "Newton step")
+        if defect:
+            _check_rows(P, defect, res, "Newton step")
         ok, ap, ad = P.kernels.recover_step(d.X, d.U, P.Ct, P.CN, P.fl, P.fu, res.rl, res.rup, rho_l, rho_u, self.inv_tl,
                                    self.inv_tu, it.slacks, d.slacks, P.work_w)
         if not ok:
@@ -177,7 +182,7 @@ class _StepContext:
         big = k.complementarity_residual(rho_l, rho_u, it.slacks, d.slacks, P.work_el, P.work_eu)
         return e, P.work_el, P.work_eu, max(e._size, big)
 
-    def solve(self, res, rho_l, rho_u, out=None):
+    def solve(self, res, rho_l, rho_u, out=None, rho_size=None):
         """Direction for the residuals ``res`` and complementarity right-hand sides rho_l,
         rho_u (flat, 0 on infinite sides).  The Newton residual of the unreduced system is
         measured after the solve; only if it exceeds max(1e-3 tol (1 + |rhs|), refinement_tol
@@ -188,12 +193,15 @@ class _StepContext:
         is below 10 % of their target (their relative errors stay within a small factor of the
         first one's: same matrix, same conditioning).  The first solve itself may skip it on
         ``rel_prior``, a bound carried over from the last measured iteration (see
-        :meth:`InteriorPointQP.solve`).  ``out``: as in :meth:`_reduced_solve`."""
+        :meth:`InteriorPointQP.solve`).  ``out``: as in :meth:`_reduced_solve`; ``rho_size``:
+        max |rho_l, rho_u| when the caller knows it (the kernels that form them return it)."""
         d = self._reduced_solve(res, rho_l, rho_u, out)
         if self.refinement_steps == 0:
             return d
-        max_abs = self.P.kernels.max_abs
-        rhs = max(res.size(), max_abs(rho_l), max_abs(rho_u))
+        if rho_size is None:
+            max_abs = self.P.kernels.max_abs
+            rho_size = max(max_abs(rho_l), max_abs(rho_u))
+        rhs = max(res.size(), rho_size)
         target = max(1e-3 * self.tol * (1.0 + rhs), self.refinement_tol * rhs)
         if self.first is None:
             self.first = (rhs, target)

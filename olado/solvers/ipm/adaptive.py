@@ -27,7 +27,6 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import numpy as np
 
 #: IPOPT's defaults: sigma_min, sigma_max, quality_function_section_sigma_tol,
 #: quality_function_max_section_steps, mu_max_fact, adaptive_mu_monotone_init_factor,

@@ -75,7 +75,7 @@ class ElasticDOCP:
         with residuals ``res`` (olado.solvers.ipm.newton.Residuals: h, equality rows, inequality
         rows d - s): every elastic pair from eq. (33) for its residual, the final rows' pair as
         w^{N-1} = e^N, the other w^k = mu / rho (their minimizer)."""
-        p, N = self.base, self.N
+        N = self.N
         ph, nh = elastic_start(res.h, mu)
         cg = np.zeros((N, self.r))
         cg[:, self.stage_equality_mask] = res.e

@@ -46,7 +46,7 @@ from ..sqp.residuals import stage_kkt
 from ..sqp.state import BoundMultipliers, Clock, Multipliers, Point
 from .adaptive import (FILTER_MARGIN_FACT, FILTER_MAX_MARGIN, MONOTONE_INIT_FACTOR, MU_MAX_FACT, MU_MIN, AdaptiveMu,
                        QualityFunction, average_complementarity, quality_function_sigma)
-from .barrier import Bounds, Layout
+from .barrier import Bounds, Layout, dot
 from .filter import Filter
 from .newton import Constraints, KKTMatrix, Residuals, stage_blocks
 from .restoration import Restoration, least_squares_multipliers, restore, restore_l1
@@ -207,20 +207,29 @@ def lagrangian_gradient(setup, st):
     return L.pack(gx, gu, -st.yd, -st.ydN)
 
 
-def optimality_errors(setup, st, mu):
-    """(E_mu scaled (eq. (5)), dual infeasibility unscaled, constraint violation max-norm,
-    complementarity unscaled) at the current iterate."""
+def error_parts(setup, st):
+    """The parts of :func:`optimality_errors` that do not depend on mu, at the current iterate:
+    (dual infeasibility, constraint violation, s_d, s_c) -- computed once per iteration for the
+    stopping test and the barrier update."""
     b = setup.bounds
     dual = lagrangian_gradient(setup, st) - st.zl + st.zu
     inf_du = float(np.abs(dual).max(initial=0.0))
     inf_pr = residuals(setup, st.pt, st.v).max()
-    compl = b.complementarity(st.v, st.zl, st.zu, mu)
     nz = max(b.count, 1)
     zsum = float(np.abs(st.zl).sum() + np.abs(st.zu).sum())
     ysum = sum(float(np.abs(a).sum()) for a in (st.lam[1:], st.nu, st.nuN, st.yd, st.ydN))
     ny = st.lam[1:].size + st.nu.size + st.nuN.size + st.yd.size + st.ydN.size
     s_d = max(S_MAX, (ysum + zsum) / (ny + nz)) / S_MAX
     s_c = max(S_MAX, zsum / nz) / S_MAX
+    return inf_du, inf_pr, s_d, s_c
+
+
+def optimality_errors(setup, st, mu, parts=None):
+    """(E_mu scaled (eq. (5)), dual infeasibility unscaled, constraint violation max-norm,
+    complementarity unscaled) at the current iterate; ``parts``: its :func:`error_parts` when
+    the caller has them."""
+    inf_du, inf_pr, s_d, s_c = error_parts(setup, st) if parts is None else parts
+    compl = setup.bounds.complementarity(st.v, st.zl, st.zu, mu)
     return max(inf_du / s_d, inf_pr, compl / s_c), inf_du / st.s_obj, inf_pr, compl / st.s_obj
 
 
@@ -287,15 +296,19 @@ def newton_system(setup, st):
     return kkt
 
 
-def update_barrier(setup, st):
+def update_barrier(setup, st, parts=None):
     """The monotone rule (7): while the barrier problem is solved to kappa_eps mu, mu <- max(tol / 10,
-    min(kappa_mu mu, mu^theta_mu)), tau <- max(tau_min, 1 - mu), and the filter starts afresh."""
+    min(kappa_mu mu, mu^theta_mu)), tau <- max(tau_min, 1 - mu), and the filter starts afresh
+    (``parts``: :func:`error_parts` of the iterate, when the caller has them)."""
     o = setup.options
-    while optimality_errors(setup, st, st.mu)[0] <= o.barrier_tol_factor * st.mu:
+    parts = error_parts(setup, st) if parts is None else parts
+    while optimality_errors(setup, st, st.mu, parts)[0] <= o.barrier_tol_factor * st.mu:
         mu = max(o.tol / 10.0, min(o.mu_linear_decrease_factor * st.mu, st.mu ** o.mu_superlinear_decrease_power))
         if mu >= st.mu:
             break
         set_mu(setup, st, mu, max(o.tau_min, 1.0 - mu))
+        if setup.on_mu_change is not None:      # the objective follows mu (the l1 restoration's
+            parts = error_parts(setup, st)       # proximity term): its dual infeasibility changed
 
 
 def set_mu(setup, st, mu, tau):
@@ -349,12 +362,12 @@ def adaptive_barrier(setup, st, kkt):
     set_mu(setup, st, min(max(sigma * avg, mu_min), ad.mu_max), tau)
 
 
-def converged(setup, st):
+def converged(setup, st, parts=None):
     """IPOPT's stopping test: E_0 <= tol and the unscaled dual infeasibility, constraint
     violation and complementarity within dual_inf_tol, constr_viol_tol, compl_inf_tol; or
     acceptable_iter acceptable iterates in a row."""
     o = setup.options
-    e0, inf_du, inf_pr, compl = st.errors = optimality_errors(setup, st, 0.0)
+    e0, inf_du, inf_pr, compl = st.errors = optimality_errors(setup, st, 0.0, parts)
     if e0 <= o.tol and inf_du <= o.dual_inf_tol and inf_pr <= o.constr_viol_tol and compl <= o.compl_inf_tol:
         return st.stop(Status.SUCCESS, f"optimal: scaled optimality error {e0:.2e} <= tol = {o.tol:g} "
                        f"after {st.it} iterations")
@@ -392,7 +405,7 @@ def barrier_gradient(setup, st, mu=None) -> Direction:
     """grad phi_mu at the iterate (mu: the iterate's unless given), split for the Newton system."""
     L = setup.layout
     q, r = objective_gradient(st.pt, st.s_obj)
-    _, bgrad = setup.bounds.barrier(st.v, st.mu if mu is None else mu)
+    bgrad = setup.bounds.gradient(st.v, st.mu if mu is None else mu)
     bx, bu, gs, gsN = L.split(bgrad, np.zeros(L.n))
     q, r = q + bx, r + bu
     return Direction(q, r, gs, gsN, L.pack(q, r, gs, gsN))
@@ -437,7 +450,7 @@ def direction(setup, st, kkt, g) -> Search:
     step = kkt.solve(g.q, g.r, res, g.gs, g.gsN)
     dv = step_vector(setup, step)
     phi = barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0]
-    return Search(kkt, g, res, step, dv, float(g.grad @ dv), res.l1(), phi, setup.bounds.max_step(st.v, dv, st.tau))
+    return Search(kkt, g, res, step, dv, dot(g.grad, dv), res.l1(), phi, setup.bounds.max_step(st.v, dv, st.tau))
 
 
 def line_search(setup, st, kkt, g):
@@ -574,7 +587,8 @@ def iterate(setup, st):
     """One iteration of Algorithm A; True when the solve ends."""
     o = setup.options
     setup.limits.check()
-    if converged(setup, st):
+    parts = error_parts(setup, st)     # for the stopping test and the barrier update
+    if converged(setup, st, parts):
         return True
     if st.it >= o.max_iter:
         return st.stop(Status.MAX_ITERATIONS, f"iteration limit {o.max_iter} reached; scaled optimality error "
@@ -584,7 +598,7 @@ def iterate(setup, st):
         if kkt is not None:
             adaptive_barrier(setup, st, kkt)
     else:
-        update_barrier(setup, st)
+        update_barrier(setup, st, parts)
         kkt = newton_system(setup, st)
     accepted = None if kkt is None else line_search(setup, st, kkt, barrier_gradient(setup, st))
     st.it += 1

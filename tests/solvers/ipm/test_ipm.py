@@ -246,6 +246,23 @@ def test_barrier_start_and_fraction_to_boundary():
     assert w[i] + alpha * dv[i] - b.lo[i] == pytest.approx(0.01 * (w[i] - b.lo[i]))
 
 
+def test_compiled_slacks_gradient_and_dot_match_the_numpy_formulas():
+    """Bounds.slacks (one compiled pass) is np.where(has_lo, v - lo, 1), np.where(has_hi, hi - v, 1)
+    bit for bit; Bounds.gradient is barrier()'s gradient; barrier.dot is the dot product."""
+    from olado.solvers.ipm.barrier import dot
+
+    p = PROBLEMS["lq-box"](N=7)
+    b = Bounds.of(p, Layout(p))
+    assert b.has_lo.any() and (~b.has_lo).any() and (~b.has_hi).any()    # both branches of the kernel
+    v = b.push(np.linspace(-3.0, 3.0, b.lo.size))
+    sl, su = b.slacks(v)
+    np.testing.assert_array_equal(sl, np.where(b.has_lo, v - b.lo, 1.0))
+    np.testing.assert_array_equal(su, np.where(b.has_hi, b.hi - v, 1.0))
+    np.testing.assert_array_equal(b.gradient(v, 0.3), b.barrier(v, 0.3)[1])
+    w = np.cos(np.arange(v.size))
+    assert dot(v, w) == pytest.approx(float(np.sum(v * w)), rel=1e-14, abs=1e-14)
+
+
 # ---------------------------------------------------------------------------- whole solves
 @pytest.fixture(scope="module")
 def ipopt():
