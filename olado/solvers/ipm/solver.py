@@ -127,6 +127,7 @@ class IPMState:
     errors: tuple = (math.inf, math.inf, math.inf)
     shortened: int = 0          # successive iterations whose line search shortened the step
     watch: object = None        # the watchdog (Watchdog) while it runs
+    error_cache: tuple = None   # (inputs, s_obj, ErrorTerms) of the last error_terms call
 
     def stop(self, status, message):
         self.status, self.message = status, message
@@ -166,9 +167,9 @@ def theta(setup, pt, v):
 
 
 def barrier_value(setup, pt, v, mu, s_obj):
-    """phi_mu at the point and the gradient of its barrier terms."""
-    value, grad = setup.bounds.barrier(v, mu)
-    return s_obj * pt.J + value, grad
+    """(phi_mu at the point, None): the line search and the restoration phase compare values
+    only (element 0); the gradient is :func:`barrier_gradient`'s, at the iterate alone."""
+    return s_obj * pt.J + setup.bounds.barrier_value(v, mu), None
 
 
 def objective_gradient(pt, s_obj):
@@ -197,20 +198,49 @@ def lagrangian_gradient(setup, st):
     return L.pack(gx, gu, -st.yd, -st.ydN)
 
 
-def optimality_errors(setup, st, mu):
-    """(E_mu scaled (eq. (5)), dual infeasibility unscaled, constraint violation max-norm,
-    complementarity unscaled) at the current iterate."""
+class ErrorTerms(NamedTuple):
+    """The parts of the optimality error (5) that do not depend on mu: the dual infeasibility
+    |grad L - z_L + z_U|_inf (scaled problem), the constraint violation (max-norm), and the
+    scalings s_d, s_c."""
+
+    inf_du: float
+    inf_pr: float
+    s_d: float
+    s_c: float
+
+
+#: the iterate's parts the optimality error reads (with s_obj)
+ERROR_INPUTS = ("v", "pt", "lam", "nu", "nuN", "yd", "ydN", "zl", "zu")
+
+
+def error_terms(setup, st) -> ErrorTerms:
+    """:class:`ErrorTerms` at the iterate, computed once per iterate: the stopping test and the
+    barrier update (several mu) ask for them at the same point. The iterate's arrays are
+    replaced, never changed in place, so their identities name the iterate."""
+    key = tuple(getattr(st, k) for k in ERROR_INPUTS)
+    cached = st.error_cache
+    if cached is not None and cached[1] == st.s_obj and all(a is b for a, b in zip(cached[0], key)):
+        return cached[2]
     b = setup.bounds
     dual = lagrangian_gradient(setup, st) - st.zl + st.zu
     inf_du = float(np.abs(dual).max(initial=0.0))
     inf_pr = residuals(setup, st.pt, st.v).max()
-    compl = b.complementarity(st.v, st.zl, st.zu, mu)
     nz = max(b.count, 1)
     zsum = float(np.abs(st.zl).sum() + np.abs(st.zu).sum())
     ysum = sum(float(np.abs(a).sum()) for a in (st.lam[1:], st.nu, st.nuN, st.yd, st.ydN))
     ny = st.lam[1:].size + st.nu.size + st.nuN.size + st.yd.size + st.ydN.size
     s_d = max(S_MAX, (ysum + zsum) / (ny + nz)) / S_MAX
     s_c = max(S_MAX, zsum / nz) / S_MAX
+    terms = ErrorTerms(inf_du, inf_pr, s_d, s_c)
+    st.error_cache = (key, st.s_obj, terms)
+    return terms
+
+
+def optimality_errors(setup, st, mu):
+    """(E_mu scaled (eq. (5)), dual infeasibility unscaled, constraint violation max-norm,
+    complementarity unscaled) at the current iterate."""
+    inf_du, inf_pr, s_d, s_c = error_terms(setup, st)
+    compl = setup.bounds.complementarity(st.v, st.zl, st.zu, mu)
     return max(inf_du / s_d, inf_pr, compl / s_c), inf_du / st.s_obj, inf_pr, compl / st.s_obj
 
 
