@@ -73,12 +73,9 @@ class Bounds:
         return cls(lo, hi, has_lo, has_hi)
 
     def __post_init__(self):
-        # the masks as floats, for the passes without fancy indexing (slacks are 1 on infinite sides)
-        self.lo_f, self.hi_f = self.has_lo.astype(float), self.has_hi.astype(float)
+        # the one-sided masks as floats, for the damping term's dot products (sec. 3.7)
         self.one_lo_f = (self.has_lo & ~self.has_hi).astype(float)
         self.one_hi_f = (self.has_hi & ~self.has_lo).astype(float)
-        #: the damping term's direction (one_lo_f - one_hi_f) of the barrier gradient (sec. 3.7)
-        self.damping = self.one_lo_f - self.one_hi_f
         #: what depends on the point alone, for the two points last asked about (:class:`AtPoint`)
         self._points = []
 
@@ -152,13 +149,13 @@ class Bounds:
 
     def barrier(self, v, mu):
         """The barrier terms of phi_mu at v (+inf outside the bounds) and their gradient
-        mu (1 / s_U - 1 / s_L) + kappa_d mu (damping)."""
+        mu (1 / s_U - 1 / s_L) + kappa_d mu (1 on lower-bounded-only, -1 on upper-bounded-only sides)."""
         if self.barrier_terms(v) is None:
             return np.inf, None
         value = self.barrier_value(v, mu)
         sl, su = self.slacks(v)
         grad = np.empty_like(sl)
-        _kernels().barrier_gradient(sl, su, self.lo_f, self.hi_f, self.damping, mu, KAPPA_D * mu, grad)
+        _kernels().barrier_gradient(sl, su, self.has_lo, self.has_hi, mu, KAPPA_D * mu, grad)
         return value, grad
 
     def sigma(self, v, zl, zu):

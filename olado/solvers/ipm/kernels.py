@@ -36,10 +36,15 @@ def sigma(sl, su, zl, zu, out):
 
 
 @nb.njit(**_JIT)
-def barrier_gradient(sl, su, lo_f, hi_f, damping, mu, kd_mu, out):
-    """out = mu (hi_f / su - lo_f / sl) + kd_mu damping."""
+def barrier_gradient(sl, su, has_lo, has_hi, mu, kd_mu, out):
+    """out = mu (hi_f / su - lo_f / sl) + kd_mu (one_lo_f - one_hi_f) with the masks as floats
+    (lo_f = has_lo, one_lo_f = has_lo and not has_hi, ...), without storing them."""
     for i in range(sl.size):
-        out[i] = mu * (hi_f[i] / su[i] - lo_f[i] / sl[i]) + kd_mu * damping[i]
+        lo_f = 1.0 if has_lo[i] else 0.0
+        hi_f = 1.0 if has_hi[i] else 0.0
+        one_lo_f = 1.0 if has_lo[i] and not has_hi[i] else 0.0
+        one_hi_f = 1.0 if has_hi[i] and not has_lo[i] else 0.0
+        out[i] = mu * (hi_f / su[i] - lo_f / sl[i]) + kd_mu * (one_lo_f - one_hi_f)
 
 
 @nb.njit(**_JIT)

@@ -263,6 +263,7 @@ def initial_state(setup, X0, U0, clock):
     q, r = objective_gradient(pt0 if o.obj_scaling != "none" else pt, 1.0)
     gmax = max(float(np.abs(q[1:]).max(initial=0.0)), float(np.abs(r).max(initial=0.0)))
     s_obj = min(1.0, 100.0 / gmax) if o.obj_scaling == "gradient-based" and gmax > 0 else 1.0
+    del pt0, q, r               # the user's point and its derivatives: not kept through the multipliers
     zl, zu = b.has_lo.astype(float), b.has_hi.astype(float)
     mult = least_squares_multipliers(setup, pt, zl, zu, s_obj)
     if max((float(np.abs(a).max(initial=0.0)) for a in mult), default=0.0) > o.constr_mult_init_max:
@@ -294,6 +295,7 @@ def newton_system(setup, st):
     HN = p.eval_final_hessian(pt.X[-1], st.s_obj, LgN)
     st.clock.add(("hessian",), t0)
     Q, S, R = stage_blocks(Hxx, Hxu, Huu, HN)
+    del Hxx                     # copied into Q: not kept through the factorization
     sig = setup.bounds.sigma(st.v, st.zl, st.zu)
     Sx, Su, Ss, SsN = L.split(sig, np.zeros(p.n))
     kkt = KKTMatrix(Q, S, R, pt.A, pt.B, Sx, Su, constraint_blocks(setup, pt, Ss, SsN))
@@ -551,13 +553,17 @@ def iterate(setup, st):
                        f"{st.errors[0]:.2e}, constraint violation {st.errors[2]:.2e}")
     update_barrier(setup, st)
     kkt = newton_system(setup, st)
+    factored = kkt is not None
     accepted = None if kkt is None else line_search(setup, st, kkt, barrier_gradient(setup, st))
+    # the factors and Hessian blocks (a third of the iteration's memory) go before the step
+    # evaluates the new point's derivatives (the watchdog keeps its own reference)
+    del kkt
     st.it += 1
     # the objective after the iteration (IPOPT's log), the errors at its start
     entry = {"iter": st.it, "inf_pr": st.errors[2], "inf_du": st.errors[1], "mu": st.mu, "delta_w": st.delta,
              "watchdog": st.watch is not None}
     if accepted is None:
-        why = ("the inertia correction found no shift up to 1e20" if kkt is None
+        why = ("the inertia correction found no shift up to 1e20" if not factored
                else "the filter line search reached alpha_min")
         st.filt.add(theta(setup, st.pt, st.v), barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0])
         st.restorations += 1

@@ -22,7 +22,8 @@ def ref_barrier(b, v, mu):
         return np.inf, None
     value = (-mu * (np.log(sl).sum() + np.log(su).sum())
              + KAPPA_D * mu * (b.one_lo_f @ sl + b.one_hi_f @ su))
-    grad = mu * (b.hi_f / su - b.lo_f / sl) + KAPPA_D * mu * (b.one_lo_f - b.one_hi_f)
+    lo_f, hi_f = b.has_lo.astype(float), b.has_hi.astype(float)
+    grad = mu * (hi_f / su - lo_f / sl) + KAPPA_D * mu * (b.one_lo_f - b.one_hi_f)
     return value, grad
 
 
