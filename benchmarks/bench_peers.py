@@ -20,7 +20,7 @@ import time
 from dataclasses import dataclass
 
 from _common import HERE, commit, machine, write_section
-from _peers import PEERS, CasadiPeer, estimate_setup
+from _peers import PEERS, SETUP_MIN_POWER, CasadiPeer, estimate_setup
 
 from olado.config import load_config, make_solver
 from olado.problems.zambezi import zambezi_problem
@@ -75,12 +75,12 @@ def _setup_estimate(name, family, N, measured, limit):
     probe stops the probing when its own estimate is already above ``limit``."""
     if N > PROBE_FROM and sum(k < N for k in measured) < 2:
         for n in _probe_sizes(N):
-            est = estimate_setup(measured, n)
+            est = estimate_setup(measured, n, SETUP_MIN_POWER[name])
             if n in measured or (est is not None and est > limit):
                 continue
             measured[n] = CasadiPeer(ZambeziAD(family=family, N=n, start="balance"), PEERS[name]).setup_s
             print(f"  {name:14s} probe set-up at N = {n}: {measured[n]:.2f} s", flush=True)
-    return estimate_setup(measured, N)
+    return estimate_setup(measured, N, SETUP_MIN_POWER[name])
 
 
 def _peer_rows(peers, family, N, repeats, setup_limit, measured=None, max_N=None):

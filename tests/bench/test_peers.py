@@ -50,10 +50,12 @@ def test_peer_reaches_olados_ipopt_optimum(make, solver):
 def test_setup_estimate_is_the_power_law_through_the_two_largest_smaller_horizons():
     quadratic = {n: 2e-6 * n ** 2 for n in (50, 100, 200)}
     assert estimate_setup(quadratic, 1000) == pytest.approx(2.0, rel=1e-12)
-    # horizons at or above the target are not used; one measurement extrapolates linearly
+    # horizons at or above the target are not used; one measurement extrapolates with min_power
     assert estimate_setup({100: 1.0, 5000: 1e9}, 1000) == pytest.approx(10.0, rel=1e-12)
-    # a power below 1 (noise at tiny N) is raised to 1
+    assert estimate_setup({100: 1.0}, 1000, min_power=2.0) == pytest.approx(100.0, rel=1e-12)
+    # a power below min_power (noise at small N, FATROP's power rising with N) is raised to it
     assert estimate_setup({100: 1.0, 200: 1.1}, 400) == pytest.approx(2.2, rel=1e-12)
+    assert estimate_setup({100: 1.0, 200: 3.0}, 400, min_power=2.0) == pytest.approx(12.0, rel=1e-12)
     assert estimate_setup({}, 1000) is None and estimate_setup({2000: 1.0}, 1000) is None
 
 
