@@ -192,7 +192,7 @@ def main(argv=None):
                 print(comps[-1], flush=True)
     shown = " ".join(argv if argv is not None else sys.argv[1:])
     text = "\n".join([f"## {SECTION}", "",
-                      f"Command: `python benchmarks/bench_million.py {shown}`".replace(" `", " `").rstrip() + "  ",
+                      f"Command: `{f'python benchmarks/bench_million.py {shown}'.strip()}`  ",
                       f"Commit: {commit()}  ", f"Date: {datetime.date.today().isoformat()}  ",
                       f"Machine: {machine(with_ipopt=False)}; {loads[0] if loads else load()} at the start", "",
                       "Family `zambezi`, balance start, each N in a fresh process after a warm-up at N = 12; "
