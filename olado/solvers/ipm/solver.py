@@ -18,7 +18,8 @@ factorization finds the reduced Hessian not positive definite, and a feasibility
 phase (:mod:`olado.solvers.ipm.restoration`) takes over when the line search fails; IPOPT's
 watchdog lets full steps through after a run of shortened ones.
 
-Code layout: ``barrier.py`` (the flat iterate, bounds, barrier function, Sigma, step rules),
+Code layout: ``barrier.py`` (the flat iterate, bounds, barrier function, Sigma, step rules; their
+passes over the flat vector compiled in ``kernels.py``),
 ``newton.py`` (the KKT matrix on the Riccati back-end with the slacks eliminated, Algorithm IC),
 ``filter.py`` (the filter and IPOPT's acceptance safeguards), ``restoration.py`` (least-squares
 multipliers, the restoration phases), ``elastic.py`` (the l1 restoration problem as a DOCP), this
