@@ -19,6 +19,7 @@ simulation). Both peers get exact Hessians from CasADi.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
@@ -28,6 +29,13 @@ from olado.problems.autodiff.backends import split_final
 
 #: the peers, by the name the tables use -> CasADi's plugin name
 PEERS = {"casadi-ipopt": "ipopt", "casadi-fatrop": "fatrop"}
+
+#: the least power of N :func:`estimate_setup` extrapolates a peer's set-up time with. CasADi +
+#: IPOPT's set-up is linear in N (1.2 s at N = 1 200, 13 s at 12 000); FATROP's grows faster and
+#: its power rises with N (1.6 from N = 252 to 1 200, 1.5-2.1 between 600, 1 200 and 2 400 in
+#: CPU time, at least 1.8 from 1 200 to 12 000, where it took over 5 minutes), so it is
+#: extrapolated as at least quadratic: an estimate from small N must not fall below the set-up
+SETUP_MIN_POWER = {"casadi-ipopt": 1.0, "casadi-fatrop": 2.0}
 
 
 @dataclass
@@ -41,6 +49,22 @@ class PeerResult:
     success: bool
     time_s: float
     infeasibility: float
+
+
+def estimate_setup(measured, N, min_power=1.0):
+    """A peer's set-up time (s) at horizon ``N`` extrapolated from the times ``measured`` at
+    smaller horizons ({N_i: seconds}, N_i < N): the power law t = c N^p through the two largest,
+    with p at least ``min_power`` (``SETUP_MIN_POWER`` of the peer); with one measurement
+    p = ``min_power``. None without any."""
+    sizes = sorted(k for k in measured if k < N and measured[k] > 0)
+    if not sizes:
+        return None
+    n1 = sizes[-1]
+    p = min_power
+    if len(sizes) > 1:
+        n0 = sizes[-2]
+        p = max(p, math.log(measured[n1] / measured[n0]) / math.log(n1 / n0))
+    return measured[n1] * (N / n1) ** p
 
 
 def _entries(value, size):

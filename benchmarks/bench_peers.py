@@ -15,11 +15,12 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import math
 import time
 from dataclasses import dataclass
 
 from _common import HERE, commit, machine, write_section
-from _peers import PEERS, CasadiPeer
+from _peers import PEERS, SETUP_MIN_POWER, CasadiPeer, estimate_setup
 
 from olado.config import load_config, make_solver
 from olado.problems.zambezi import zambezi_problem
@@ -27,6 +28,8 @@ from olado.problems.zambezi_ad import ZambeziAD
 
 SECTION = "Against the peers: CasADi + IPOPT and CasADi + FATROP"
 CASES = ["zambezi12:24", "zambezi12:120", "zambezi12:252", "zambezi:1200", "zambezi:12000"]
+#: above this N a peer's set-up is estimated from probes at smaller N when the run has not measured it
+PROBE_FROM = 1200
 
 
 @dataclass
@@ -40,6 +43,7 @@ class Row:
     success: bool
     time_s: float
     setup_s: float = 0.0
+    estimated: bool = False     # setup_s is an estimate (the peer was skipped)
 
 
 def _olado_rows(configs, family, N, repeats):
@@ -59,12 +63,50 @@ def _olado_rows(configs, family, N, repeats):
     return rows
 
 
-def _peer_rows(peers, family, N, repeats, setup_limit):
+def _probe_sizes(N):
+    """Smaller horizons to time a peer's set-up at before N when the run has measured none:
+    N / 100 and N / 10, whole years, at least 24."""
+    return sorted({max(24, 12 * round(N / f / 12)) for f in (100, 10)} - {N})
+
+
+def _setup_estimate(name, family, N, measured, limit):
+    """The estimated set-up of peer ``name`` at N from this run's measurements (``measured``,
+    {N: s}, updated), timing probe set-ups at smaller N first when fewer than two are known; a
+    probe stops the probing when its own estimate is already above ``limit``."""
+    if N > PROBE_FROM and sum(k < N for k in measured) < 2:
+        for n in _probe_sizes(N):
+            est = estimate_setup(measured, n, SETUP_MIN_POWER[name])
+            if n in measured or (est is not None and est > limit):
+                continue
+            measured[n] = CasadiPeer(ZambeziAD(family=family, N=n, start="balance"), PEERS[name]).setup_s
+            print(f"  {name:14s} probe set-up at N = {n}: {measured[n]:.2f} s", flush=True)
+    return estimate_setup(measured, N, SETUP_MIN_POWER[name])
+
+
+def _peer_rows(peers, family, N, repeats, setup_limit, measured=None, max_N=None):
+    """The peers on one case. ``measured`` ({peer: {N: set-up s}}) carries the set-up times across
+    cases; a peer whose set-up at N is estimated above ``setup_limit`` from them (:func:`estimate_setup`)
+    or whose ``max_N`` (per peer) is below N is skipped without building it (FATROP's set-up at
+    N = 12 000 took over 5 minutes, and a set-up cannot be stopped once it runs)."""
     rows = []
+    measured = {} if measured is None else measured
+    max_N = max_N or {}
     for name in peers:
+        if N > max_N.get(name, math.inf):
+            print(f"  {name:14s} skipped: N > {max_N[name]} (--peer-max-N)", flush=True)
+            rows.append(Row(name, float("nan"), "-", f"skipped: N above --peer-max-N {max_N[name]}", False,
+                            float("nan")))
+            continue
+        times = measured.setdefault(name, {})
+        est = _setup_estimate(name, family, N, times, setup_limit)
+        if est is not None and est > setup_limit:
+            print(f"  {name:14s} skipped: set-up estimated at {est:.0f} s > {setup_limit:g} s", flush=True)
+            rows.append(Row(name, float("nan"), "-", "skipped: set-up estimated above the limit", False,
+                            float("nan"), est, estimated=True))
+            continue
         t0 = time.perf_counter()
         peer = CasadiPeer(ZambeziAD(family=family, N=N, start="balance"), PEERS[name])
-        setup = time.perf_counter() - t0
+        setup = times[N] = time.perf_counter() - t0
         if setup > setup_limit:
             print(f"  {name:14s} set-up {setup:.1f} s > {setup_limit:g} s: not solved", flush=True)
             rows.append(Row(name, float("nan"), "-", "set-up too long", False, float("nan"), setup))
@@ -84,17 +126,24 @@ def main(argv=None):
     ap.add_argument("--peers", nargs="*", default=list(PEERS), choices=list(PEERS))
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--rtol", type=float, default=1e-6, help="objectives must agree to this (relative)")
-    ap.add_argument("--setup-limit", type=float, default=600.0, help="a peer whose set-up takes longer is not solved (s)")
+    ap.add_argument("--setup-limit", type=float, default=600.0,
+                    help="a peer whose set-up takes (or is estimated from smaller N to take) longer is skipped (s)")
+    ap.add_argument("--peer-max-N", nargs="*", default=[], metavar="PEER=N",
+                    help="skip a peer above this N, e.g. casadi-fatrop=1200")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args(argv)
-    table = []
+    max_N = {k: int(v) for k, v in (item.split("=") for item in args.peer_max_N)}
+    unknown = set(max_N) - set(PEERS)
+    if unknown:
+        ap.error(f"--peer-max-N: unknown peer(s) {', '.join(sorted(unknown))}; choose from {', '.join(PEERS)}")
+    table, measured = [], {}
     for case in args.cases:
         family, N = case.split(":")
         N = int(N)
         print(f"{family} N = {N}", flush=True)
         reps = args.repeats if N <= 1200 else max(1, min(args.repeats, 2))
         olado_rows = _olado_rows(args.configs, family, N, reps)
-        peer_rows = _peer_rows(args.peers, family, N, reps, args.setup_limit)
+        peer_rows = _peer_rows(args.peers, family, N, reps, args.setup_limit, measured, max_N)
         table.append((family, N, olado_rows, peer_rows))
     if not args.no_write:
         write_section(SECTION, _section(args, table))
@@ -118,7 +167,8 @@ def _section(args, table):
         for r in olado_rows + peer_rows:
             agrees = "-" if ref is None or not r.success else \
                 ("ok" if abs(r.objective - ref) <= args.rtol * max(1.0, abs(ref)) else f"{r.objective - ref:+.1e}")
-            setup = f"{r.setup_s:.2f}" if r.solver in PEERS else ""
+            setup = "" if r.solver not in PEERS else ("-" if r.setup_s != r.setup_s else
+                                                       f"~{r.setup_s:.0f} (estimate)" if r.estimated else f"{r.setup_s:.2f}")
             tms = f"{r.time_s * 1e3:.1f}" if r.time_s == r.time_s else "-"
             lines.append(f"| {family} N = {N} | {r.solver} | {r.status} | {r.iterations} | {r.objective:.10g} | {tms} "
                          f"| {setup} | {agrees} |")

@@ -10,22 +10,10 @@ from __future__ import annotations
 
 import dataclasses
 
-import numba as nb
 import numpy as np
 
 #: kappa_d of sec. 3.7: the linear damping of variables with one finite bound only
 KAPPA_D = 1e-5
-
-
-@nb.njit(cache=True)
-def _slacks(v, lo, hi, has_lo, has_hi):
-    """(v - lo, hi - v) with 1 on the infinite sides, in one pass (Bounds.slacks)."""
-    sl = np.empty(v.shape[0])
-    su = np.empty(v.shape[0])
-    for i in range(v.shape[0]):
-        sl[i] = v[i] - lo[i] if has_lo[i] else 1.0
-        su[i] = hi[i] - v[i] if has_hi[i] else 1.0
-    return sl, su
 
 
 def dot(a, b):
@@ -92,10 +80,23 @@ class Bounds:
         return cls(lo, hi, has_lo, has_hi)
 
     def __post_init__(self):
-        # the masks as floats, for the passes without fancy indexing (slacks are 1 on infinite sides)
-        self.lo_f, self.hi_f = self.has_lo.astype(float), self.has_hi.astype(float)
+        # the one-sided masks as floats, for the damping term's dot products (sec. 3.7)
         self.one_lo_f = (self.has_lo & ~self.has_hi).astype(float)
         self.one_hi_f = (self.has_hi & ~self.has_lo).astype(float)
+        #: what depends on the point alone, for the two points last asked about (:class:`AtPoint`)
+        self._points = []
+
+    def at(self, v) -> "AtPoint":
+        """The cached quantities of the point ``v`` (by identity: the solver never changes an
+        iterate in place, it makes a new vector). An iteration asks for the slacks of its
+        iterate six times (errors, Sigma, barrier gradient, phi, step rules) and for those of the
+        previous iterate once more (the dual step); the two latest points are kept."""
+        for e in self._points:
+            if e.v is v:
+                return e
+        e = AtPoint(v)
+        self._points = [e] + self._points[:1]
+        return e
 
     @property
     def count(self):
@@ -117,81 +118,110 @@ class Bounds:
         (eps max(1, |v|); then s = v - lb is no longer resolved) has its bound moved by
         eps^(3/4) max(1, |bound|), so that Sigma and the barrier stay finite. Returns the count."""
         eps = np.finfo(float).eps
-        tiny = eps * np.maximum(1.0, np.abs(v))
-        moved = 0
-        with np.errstate(invalid="ignore"):
-            lo_tiny = self.has_lo & (v - self.lo < tiny)
-            hi_tiny = self.has_hi & (self.hi - v < tiny)
-        if lo_tiny.any():
-            self.lo[lo_tiny] -= eps ** 0.75 * np.maximum(1.0, np.abs(self.lo[lo_tiny]))
-            moved += int(lo_tiny.sum())
-        if hi_tiny.any():
-            self.hi[hi_tiny] += eps ** 0.75 * np.maximum(1.0, np.abs(self.hi[hi_tiny]))
-            moved += int(hi_tiny.sum())
+        moved = _kernels().move_tiny(v, self.lo, self.hi, self.has_lo, self.has_hi, eps, eps ** 0.75)
+        if moved:
+            self._points = []          # the slacks changed with the bounds
         return moved
 
     def slacks(self, v):
-        """(s_L, s_U), 1 where a side is infinite (they carry no multiplier); one compiled pass
-        (an iteration takes them some nine times: two numpy passes each were 10 % of an
-        iteration at zambezi N = 12 000)."""
-        return _slacks(np.asarray(v, dtype=float), self.lo, self.hi, self.has_lo, self.has_hi)
+        """(s_L, s_U), 1 where a side is infinite (they carry no multiplier). Cached per point:
+        read them, never write into them."""
+        e = self.at(v)
+        if e.slacks is None:
+            e.slacks = np.empty_like(v), np.empty_like(v)
+            _kernels().slacks(v, self.lo, self.hi, self.has_lo, self.has_hi, *e.slacks)
+        return e.slacks
+
+    def barrier_terms(self, v):
+        """The parts of phi_mu's barrier terms that do not depend on mu: (sum ln s_L + sum ln s_U,
+        the damped sides' sum of slacks), or None outside the bounds. Cached per point."""
+        e = self.at(v)
+        if e.terms is None:
+            sl, su = self.slacks(v)
+            if sl.size and (sl.min() <= 0 or su.min() <= 0):
+                e.terms = (None,)
+            else:
+                # log(1) = 0 and 1/1 times a zero mask on the infinite sides
+                e.terms = (np.log(sl).sum() + np.log(su).sum(), dot(self.one_lo_f, sl) + dot(self.one_hi_f, su))
+        return None if e.terms[0] is None else e.terms
+
+    def barrier_value(self, v, mu):
+        """The barrier terms of phi_mu at v (eq. (3) with the damping of sec. 3.7); +inf outside
+        the bounds."""
+        terms = self.barrier_terms(v)
+        if terms is None:
+            return np.inf
+        logs, damped = terms
+        return -mu * logs + KAPPA_D * mu * damped
 
     def barrier(self, v, mu):
-        """The barrier terms of phi_mu at v (+inf outside the bounds) and their gradient."""
-        sl, su = self.slacks(v)
-        if sl.size and (sl.min() <= 0 or su.min() <= 0):
+        """The barrier terms of phi_mu at v (+inf outside the bounds) and their gradient
+        mu (1 / s_U - 1 / s_L) + kappa_d mu (1 on lower-bounded-only, -1 on upper-bounded-only sides)."""
+        if self.barrier_terms(v) is None:
             return np.inf, None
-        # log(1) = 0 and 1/1 times a zero mask on the infinite sides
-        value = (-mu * (np.log(sl).sum() + np.log(su).sum())
-                 + KAPPA_D * mu * (dot(self.one_lo_f, sl) + dot(self.one_hi_f, su)))
-        return value, self._gradient(sl, su, mu)
+        return self.barrier_value(v, mu), self.gradient(v, mu)
 
     def gradient(self, v, mu):
-        """The gradient of the barrier terms at v (inside the bounds): :meth:`barrier`'s without
-        its value (whose logarithms cost as much again)."""
-        return self._gradient(*self.slacks(v), mu)
-
-    def _gradient(self, sl, su, mu):
-        return mu * (self.hi_f / su - self.lo_f / sl) + KAPPA_D * mu * (self.one_lo_f - self.one_hi_f)
+        """The gradient of the barrier terms at v (inside the bounds), without their value."""
+        sl, su = self.slacks(v)
+        grad = np.empty_like(sl)
+        _kernels().barrier_gradient(sl, su, self.has_lo, self.has_hi, mu, KAPPA_D * mu, grad)
+        return grad
 
     def sigma(self, v, zl, zu):
         """Sigma = Z_L / S_L + Z_U / S_U (eq. (12))."""
         sl, su = self.slacks(v)
-        return zl / sl + zu / su
+        out = np.empty_like(sl)
+        _kernels().sigma(sl, su, zl, zu, out)
+        return out
 
     def dual_step(self, v, dv, zl, zu, mu):
         """The bound-multiplier step of eq. (13): dz_L = mu / s_L - z_L - Sigma_L dv, and the
         same for the upper side (0 on infinite sides)."""
         sl, su = self.slacks(v)
-        dzl = np.where(self.has_lo, mu / sl - zl - zl / sl * dv, 0.0)
-        dzu = np.where(self.has_hi, mu / su - zu + zu / su * dv, 0.0)
+        dzl, dzu = np.empty_like(sl), np.empty_like(sl)
+        _kernels().dual_step(sl, su, zl, zu, dv, self.has_lo, self.has_hi, mu, dzl, dzu)
         return dzl, dzu
 
     def max_step(self, v, dv, tau):
         """The fraction-to-boundary rule (15) for the primal variables: the largest alpha in
         (0, 1] with s + alpha ds >= (1 - tau) s on every finite side."""
         sl, su = self.slacks(v)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            a_lo = np.where(self.has_lo & (dv < 0), -tau * sl / dv, 1.0)
-            a_hi = np.where(self.has_hi & (dv > 0), tau * su / dv, 1.0)
-        return min(1.0, float(a_lo.min(initial=1.0)), float(a_hi.min(initial=1.0)))
+        a_lo, a_hi = _kernels().max_step(sl, su, dv, self.has_lo, self.has_hi, -tau, tau)
+        return min(1.0, float(a_lo), float(a_hi))
 
     @staticmethod
     def max_dual_step(z, dz, tau):
         """The fraction-to-boundary rule (15) for multipliers z >= 0."""
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = np.where(dz < 0, -tau * z / dz, 1.0)
-        return min(1.0, float(ratio.min(initial=1.0)))
+        return min(1.0, float(_kernels().max_dual_step(z, dz, -tau)))
 
     def safeguard(self, v, zl, zu, mu, kappa_sigma=1e10):
         """The multiplier reset (16): z within [mu / (kappa_sigma s), kappa_sigma mu / s]."""
         sl, su = self.slacks(v)
-        zl = np.where(self.has_lo, np.clip(zl, mu / (kappa_sigma * sl), kappa_sigma * mu / sl), 0.0)
-        zu = np.where(self.has_hi, np.clip(zu, mu / (kappa_sigma * su), kappa_sigma * mu / su), 0.0)
-        return zl, zu
+        out_l, out_u = np.empty_like(sl), np.empty_like(sl)
+        _kernels().safeguard(sl, su, zl, zu, self.has_lo, self.has_hi, mu, kappa_sigma, kappa_sigma * mu, out_l, out_u)
+        return out_l, out_u
 
     def complementarity(self, v, zl, zu, mu):
         """max |s z - mu| over the finite sides (the complementarity part of eq. (5))."""
         sl, su = self.slacks(v)
-        parts = [np.abs(sl * zl - mu)[self.has_lo], np.abs(su * zu - mu)[self.has_hi]]
-        return max((float(p.max()) for p in parts if p.size), default=0.0)
+        n_lo, m_lo, n_hi, m_hi = _kernels().complementarity(sl, su, zl, zu, self.has_lo, self.has_hi, mu)
+        return max((float(m) for n, m in ((n_lo, m_lo), (n_hi, m_hi)) if n), default=0.0)
+
+
+def _kernels():
+    """The compiled passes (olado.solvers.ipm.kernels), loaded on first use: importing olado
+    does not load numba."""
+    from . import kernels    # noqa: PLC0415
+
+    return kernels
+
+
+class AtPoint:
+    """What :class:`Bounds` computed at one point v: the slacks (s_L, s_U) and the barrier
+    terms independent of mu (None until asked for)."""
+
+    __slots__ = ("v", "slacks", "terms")
+
+    def __init__(self, v):
+        self.v, self.slacks, self.terms = v, None, None

@@ -19,7 +19,8 @@ factorization finds the reduced Hessian not positive definite, and a feasibility
 phase (:mod:`olado.solvers.ipm.restoration`) takes over when the line search fails; IPOPT's
 watchdog lets full steps through after a run of shortened ones.
 
-Code layout: ``barrier.py`` (the flat iterate, bounds, barrier function, Sigma, step rules),
+Code layout: ``barrier.py`` (the flat iterate, bounds, barrier function, Sigma, step rules; their
+passes over the flat vector compiled in ``kernels.py``),
 ``newton.py`` (the KKT matrix on the Riccati back-end with the slacks eliminated, Algorithm IC),
 ``filter.py`` (the filter and IPOPT's acceptance safeguards), ``restoration.py`` (least-squares
 multipliers, the restoration phases), ``elastic.py`` (the l1 restoration problem as a DOCP),
@@ -135,6 +136,7 @@ class IPMState:
     watch: object = None        # the watchdog (Watchdog) while it runs
     infeasibility_certificate: dict = None   # the converged l1 restoration's figures (restoration.restore_l1)
     adaptive: AdaptiveMu = None  # the adaptive mu update's memory (mu_strategy = adaptive)
+    error_cache: tuple = None   # (inputs, s_obj, ErrorTerms) of the last error_terms call
 
     def stop(self, status, message):
         self.status, self.message = status, message
@@ -176,9 +178,9 @@ def theta(setup, pt, v):
 
 
 def barrier_value(setup, pt, v, mu, s_obj):
-    """phi_mu at the point and the gradient of its barrier terms."""
-    value, grad = setup.bounds.barrier(v, mu)
-    return s_obj * pt.J + value, grad
+    """(phi_mu at the point, None): the line search and the restoration phase compare values
+    only (element 0); the gradient is :func:`barrier_gradient`'s, at the iterate alone."""
+    return s_obj * pt.J + setup.bounds.barrier_value(v, mu), None
 
 
 def objective_gradient(pt, s_obj):
@@ -207,10 +209,29 @@ def lagrangian_gradient(setup, st):
     return L.pack(gx, gu, -st.yd, -st.ydN)
 
 
-def error_parts(setup, st):
-    """The parts of :func:`optimality_errors` that do not depend on mu, at the current iterate:
-    (dual infeasibility, constraint violation, s_d, s_c) -- computed once per iteration for the
-    stopping test and the barrier update."""
+class ErrorTerms(NamedTuple):
+    """The parts of the optimality error (5) that do not depend on mu: the dual infeasibility
+    |grad L - z_L + z_U|_inf (scaled problem), the constraint violation (max-norm), and the
+    scalings s_d, s_c."""
+
+    inf_du: float
+    inf_pr: float
+    s_d: float
+    s_c: float
+
+
+#: the iterate's parts the optimality error reads (with s_obj)
+ERROR_INPUTS = ("v", "pt", "lam", "nu", "nuN", "yd", "ydN", "zl", "zu")
+
+
+def error_terms(setup, st) -> ErrorTerms:
+    """:class:`ErrorTerms` at the iterate, computed once per iterate: the stopping test and the
+    barrier update (several mu) ask for them at the same point. The iterate's arrays are
+    replaced, never changed in place, so their identities name the iterate."""
+    key = tuple(getattr(st, k) for k in ERROR_INPUTS)
+    cached = st.error_cache
+    if cached is not None and cached[1] == st.s_obj and all(a is b for a, b in zip(cached[0], key)):
+        return cached[2]
     b = setup.bounds
     dual = lagrangian_gradient(setup, st) - st.zl + st.zu
     inf_du = float(np.abs(dual).max(initial=0.0))
@@ -221,14 +242,15 @@ def error_parts(setup, st):
     ny = st.lam[1:].size + st.nu.size + st.nuN.size + st.yd.size + st.ydN.size
     s_d = max(S_MAX, (ysum + zsum) / (ny + nz)) / S_MAX
     s_c = max(S_MAX, zsum / nz) / S_MAX
-    return inf_du, inf_pr, s_d, s_c
+    terms = ErrorTerms(inf_du, inf_pr, s_d, s_c)
+    st.error_cache = (key, st.s_obj, terms)
+    return terms
 
 
-def optimality_errors(setup, st, mu, parts=None):
+def optimality_errors(setup, st, mu):
     """(E_mu scaled (eq. (5)), dual infeasibility unscaled, constraint violation max-norm,
-    complementarity unscaled) at the current iterate; ``parts``: its :func:`error_parts` when
-    the caller has them."""
-    inf_du, inf_pr, s_d, s_c = error_parts(setup, st) if parts is None else parts
+    complementarity unscaled) at the current iterate."""
+    inf_du, inf_pr, s_d, s_c = error_terms(setup, st)
     compl = setup.bounds.complementarity(st.v, st.zl, st.zu, mu)
     return max(inf_du / s_d, inf_pr, compl / s_c), inf_du / st.s_obj, inf_pr, compl / st.s_obj
 
@@ -252,6 +274,7 @@ def initial_state(setup, X0, U0, clock):
     q, r = objective_gradient(pt0 if o.obj_scaling != "none" else pt, 1.0)
     gmax = max(float(np.abs(q[1:]).max(initial=0.0)), float(np.abs(r).max(initial=0.0)))
     s_obj = min(1.0, 100.0 / gmax) if o.obj_scaling == "gradient-based" and gmax > 0 else 1.0
+    del pt0, q, r               # the user's point and its derivatives: not kept through the multipliers
     zl, zu = b.has_lo.astype(float), b.has_hi.astype(float)
     mult = least_squares_multipliers(setup, pt, zl, zu, s_obj)
     if max((float(np.abs(a).max(initial=0.0)) for a in mult), default=0.0) > o.constr_mult_init_max:
@@ -283,6 +306,7 @@ def newton_system(setup, st):
     HN = p.eval_final_hessian(pt.X[-1], st.s_obj, LgN)
     st.clock.add(("hessian",), t0)
     Q, S, R = stage_blocks(Hxx, Hxu, Huu, HN)
+    del Hxx                     # copied into Q: not kept through the factorization
     sig = setup.bounds.sigma(st.v, st.zl, st.zu)
     Sx, Su, Ss, SsN = L.split(sig, np.zeros(p.n))
     kkt = KKTMatrix(Q, S, R, pt.A, pt.B, Sx, Su, constraint_blocks(setup, pt, Ss, SsN))
@@ -296,19 +320,15 @@ def newton_system(setup, st):
     return kkt
 
 
-def update_barrier(setup, st, parts=None):
+def update_barrier(setup, st):
     """The monotone rule (7): while the barrier problem is solved to kappa_eps mu, mu <- max(tol / 10,
-    min(kappa_mu mu, mu^theta_mu)), tau <- max(tau_min, 1 - mu), and the filter starts afresh
-    (``parts``: :func:`error_parts` of the iterate, when the caller has them)."""
+    min(kappa_mu mu, mu^theta_mu)), tau <- max(tau_min, 1 - mu), and the filter starts afresh."""
     o = setup.options
-    parts = error_parts(setup, st) if parts is None else parts
-    while optimality_errors(setup, st, st.mu, parts)[0] <= o.barrier_tol_factor * st.mu:
+    while optimality_errors(setup, st, st.mu)[0] <= o.barrier_tol_factor * st.mu:
         mu = max(o.tol / 10.0, min(o.mu_linear_decrease_factor * st.mu, st.mu ** o.mu_superlinear_decrease_power))
         if mu >= st.mu:
             break
         set_mu(setup, st, mu, max(o.tau_min, 1.0 - mu))
-        if setup.on_mu_change is not None:      # the objective follows mu (the l1 restoration's
-            parts = error_parts(setup, st)       # proximity term): its dual infeasibility changed
 
 
 def set_mu(setup, st, mu, tau):
@@ -318,6 +338,7 @@ def set_mu(setup, st, mu, tau):
     st.filt.reset()
     if setup.on_mu_change is not None:
         setup.on_mu_change()
+        st.error_cache = None       # the objective followed mu in place: its dual infeasibility changed
 
 
 def adaptive_barrier(setup, st, kkt):
@@ -362,12 +383,12 @@ def adaptive_barrier(setup, st, kkt):
     set_mu(setup, st, min(max(sigma * avg, mu_min), ad.mu_max), tau)
 
 
-def converged(setup, st, parts=None):
+def converged(setup, st):
     """IPOPT's stopping test: E_0 <= tol and the unscaled dual infeasibility, constraint
     violation and complementarity within dual_inf_tol, constr_viol_tol, compl_inf_tol; or
     acceptable_iter acceptable iterates in a row."""
     o = setup.options
-    e0, inf_du, inf_pr, compl = st.errors = optimality_errors(setup, st, 0.0, parts)
+    e0, inf_du, inf_pr, compl = st.errors = optimality_errors(setup, st, 0.0)
     if e0 <= o.tol and inf_du <= o.dual_inf_tol and inf_pr <= o.constr_viol_tol and compl <= o.compl_inf_tol:
         return st.stop(Status.SUCCESS, f"optimal: scaled optimality error {e0:.2e} <= tol = {o.tol:g} "
                        f"after {st.it} iterations")
@@ -587,8 +608,7 @@ def iterate(setup, st):
     """One iteration of Algorithm A; True when the solve ends."""
     o = setup.options
     setup.limits.check()
-    parts = error_parts(setup, st)     # for the stopping test and the barrier update
-    if converged(setup, st, parts):
+    if converged(setup, st):
         return True
     if st.it >= o.max_iter:
         return st.stop(Status.MAX_ITERATIONS, f"iteration limit {o.max_iter} reached; scaled optimality error "
@@ -598,9 +618,13 @@ def iterate(setup, st):
         if kkt is not None:
             adaptive_barrier(setup, st, kkt)
     else:
-        update_barrier(setup, st, parts)
+        update_barrier(setup, st)
         kkt = newton_system(setup, st)
+    factored = kkt is not None
     accepted = None if kkt is None else line_search(setup, st, kkt, barrier_gradient(setup, st))
+    # the factors and Hessian blocks (a third of the iteration's memory) go before the step
+    # evaluates the new point's derivatives (the watchdog keeps its own reference)
+    del kkt
     st.it += 1
     # the objective after the iteration (IPOPT's log), the errors at its start
     entry = {"iter": st.it, "inf_pr": st.errors[2], "inf_du": st.errors[1], "mu": st.mu, "delta_w": st.delta,
@@ -613,7 +637,7 @@ def iterate(setup, st):
                        f"optimality error {st.errors[0]:.2e} <= acceptable_tol = {o.acceptable_tol:g} after "
                        f"{st.it} iterations (tol = {o.tol:g} not met)")
     if accepted is None:
-        why = ("the inertia correction found no shift up to 1e20" if kkt is None
+        why = ("the inertia correction found no shift up to 1e20" if not factored
                else "the filter line search reached alpha_min")
         st.filt.add(theta(setup, st.pt, st.v), barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0])
         st.restorations += 1
