@@ -16,7 +16,9 @@ dropped by a rank-revealing (column-pivoted) QR of G_k^T with the same relative 
 dropped rows are combinations of the kept ones, so they only impose a consistency condition on
 the constants, whose violation (an inconsistent, i.e. infeasible, constraint set) is reported with
 the residual of the rows reaching x_0, and they get zero multipliers (their multipliers are not
-unique). So at most ne_max + max(n, neN) rows ever reach a stage.
+unique). So at most ne_max + max(n, neN) rows ever reach a stage. The solve takes the dynamics
+multipliers from the cost-to-go, lam_k = P_k x_k + p_k - G_k^T eta_k, not from the x-stationarity
+rows' backward recursion, whose rounding grows like (A^T)^(N-k) on unstable dynamics (:func:`_solve`).
 
 Without any equality rows (the usual interior-point case: only bounds and inequalities, folded
 into Dx, Du, C^T diag(sigma) C) the plain Riccati recursion applies: no QR, no propagated rows,
