@@ -16,7 +16,9 @@ dropped by a rank-revealing (column-pivoted) QR of G_k^T with the same relative 
 dropped rows are combinations of the kept ones, so they only impose a consistency condition on
 the constants, whose violation (an inconsistent, i.e. infeasible, constraint set) is reported with
 the residual of the rows reaching x_0, and they get zero multipliers (their multipliers are not
-unique). So at most ne_max + max(n, neN) rows ever reach a stage.
+unique). So at most ne_max + max(n, neN) rows ever reach a stage. The solve takes the dynamics
+multipliers from the cost-to-go, lam_k = P_k x_k + p_k - G_k^T eta_k, not from the x-stationarity
+rows' backward recursion, whose rounding grows like (A^T)^(N-k) on unstable dynamics (:func:`_solve`).
 
 Without any equality rows (the usual interior-point case: only bounds and inequalities, folded
 into Dx, Du, C^T diag(sigma) C) the plain Riccati recursion applies: no QR, no propagated rows,
@@ -510,6 +512,14 @@ def _solve(costs, dyn, eq, ipt, fac, rhs, sol):
     Graw^T eta_raw = G_k^T eta_k, so the stationarity rows hold), and eta_raw is mapped through
     perm / Dmat into the multipliers of the stage's combined rows as before.
 
+    The multipliers of the dynamics are lam_k = a_k - G_k^T eta_k with a_k = P_k x_k + p_k, the
+    gradient of the cost-to-go: the x-stationarity rows give the same a_k in exact arithmetic,
+    a_k = Q_xx x_k + Q_xu u_k + q_x + A_k^T a_{k+1} + Cx^T Pi_1 c_k (since K_k^T b_u = Cx^T Pi_1 c_k
+    and Q_2^T b_u = 0), but as a backward recursion through A_k^T that multiplies its rounding by
+    (A^T)^(N-k) -- on unstable dynamics (alp-rider's, eigenvalue 1.49) the control rows' residual
+    reached 0.3 at N = 100 (tests/linalg/test_riccati_unstable_final_rows.py); P_k x_k + p_k has
+    the accuracy of the stable closed-loop forward sweep.
+
     Returns the infeasibility of the equality rows (max norm): the largest of the residual
     G_0 x0 + g_0 of the rows reaching x_0 and the consistency defects of the dependent rows
     dropped at every stage (zero up to rounding for a consistent constraint set)."""
@@ -536,7 +546,7 @@ def _solve(costs, dyn, eq, ipt, fac, rhs, sol):
     ncmax = Cx_s.shape[1]
     t1 = np.empty(n); qx = np.empty(n); qu = np.empty(m); m0 = np.empty(m); w = np.empty(max(m, 1))
     v1 = np.empty(max(ncmax, 1)); bu = np.empty(m); mu = np.empty(max(ncmax, 1)); mup = np.empty(max(ncmax, 1))
-    eta = np.empty(max(ncmax, 1)); a_next = np.empty(n); a_cur = np.empty(n)
+    eta = np.empty(max(ncmax, 1)); a_next = np.empty(n)
     graw = np.empty(max(ncmax, 1)); etar = np.empty(max(ncmax, 1))
     kff = np.empty((N, m)); pvec = np.empty((N + 1, n)); gvec = np.zeros((N + 1, ncmax)); dvec = np.zeros((N, ncmax))
     res = 0.0
@@ -644,12 +654,17 @@ def _solve(costs, dyn, eq, ipt, fac, rhs, sol):
             s += G[0, cc, l] * x0[l]
         res = max(res, abs(s))
     _closed_loop(A, B, c, K, kff, X, U)
-    # multipliers, backward part: a_k (stored in lam), c-part of mu (stored in mup via nu scratch)
-    for i in range(n):
-        s = q[N, i] + Dx[N, i] * X[N, i]
-        for l in range(n):
-            s += Q[N, i, l] * X[N, l]
-        lam[N, i] = s
+    # multipliers, backward part: a_k = P_k x_k + p_k (stored in lam) -- the gradient of the
+    # cost-to-go, equal in exact arithmetic to the x-stationarity rows' recursion
+    # a_k = Q_xx x_k + Q_xu u_k + q_x + A_k^T a_{k+1} + Cx^T Pi [c_k; 0] (as K_k^T b_u = Cx^T Pi_1 c_k
+    # and Q_2^T b_u = 0), which is unstable backwards on unstable dynamics (errors grow like
+    # (A^T)^(N-k)); and the c-part c_k of the combined rows' multipliers from the u-rows
+    for k in range(N + 1):
+        for i in range(n):
+            s = pvec[k, i]
+            for l in range(n):
+                s += P[k, i, l] * X[k, l]
+            lam[k, i] = s
     for k in range(N - 1, -1, -1):
         for i in range(n):
             a_next[i] = lam[k + 1, i]
@@ -661,13 +676,6 @@ def _solve(costs, dyn, eq, ipt, fac, rhs, sol):
             for l in range(n):
                 s += S[k, l, i] * X[k, l] + B[k, l, i] * a_next[l]
             bu[i] = s
-        for i in range(n):
-            s = q[k, i] + Dx[k, i] * X[k, i]
-            for l in range(n):
-                s += Q[k, i, l] * X[k, l] + A[k, l, i] * a_next[l]
-            for l in range(m):
-                s += S[k, i, l] * U[k, l]
-            a_cur[i] = s
         for cc in range(ni[k]):
             wgt = ci_rhs[k, cc]
             for l in range(n):
@@ -675,13 +683,10 @@ def _solve(costs, dyn, eq, ipt, fac, rhs, sol):
             for l in range(m):
                 wgt += Ci[k, cc, n + l] * U[k, l]
             wgt *= sig[k, cc]
-            for i in range(n):
-                a_cur[i] += Ci[k, cc, i] * wgt
             for i in range(m):
                 bu[i] += Ci[k, cc, n + i] * wgt
         rk = rank[k]
-        nck = nc[k]
-        # c_k = -R11^{-1} (Q^T b_u)_{1:rk}  -> stored in Wx-free scratch: use dvec row as storage
+        # c_k = -R11^{-1} (Q^T b_u)_{1:rk}, kept in dvec[k, :rk] (d is no longer needed)
         for i in range(rk):
             s = 0.0
             for l in range(m):
@@ -692,16 +697,8 @@ def _solve(costs, dyn, eq, ipt, fac, rhs, sol):
             for l in range(i + 1, rk):
                 s -= Rm[k, i, l] * v1[l]
             v1[i] = s / Rm[k, i, i]
-        # keep c_k in dvec[k, :rk] (d is no longer needed)
         for i in range(rk):
             dvec[k, i] = v1[i]
-        # a_k += Cx^T Pi [c_k; 0]
-        for i in range(rk):
-            row = perm[k, i]
-            for j in range(n):
-                a_cur[j] += Cx_s[k, row, j] * v1[i]
-        for i in range(n):
-            lam[k, i] = a_cur[i]
     # forward multiplier sweep: eta_0 = 0; mu' = [c_k + D eta_k; eta_k]; nu_k = mu[:ne]; eta_{k+1} = -mu[ne:]
     ng0 = ng[0]
     for i in range(ng0):
@@ -865,13 +862,12 @@ def _factor_unconstrained(costs, dyn, ipt, reg, fac):
 @nb.njit(cache=True)
 def _solve_unconstrained(costs, dyn, ipt, fac, rhs, sol):
     """One right-hand side without equality rows: backward vector sweep (kff_k = -Q_uu^{-1} q_u,
-    p_k = q_x + K_k^T q_u), forward simulation, and lam_k from the x-stationarity rows."""
-    costs = as_bundle(costs, Costs)
-    Q, S = costs.Q, costs.S
+    p_k = q_x + K_k^T q_u), forward simulation, and lam_k = P_k x_k + p_k (``costs`` is not read:
+    the cost blocks are in the factors)."""
     dyn = as_bundle(dyn, Dynamics)
     A, B = dyn.A, dyn.B
     ipt = as_bundle(ipt, IPTerms)
-    Dx, Ci, sig, ni = ipt.Dx, ipt.Ci, ipt.sig, ipt.ni
+    Ci, sig, ni = ipt.Ci, ipt.sig, ipt.ni
     fac = as_bundle(fac, PlainFactors)
     P, K, L = fac.P, fac.K, fac.L
     rhs = as_bundle(rhs, RHS)
@@ -881,7 +877,7 @@ def _solve_unconstrained(costs, dyn, ipt, fac, rhs, sol):
     N = A.shape[0]
     n = A.shape[1]
     m = B.shape[2]
-    t1 = np.empty(n); qu = np.empty(m); a_cur = np.empty(n)
+    t1 = np.empty(n); qu = np.empty(m)
     kff = np.empty((N, m)); pvec = np.empty((N + 1, n))
     for i in range(n):
         pvec[N, i] = q[N, i]
@@ -922,35 +918,13 @@ def _solve_unconstrained(costs, dyn, ipt, fac, rhs, sol):
     for i in range(n):
         X[0, i] = x0[i]
     _closed_loop(A, B, c, K, kff, X, U)
-    # multipliers from the x-stationarity rows:
-    # lam_N = (Q_N + Dx_N) x_N + q_N,  lam_k = (Q + Dx) x + S u + q + A^T lam_{k+1} + C_x^T sig (C z + ci)
-    for i in range(n):
-        s = q[N, i] + Dx[N, i] * X[N, i]
-        for l in range(n):
-            s += Q[N, i, l] * X[N, l]
-        lam[N, i] = s
-    for k in range(N - 1, -1, -1):
+    # multipliers: lam_k = P_k x_k + p_k, the gradient of the cost-to-go (as the kernels of
+    # olado.linalg.riccati_fixed) -- equal in exact arithmetic to the x-stationarity rows'
+    # recursion lam_k = (Q + Dx) x + S u + q + A^T lam_{k+1} + C_x^T sig (C z + ci), which is
+    # unstable backwards on unstable dynamics (errors grow like (A^T)^(N-k))
+    for k in range(N + 1):
         for i in range(n):
-            s = q[k, i] + Dx[k, i] * X[k, i]
+            s = pvec[k, i]
             for l in range(n):
-                s += Q[k, i, l] * X[k, l]
-            for l in range(m):
-                s += S[k, i, l] * U[k, l]
-            a_cur[i] = s
-        for l in range(n):
-            t = lam[k + 1, l]
-            for i in range(n):
-                a_cur[i] += A[k, l, i] * t
-        for cc in range(ni[k]):
-            wgt = ci[k, cc]
-            for l in range(n):
-                wgt += Ci[k, cc, l] * X[k, l]
-            for l in range(m):
-                wgt += Ci[k, cc, n + l] * U[k, l]
-            wgt *= sig[k, cc]
-            if wgt != 0.0:
-                for i in range(n):
-                    a_cur[i] += Ci[k, cc, i] * wgt
-        for i in range(n):
-            lam[k, i] = a_cur[i]
-
+                s += P[k, i, l] * X[k, l]
+            lam[k, i] = s

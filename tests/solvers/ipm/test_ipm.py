@@ -474,7 +474,13 @@ def test_the_l1_restoration_proves_infeasibility_where_ipopt_does(name, ipm, ipo
     assert ref.status is Status.INFEASIBLE
     assert r.status is Status.INFEASIBLE and "locally infeasible" in r.message
     cert = r.info["infeasibility_certificate"]
-    assert cert["restoration_optimality_error"] <= cert["restoration_tol"] <= 1e-8
+    # the restoration converged at the level its status states: tol (1e-8) or IPOPT's acceptable
+    # level (1e-6, acceptable_iter iterates in a row) -- at lq-unreachable's degenerate l1
+    # minimizer the last digits are at the Newton systems' rounding floor, where either comes out
+    # (N = 46..56: 3 of 6 at tol, 3 acceptable; benchmarks/RESULTS.md, "Multipliers of the general
+    # Riccati recursion on unstable dynamics")
+    level = {"success": cert["restoration_tol"], "acceptable": ipm.options.acceptable_tol}[cert["restoration_status"]]
+    assert cert["restoration_tol"] <= 1e-8 and cert["restoration_optimality_error"] <= level <= 1e-6
     assert cert["max_violation"] > 1e-1 and cert["max_violation"] == pytest.approx(r.max_constraint_violation, rel=1e-6)
     assert cert["max_violation"] == pytest.approx(ref.max_constraint_violation, rel=0.05)
     _assert_l1_stationary(problem, r)
