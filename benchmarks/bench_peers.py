@@ -122,7 +122,7 @@ def _peer_rows(peers, family, N, repeats, setup_limit, measured=None, max_N=None
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", nargs="*", default=CASES, help="family:N, e.g. zambezi12:24")
-    ap.add_argument("--configs", nargs="*", default=["sqp-ip", "ipopt"], help="olado presets (configs/NAME.ini)")
+    ap.add_argument("--configs", nargs="*", default=["sqp-ip", "ipm", "ipopt"], help="olado presets (configs/NAME.ini)")
     ap.add_argument("--peers", nargs="*", default=list(PEERS), choices=list(PEERS))
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--rtol", type=float, default=1e-6, help="objectives must agree to this (relative)")
