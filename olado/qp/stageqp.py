@@ -252,37 +252,45 @@ class QPResult:
     def success(self) -> bool:
         return getattr(self.status, "success", False)
 
-    def defer_kkt(self, qp: StageQP):
-        """``kkt`` measured on first access (:func:`qp_kkt_residuals` of ``qp`` and this result,
-        as they are then): a caller that never reads it (the SQP) saves its ~40 array operations,
-        a quarter millisecond a QP at N = 24."""
-        self.__dict__["_kkt_of"] = (qp, self)
+    def defer_measures(self, qp: StageQP):
+        """``kkt`` and ``objective`` measured on first access (:func:`qp_kkt_residuals` and
+        ``qp.objective`` of this result's X, U, as they are then): a caller that never reads them
+        (the SQP) saves their ~50 array operations, about half a millisecond a QP at N = 24."""
+        self.__dict__["_kkt_of"] = self.__dict__["_objective_of"] = (qp, self)
 
     def replaced(self, **changes) -> QPResult:
-        """A copy with ``changes`` (as dataclasses.replace) whose ``kkt`` stays that of this
-        result (measured when read: a deferred one is not measured here)."""
+        """A copy with ``changes`` (as dataclasses.replace) whose ``kkt`` and ``objective`` stay
+        those of this result (a deferred one measured when read, not here)."""
         out = copy.copy(self)
         for name, value in changes.items():
             setattr(out, name, value)
         return out
 
 
-def _get_kkt(res):
-    lazy = res.__dict__.get("_kkt_of")
-    if lazy is not None:
-        qp, of = lazy
-        kkt = of.kkt if of is not res else qp_kkt_residuals(qp, res)
-        res.__dict__["_kkt_of"] = None
-        res.__dict__["_kkt"] = kkt
-    return res.__dict__["_kkt"]
+def _deferred(name, measure):
+    """The property ``name`` of a QPResult: its value, or -- after :meth:`QPResult.defer_measures`
+    -- ``measure(qp, result)`` on first access (of the result that deferred it, also when read
+    through a copy made by :meth:`QPResult.replaced`)."""
+    slot, pending = "_" + name, "_" + name + "_of"
+
+    def get(res):
+        d = res.__dict__
+        lazy = d.get(pending)
+        if lazy is not None:
+            qp, of = lazy
+            d[slot] = getattr(of, name) if of is not res else measure(qp, res)
+            d[pending] = None
+        return d[slot]
+
+    def put(res, value):
+        res.__dict__[pending] = None
+        res.__dict__[slot] = value
+
+    return property(get, put)
 
 
-def _set_kkt(res, value):
-    res.__dict__["_kkt_of"] = None
-    res.__dict__["_kkt"] = value
-
-
-QPResult.kkt = property(_get_kkt, _set_kkt, doc="the residuals of qp_kkt_residuals (a dict), see QPResult")
+QPResult.kkt = _deferred("kkt", lambda qp, res: qp_kkt_residuals(qp, res))
+QPResult.objective = _deferred("objective", lambda qp, res: qp.objective(res.X, res.U))
 
 
 #: the boxes of a StageQP and the multipliers of their sides in a QPResult:

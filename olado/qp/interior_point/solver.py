@@ -372,8 +372,8 @@ class InteriorPointQP:
             zuu[P.ufix] = np.maximum(-g[P.ufix], 0.0)
             zul[P.ufix] = np.maximum(g[P.ufix], 0.0)
         res = QPResult(status, message, X, U, lam, nu, zxl, zxu, zul, zuu, ycl, ycu, yNl, yNu,
-                       objective=qp.objective(X, U), iterations=iters, history=history, solver=self.name)
-        res.defer_kkt(qp)
+                       iterations=iters, history=history, solver=self.name)
+        res.defer_measures(qp)
         res.time_s = time.perf_counter() - t0
         if self.options.verbose >= 1:
             kkt = ", ".join(f"{key} {val:.1e}" for key, val in res.kkt.items())
