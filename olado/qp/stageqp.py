@@ -256,11 +256,12 @@ class QPResult:
         """``kkt`` and ``objective`` measured on first access (:func:`qp_kkt_residuals` and
         ``qp.objective`` of this result's X, U, as they are then): a caller that never reads them
         (the SQP) saves their ~50 array operations, about half a millisecond a QP at N = 24."""
-        self.__dict__["_kkt_of"] = self.__dict__["_objective_of"] = (qp, self)
+        self.__dict__["_kkt_of"] = self.__dict__["_objective_of"] = qp
 
     def replaced(self, **changes) -> QPResult:
-        """A copy with ``changes`` (as dataclasses.replace) whose ``kkt`` and ``objective`` stay
-        those of this result (a deferred one measured when read, not here)."""
+        """A copy with ``changes`` (as dataclasses.replace, which would measure deferred values
+        first); a deferred ``kkt`` or ``objective`` stays deferred, measured on the copy's own
+        values when read."""
         out = copy.copy(self)
         for name, value in changes.items():
             setattr(out, name, value)
@@ -269,16 +270,15 @@ class QPResult:
 
 def _deferred(name, measure):
     """The property ``name`` of a QPResult: its value, or -- after :meth:`QPResult.defer_measures`
-    -- ``measure(qp, result)`` on first access (of the result that deferred it, also when read
-    through a copy made by :meth:`QPResult.replaced`)."""
+    -- ``measure(qp, result)`` on first access. (The pending entry holds the QP only: a reference
+    to the result itself would make a cycle, tests/qp/test_no_reference_cycles.py.)"""
     slot, pending = "_" + name, "_" + name + "_of"
 
     def get(res):
         d = res.__dict__
-        lazy = d.get(pending)
-        if lazy is not None:
-            qp, of = lazy
-            d[slot] = getattr(of, name) if of is not res else measure(qp, res)
+        qp = d.get(pending)
+        if qp is not None:
+            d[slot] = measure(qp, res)
             d[pending] = None
         return d[slot]
 
