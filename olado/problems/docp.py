@@ -24,6 +24,8 @@ from __future__ import annotations
 import inspect
 import math
 import os
+import types
+import weakref
 from collections import Counter
 
 import numpy as np
@@ -45,6 +47,31 @@ _DERIVATIVE_OF = {
 
 
 _count_nonfinite = None
+
+#: the Python functions whose signature :meth:`DOCP.check_functions` accepted, per (method name,
+#: bound or not): a solve checks its problem at entry, and inspect.signature costs tens of
+#: microseconds a function (a small problem's solve takes milliseconds)
+_SIGNATURES_CHECKED = weakref.WeakKeyDictionary()
+
+
+def _signature_key(fn, name):
+    """(plain function, key) for a Python function or method, else None (not remembered)."""
+    if isinstance(fn, types.MethodType) and isinstance(fn.__func__, types.FunctionType):
+        return fn.__func__, (name, True)
+    if isinstance(fn, types.FunctionType):
+        return fn, (name, False)
+    return None
+
+
+def _checked_before(fn, name):
+    found = _signature_key(fn, name)
+    return found is not None and found[1] in _SIGNATURES_CHECKED.get(found[0], ())
+
+
+def _remember_checked(fn, name):
+    found = _signature_key(fn, name)
+    if found is not None:
+        _SIGNATURES_CHECKED.setdefault(found[0], set()).add(found[1])
 
 
 def _all_finite(arr):
@@ -434,7 +461,7 @@ class DOCP:
             if not callable(fn):
                 raise ProblemDefinitionError(f"must be a method called as {call}, got {_describe(fn)}",
                                              function=name)
-            if not self._overrides(name):
+            if not self._overrides(name) or _checked_before(fn, name):
                 continue
             try:
                 signature = inspect.signature(fn)
@@ -445,6 +472,7 @@ class DOCP:
             except TypeError:
                 raise ProblemDefinitionError(f"olado calls it as {call}, but its signature is "
                                              f"{name}{signature}", function=name) from None
+            _remember_checked(fn, name)
 
     def _overrides(self, name):
         return getattr(type(self), name, None) is not getattr(DOCP, name, None)

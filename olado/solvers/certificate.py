@@ -463,6 +463,16 @@ def _direction(rng, pt, bounds, W, h):
     return Vx, Vu
 
 
+def _entry_of(names, shaped, j):
+    """(name, index in its array) of entry j of the concatenation of ``shaped[name]`` over ``names``."""
+    for name in names:
+        size = shaped[name].size
+        if j < size:
+            return name, np.unravel_index(j, shaped[name].shape)
+        j -= size
+    raise IndexError(j)
+
+
 def spot_check(p, pt, bounds, W, seed=CHECK_SEED) -> _Check:
     """Step 4 of the module docstring: five-point central differences of every stage function
     along CHECK_DIRECTIONS random directions against the derivatives the problem supplies."""
@@ -476,23 +486,28 @@ def spot_check(p, pt, bounds, W, seed=CHECK_SEED) -> _Check:
             vals = {s: _values(p, pt.X + s * h * Vx, pt.U + s * h * Vu) for s in (1, -1, 2, -2)}
         except OladoError as exc:
             return _Check(None, False, f"spot check skipped: the problem cannot be evaluated near the point ({exc})")
-        for name, (an, size) in _directional(pt, Vx, Vu).items():
-            v1, m1, v2, m2 = (vals[s][name] for s in (1, -1, 2, -2))
-            if v1.size == 0:
-                continue
-            d_h = (v1 - m1) / (2 * h)
-            d_2h = (v2 - m2) / (4 * h)
-            d5 = (4 * d_h - d_2h) / 3
-            rounding = _EPS * (np.abs(v1) + np.abs(m1) + np.abs(v2) + np.abs(m2)) / h
-            allowed = CHECK_RTOL * np.maximum(size, np.abs(d5)) + 10 * (np.abs(d_h - d_2h) + rounding) + 1e-300
-            err = np.abs(d5 - an)
-            rel = err / np.maximum(np.maximum(size, np.abs(d5)), 1e-300)
-            worst = max(worst, float(np.max(np.where(err > 10 * rounding, rel, 0.0))))
-            ratio = err / allowed
-            j = int(np.argmax(ratio))
-            if ratio.flat[j] > 1.0 and (bad is None or ratio.flat[j] > bad[0]):
-                idx = np.unravel_index(j, err.shape)
-                bad = (float(ratio.flat[j]), name, idx, float(d5[idx]), float(an[idx]), float(rel[idx]))
+        # every function's entries in one flat vector (the formulas are elementwise, and the
+        # first largest ratio over the concatenation is the one the functions in turn would find)
+        directional = _directional(pt, Vx, Vu)
+        names = [name for name in directional if vals[1][name].size]
+        if not names:
+            continue
+        flat = lambda parts: np.concatenate([np.ravel(a) for a in parts])  # noqa: E731
+        v1, m1, v2, m2 = (flat([vals[s][name] for name in names]) for s in (1, -1, 2, -2))
+        an, size = (flat([directional[name][i] for name in names]) for i in (0, 1))
+        d_h = (v1 - m1) / (2 * h)
+        d_2h = (v2 - m2) / (4 * h)
+        d5 = (4 * d_h - d_2h) / 3
+        rounding = _EPS * (np.abs(v1) + np.abs(m1) + np.abs(v2) + np.abs(m2)) / h
+        allowed = CHECK_RTOL * np.maximum(size, np.abs(d5)) + 10 * (np.abs(d_h - d_2h) + rounding) + 1e-300
+        err = np.abs(d5 - an)
+        rel = err / np.maximum(np.maximum(size, np.abs(d5)), 1e-300)
+        worst = max(worst, float(np.where(err > 10 * rounding, rel, 0.0).max()))
+        ratio = err / allowed
+        j = int(np.argmax(ratio))
+        if ratio[j] > 1.0 and (bad is None or ratio[j] > bad[0]):
+            name, idx = _entry_of(names, vals[1], j)
+            bad = (float(ratio[j]), name, idx, float(d5[j]), float(an[j]), float(rel[j]))
     if bad is None:
         return _Check(worst, False, "")
     _, name, idx, d5, an, rel = bad

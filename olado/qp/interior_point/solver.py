@@ -15,7 +15,7 @@ from ...linalg.backend import NotPositiveDefiniteError
 from ...linalg.riccati import RiccatiStatusError
 from ...result import Status
 from ...options import make_options
-from ..stageqp import QPResult, StageQP, qp_kkt_residuals
+from ..stageqp import QPResult, StageQP
 from .certificates import STALLED as _STALLED, certificates, stall_status
 from .direction import predictor_corrector
 from .options import InteriorPointQPOptions
@@ -372,8 +372,8 @@ class InteriorPointQP:
             zuu[P.ufix] = np.maximum(-g[P.ufix], 0.0)
             zul[P.ufix] = np.maximum(g[P.ufix], 0.0)
         res = QPResult(status, message, X, U, lam, nu, zxl, zxu, zul, zuu, ycl, ycu, yNl, yNu,
-                       objective=qp.objective(X, U), iterations=iters, history=history, solver=self.name)
-        res.kkt = qp_kkt_residuals(qp, res)
+                       iterations=iters, history=history, solver=self.name)
+        res.defer_measures(qp)
         res.time_s = time.perf_counter() - t0
         if self.options.verbose >= 1:
             kkt = ", ".join(f"{key} {val:.1e}" for key, val in res.kkt.items())

@@ -209,12 +209,19 @@ class Bounds:
         return max((float(m) for n, m in ((n_lo, m_lo), (n_hi, m_hi)) if n), default=0.0)
 
 
+_KERNEL_MODULE = None
+
+
 def _kernels():
     """The compiled passes (olado.solvers.ipm.kernels), loaded on first use: importing olado
-    does not load numba."""
-    from . import kernels    # noqa: PLC0415
+    does not load numba. (Kept after the first call: an import statement costs a microsecond,
+    and an ipm iteration asks about ten times.)"""
+    global _KERNEL_MODULE
+    if _KERNEL_MODULE is None:
+        from . import kernels    # noqa: PLC0415
 
-    return kernels
+        _KERNEL_MODULE = kernels
+    return _KERNEL_MODULE
 
 
 class AtPoint:

@@ -166,10 +166,18 @@ def evaluate(setup, v, clock, derivatives=False):
 
 
 def residuals(setup, pt, v) -> Residuals:
-    """The constraint residuals at the point: dynamics, equalities, inequality rows d - s."""
+    """The constraint residuals at the point: dynamics, equalities, inequality rows d - s.
+    Computed once per (point, v) (the line search's theta at the trial point, the optimality
+    error and the next direction at the accepted one ask for them): like the iterate's arrays
+    (:func:`error_terms`), v is replaced, never changed in place, and the residuals are read only."""
+    cached = getattr(pt, "_ipm_residuals", None)
+    if cached is not None and cached[0] is v and cached[1] is setup:
+        return cached[2]
     L = setup.layout
     _, _, s, sN = L.split(v)
-    return Residuals(pt.h, pt.g[:, L.eq], pt.gN[L.eqN], pt.g[:, L.ineq] - s, pt.gN[L.ineqN] - sN)
+    res = Residuals(pt.h, pt.g[:, L.eq], pt.gN[L.eqN], pt.g[:, L.ineq] - s, pt.gN[L.ineqN] - sN)
+    pt._ipm_residuals = (v, setup, res)
+    return res
 
 
 def theta(setup, pt, v):

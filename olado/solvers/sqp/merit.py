@@ -24,7 +24,20 @@ class Merit:
         self.masks = masks
 
     def violations(self, q):
-        """Constraint violations (arrays) at the point q: (|h|, g, gN, x bounds, u bounds)."""
+        """Constraint violations (arrays) at the point q: (|h|, g, gN, x bounds, u bounds).
+        Computed once per point (its values do not change; the KKT test, the penalty and the
+        history ask for them several times an iteration): the arrays are read-only to callers."""
+        cached = getattr(q, "_violations", None)
+        if cached is not None and cached[0] is self:
+            return cached[1]
+        out = self._violations(q)
+        try:
+            q._violations = (self, out)
+        except AttributeError:     # a point type without attributes of its own
+            pass
+        return out
+
+    def _violations(self, q):
         p, (eq, _, eqN, _) = self.problem, self.masks
         vg = np.where(eq, np.abs(q.g), np.maximum(-q.g, 0.0)) if p.r else q.g
         vgN = np.where(eqN, np.abs(q.gN), np.maximum(-q.gN, 0.0)) if p.rN else q.gN
@@ -41,10 +54,10 @@ class Merit:
         return (f"{where.where()} (violation {value:.3g})" if where is not None else "no constraint"), value
 
     def max_violation(self, q):
-        return max(float(np.max(v, initial=0.0)) for v in self.violations(q))
+        return max(float(v.max(initial=0.0)) for v in self.violations(q))
 
     def penalty(self, q, weights):
-        return sum(float(np.sum(w * v)) for w, v in zip(weights, self.violations(q)))
+        return sum(float((w * v).sum()) for w, v in zip(weights, self.violations(q)))
 
     # ------------------------------------------------------------------ the merit function's interface
     # (shared with olado.solvers.sqp.augmented.AugmentedLagrangian; the phases call only these)
@@ -56,7 +69,7 @@ class Merit:
         return zero_weights(p.N, p.n, p.r, p.rN, p.m)
 
     def largest_weight(self, weights):
-        return max(float(np.max(w, initial=0.0)) for w in weights)
+        return max(float(w.max(initial=0.0)) for w in weights)
 
     def elastic_floor(self, weights):
         """The least penalty eta of a relaxed QP (olado.solvers.sqp.relaxation) for these

@@ -616,7 +616,10 @@ def accept(setup, st, step):
     st.mult = bounded_multipliers(setup, st, step.mult_new)
     st.Bk = None
     st.shift = step.delta
-    st.last_qp = dataclasses.replace(step.qres, X=np.zeros_like(step.qres.X), U=np.zeros_like(step.qres.U))
+    # the next QP's warm start: its multipliers and a zero step (its kkt and objective are not
+    # measured: the copy does not keep this QP's data alive)
+    st.last_qp = step.qres.replaced(X=np.zeros_like(step.qres.X), U=np.zeros_like(step.qres.U), kkt={},
+                                    objective=float("nan"))
     # local phase: a full step from a point whose relative KKT residual is small, or the
     # proximal-point crawl (two full steps whose curvature came mostly from the proximal term)
     st.was_local = st.local

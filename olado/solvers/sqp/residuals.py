@@ -44,10 +44,10 @@ def kkt_residual(p, pt, mult, bounds):
     gx = gx - zl_x[:-1] + zu_x[:-1]
     gN = gN - zl_x[-1] + zu_x[-1]
     gu = gu - zl_u + zu_u
-    res = max(float(np.max(np.abs(gx[1:]), initial=0.0)), float(np.max(np.abs(gu), initial=0.0)),
-              float(np.max(np.abs(gN), initial=0.0)))
-    scale = max(float(np.max(np.abs(pt.lx), initial=0.0)), float(np.max(np.abs(pt.lu), initial=0.0)),
-                float(np.max(np.abs(pt.lN), initial=0.0)))
+    res = max(float(np.abs(gx[1:]).max(initial=0.0)), float(np.abs(gu).max(initial=0.0)),
+              float(np.abs(gN).max(initial=0.0)))
+    scale = max(float(np.abs(pt.lx).max(initial=0.0)), float(np.abs(pt.lu).max(initial=0.0)),
+                float(np.abs(pt.lN).max(initial=0.0)))
     return res, scale
 
 
