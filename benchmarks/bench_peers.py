@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import math
+import sys
 import time
 from dataclasses import dataclass
 
@@ -44,6 +45,13 @@ class Row:
     time_s: float
     setup_s: float = 0.0
     estimated: bool = False     # setup_s is an estimate (the peer was skipped)
+
+    def ms_per_iteration(self) -> str:
+        """Time per major iteration (SQP iterations for sqp-ip's "SQP / QP"), or "-"."""
+        major = self.iterations.split("/")[0].strip()
+        if not major.isdigit() or int(major) == 0 or self.time_s != self.time_s:
+            return "-"
+        return f"{self.time_s * 1e3 / int(major):.2f}"
 
 
 def _olado_rows(configs, family, N, repeats):
@@ -151,15 +159,16 @@ def main(argv=None):
 
 def _section(args, table):
     lines = [f"## {SECTION}", "",
-             f"Command: `python benchmarks/bench_peers.py{' --cases ' + ' '.join(args.cases) if args.cases != CASES else ''}`  ",
+             f"Command: `{' '.join(['python benchmarks/bench_peers.py'] + sys.argv[1:])}`  ",
              f"Commit: {commit()}  ", f"Date: {datetime.date.today().isoformat()}  ", f"Machine: {machine()}", "",
              "Balance start. olado: the presets named, best of the repeats after a warm-up (times from the "
              "result, `time_s`). Peers: Zambezi written once (ZambeziAD: the same data and start) as a stage-ordered "
              "multiple-shooting NLP in CasADi SX (benchmarks/_peers.py), exact Hessians, tolerance 1e-8; best of the "
              "repeats after a warm-up solve; set-up (graph, derivatives, structure detection) apart. "
              f"Ratio: olado's best preset over the faster peer. Objectives agree to {args.rtol:g} where marked ok.", "",
-             "| case | solver | status | iterations (SQP / QP) | objective | time (ms) | peer set-up (s) | agrees |",
-             "|:--|:--|:--|--:|--:|--:|--:|:--|"]
+             "| case | solver | status | iterations (SQP / QP) | objective | time (ms) | ms / iteration | peer set-up (s) "
+             "| agrees |",
+             "|:--|:--|:--|--:|--:|--:|--:|--:|:--|"]
     summary = ["", "| case | olado best (ms) | faster peer (ms) | ratio |", "|:--|--:|--:|--:|"]
     for family, N, olado_rows, peer_rows in table:
         peers_ok = [r for r in peer_rows if r.success]
@@ -170,8 +179,9 @@ def _section(args, table):
             setup = "" if r.solver not in PEERS else ("-" if r.setup_s != r.setup_s else
                                                        f"~{r.setup_s:.0f} (estimate)" if r.estimated else f"{r.setup_s:.2f}")
             tms = f"{r.time_s * 1e3:.1f}" if r.time_s == r.time_s else "-"
-            lines.append(f"| {family} N = {N} | {r.solver} | {r.status} | {r.iterations} | {r.objective:.10g} | {tms} "
-                         f"| {setup} | {agrees} |")
+            obj = f"{r.objective:.10g}" if r.objective == r.objective else "-"
+            lines.append(f"| {family} N = {N} | {r.solver} | {r.status} | {r.iterations} | {obj} | {tms} "
+                         f"| {r.ms_per_iteration()} | {setup} | {agrees} |")
         ol = [r for r in olado_rows if r.success]
         if ol and peers_ok:
             a, b = min(ol, key=lambda r: r.time_s), min(peers_ok, key=lambda r: r.time_s)
