@@ -195,6 +195,20 @@ def _qr_pivot(M, rows, cols, Qacc, perm, vtmp, norms, rank_tol, scale, accumulat
 
 
 @nb.njit(cache=True)
+def _cost_to_go_gradient(P, pvec, X, lam):
+    """lam_k = P_k x_k + p_k for every stage: the gradient of the cost-to-go, the dynamics
+    multipliers taken forward from the factors (the x-stationarity rows' backward recursion
+    through A_k^T multiplies its rounding by (A^T)^(N-k) on unstable dynamics)."""
+    n = X.shape[1]
+    for k in range(X.shape[0]):
+        for i in range(n):
+            s = pvec[k, i]
+            for l in range(n):
+                s += P[k, i, l] * X[k, l]
+            lam[k, i] = s
+
+
+@nb.njit(cache=True)
 def _closed_loop(A, B, c, K, kff, X, U):
     """Forward sweep u_k = K_k x_k + k_k, x_{k+1} = A_k x_k + B_k u_k + c_k (X[0] given)."""
     N, n, m = B.shape
@@ -524,13 +538,13 @@ def _solve(costs, dyn, eq, ipt, fac, rhs, sol):
     G_0 x0 + g_0 of the rows reaching x_0 and the consistency defects of the dependent rows
     dropped at every stage (zero up to rounding for a consistent constraint set)."""
     costs = as_bundle(costs, Costs)
-    Q, S, R = costs.Q, costs.S, costs.R
+    S, R = costs.S, costs.R
     dyn = as_bundle(dyn, Dynamics)
     A, B = dyn.A, dyn.B
     eq = as_bundle(eq, EqualityRows)
     ne, EN = eq.ne, eq.EN
     ipt = as_bundle(ipt, IPTerms)
-    Dx, Du, Ci, sig, ni = ipt.Dx, ipt.Du, ipt.Ci, ipt.sig, ipt.ni
+    Du, Ci, sig, ni = ipt.Du, ipt.Ci, ipt.sig, ipt.ni
     neN = EN.shape[0]
     fac = as_bundle(fac, GeneralFactors)
     P, K, Quu_s, Qux_s, Lww, Qm, Rm = fac.P, fac.K, fac.Quu, fac.Qux, fac.Lww, fac.Qm, fac.Rm
@@ -659,12 +673,7 @@ def _solve(costs, dyn, eq, ipt, fac, rhs, sol):
     # a_k = Q_xx x_k + Q_xu u_k + q_x + A_k^T a_{k+1} + Cx^T Pi [c_k; 0] (as K_k^T b_u = Cx^T Pi_1 c_k
     # and Q_2^T b_u = 0), which is unstable backwards on unstable dynamics (errors grow like
     # (A^T)^(N-k)); and the c-part c_k of the combined rows' multipliers from the u-rows
-    for k in range(N + 1):
-        for i in range(n):
-            s = pvec[k, i]
-            for l in range(n):
-                s += P[k, i, l] * X[k, l]
-            lam[k, i] = s
+    _cost_to_go_gradient(P, pvec, X, lam)
     for k in range(N - 1, -1, -1):
         for i in range(n):
             a_next[i] = lam[k + 1, i]
@@ -922,9 +931,4 @@ def _solve_unconstrained(costs, dyn, ipt, fac, rhs, sol):
     # olado.linalg.riccati_fixed) -- equal in exact arithmetic to the x-stationarity rows'
     # recursion lam_k = (Q + Dx) x + S u + q + A^T lam_{k+1} + C_x^T sig (C z + ci), which is
     # unstable backwards on unstable dynamics (errors grow like (A^T)^(N-k))
-    for k in range(N + 1):
-        for i in range(n):
-            s = pvec[k, i]
-            for l in range(n):
-                s += P[k, i, l] * X[k, l]
-            lam[k, i] = s
+    _cost_to_go_gradient(P, pvec, X, lam)
