@@ -362,6 +362,15 @@ def build_result(*, nlp, y, lam, zl, zu, status, message, iterations, history, t
 Deadline = Limits
 
 
+class Stoppable:
+    """Mixin of a solve's state: :meth:`stop` records how the solve ended (its ``status`` and
+    ``message`` fields) and returns True, the iteration loops' "done"."""
+
+    def stop(self, status, message):
+        self.status, self.message = status, message
+        return True
+
+
 def stop_outcome(reason, limits, after="") -> tuple:
     """(Status, message) of a solve ended from outside, ``reason`` "max_time" or "interrupted"
     (:meth:`Limits.reason`, the ``reason`` of its catch block): MAX_TIME, or INTERRUPTED naming

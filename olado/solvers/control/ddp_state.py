@@ -12,6 +12,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ...result import Status
+from ..common import Stoppable
 
 
 class ShiftSchedule:
@@ -73,7 +74,7 @@ class Accepted(NamedTuple):
 
 
 @dataclasses.dataclass
-class DPState:
+class DPState(Stoppable):
     """One DDP / stagewise Newton solve: the iterate and its derivatives, the shift schedule,
     work arrays, counters and history."""
 
@@ -93,7 +94,3 @@ class DPState:
     trial_X: np.ndarray | None = None   # the last trial point of the line searches
     trial_U: np.ndarray | None = None
     history: list = dataclasses.field(default_factory=list)
-
-    def stop(self, status, message):
-        self.status, self.message = status, message
-        return True

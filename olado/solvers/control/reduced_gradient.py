@@ -61,7 +61,7 @@ import numpy as np
 from ...errors import NonFiniteEvaluationError
 from ...interrupts import Limits
 from ...result import Result, Status
-from ..common import stop_outcome
+from ..common import Stoppable, stop_outcome
 from ...options import option
 from ..base import Solver, SolverOptions
 from .control_space import ReducedProblem, unsupported_features
@@ -100,7 +100,7 @@ class _Iterate:
 
 
 @dataclasses.dataclass
-class _Loop:
+class _Loop(Stoppable):
     """The mutable state of one solve's loop: the iterate, the tolerances, the time limit and
     interrupts, the accepted steps, (J, slope, alpha) of the last step (the next first trial
     step), the stop."""
@@ -113,10 +113,6 @@ class _Loop:
     prev: tuple = (None, None, None)
     status: Status | None = None
     message: str = ""
-
-    def stop(self, status, message):
-        self.status, self.message = status, message
-        return True
 
 
 class ReducedGradientSolver(Solver):

@@ -38,7 +38,7 @@ from ...options import option
 from ...result import Result, Status
 from ..base import Solver, SolverOptions
 from ..certificate import CertificateSettings, certify
-from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION, stop_outcome
+from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION, Stoppable, stop_outcome
 from ..sqp.residuals import stage_kkt
 from ..sqp.state import BoundMultipliers, Clock, Multipliers, Point
 from .bfgs import damped_bfgs_update, positive_definite_start, scaled_identity_start
@@ -139,7 +139,7 @@ class Iterate:
 
 
 @dataclasses.dataclass
-class FQLNKState:
+class FQLNKState(Stoppable):
     it: Iterate
     F0: float
     rho: float
@@ -158,10 +158,6 @@ class FQLNKState:
     status: Status = Status.MAX_ITERATIONS
     message: str = ""
     history: list = dataclasses.field(default_factory=list)
-
-    def stop(self, status, message):
-        self.status, self.message = status, message
-        return True
 
 
 class Setup:

@@ -42,7 +42,7 @@ from ...interrupts import Limits
 from ...options import option
 from ...result import Result, Status
 from ..base import Solver, SolverOptions
-from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION, stage_gradient_terms, stop_outcome
+from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION, Stoppable, stage_gradient_terms, stop_outcome
 from ..sqp.residuals import stage_kkt
 from ..sqp.state import BoundMultipliers, Clock, Multipliers, Point
 from .adaptive import (FILTER_MARGIN_FACT, FILTER_MAX_MARGIN, MONOTONE_INIT_FACTOR, MU_MAX_FACT, MU_MIN, AdaptiveMu,
@@ -103,7 +103,7 @@ class IPMOptions(SolverOptions):
 
 
 @dataclasses.dataclass
-class IPMState:
+class IPMState(Stoppable):
     """One solve's iterate and bookkeeping: the flat free variables v with the evaluated point,
     the dynamics multipliers lam (N+1, n) (row k+1: the dynamics of stage k; of the scaled
     problem), the bound multipliers, mu, tau, the filter, the last Hessian shift."""
@@ -137,10 +137,6 @@ class IPMState:
     infeasibility_certificate: dict = None   # the converged l1 restoration's figures (restoration.restore_l1)
     adaptive: AdaptiveMu = None  # the adaptive mu update's memory (mu_strategy = adaptive)
     error_cache: tuple = None   # (inputs, s_obj, ErrorTerms) of the last error_terms call
-
-    def stop(self, status, message):
-        self.status, self.message = status, message
-        return True
 
 
 class Setup:

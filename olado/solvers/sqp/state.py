@@ -19,7 +19,7 @@ import numpy as np
 
 from ...result import Status
 from ...interrupts import Limits
-from ..common import EVALUATION_KINDS
+from ..common import EVALUATION_KINDS, Stoppable
 
 
 class Clock:
@@ -200,7 +200,7 @@ class SQPSetup:
 
 
 @dataclasses.dataclass
-class SQPState:
+class SQPState(Stoppable):
     """The mutable state of one solve: iterate, multipliers, merit weights, watchdog, Hessian,
     inertia-correction and local-phase bookkeeping, counters and history."""
 
@@ -259,7 +259,3 @@ class SQPState:
     filter_obj: float = float("nan")    # WORHP's low-pass filters of the objective and the violation
     filter_con: float = float("nan")
     stalled: int = 0                # successive iterations in which both filters stalled
-
-    def stop(self, status, message):
-        self.status, self.message = status, message
-        return True
