@@ -76,34 +76,40 @@ def _raw_shuttle(heating, heat_limit="linear"):
     return shuttle_entry(N=50, heating=heating, scaled=False, heat_limit=heat_limit)
 
 
+#: the shuttle's reported values: seed 004's and Betts's (docs/aerospace.md)
+_SEED_NO_HEAT = "not solved without the heat limit (seed 004 Table 1 has the heat-limited case only)"
+_SEED_HEAT = "J = -30.6385 deg (seed 004 Table 1 'SS', 50 Radau nodes, SNOPT and IPOPT)"
+_SEED_RAW = "no valid solution without scaling (seed 004 Table 1 'SS', NONE and AUTO rows)"
+_BETTS = "crossrange 34.1412 deg, t_f = 2008.59 s (Betts 2010 ex. 6.1)"
+_BETTS_HEAT = "crossrange 30.6255 deg, t_f = 2198.67 s (Betts 2010 ex. 6.1, heat-limited)"
 ENTRIES = [
     Entry("shuttle-entry", lambda: PROBLEMS["shuttle-entry"](N=200), _shuttle_readout,
-          seed="not solved without the heat limit (seed 004 Table 1 has the heat-limited case only)",
-          published="crossrange 34.1412 deg, t_f = 2008.59 s (Betts 2010 ex. 6.1)"),
+          seed=_SEED_NO_HEAT,
+          published=_BETTS),
     Entry("shuttle-entry-heating", lambda: PROBLEMS["shuttle-entry-heating"](N=200), _shuttle_readout,
-          seed="J = -30.6385 deg (seed 004 Table 1 'SS', 50 Radau nodes, SNOPT and IPOPT)",
-          published="crossrange 30.6255 deg, t_f = 2198.67 s (Betts 2010 ex. 6.1, heat-limited)"),
+          seed=_SEED_HEAT,
+          published=_BETTS_HEAT),
     # the same at N = 50 in Betts's raw units (no manual scaling): for the scaling work (issue 15 item 3)
     Entry("shuttle-entry-raw", lambda: _raw_shuttle(False),
           lambda p, r: _shuttle_readout(p, r, scaled=False),
-          seed="-", published="crossrange 34.1412 deg, t_f = 2008.59 s (Betts 2010 ex. 6.1)"),
+          seed="-", published=_BETTS),
     Entry("shuttle-entry-heating-raw", lambda: _raw_shuttle(True),
           lambda p, r: _shuttle_readout(p, r, scaled=False),
-          seed="no valid solution without scaling (seed 004 Table 1 'SS', NONE and AUTO rows)",
-          published="crossrange 30.6255 deg, t_f = 2198.67 s (Betts 2010 ex. 6.1, heat-limited)"),
+          seed=_SEED_RAW,
+          published=_BETTS_HEAT),
     # the heat limit written 70/q - 1 >= 0 and declared positive: the log / inverse-power
     # transforms of seed 004 sec. 5 apply to it under scaling (olado.problems.aerospace.heat_limit_row)
     Entry("shuttle-entry-heating-ratio-raw", lambda: _raw_shuttle(True, "ratio"),
           lambda p, r: _shuttle_readout(p, r, scaled=False),
-          seed="no valid solution without scaling (seed 004 Table 1 'SS', NONE and AUTO rows)",
-          published="crossrange 30.6255 deg, t_f = 2198.67 s (Betts 2010 ex. 6.1, heat-limited)"),
+          seed=_SEED_RAW,
+          published=_BETTS_HEAT),
     # scaled units at N = 100 (the N = 200 rows above are long for sqp-ip)
     Entry("shuttle-entry-100", lambda: PROBLEMS["shuttle-entry"](N=100), _shuttle_readout,
-          seed="not solved without the heat limit (seed 004 Table 1 has the heat-limited case only)",
-          published="crossrange 34.1412 deg, t_f = 2008.59 s (Betts 2010 ex. 6.1)"),
+          seed=_SEED_NO_HEAT,
+          published=_BETTS),
     Entry("shuttle-entry-heating-100", lambda: PROBLEMS["shuttle-entry-heating"](N=100), _shuttle_readout,
-          seed="J = -30.6385 deg (seed 004 Table 1 'SS', 50 Radau nodes, SNOPT and IPOPT)",
-          published="crossrange 30.6255 deg, t_f = 2198.67 s (Betts 2010 ex. 6.1, heat-limited)"),
+          seed=_SEED_HEAT,
+          published=_BETTS_HEAT),
     Entry("rigid-body", lambda: PROBLEMS["rigid-body"](), _final_state({"t_f": -1}),
           seed="J = t_f = 29.990 .. 30.713 (seed 004 Table 1 'AB', with an unstated angular-speed limit)",
           published="t_f = 28.6304077 (Betts 2010)"),

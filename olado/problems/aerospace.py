@@ -195,8 +195,8 @@ def entry_result(ocp, result, scaled=True) -> EntryResult:
     tu = M.TIME_UNIT if scaled else 1.0
     sol = ocp.solution(result)
     x = sol.x * units
-    q = [float(M.heat_rate(x[k], sol.u[k])) for k in range(len(sol.u))]
-    return EntryResult(crossrange_deg=float(x[-1, 2] / DEG), tf_s=float(sol.tf * tu), max_heat_rate=max(q))
+    q = M.heat_rate(x[:len(sol.u)].T, sol.u.T)        # every stage at once (the formula broadcasts)
+    return EntryResult(crossrange_deg=float(x[-1, 2] / DEG), tf_s=float(sol.tf * tu), max_heat_rate=float(q.max()))
 
 
 def _shuttle(N=100, heating=False, scaled=True):

@@ -86,6 +86,18 @@ def test_derivatives_at_the_start_against_finite_differences(name):
 
 
 # ---------------------------------------------------------------------------- solves
+def _solved_by_both(build, readout=True):
+    """The problem built afresh and solved by sqp-ip and by IPOPT, both asserted successful: the
+    shuttle's readouts (entry_result), or (problem, result) pairs with ``readout=False``."""
+    out = []
+    for cfg in (SQP, _ipopt()):
+        p = build()
+        r = olado.solve(p, config=cfg)
+        assert r.status.value == "success", (p.name, cfg, r.message)
+        out.append(entry_result(p, r) if readout else (p, r))
+    return out
+
+
 @pytest.mark.slow
 def test_shuttle_maximum_crossrange_against_betts_and_ipopt():
     """N = 50: sqp-ip and IPOPT reach the same crossrange (1e-7 deg); it is Betts's 34.1412 deg to
@@ -93,13 +105,7 @@ def test_shuttle_maximum_crossrange_against_betts_and_ipopt():
     h; measured 34.13918 / 34.14074 / 34.14108 deg at N = 50 / 100 / 200 (errors 2.0e-3, 4.6e-4,
     1.2e-4 against 34.1412). t_f (2008.59 s in Betts) is weakly determined by the crossrange: the
     two solvers stop 0.1-0.3 s apart at equal objectives, so it is checked to 2 s."""
-    res = {}
-    for cfg in (SQP, _ipopt()):
-        p = shuttle_entry(N=50)
-        r = olado.solve(p, config=cfg)
-        assert r.status.value == "success", (cfg, r.message)
-        res[cfg] = entry_result(p, r)
-    a, b = res.values()
+    a, b = _solved_by_both(lambda: shuttle_entry(N=50))
     assert a.crossrange_deg == pytest.approx(b.crossrange_deg, abs=1e-6)
     for e in (a, b):
         assert e.crossrange_deg == pytest.approx(34.1412, abs=5e-3)
@@ -115,13 +121,7 @@ def test_shuttle_with_heat_limit_against_ipopt_and_betts():
     convergence is first order; measured 30.5589 / 30.5960 / 30.6112 / 30.6185 deg at N = 50 /
     100 / 200 / 400 (differences 0.037, 0.015, 0.007; extrapolated 30.6257). Seed 004's 30.6385
     deg lies 0.013 deg above that limit (docs/aerospace.md)."""
-    res = {}
-    for cfg in (SQP, _ipopt()):
-        p = shuttle_entry(N=50, heating=True)
-        r = olado.solve(p, config=cfg)
-        assert r.status.value == "success", (cfg, r.message)
-        res[cfg] = entry_result(p, r)
-    a, b = res.values()
+    a, b = _solved_by_both(lambda: shuttle_entry(N=50, heating=True))
     assert a.crossrange_deg == pytest.approx(b.crossrange_deg, abs=1e-5)
     for e in (a, b):
         assert e.max_heat_rate <= 70.0 * (1 + 1e-6)
@@ -178,11 +178,7 @@ REUSED = {
 @pytest.mark.parametrize("name", list(REUSED))
 def test_reused_problems_against_ipopt_and_the_published_value(name):
     idx, value, tol, _reason = REUSED[name]
-    out = []
-    for cfg in (SQP, _ipopt()):
-        r = olado.solve(PROBLEMS[name](), config=cfg)
-        assert r.status.value == "success", (name, cfg, r.message)
-        out.append(float(r.x[-1, idx]))
+    out = [float(r.x[-1, idx]) for _, r in _solved_by_both(lambda: PROBLEMS[name](), readout=False)]
     assert out[0] == pytest.approx(out[1], rel=1e-6)
     assert out[0] == pytest.approx(value, abs=tol)
 
