@@ -2,7 +2,7 @@
 show that a change that should not change the algorithms (a restructuring, a speed-up) does not.
 
 Suites: ``testset`` (the 244-problem Zambezi testing set of paper 001 sec. 6, which contains
-Table 1, zambezi12 N = 12..252), ``large`` (zambezi N = 1 200 and 12 000, balance start) and
+Table 1, zambezi12 N = 12..252), ``large`` (zambezi N = 1 200 and 12 000, balance start; sqp-ip and ipm) and
 ``builtin`` (every built-in problem of olado.problems.testproblems at its default size, with every
 preset in configs/ that accepts it). Run it on two commits and compare:
 
@@ -31,8 +31,9 @@ from olado.problems.zambezi import zambezi_problem
 
 TESTSET = {"zambezi": range(12, 421, 12), "zambezi8": range(12, 217, 12), "zambezi9": range(12, 73, 12),
            "zambezi10": range(12, 73, 12), "zambezi11": range(12, 433, 12), "zambezi12": range(12, 253, 12)}
-TESTSET_CONFIGS = ["sqp-ip", "sqp-gondzio", "sqp-weighted", "sqp-sr1", "sqp-bfgs", "ipopt"]
+TESTSET_CONFIGS = ["sqp-ip", "sqp-gondzio", "sqp-weighted", "sqp-sr1", "sqp-bfgs", "ipopt", "ipm"]
 LARGE = [1200, 12000]
+LARGE_CONFIGS = ["sqp-ip", "ipm"]
 #: relative objective difference reported as a change
 OBJ_RTOL = 1e-9
 
@@ -69,10 +70,13 @@ def run(suites, configs_filter):
                         out[key] = _record(lambda: s.solve(zambezi_problem(fam, N=N, start=st, extend=None)))
                         print(key, out[key], flush=True)
     if "large" in suites:
-        for N in LARGE:
-            key = f"large|sqp-ip|zambezi|{N}|balance"
-            out[key] = _record(lambda: solver("sqp-ip").solve(zambezi_problem("zambezi", N=N)))
-            print(key, out[key], flush=True)
+        for c in LARGE_CONFIGS:
+            if configs_filter and c not in configs_filter:
+                continue
+            for N in LARGE:
+                key = f"large|{c}|zambezi|{N}|balance"
+                out[key] = _record(lambda: solver(c).solve(zambezi_problem("zambezi", N=N)))
+                print(key, out[key], flush=True)
     if "builtin" in suites:
         # olado's original built-ins (testproblems): the literature problems of the robustness set
         # (olado.problems.catalog) are benchmarked by bench_robustness.py, not fingerprinted here
