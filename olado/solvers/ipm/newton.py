@@ -130,6 +130,9 @@ class KKTMatrix:
     kkt: object = None
     delta: float = 0.0
     factorizations: int = 0
+    #: the previous iteration's matrix, whose factorization (back-end object and work arrays)
+    #: this one takes over instead of building its own (:meth:`_take_over`)
+    reuse: "KKTMatrix" = None
 
     def __post_init__(self):
         N, n, m = self.B.shape
@@ -142,8 +145,35 @@ class KKTMatrix:
         Dx[0] = 0.0
         c = self.cons
         N = self.B.shape[0]
-        self.Q[N] = self.QN + c.CNi.T @ ((c.SsN + delta)[:, None] * c.CNi)
+        if c.CNi.shape[0]:
+            self.Q[N] = self.QN + c.CNi.T @ ((c.SsN + delta)[:, None] * c.CNi)
+        else:
+            self.Q[N] = self.QN
         return Dx, self.Su + delta, c.Ss + delta
+
+    def _take_over(self):
+        """Take over the back-end of ``reuse`` (same shapes): this matrix's blocks are copied into
+        the arrays the back-end holds (and this matrix refers to those from now on), so the next
+        factorization is a ``refactor`` -- no new back-end object, validation or factor arrays per
+        iteration. ``reuse`` can no longer solve afterwards (its back-end is gone)."""
+        old, self.reuse = self.reuse, None
+        kkt = old.kkt if old is not None else None
+        if kkt is None or old.backend != self.backend or old.Q.shape != self.Q.shape or \
+                old.cons.Ci.shape != self.cons.Ci.shape or old.cons.E.shape != self.cons.E.shape or \
+                old.cons.EN.shape != self.cons.EN.shape:
+            return None
+        d, c, oc = kkt.data, self.cons, old.cons
+        for name in ("Q", "S", "R", "A", "B"):
+            held = getattr(d, name)
+            np.copyto(held, getattr(self, name))
+            setattr(self, name, held)
+        if c.E.shape[1] or c.EN.shape[0]:
+            for name, held in (("E", d.E), ("F", d.F), ("EN", d.EN)):
+                np.copyto(held, getattr(c, name))
+        if c.Ci.shape[1]:
+            np.copyto(d.Ci, c.Ci)
+        old.kkt = None
+        return kkt
 
     def try_factor(self, delta) -> bool:
         """Factor with delta_w = delta; False when the inertia is wrong (reduced Hessian not
@@ -152,12 +182,17 @@ class KKTMatrix:
         c = self.cons
         self.factorizations += 1
         try:
+            if self.kkt is None and self.reuse is not None:
+                self.kkt = self._take_over()
             if self.kkt is None:
                 kw = {}
                 if c.E.shape[1] or c.EN.shape[0]:
                     kw.update(E=c.E, F=c.F, EN=c.EN)
                 if c.Ci.shape[1]:
                     kw.update(Ci=c.Ci, sigma=sig)
+                # own copies of the blocks (A, B are the point's): a later matrix may take the
+                # back-end over and write its blocks into these arrays (_take_over)
+                self.S, self.R, self.A, self.B = (np.array(a, dtype=float) for a in (self.S, self.R, self.A, self.B))
                 self.kkt = make_kkt_solver(self.backend, self.Q, self.S, self.R, self.A, self.B, Dx=Dx, Du=Du, **kw)
             else:
                 self.kkt.refactor(Dx=Dx, Du=Du, sigma=sig if c.Ci.shape[1] else None)

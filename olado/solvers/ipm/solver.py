@@ -152,6 +152,8 @@ class Setup:
         self.t_start = time.perf_counter()
         #: called after mu changed (the l1 restoration problem's objective follows mu)
         self.on_mu_change = None
+        #: the last Newton matrix (newton_system): the next one takes its back-end over
+        self.last_kkt = None
 
 
 # ---------------------------------------------------------------------------- evaluations
@@ -313,7 +315,12 @@ def newton_system(setup, st):
     del Hxx                     # copied into Q: not kept through the factorization
     sig = setup.bounds.sigma(st.v, st.zl, st.zu)
     Sx, Su, Ss, SsN = L.split(sig, np.zeros(p.n))
-    kkt = KKTMatrix(Q, S, R, pt.A, pt.B, Sx, Su, constraint_blocks(setup, pt, Ss, SsN))
+    # the previous iteration's back-end is taken over, unless the watchdog keeps that iteration's
+    # direction (its line search may solve with it again, line_search)
+    prev = setup.last_kkt
+    if st.watch is not None and st.watch.search.kkt is prev:
+        prev = None
+    kkt = setup.last_kkt = KKTMatrix(Q, S, R, pt.A, pt.B, Sx, Su, constraint_blocks(setup, pt, Ss, SsN), reuse=prev)
     delta = kkt.factor(st.delta_last)
     st.factorizations += kkt.factorizations
     if delta is None:
