@@ -83,6 +83,8 @@ class Bounds:
         # the one-sided masks as floats, for the damping term's dot products (sec. 3.7)
         self.one_lo_f = (self.has_lo & ~self.has_hi).astype(float)
         self.one_hi_f = (self.has_hi & ~self.has_lo).astype(float)
+        self.one_sided = bool(self.one_lo_f.any() or self.one_hi_f.any())
+        self._work = None
         #: what depends on the point alone, for the two points last asked about (:class:`AtPoint`)
         self._points = []
 
@@ -137,12 +139,20 @@ class Bounds:
         the damped sides' sum of slacks), or None outside the bounds. Cached per point."""
         e = self.at(v)
         if e.terms is None:
-            sl, su = self.slacks(v)
-            if sl.size and (sl.min() <= 0 or su.min() <= 0):
+            # the slacks (cached with the point) and np.log(sl).sum() + np.log(su).sum() in one
+            # compiled pass (kernels.barrier_logs: numpy's sums); log(1) = 0 on the infinite sides
+            if e.slacks is None:
+                e.slacks = np.empty_like(v), np.empty_like(v)
+            if self._work is None or self._work.size != v.size:
+                self._work = np.empty_like(v)
+            inside, logs = _kernels().barrier_logs(v, self.lo, self.hi, self.has_lo, self.has_hi, *e.slacks, self._work)
+            if not inside:
                 e.terms = (None,)
             else:
-                # log(1) = 0 and 1/1 times a zero mask on the infinite sides
-                e.terms = (np.log(sl).sum() + np.log(su).sum(), dot(self.one_lo_f, sl) + dot(self.one_hi_f, su))
+                sl, su = e.slacks
+                # 1/1 times a zero mask on the infinite sides; exactly 0 without one-sided bounds
+                damped = dot(self.one_lo_f, sl) + dot(self.one_hi_f, su) if self.one_sided else 0.0
+                e.terms = (logs, damped)
         return None if e.terms[0] is None else e.terms
 
     def barrier_value(self, v, mu):

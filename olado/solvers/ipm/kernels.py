@@ -146,3 +146,128 @@ def move_tiny(v, lo, hi, has_lo, has_hi, eps, move):
             hi[i] += move * _floor1(abs(hi[i]))
             moved += 1
     return moved
+
+
+# ---------------------------------------------------------------------------- sums as numpy sums
+@nb.njit(**_JIT)
+def _block(a, lo, n, absolute):
+    """numpy's pairwise_sum below its block size (n <= 128): a plain loop below 8 terms, else
+    eight accumulators combined pairwise and the rest added in order."""
+    if n < 8:
+        res = 0.0
+        for i in range(lo, lo + n):
+            res += abs(a[i]) if absolute else a[i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    if absolute:
+        r0, r1, r2, r3, r4, r5, r6, r7 = abs(r0), abs(r1), abs(r2), abs(r3), abs(r4), abs(r5), abs(r6), abs(r7)
+    i = lo + 8
+    end = lo + n - (n % 8)
+    while i < end:
+        if absolute:
+            r0 += abs(a[i]); r1 += abs(a[i + 1]); r2 += abs(a[i + 2]); r3 += abs(a[i + 3])
+            r4 += abs(a[i + 4]); r5 += abs(a[i + 5]); r6 += abs(a[i + 6]); r7 += abs(a[i + 7])
+        else:
+            r0 += a[i]; r1 += a[i + 1]; r2 += a[i + 2]; r3 += a[i + 3]
+            r4 += a[i + 4]; r5 += a[i + 5]; r6 += a[i + 6]; r7 += a[i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < lo + n:
+        res += abs(a[i]) if absolute else a[i]
+        i += 1
+    return res
+
+
+@nb.njit(**_JIT)
+def _pairwise(a, lo, n, absolute):
+    """numpy's pairwise summation of a[lo:lo+n] (np.add.reduce of a contiguous float64 array:
+    blocks of at most 128 terms (_block), halves at multiples of 8 above, left + right), of |a|
+    when ``absolute``: the same rounding as ``np.abs(a).sum()`` or ``a.sum()``. The recursion
+    runs on an explicit stack (frames: start, length, stage, left half's sum)."""
+    if n <= 128:
+        return _block(a, lo, n, absolute)
+    f_lo = np.empty(64, dtype=np.int64)
+    f_n = np.empty(64, dtype=np.int64)
+    f_stage = np.zeros(64, dtype=np.int64)
+    f_left = np.empty(64)
+    f_lo[0], f_n[0], f_stage[0] = lo, n, 0
+    sp, ret = 1, 0.0
+    while sp > 0:
+        t = sp - 1
+        n_t = f_n[t]
+        if n_t <= 128:
+            ret = _block(a, f_lo[t], n_t, absolute)
+            sp -= 1
+            continue
+        n2 = n_t // 2
+        n2 -= n2 % 8
+        if f_stage[t] == 0:
+            f_stage[t] = 1
+            f_lo[sp], f_n[sp], f_stage[sp] = f_lo[t], n2, 0
+            sp += 1
+        elif f_stage[t] == 1:
+            f_left[t] = ret
+            f_stage[t] = 2
+            f_lo[sp], f_n[sp], f_stage[sp] = f_lo[t] + n2, n_t - n2, 0
+            sp += 1
+        else:
+            ret = f_left[t] + ret
+            sp -= 1
+    return ret
+
+
+@nb.njit(**_JIT)
+def abs_sum(a):
+    """np.abs(a).sum() of a flat contiguous array."""
+    return _pairwise(a, 0, a.size, True)
+
+
+@nb.njit(**_JIT)
+def residual_norms(h, e, eN, d, dN):
+    """(l1, max) of the residual arrays (flat views) as newton.Residuals.l1 and .max compute them:
+    l1 = sum(np.abs(a).sum() for a) (Python's sum from 0, in this order), max = the largest
+    np.abs(a).max() of the non-empty arrays (NaN propagating), 0 when all are empty."""
+    l1 = 0.0
+    l1 += _pairwise(h, 0, h.size, True)
+    l1 += _pairwise(e, 0, e.size, True)
+    l1 += _pairwise(eN, 0, eN.size, True)
+    l1 += _pairwise(d, 0, d.size, True)
+    l1 += _pairwise(dN, 0, dN.size, True)
+    mx, seen = 0.0, False
+    for a in (h, e, eN, d, dN):
+        if a.size:
+            m = abs(a[0])
+            for i in range(1, a.size):
+                m = _max(m, abs(a[i]))
+            # Python's max(..., default=0.0) over floats: a later value replaces only if greater
+            # (a NaN first stays, a NaN later is never greater)
+            if not seen or m > mx:
+                mx = m
+            seen = True
+    return l1, mx
+
+
+@nb.njit(**_JIT)
+def barrier_logs(v, lo, hi, has_lo, has_hi, sl, su, logs):
+    """The slacks into sl, su (as ``slacks``) and, inside the bounds, np.log(sl).sum() +
+    np.log(su).sum() (``logs``: a work array of v's size); returns (inside, that sum)."""
+    n = v.size
+    inside = True
+    for i in range(n):
+        sl[i] = v[i] - lo[i] if has_lo[i] else 1.0
+        su[i] = hi[i] - v[i] if has_hi[i] else 1.0
+    if n:
+        mn_l, mn_u = sl[0], su[0]
+        for i in range(1, n):
+            mn_l = _min(mn_l, sl[i])
+            mn_u = _min(mn_u, su[i])
+        # sl.min() <= 0 or su.min() <= 0 (a NaN minimum compares False: inside, as numpy)
+        if mn_l <= 0 or mn_u <= 0:
+            return False, 0.0
+    for i in range(n):
+        logs[i] = np.log(sl[i])
+    s = _pairwise(logs, 0, n, False)
+    for i in range(n):
+        logs[i] = np.log(su[i])
+    return True, s + _pairwise(logs, 0, n, False)

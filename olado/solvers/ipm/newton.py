@@ -82,10 +82,19 @@ class Residuals(NamedTuple):
         return Residuals(*(alpha * a + b for a, b in zip(self, other)))
 
     def l1(self):
-        return float(sum(np.abs(a).sum() for a in self))
+        """sum(np.abs(a).sum() for a in self), compiled (kernels.residual_norms: the same sums)."""
+        return self.norms()[0]
 
     def max(self):
-        return max((float(np.abs(a).max()) for a in self if a.size), default=0.0)
+        """max(np.abs(a).max() for the non-empty a, default 0), compiled (kernels.residual_norms)."""
+        return self.norms()[1]
+
+    def norms(self):
+        """(l1, max) in one compiled pass."""
+        from .barrier import _kernels    # noqa: PLC0415 - numba loaded on first use
+
+        l1, mx = _kernels().residual_norms(*(np.ravel(a) for a in self))
+        return float(l1), float(mx)
 
 
 class Step(NamedTuple):
