@@ -271,3 +271,51 @@ def barrier_logs(v, lo, hi, has_lo, has_hi, sl, su, logs):
     for i in range(n):
         logs[i] = np.log(su[i])
     return True, s + _pairwise(logs, 0, n, False)
+
+
+@nb.njit(**_JIT)
+def dual_infeasibility(s_obj, lx, lu, lN, EA, EB, lam, ECx, ECu, CNL, has_r, has_rN, yd, ydN, zl, zu, nu, nuN):
+    """|grad L - z_L + z_U|_inf over the flat vector (solver.error_terms), with grad L as
+    olado.solvers.common.stage_gradient_terms (sigma = s_obj) and solver.lagrangian_gradient
+    assemble it: rx[:-1] = s lx + EA, rx[1:-1] -= lam[:-1], rx[-1] = s lN - lam[-1],
+    (rx[:-1] += ECx, has_r), ru = s lu + EB (ru += ECu), (rx[-1] += CNL, has_rN), then the
+    slack rows -yd, -ydN; EA, EB, ECx, ECu are the einsum products A^T lam, B^T lam, Cx^T Lg,
+    Cu^T Lg (computed by numpy, as there). The max is np.abs(.).max(initial=0) (NaN propagating);
+    returns it with the multipliers' sums np.abs(zl).sum() + np.abs(zu).sum() and
+    sum(np.abs(a).sum() for a in (lam[1:], nu, nuN, yd, ydN)) (lam: the rows lam[1:])."""
+    N, n = EA.shape
+    m = EB.shape[1]
+    mx = 0.0
+    j = 0
+    for k in range(1, N + 1):
+        for i in range(n):
+            if k < N:
+                g = s_obj * lx[k, i] + EA[k, i]
+                g -= lam[k - 1, i]
+                if has_r:
+                    g += ECx[k, i]
+            else:
+                g = s_obj * lN[i] - lam[N - 1, i]
+                if has_rN:
+                    g += CNL[i]
+            mx = _max(mx, abs((g - zl[j]) + zu[j]))
+            j += 1
+    for k in range(N):
+        for i in range(m):
+            g = s_obj * lu[k, i] + EB[k, i]
+            if has_r:
+                g += ECu[k, i]
+            mx = _max(mx, abs((g - zl[j]) + zu[j]))
+            j += 1
+    yf = yd.ravel()
+    for i in range(yf.size):
+        mx = _max(mx, abs((-yf[i] - zl[j]) + zu[j]))
+        j += 1
+    for i in range(ydN.size):
+        mx = _max(mx, abs((-ydN[i] - zl[j]) + zu[j]))
+        j += 1
+    zsum = _pairwise(zl, 0, zl.size, True) + _pairwise(zu, 0, zu.size, True)
+    ysum = 0.0
+    for a in (lam.ravel(), nu.ravel(), nuN, yf, ydN):
+        ysum += _pairwise(a, 0, a.size, True)
+    return mx, zsum, ysum

@@ -47,7 +47,7 @@ from ..sqp.residuals import stage_kkt
 from ..sqp.state import BoundMultipliers, Clock, Multipliers, Point
 from .adaptive import (FILTER_MARGIN_FACT, FILTER_MAX_MARGIN, MONOTONE_INIT_FACTOR, MU_MAX_FACT, MU_MIN, AdaptiveMu,
                        QualityFunction, average_complementarity, quality_function_sigma)
-from .barrier import Bounds, Layout, dot
+from .barrier import Bounds, Layout, _kernels, dot
 from .filter import Filter
 from .newton import Constraints, KKTMatrix, Residuals, stage_blocks
 from .restoration import Restoration, least_squares_multipliers, restore, restore_l1
@@ -226,6 +226,25 @@ class ErrorTerms(NamedTuple):
     s_c: float
 
 
+def dual_terms(setup, st):
+    """(|grad L - z_L + z_U|_inf, |z_L|_1 + |z_U|_1, the constraint multipliers' 1-norm) at the
+    iterate: :func:`lagrangian_gradient`'s arithmetic (the einsum products by numpy, the rest in
+    one compiled pass, kernels.dual_infeasibility), the sums numpy's."""
+    p, pt = setup.problem, st.pt
+    lam = st.lam[1:]
+    EA, EB = np.einsum("kij,ki->kj", pt.A, lam), np.einsum("kij,ki->kj", pt.B, lam)
+    ECx, ECu, CNL = EA, EB, pt.lN       # placeholders without stage or final constraints
+    if p.r or p.rN:
+        Lg, LgN = full_multipliers(setup.layout, st)
+        if p.r:
+            ECx, ECu = np.einsum("kij,ki->kj", pt.Cx, Lg), np.einsum("kij,ki->kj", pt.Cu, Lg)
+        if p.rN:
+            CNL = pt.CN.T @ LgN
+    mx, zsum, ysum = _kernels().dual_infeasibility(float(st.s_obj), pt.lx, pt.lu, pt.lN, EA, EB, lam, ECx, ECu, CNL,
+                                                   bool(p.r), bool(p.rN), st.yd, st.ydN, st.zl, st.zu, st.nu, st.nuN)
+    return float(mx), float(zsum), float(ysum)
+
+
 #: the iterate's parts the optimality error reads (with s_obj)
 ERROR_INPUTS = ("v", "pt", "lam", "nu", "nuN", "yd", "ydN", "zl", "zu")
 
@@ -239,12 +258,9 @@ def error_terms(setup, st) -> ErrorTerms:
     if cached is not None and cached[1] == st.s_obj and all(a is b for a, b in zip(cached[0], key)):
         return cached[2]
     b = setup.bounds
-    dual = lagrangian_gradient(setup, st) - st.zl + st.zu
-    inf_du = float(np.abs(dual).max(initial=0.0))
+    inf_du, zsum, ysum = dual_terms(setup, st)
     inf_pr = residuals(setup, st.pt, st.v).max()
     nz = max(b.count, 1)
-    zsum = float(np.abs(st.zl).sum() + np.abs(st.zu).sum())
-    ysum = sum(float(np.abs(a).sum()) for a in (st.lam[1:], st.nu, st.nuN, st.yd, st.ydN))
     ny = st.lam[1:].size + st.nu.size + st.nuN.size + st.yd.size + st.ydN.size
     s_d = max(S_MAX, (ysum + zsum) / (ny + nz)) / S_MAX
     s_c = max(S_MAX, zsum / nz) / S_MAX
