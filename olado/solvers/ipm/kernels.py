@@ -319,3 +319,46 @@ def dual_infeasibility(s_obj, lx, lu, lN, EA, EB, lam, ECx, ECu, CNL, has_r, has
     for a in (lam.ravel(), nu.ravel(), nuN, yf, ydN):
         ysum += _pairwise(a, 0, a.size, True)
     return mx, zsum, ysum
+
+
+@nb.njit(inline="always")
+def _barrier_grad(sl, su, has_lo, has_hi, mu, kd_mu, i):
+    """Entry i of ``barrier_gradient``."""
+    lo_f = 1.0 if has_lo[i] else 0.0
+    hi_f = 1.0 if has_hi[i] else 0.0
+    one_lo_f = 1.0 if has_lo[i] and not has_hi[i] else 0.0
+    one_hi_f = 1.0 if has_hi[i] and not has_lo[i] else 0.0
+    return mu * (hi_f / su[i] - lo_f / sl[i]) + kd_mu * (one_lo_f - one_hi_f)
+
+
+@nb.njit(**_JIT)
+def barrier_direction(s_obj, lx, lN, lu, sl, su, has_lo, has_hi, mu, kd_mu, q, r, gs, gsN, grad):
+    """The Newton right-hand side of solver.barrier_gradient: with bg the barrier gradient
+    (``barrier_gradient``) split over (x^1..x^N, u, s, s_N) (x^0's part 0),
+    q[0] = s lx[0] + 0, q[k] = s lx[k] + bg_x^k (k < N), q[N] = s lN + bg_x^N, r = s lu + bg_u,
+    gs, gsN the slack parts, and grad = (q[1:], r, gs, gsN) flat."""
+    N, n = lx.shape
+    m = lu.shape[1]
+    for i in range(n):
+        q[0, i] = s_obj * lx[0, i] + 0.0
+    j = 0
+    for k in range(1, N + 1):
+        for i in range(n):
+            bg = _barrier_grad(sl, su, has_lo, has_hi, mu, kd_mu, j)
+            q[k, i] = (s_obj * lx[k, i] if k < N else s_obj * lN[i]) + bg
+            grad[j] = q[k, i]
+            j += 1
+    for k in range(N):
+        for i in range(m):
+            r[k, i] = s_obj * lu[k, i] + _barrier_grad(sl, su, has_lo, has_hi, mu, kd_mu, j)
+            grad[j] = r[k, i]
+            j += 1
+    gf = gs.ravel()
+    for i in range(gf.size):
+        gf[i] = _barrier_grad(sl, su, has_lo, has_hi, mu, kd_mu, j)
+        grad[j] = gf[i]
+        j += 1
+    for i in range(gsN.size):
+        gsN[i] = _barrier_grad(sl, su, has_lo, has_hi, mu, kd_mu, j)
+        grad[j] = gsN[i]
+        j += 1

@@ -47,7 +47,7 @@ from ..sqp.residuals import stage_kkt
 from ..sqp.state import BoundMultipliers, Clock, Multipliers, Point
 from .adaptive import (FILTER_MARGIN_FACT, FILTER_MAX_MARGIN, MONOTONE_INIT_FACTOR, MU_MAX_FACT, MU_MIN, AdaptiveMu,
                        QualityFunction, average_complementarity, quality_function_sigma)
-from .barrier import Bounds, Layout, _kernels, dot
+from .barrier import KAPPA_D, Bounds, Layout, _kernels, dot
 from .filter import Filter
 from .newton import Constraints, KKTMatrix, Residuals, stage_blocks
 from .restoration import Restoration, least_squares_multipliers, restore, restore_l1
@@ -451,12 +451,17 @@ class Direction(NamedTuple):
 
 def barrier_gradient(setup, st, mu=None) -> Direction:
     """grad phi_mu at the iterate (mu: the iterate's unless given), split for the Newton system."""
-    L = setup.layout
-    q, r = objective_gradient(st.pt, st.s_obj)
-    bgrad = setup.bounds.gradient(st.v, st.mu if mu is None else mu)
-    bx, bu, gs, gsN = L.split(bgrad, np.zeros(L.n))
-    q, r = q + bx, r + bu
-    return Direction(q, r, gs, gsN, L.pack(q, r, gs, gsN))
+    L, b, pt = setup.layout, setup.bounds, st.pt
+    mu = st.mu if mu is None else mu
+    # s_f grad J (objective_gradient) plus the barrier gradient (Bounds.gradient), split and
+    # packed, in one compiled pass (the same operations)
+    sl, su = b.slacks(st.v)
+    q, r = np.empty((L.N + 1, L.n)), np.empty((L.N, L.m))
+    gs, gsN, grad = np.empty((L.N, L.ni)), np.empty(L.niN), np.empty(L.size)
+    s_obj = float(st.s_obj)
+    _kernels().barrier_direction(s_obj, pt.lx, pt.lN, pt.lu, sl, su, b.has_lo, b.has_hi, mu, KAPPA_D * mu,
+                                 q, r, gs, gsN, grad)
+    return Direction(q, r, gs, gsN, grad)
 
 
 def step_vector(setup, step):
