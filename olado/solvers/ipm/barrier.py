@@ -37,12 +37,28 @@ class Layout:
         self.ne, self.neN = int(self.eq.sum()), int(self.eqN.sum())
         self.ny = self.N * (self.n + self.m)
         self.size = self.ny + self.N * self.ni + self.niN
+        #: whether there are stage or final constraint rows (else the residuals are the dynamics')
+        self.rows = bool(self.eq.size or self.eqN.size)
+        #: the (empty) residual arrays of the constraint rows of a problem without any
+        self.no_rows = (np.zeros((self.N, 0)), np.zeros(0), np.zeros((self.N, 0)), np.zeros(0))
 
     def pack(self, X, U, s=None, sN=None):
         parts = [X[1:].ravel(), U.ravel()]
         parts.append(np.zeros(self.N * self.ni) if s is None else np.asarray(s, float).ravel())
         parts.append(np.zeros(self.niN) if sN is None else np.asarray(sN, float).ravel())
         return np.concatenate(parts)
+
+    def states_controls(self, v):
+        """(X, U) of :meth:`split` alone (X row 0 the problem's x0; new arrays)."""
+        N, n, m = self.N, self.n, self.m
+        X = np.empty((N + 1, n))
+        X[0] = self.x0
+        X[1:] = v[:N * n].reshape(N, n)
+        return X, v[N * n:self.ny].reshape(N, m).copy()
+
+    def slack_views(self, v):
+        """(s (N, ni), s_N (niN,)) as views into v (read only by the caller)."""
+        return v[self.ny:self.ny + self.N * self.ni].reshape(self.N, self.ni), v[self.ny + self.N * self.ni:]
 
     def split(self, v, x0=None):
         """(X (N+1, n) with row 0 = x0 (default: the problem's), U (N, m), s (N, ni), s_N (niN,))."""

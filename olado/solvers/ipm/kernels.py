@@ -223,6 +223,20 @@ def abs_sum(a):
     return _pairwise(a, 0, a.size, True)
 
 
+@nb.njit(inline="always")
+def _abs_max_into(a, mx, seen):
+    """One step of Python's max(..., default) over np.abs(a).max() of the non-empty arrays: a
+    later value replaces only a smaller one (a NaN first stays, a NaN later is never greater)."""
+    if a.size:
+        m = abs(a[0])
+        for i in range(1, a.size):
+            m = _max(m, abs(a[i]))
+        if not seen or m > mx:
+            mx = m
+        seen = True
+    return mx, seen
+
+
 @nb.njit(**_JIT)
 def residual_norms(h, e, eN, d, dN):
     """(l1, max) of the residual arrays (flat views) as newton.Residuals.l1 and .max compute them:
@@ -235,17 +249,15 @@ def residual_norms(h, e, eN, d, dN):
     l1 += _pairwise(d, 0, d.size, True)
     l1 += _pairwise(dN, 0, dN.size, True)
     mx, seen = 0.0, False
-    for a in (h, e, eN, d, dN):
-        if a.size:
-            m = abs(a[0])
-            for i in range(1, a.size):
-                m = _max(m, abs(a[i]))
-            # Python's max(..., default=0.0) over floats: a later value replaces only if greater
-            # (a NaN first stays, a NaN later is never greater)
-            if not seen or m > mx:
-                mx = m
-            seen = True
+    mx, seen = _abs_max_into(h, mx, seen)
+    mx, seen = _abs_max_into(e, mx, seen)
+    mx, seen = _abs_max_into(eN, mx, seen)
+    mx, seen = _abs_max_into(d, mx, seen)
+    mx, seen = _abs_max_into(dN, mx, seen)
     return l1, mx
+
+
+
 
 
 @nb.njit(**_JIT)

@@ -241,13 +241,28 @@ class KKTMatrix:
             kw.update(e=res.e, eN=res.eN)
         if c.Ci.shape[1]:
             kw.update(ci=res.d + gs / ss)
-        sol = self.kkt.solve(q, r, res.h, np.zeros(n), **kw)
-        dz = np.concatenate([sol.X[:N], sol.U], axis=1)
-        ds = np.einsum("kij,kj->ki", c.Ci, dz) + res.d
-        dsN = c.CNi @ sol.X[N] + res.dN
+        if self.backend == "riccati":
+            # the back-end's solve without its argument checks (the arrays are C-contiguous float64
+            # of the system's shapes: the Newton right-hand side's, made here or by the solver)
+            data = self.kkt.data
+            rhs = (q, np.ascontiguousarray(r, dtype=float), np.ascontiguousarray(res.h, dtype=float), np.zeros(n),
+                   np.ascontiguousarray(kw["e"], dtype=float) if "e" in kw else np.zeros((N, data.ne_max)),
+                   np.ascontiguousarray(kw["eN"], dtype=float) if "eN" in kw else np.zeros(data.neN),
+                   np.ascontiguousarray(kw["ci"], dtype=float) if "ci" in kw else np.zeros(data.sig.shape))
+            X, U, lam = np.empty((N + 1, n)), np.empty((N, m)), np.empty((N + 1, n))
+            nu = np.empty((N + 1, max(data.ne_max, data.neN)))
+            self.kkt.solve_into(rhs, (X, U, lam, nu))
+        else:
+            sol = self.kkt.solve(q, r, res.h, np.zeros(n), **kw)
+            X, U, lam, nu = sol.X, sol.U, sol.lam, sol.nu
         ne, neN = c.E.shape[1], c.EN.shape[0]
-        return Step(sol.X, sol.U, ds, dsN, sol.lam, sol.nu[:N, :ne].copy(), sol.nu[N, :neN].copy(),
-                    ss * ds + gs, ssN * dsN + gsN)
+        if c.Ci.shape[1]:
+            dz = np.concatenate([X[:N], U], axis=1)
+            ds = np.einsum("kij,kj->ki", c.Ci, dz) + res.d
+        else:
+            ds = np.zeros((N, 0))
+        dsN = c.CNi @ X[N] + res.dN if c.CNi.shape[0] else np.zeros(0)
+        return Step(X, U, ds, dsN, lam, nu[:N, :ne].copy(), nu[N, :neN].copy(), ss * ds + gs, ssN * dsN + gsN)
 
 
 def stage_blocks(Hxx, Hxu, Huu, HN):

@@ -159,7 +159,7 @@ class Setup:
 # ---------------------------------------------------------------------------- evaluations
 def evaluate(setup, v, clock, derivatives=False):
     """The Point (values; derivatives on request) at the flat vector v."""
-    X, U, _, _ = setup.layout.split(v)
+    X, U = setup.layout.states_controls(v)
     return Point(setup.problem, X, U, derivatives=derivatives, clock=clock)
 
 
@@ -168,19 +168,35 @@ def residuals(setup, pt, v) -> Residuals:
     Computed once per (point, v) (the line search's theta at the trial point, the optimality
     error and the next direction at the accepted one ask for them): like the iterate's arrays
     (:func:`error_terms`), v is replaced, never changed in place, and the residuals are read only."""
+    return _residual_entry(setup, pt, v)[2]
+
+
+def _residual_entry(setup, pt, v):
+    """The point's cache entry [v, setup, Residuals, (l1, max) or None]."""
     cached = getattr(pt, "_ipm_residuals", None)
     if cached is not None and cached[0] is v and cached[1] is setup:
-        return cached[2]
+        return cached
     L = setup.layout
-    _, _, s, sN = L.split(v)
-    res = Residuals(pt.h, pt.g[:, L.eq], pt.gN[L.eqN], pt.g[:, L.ineq] - s, pt.gN[L.ineqN] - sN)
-    pt._ipm_residuals = (v, setup, res)
-    return res
+    if L.rows:
+        s, sN = L.slack_views(v)
+        res = Residuals(pt.h, pt.g[:, L.eq], pt.gN[L.eqN], pt.g[:, L.ineq] - s, pt.gN[L.ineqN] - sN)
+    else:
+        res = Residuals(pt.h, *L.no_rows)
+    cached = pt._ipm_residuals = [v, setup, res, None]
+    return cached
+
+
+def residual_norms(setup, pt, v):
+    """(theta, max-norm) of the residuals at the point (Residuals.norms), cached with them."""
+    entry = _residual_entry(setup, pt, v)
+    if entry[3] is None:
+        entry[3] = entry[2].norms()
+    return entry[3]
 
 
 def theta(setup, pt, v):
     """The constraint violation theta (the 1-norm of every constraint residual)."""
-    return residuals(setup, pt, v).l1()
+    return residual_norms(setup, pt, v)[0]
 
 
 def barrier_value(setup, pt, v, mu, s_obj):
@@ -259,7 +275,7 @@ def error_terms(setup, st) -> ErrorTerms:
         return cached[2]
     b = setup.bounds
     inf_du, zsum, ysum = dual_terms(setup, st)
-    inf_pr = residuals(setup, st.pt, st.v).max()
+    inf_pr = residual_norms(setup, st.pt, st.v)[1]
     nz = max(b.count, 1)
     ny = st.lam[1:].size + st.nu.size + st.nuN.size + st.yd.size + st.ydN.size
     s_d = max(S_MAX, (ysum + zsum) / (ny + nz)) / S_MAX
@@ -503,7 +519,8 @@ def direction(setup, st, kkt, g) -> Search:
     step = kkt.solve(g.q, g.r, res, g.gs, g.gsN)
     dv = step_vector(setup, step)
     phi = barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0]
-    return Search(kkt, g, res, step, dv, dot(g.grad, dv), res.l1(), phi, setup.bounds.max_step(st.v, dv, st.tau))
+    return Search(kkt, g, res, step, dv, dot(g.grad, dv), theta(setup, st.pt, st.v), phi,
+                  setup.bounds.max_step(st.v, dv, st.tau))
 
 
 def line_search(setup, st, kkt, g):
