@@ -216,6 +216,30 @@ class Bounds:
         a_lo, a_hi = _kernels().max_step(sl, su, dv, self.has_lo, self.has_hi, -tau, tau)
         return min(1.0, float(a_lo), float(a_hi))
 
+    def dual_step_length(self, v, dv, zl, zu, mu, tau):
+        """(dz_L, dz_U, alpha_z): :meth:`dual_step` and the smaller of the two sides'
+        :meth:`max_dual_step` in one compiled pass."""
+        sl, su = self.slacks(v)
+        dzl, dzu = np.empty_like(sl), np.empty_like(sl)
+        r_l, r_u = _kernels().dual_step_lengths(sl, su, zl, zu, dv, self.has_lo, self.has_hi, mu, -tau, dzl, dzu)
+        return dzl, dzu, min(min(1.0, float(r_l)), min(1.0, float(r_u)))
+
+    def safeguard_step(self, v, zl, zu, dzl, dzu, alpha_z, mu, kappa_sigma=1e10):
+        """:meth:`safeguard` of (zl + alpha_z dzl, zu + alpha_z dzu), in one compiled pass."""
+        sl, su = self.slacks(v)
+        out_l, out_u = np.empty_like(sl), np.empty_like(sl)
+        _kernels().safeguard_step(sl, su, zl, zu, dzl, dzu, alpha_z, self.has_lo, self.has_hi, mu, kappa_sigma,
+                                  kappa_sigma * mu, out_l, out_u)
+        return out_l, out_u
+
+    def sigma_blocks(self, v, zl, zu, layout):
+        """:meth:`sigma` split by ``layout`` as (Sx (N+1, n) with row 0 zero, Su, Ss, SsN)."""
+        L = layout
+        sl, su = self.slacks(v)
+        out = np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N, L.ni)), np.empty(L.niN)
+        _kernels().sigma_blocks(sl, su, zl, zu, *out)
+        return out
+
     @staticmethod
     def max_dual_step(z, dz, tau):
         """The fraction-to-boundary rule (15) for multipliers z >= 0."""

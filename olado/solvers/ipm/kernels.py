@@ -374,3 +374,49 @@ def barrier_direction(s_obj, lx, lN, lu, sl, su, has_lo, has_hi, mu, kd_mu, q, r
         gsN[i] = _barrier_grad(sl, su, has_lo, has_hi, mu, kd_mu, j)
         grad[j] = gsN[i]
         j += 1
+
+
+@nb.njit(**_JIT)
+def dual_step_lengths(sl, su, zl, zu, dv, has_lo, has_hi, mu, neg_tau, dzl, dzu):
+    """``dual_step`` into dzl, dzu and the fraction-to-boundary minima of both sides
+    (``max_dual_step`` of each: min(where(dz < 0, -tau z / dz, 1), initial 1))."""
+    r_l, r_u = 1.0, 1.0
+    for i in range(sl.size):
+        dzl[i] = (mu / sl[i] - zl[i]) - zl[i] / sl[i] * dv[i] if has_lo[i] else 0.0
+        dzu[i] = (mu / su[i] - zu[i]) + zu[i] / su[i] * dv[i] if has_hi[i] else 0.0
+        if dzl[i] < 0:
+            r_l = _min(r_l, neg_tau * zl[i] / dzl[i])
+        if dzu[i] < 0:
+            r_u = _min(r_u, neg_tau * zu[i] / dzu[i])
+    return r_l, r_u
+
+
+@nb.njit(**_JIT)
+def safeguard_step(sl, su, zl, zu, dzl, dzu, alpha_z, has_lo, has_hi, mu, kappa_sigma, ks_mu, out_l, out_u):
+    """``safeguard`` of the stepped multipliers zl + alpha_z dzl, zu + alpha_z dzu."""
+    for i in range(sl.size):
+        out_l[i] = _clip(zl[i] + alpha_z * dzl[i], mu / (kappa_sigma * sl[i]), ks_mu / sl[i]) if has_lo[i] else 0.0
+        out_u[i] = _clip(zu[i] + alpha_z * dzu[i], mu / (kappa_sigma * su[i]), ks_mu / su[i]) if has_hi[i] else 0.0
+
+
+@nb.njit(**_JIT)
+def sigma_blocks(sl, su, zl, zu, Sx, Su, Ss, SsN):
+    """``sigma`` split as Layout.split(sigma, 0) splits it: Sx (N+1, n) with row 0 zero, Su
+    (N, m), Ss (N, ni), SsN (niN,)."""
+    n = Sx.shape[1]
+    for i in range(n):
+        Sx[0, i] = 0.0
+    j = 0
+    for a in (Sx[1:].ravel(), Su.ravel(), Ss.ravel(), SsN):
+        for i in range(a.size):
+            a[i] = zl[j] / sl[j] + zu[j] / su[j]
+            j += 1
+
+
+@nb.njit(**_JIT)
+def tiny_step(dv, v):
+    """np.max(np.abs(dv) / (1 + np.abs(v)), initial=0) (NaN propagating)."""
+    r = 0.0
+    for i in range(v.size):
+        r = _max(r, abs(dv[i]) / (1.0 + abs(v[i])))
+    return r

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import operator
 import time
 from typing import NamedTuple
 
@@ -52,6 +53,8 @@ from .filter import Filter
 from .newton import Constraints, KKTMatrix, Residuals, stage_blocks
 from .restoration import Restoration, least_squares_multipliers, restore, restore_l1
 
+#: IPOPT's tiny step: max |dv| / (1 + |v|) below this (10 eps) takes the step without a line search
+TINY_STEP = 10 * np.finfo(float).eps
 #: s_max of eq. (5): the scaling of the optimality error by the multipliers' size
 S_MAX = 100.0
 
@@ -215,6 +218,8 @@ def objective_gradient(pt, s_obj):
 
 def full_multipliers(L, st):
     """(Lg (N, r), LgN (rN,)): the equality and inequality multipliers in the problem's order."""
+    if not L.rows:
+        return np.zeros((L.N, 0)), np.zeros(0)
     Lg = np.zeros((L.N, L.eq.size))
     Lg[:, L.eq], Lg[:, L.ineq] = st.nu, st.yd
     LgN = np.zeros(L.eqN.size)
@@ -269,9 +274,9 @@ def error_terms(setup, st) -> ErrorTerms:
     """:class:`ErrorTerms` at the iterate, computed once per iterate: the stopping test and the
     barrier update (several mu) ask for them at the same point. The iterate's arrays are
     replaced, never changed in place, so their identities name the iterate."""
-    key = tuple(getattr(st, k) for k in ERROR_INPUTS)
+    key = (st.v, st.pt, st.lam, st.nu, st.nuN, st.yd, st.ydN, st.zl, st.zu)     # ERROR_INPUTS
     cached = st.error_cache
-    if cached is not None and cached[1] == st.s_obj and all(a is b for a, b in zip(cached[0], key)):
+    if cached is not None and cached[1] == st.s_obj and all(map(operator.is_, cached[0], key)):
         return cached[2]
     b = setup.bounds
     inf_du, zsum, ysum = dual_terms(setup, st)
@@ -329,6 +334,10 @@ def initial_state(setup, X0, U0, clock):
 def constraint_blocks(setup, pt, Ss, SsN):
     """The iteration's :class:`Constraints` from the constraint Jacobians at pt."""
     L = setup.layout
+    if not L.rows:
+        N, n, m = L.N, L.n, L.m
+        return Constraints(np.zeros((N, 0, n)), np.zeros((N, 0, m)), np.zeros((0, n)), np.zeros((N, 0, n + m)),
+                           np.zeros((0, n)), Ss, SsN)
     Ci = np.ascontiguousarray(np.concatenate([pt.Cx[:, L.ineq], pt.Cu[:, L.ineq]], axis=2))
     return Constraints(np.ascontiguousarray(pt.Cx[:, L.eq]), np.ascontiguousarray(pt.Cu[:, L.eq]),
                        np.ascontiguousarray(pt.CN[L.eqN]), Ci, np.ascontiguousarray(pt.CN[L.ineqN]), Ss, SsN)
@@ -345,8 +354,7 @@ def newton_system(setup, st):
     st.clock.add(("hessian",), t0)
     Q, S, R = stage_blocks(Hxx, Hxu, Huu, HN)
     del Hxx                     # copied into Q: not kept through the factorization
-    sig = setup.bounds.sigma(st.v, st.zl, st.zu)
-    Sx, Su, Ss, SsN = L.split(sig, np.zeros(p.n))
+    Sx, Su, Ss, SsN = setup.bounds.sigma_blocks(st.v, st.zl, st.zu, L)
     # the previous iteration's back-end is taken over, unless the watchdog keeps that iteration's
     # direction (its line search may solve with it again, line_search)
     prev = setup.last_kkt
@@ -529,7 +537,7 @@ def line_search(setup, st, kkt, g):
     alpha, soc) or None (alpha fell below alpha_min: restoration)."""
     o = setup.options
     d = direction(setup, st, kkt, g)
-    tiny = float(np.max(np.abs(d.dv) / (1.0 + np.abs(st.v)), initial=0.0)) < 10 * np.finfo(float).eps
+    tiny = float(_kernels().tiny_step(d.dv, st.v)) < TINY_STEP
     if tiny:     # IPOPT's tiny-step rule: no line search for a step below rounding
         pt_t, _, _ = _trial(setup, st, st.v + d.alpha_max * d.dv)
         if pt_t is not None:
@@ -641,15 +649,16 @@ def take_step(setup, st, accepted):
     safeguard (16)."""
     b = setup.bounds
     v_new, pt_new, dv, step, alpha, soc = accepted
-    dzl, dzu = b.dual_step(st.v, dv, st.zl, st.zu, st.mu)
-    alpha_z = min(b.max_dual_step(st.zl, dzl, st.tau), b.max_dual_step(st.zu, dzu, st.tau))   # dz = 0 off the bounds
+    # dz and the step of both sides (dz = 0 off the bounds) in one pass (Bounds.dual_step_length)
+    dzl, dzu, alpha_z = b.dual_step_length(st.v, dv, st.zl, st.zu, st.mu, st.tau)
     for name in ("lam", "nu", "nuN", "yd", "ydN"):
         old = getattr(st, name)
-        setattr(st, name, old + alpha * (getattr(step, name) - old))
+        if old.size:            # an empty one (no such rows) stays
+            setattr(st, name, old + alpha * (getattr(step, name) - old))
     st.v, st.pt = v_new, pt_new
     st.pt.add_derivatives(setup.problem)
     b.move_tiny(v_new)
-    st.zl, st.zu = b.safeguard(v_new, st.zl + alpha_z * dzl, st.zu + alpha_z * dzu, st.mu)
+    st.zl, st.zu = b.safeguard_step(v_new, st.zl, st.zu, dzl, dzu, alpha_z, st.mu)
     return alpha, alpha_z, soc
 
 
