@@ -184,15 +184,34 @@ class KKTMatrix:
         old.kkt = None
         return kkt
 
+    def _diagonals_into(self, delta, Dx, Du):
+        """:meth:`_diagonals` written into the back-end's arrays Dx, Du (the same values; no new
+        arrays for the back-end to validate); returns the slack rows' weights (None without)."""
+        np.add(self.Sx, delta, out=Dx)
+        Dx[0] = 0.0
+        np.add(self.Su, delta, out=Du)
+        c = self.cons
+        N = self.B.shape[0]
+        if c.CNi.shape[0]:
+            self.Q[N] = self.QN + c.CNi.T @ ((c.SsN + delta)[:, None] * c.CNi)
+        else:
+            self.Q[N] = self.QN
+        return c.Ss + delta if c.Ci.shape[1] else None
+
     def try_factor(self, delta) -> bool:
         """Factor with delta_w = delta; False when the inertia is wrong (reduced Hessian not
         positive definite)."""
-        Dx, Du, sig = self._diagonals(delta)
         c = self.cons
         self.factorizations += 1
         try:
             if self.kkt is None and self.reuse is not None:
                 self.kkt = self._take_over()
+            if self.kkt is not None and self.backend == "riccati":
+                d = self.kkt.data
+                self.kkt.refactor(Dx=d.Dx, Du=d.Du, sigma=self._diagonals_into(delta, d.Dx, d.Du))
+                self.delta = delta
+                return True
+            Dx, Du, sig = self._diagonals(delta)
             if self.kkt is None:
                 kw = {}
                 if c.E.shape[1] or c.EN.shape[0]:
