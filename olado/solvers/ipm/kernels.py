@@ -238,10 +238,11 @@ def _abs_max_into(a, mx, seen):
 
 
 @nb.njit(**_JIT)
-def residual_norms(h, e, eN, d, dN):
+def residual_norms(h2, e2, eN, d2, dN):
     """(l1, max) of the residual arrays (flat views) as newton.Residuals.l1 and .max compute them:
     l1 = sum(np.abs(a).sum() for a) (Python's sum from 0, in this order), max = the largest
     np.abs(a).max() of the non-empty arrays (NaN propagating), 0 when all are empty."""
+    h, e, d = h2.ravel(), e2.ravel(), d2.ravel()       # (N, .) arrays, C-contiguous or copied
     l1 = 0.0
     l1 += _pairwise(h, 0, h.size, True)
     l1 += _pairwise(e, 0, e.size, True)

@@ -93,7 +93,7 @@ class Residuals(NamedTuple):
         """(l1, max) in one compiled pass."""
         from .barrier import _kernels    # noqa: PLC0415 - numba loaded on first use
 
-        l1, mx = _kernels().residual_norms(*(np.ravel(a) for a in self))
+        l1, mx = _kernels().residual_norms(*self)
         return float(l1), float(mx)
 
 
@@ -167,15 +167,14 @@ class KKTMatrix:
         iteration. ``reuse`` can no longer solve afterwards (its back-end is gone)."""
         old, self.reuse = self.reuse, None
         kkt = old.kkt if old is not None else None
+        c, oc = self.cons, old.cons if old is not None else None
         if kkt is None or old.backend != self.backend or old.Q.shape != self.Q.shape or \
-                old.cons.Ci.shape != self.cons.Ci.shape or old.cons.E.shape != self.cons.E.shape or \
-                old.cons.EN.shape != self.cons.EN.shape:
+                oc.Ci.shape != c.Ci.shape or oc.E.shape != c.E.shape or oc.EN.shape != c.EN.shape:
             return None
-        d, c, oc = kkt.data, self.cons, old.cons
-        for name in ("Q", "S", "R", "A", "B"):
-            held = getattr(d, name)
-            np.copyto(held, getattr(self, name))
-            setattr(self, name, held)
+        d = kkt.data
+        np.copyto(d.Q, self.Q); np.copyto(d.S, self.S); np.copyto(d.R, self.R)
+        np.copyto(d.A, self.A); np.copyto(d.B, self.B)
+        self.Q, self.S, self.R, self.A, self.B = d.Q, d.S, d.R, d.A, d.B
         if c.E.shape[1] or c.EN.shape[0]:
             for name, held in (("E", d.E), ("F", d.F), ("EN", d.EN)):
                 np.copyto(held, getattr(c, name))
@@ -249,6 +248,8 @@ class KKTMatrix:
         with dx^0 = 0."""
         c, d = self.cons, self.delta
         N, n, m = self.B.shape
+        if self.backend == "riccati" and not (c.E.shape[1] or c.EN.shape[0] or c.Ci.shape[1] or c.CNi.shape[0]):
+            return self._solve_dynamics_only(q, r, res)
         gs = np.zeros(c.Ss.shape) if gs is None else gs
         gsN = np.zeros(c.SsN.shape) if gsN is None else gsN
         ss, ssN = c.Ss + d, c.SsN + d
@@ -282,6 +283,17 @@ class KKTMatrix:
             ds = np.zeros((N, 0))
         dsN = c.CNi @ X[N] + res.dN if c.CNi.shape[0] else np.zeros(0)
         return Step(X, U, ds, dsN, lam, nu[:N, :ne].copy(), nu[N, :neN].copy(), ss * ds + gs, ssN * dsN + gsN)
+
+
+    def _solve_dynamics_only(self, q, r, res):
+        """:meth:`solve` without constraint rows (the dynamics alone): the back-end's solve_into
+        on the right-hand side (q, r, h), the empty row parts of the Step as they would be."""
+        N, n, m = self.B.shape
+        X, U, lam = np.empty((N + 1, n)), np.empty((N, m)), np.empty((N + 1, n))
+        none, noneN = np.zeros((N, 0)), np.zeros(0)
+        self.kkt.solve_into((q.copy(), np.ascontiguousarray(r, dtype=float), np.ascontiguousarray(res.h, dtype=float),
+                             np.zeros(n), none, noneN, none), (X, U, lam, np.empty((N + 1, 0))))
+        return Step(X, U, none, noneN, lam, none, noneN, none, noneN)
 
 
 def stage_blocks(Hxx, Hxu, Huu, HN):
