@@ -149,7 +149,12 @@ def move_tiny(v, lo, hi, has_lo, has_hi, eps, move):
 
 
 # ---------------------------------------------------------------------------- sums as numpy sums
-@nb.njit(**_JIT)
+#: the one signature of the pairwise-sum helpers: compiled once (when this module is loaded, from
+#: numba's cache after the first time) instead of once per literal argument at every call site
+_SUM_SIG = "float64(float64[::1], int64, int64, boolean)"
+
+
+@nb.njit(_SUM_SIG, **_JIT)
 def _block(a, lo, n, absolute):
     """numpy's pairwise_sum below its block size (n <= 128): a plain loop below 8 terms, else
     eight accumulators combined pairwise and the rest added in order."""
@@ -179,7 +184,7 @@ def _block(a, lo, n, absolute):
     return res
 
 
-@nb.njit(**_JIT)
+@nb.njit(_SUM_SIG, **_JIT)
 def _pairwise(a, lo, n, absolute):
     """numpy's pairwise summation of a[lo:lo+n] (np.add.reduce of a contiguous float64 array:
     blocks of at most 128 terms (_block), halves at multiples of 8 above, left + right), of |a|
@@ -220,7 +225,7 @@ def _pairwise(a, lo, n, absolute):
 @nb.njit(**_JIT)
 def abs_sum(a):
     """np.abs(a).sum() of a flat contiguous array."""
-    return _pairwise(a, 0, a.size, True)
+    return _pairwise(np.ascontiguousarray(a), 0, a.size, True)
 
 
 @nb.njit(inline="always")
@@ -246,9 +251,9 @@ def residual_norms(h2, e2, eN, d2, dN):
     l1 = 0.0
     l1 += _pairwise(h, 0, h.size, True)
     l1 += _pairwise(e, 0, e.size, True)
-    l1 += _pairwise(eN, 0, eN.size, True)
+    l1 += _pairwise(np.ascontiguousarray(eN), 0, eN.size, True)
     l1 += _pairwise(d, 0, d.size, True)
-    l1 += _pairwise(dN, 0, dN.size, True)
+    l1 += _pairwise(np.ascontiguousarray(dN), 0, dN.size, True)
     mx, seen = 0.0, False
     mx, seen = _abs_max_into(h, mx, seen)
     mx, seen = _abs_max_into(e, mx, seen)
@@ -327,10 +332,14 @@ def dual_infeasibility(s_obj, lx, lu, lN, EA, EB, lam, ECx, ECu, CNL, has_r, has
     for i in range(ydN.size):
         mx = _max(mx, abs((-ydN[i] - zl[j]) + zu[j]))
         j += 1
+    zl, zu = np.ascontiguousarray(zl), np.ascontiguousarray(zu)
     zsum = _pairwise(zl, 0, zl.size, True) + _pairwise(zu, 0, zu.size, True)
     ysum = 0.0
-    for a in (lam.ravel(), nu.ravel(), nuN, yf, ydN):
-        ysum += _pairwise(a, 0, a.size, True)
+    ysum += _pairwise(lam.ravel(), 0, lam.size, True)
+    ysum += _pairwise(nu.ravel(), 0, nu.size, True)
+    ysum += _pairwise(np.ascontiguousarray(nuN), 0, nuN.size, True)
+    ysum += _pairwise(yf, 0, yf.size, True)
+    ysum += _pairwise(np.ascontiguousarray(ydN), 0, ydN.size, True)
     return mx, zsum, ysum
 
 
@@ -352,28 +361,27 @@ def barrier_direction(s_obj, lx, lN, lu, sl, su, has_lo, has_hi, mu, kd_mu, q, r
     gs, gsN the slack parts, and grad = (q[1:], r, gs, gsN) flat."""
     N, n = lx.shape
     m = lu.shape[1]
+    for j in range(grad.size):      # the barrier gradient first (one inlined copy of its formula)
+        grad[j] = _barrier_grad(sl, su, has_lo, has_hi, mu, kd_mu, j)
     for i in range(n):
         q[0, i] = s_obj * lx[0, i] + 0.0
     j = 0
     for k in range(1, N + 1):
         for i in range(n):
-            bg = _barrier_grad(sl, su, has_lo, has_hi, mu, kd_mu, j)
-            q[k, i] = (s_obj * lx[k, i] if k < N else s_obj * lN[i]) + bg
+            q[k, i] = (s_obj * lx[k, i] if k < N else s_obj * lN[i]) + grad[j]
             grad[j] = q[k, i]
             j += 1
     for k in range(N):
         for i in range(m):
-            r[k, i] = s_obj * lu[k, i] + _barrier_grad(sl, su, has_lo, has_hi, mu, kd_mu, j)
+            r[k, i] = s_obj * lu[k, i] + grad[j]
             grad[j] = r[k, i]
             j += 1
     gf = gs.ravel()
     for i in range(gf.size):
-        gf[i] = _barrier_grad(sl, su, has_lo, has_hi, mu, kd_mu, j)
-        grad[j] = gf[i]
+        gf[i] = grad[j]
         j += 1
     for i in range(gsN.size):
-        gsN[i] = _barrier_grad(sl, su, has_lo, has_hi, mu, kd_mu, j)
-        grad[j] = gsN[i]
+        gsN[i] = grad[j]
         j += 1
 
 
