@@ -161,20 +161,19 @@ class KKTMatrix:
         return Dx, self.Su + delta, c.Ss + delta
 
     def _take_over(self):
-        """Take over the back-end of ``reuse`` (same shapes): this matrix's blocks are copied into
-        the arrays the back-end holds (and this matrix refers to those from now on), so the next
-        factorization is a ``refactor`` -- no new back-end object, validation or factor arrays per
-        iteration. ``reuse`` can no longer solve afterwards (its back-end is gone)."""
+        """Take over the back-end of ``reuse`` (same shapes): the back-end gets this matrix's
+        blocks (Riccati: ``set_blocks``, by reference; their rows copied into its arrays), so the
+        next factorization is a ``refactor`` -- no new back-end object, validation or factor arrays
+        per iteration. ``reuse`` can no longer solve afterwards (its back-end is gone)."""
         old, self.reuse = self.reuse, None
         kkt = old.kkt if old is not None else None
         c, oc = self.cons, old.cons if old is not None else None
-        if kkt is None or old.backend != self.backend or old.Q.shape != self.Q.shape or \
-                oc.Ci.shape != c.Ci.shape or oc.E.shape != c.E.shape or oc.EN.shape != c.EN.shape:
+        if kkt is None or self.backend != "riccati" or old.backend != self.backend or \
+                old.Q.shape != self.Q.shape or oc.Ci.shape != c.Ci.shape or oc.E.shape != c.E.shape or \
+                oc.EN.shape != c.EN.shape:
             return None
-        d = kkt.data
-        np.copyto(d.Q, self.Q); np.copyto(d.S, self.S); np.copyto(d.R, self.R)
-        np.copyto(d.A, self.A); np.copyto(d.B, self.B)
-        self.Q, self.S, self.R, self.A, self.B = d.Q, d.S, d.R, d.A, d.B
+        d = kkt.set_blocks(self.Q, self.S, self.R, self.A, self.B).data
+        self.Q = d.Q        # the same array unless it had to be made contiguous (_diagonals writes Q[N])
         if c.E.shape[1] or c.EN.shape[0]:
             for name, held in (("E", d.E), ("F", d.F), ("EN", d.EN)):
                 np.copyto(held, getattr(c, name))
@@ -217,9 +216,6 @@ class KKTMatrix:
                     kw.update(E=c.E, F=c.F, EN=c.EN)
                 if c.Ci.shape[1]:
                     kw.update(Ci=c.Ci, sigma=sig)
-                # own copies of the blocks (A, B are the point's): a later matrix may take the
-                # back-end over and write its blocks into these arrays (_take_over)
-                self.S, self.R, self.A, self.B = (np.array(a, dtype=float) for a in (self.S, self.R, self.A, self.B))
                 self.kkt = make_kkt_solver(self.backend, self.Q, self.S, self.R, self.A, self.B, Dx=Dx, Du=Du, **kw)
             else:
                 self.kkt.refactor(Dx=Dx, Du=Du, sigma=sig if c.Ci.shape[1] else None)
