@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import OladoError
-from .backend import RHS, LQSolution, NotPositiveDefiniteError, Solution, StageData
+from .backend import RHS, LQSolution, NotPositiveDefiniteError, Solution, StageData, _f64
 from .codegen import fixed_size_tags, kernel_set
 from .riccati_fixed import (_STRAIGHT_N_MAX, _factor_unconstrained_fixed, _factor_unconstrained_fixed_loops,
                             _solve_unconstrained_fixed)
@@ -137,6 +137,18 @@ class RiccatiFactorization:
         of this object succeeded; the backward sweep's factors of the later stages are kept."""
         self.data.set_diagonal(Dx=Dx, Du=Du, sigma=sigma, regularization=regularization)
         self._factorize(self.N - 1 if from_stage is None else max(-1, min(int(from_stage), self.N - 1)))
+        return self
+
+    def set_blocks(self, Q, S, R, A, B):
+        """New cost and dynamics blocks of the same shapes -- the Newton matrix of an
+        interior-point NLP's next iteration -- held by reference (copied only if not C-contiguous
+        float64); the equality rows, the stage inequality rows and the factor arrays stay.
+        Factor with :meth:`refactor` before the next solve."""
+        d = self.data
+        d.Q, d.S, d.R = _f64(Q, d.Q.shape, "Q"), _f64(S, d.S.shape, "S"), _f64(R, d.R.shape, "R")
+        d.A, d.B = _f64(A, d.A.shape, "A"), _f64(B, d.B.shape, "B")
+        self._costs = tuple(Costs(Q=d.Q, S=d.S, R=d.R))
+        self._dyn = tuple(Dynamics(A=d.A, B=d.B))
         return self
 
     def _ip_terms(self):

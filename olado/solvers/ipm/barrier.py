@@ -37,12 +37,28 @@ class Layout:
         self.ne, self.neN = int(self.eq.sum()), int(self.eqN.sum())
         self.ny = self.N * (self.n + self.m)
         self.size = self.ny + self.N * self.ni + self.niN
+        #: whether there are stage or final constraint rows (else the residuals are the dynamics')
+        self.rows = bool(self.eq.size or self.eqN.size)
+        #: the (empty) residual arrays of the constraint rows of a problem without any
+        self.no_rows = (np.zeros((self.N, 0)), np.zeros(0), np.zeros((self.N, 0)), np.zeros(0))
 
     def pack(self, X, U, s=None, sN=None):
         parts = [X[1:].ravel(), U.ravel()]
         parts.append(np.zeros(self.N * self.ni) if s is None else np.asarray(s, float).ravel())
         parts.append(np.zeros(self.niN) if sN is None else np.asarray(sN, float).ravel())
         return np.concatenate(parts)
+
+    def states_controls(self, v):
+        """(X, U) of :meth:`split` alone (X row 0 the problem's x0; new arrays)."""
+        N, n, m = self.N, self.n, self.m
+        X = np.empty((N + 1, n))
+        X[0] = self.x0
+        X[1:] = v[:N * n].reshape(N, n)
+        return X, v[N * n:self.ny].reshape(N, m).copy()
+
+    def slack_views(self, v):
+        """(s (N, ni), s_N (niN,)) as views into v (read only by the caller)."""
+        return v[self.ny:self.ny + self.N * self.ni].reshape(self.N, self.ni), v[self.ny + self.N * self.ni:]
 
     def split(self, v, x0=None):
         """(X (N+1, n) with row 0 = x0 (default: the problem's), U (N, m), s (N, ni), s_N (niN,))."""
@@ -83,6 +99,8 @@ class Bounds:
         # the one-sided masks as floats, for the damping term's dot products (sec. 3.7)
         self.one_lo_f = (self.has_lo & ~self.has_hi).astype(float)
         self.one_hi_f = (self.has_hi & ~self.has_lo).astype(float)
+        self.one_sided = bool(self.one_lo_f.any() or self.one_hi_f.any())
+        self._work = None
         #: what depends on the point alone, for the two points last asked about (:class:`AtPoint`)
         self._points = []
 
@@ -137,12 +155,20 @@ class Bounds:
         the damped sides' sum of slacks), or None outside the bounds. Cached per point."""
         e = self.at(v)
         if e.terms is None:
-            sl, su = self.slacks(v)
-            if sl.size and (sl.min() <= 0 or su.min() <= 0):
+            # the slacks (cached with the point) and np.log(sl).sum() + np.log(su).sum() in one
+            # compiled pass (kernels.barrier_logs: numpy's sums); log(1) = 0 on the infinite sides
+            if e.slacks is None:
+                e.slacks = np.empty_like(v), np.empty_like(v)
+            if self._work is None or self._work.size != v.size:
+                self._work = np.empty_like(v)
+            inside, logs = _kernels().barrier_logs(v, self.lo, self.hi, self.has_lo, self.has_hi, *e.slacks, self._work)
+            if not inside:
                 e.terms = (None,)
             else:
-                # log(1) = 0 and 1/1 times a zero mask on the infinite sides
-                e.terms = (np.log(sl).sum() + np.log(su).sum(), dot(self.one_lo_f, sl) + dot(self.one_hi_f, su))
+                sl, su = e.slacks
+                # 1/1 times a zero mask on the infinite sides; exactly 0 without one-sided bounds
+                damped = dot(self.one_lo_f, sl) + dot(self.one_hi_f, su) if self.one_sided else 0.0
+                e.terms = (logs, damped)
         return None if e.terms[0] is None else e.terms
 
     def barrier_value(self, v, mu):
@@ -189,6 +215,30 @@ class Bounds:
         sl, su = self.slacks(v)
         a_lo, a_hi = _kernels().max_step(sl, su, dv, self.has_lo, self.has_hi, -tau, tau)
         return min(1.0, float(a_lo), float(a_hi))
+
+    def dual_step_length(self, v, dv, zl, zu, mu, tau):
+        """(dz_L, dz_U, alpha_z): :meth:`dual_step` and the smaller of the two sides'
+        :meth:`max_dual_step` in one compiled pass."""
+        sl, su = self.slacks(v)
+        dzl, dzu = np.empty_like(sl), np.empty_like(sl)
+        r_l, r_u = _kernels().dual_step_lengths(sl, su, zl, zu, dv, self.has_lo, self.has_hi, mu, -tau, dzl, dzu)
+        return dzl, dzu, min(min(1.0, float(r_l)), min(1.0, float(r_u)))
+
+    def safeguard_step(self, v, zl, zu, dzl, dzu, alpha_z, mu, kappa_sigma=1e10):
+        """:meth:`safeguard` of (zl + alpha_z dzl, zu + alpha_z dzu), in one compiled pass."""
+        sl, su = self.slacks(v)
+        out_l, out_u = np.empty_like(sl), np.empty_like(sl)
+        _kernels().safeguard_step(sl, su, zl, zu, dzl, dzu, alpha_z, self.has_lo, self.has_hi, mu, kappa_sigma,
+                                  kappa_sigma * mu, out_l, out_u)
+        return out_l, out_u
+
+    def sigma_blocks(self, v, zl, zu, layout):
+        """:meth:`sigma` split by ``layout`` as (Sx (N+1, n) with row 0 zero, Su, Ss, SsN)."""
+        L = layout
+        sl, su = self.slacks(v)
+        out = np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N, L.ni)), np.empty(L.niN)
+        _kernels().sigma_blocks(sl, su, zl, zu, *out)
+        return out
 
     @staticmethod
     def max_dual_step(z, dz, tau):

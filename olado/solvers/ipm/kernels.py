@@ -146,3 +146,286 @@ def move_tiny(v, lo, hi, has_lo, has_hi, eps, move):
             hi[i] += move * _floor1(abs(hi[i]))
             moved += 1
     return moved
+
+
+# ---------------------------------------------------------------------------- sums as numpy sums
+#: the one signature of the pairwise-sum helpers: compiled once (when this module is loaded, from
+#: numba's cache after the first time) instead of once per literal argument at every call site
+_SUM_SIG = "float64(float64[::1], int64, int64, boolean)"
+
+
+@nb.njit(_SUM_SIG, **_JIT)
+def _block(a, lo, n, absolute):
+    """numpy's pairwise_sum below its block size (n <= 128): a plain loop below 8 terms, else
+    eight accumulators combined pairwise and the rest added in order."""
+    if n < 8:
+        res = 0.0
+        for i in range(lo, lo + n):
+            res += abs(a[i]) if absolute else a[i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    if absolute:
+        r0, r1, r2, r3, r4, r5, r6, r7 = abs(r0), abs(r1), abs(r2), abs(r3), abs(r4), abs(r5), abs(r6), abs(r7)
+    i = lo + 8
+    end = lo + n - (n % 8)
+    while i < end:
+        if absolute:
+            r0 += abs(a[i]); r1 += abs(a[i + 1]); r2 += abs(a[i + 2]); r3 += abs(a[i + 3])
+            r4 += abs(a[i + 4]); r5 += abs(a[i + 5]); r6 += abs(a[i + 6]); r7 += abs(a[i + 7])
+        else:
+            r0 += a[i]; r1 += a[i + 1]; r2 += a[i + 2]; r3 += a[i + 3]
+            r4 += a[i + 4]; r5 += a[i + 5]; r6 += a[i + 6]; r7 += a[i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < lo + n:
+        res += abs(a[i]) if absolute else a[i]
+        i += 1
+    return res
+
+
+@nb.njit(_SUM_SIG, **_JIT)
+def _pairwise(a, lo, n, absolute):
+    """numpy's pairwise summation of a[lo:lo+n] (np.add.reduce of a contiguous float64 array:
+    blocks of at most 128 terms (_block), halves at multiples of 8 above, left + right), of |a|
+    when ``absolute``: the same rounding as ``np.abs(a).sum()`` or ``a.sum()``. The recursion
+    runs on an explicit stack (frames: start, length, stage, left half's sum)."""
+    if n <= 128:
+        return _block(a, lo, n, absolute)
+    f_lo = np.empty(64, dtype=np.int64)
+    f_n = np.empty(64, dtype=np.int64)
+    f_stage = np.zeros(64, dtype=np.int64)
+    f_left = np.empty(64)
+    f_lo[0], f_n[0], f_stage[0] = lo, n, 0
+    sp, ret = 1, 0.0
+    while sp > 0:
+        t = sp - 1
+        n_t = f_n[t]
+        if n_t <= 128:
+            ret = _block(a, f_lo[t], n_t, absolute)
+            sp -= 1
+            continue
+        n2 = n_t // 2
+        n2 -= n2 % 8
+        if f_stage[t] == 0:
+            f_stage[t] = 1
+            f_lo[sp], f_n[sp], f_stage[sp] = f_lo[t], n2, 0
+            sp += 1
+        elif f_stage[t] == 1:
+            f_left[t] = ret
+            f_stage[t] = 2
+            f_lo[sp], f_n[sp], f_stage[sp] = f_lo[t] + n2, n_t - n2, 0
+            sp += 1
+        else:
+            ret = f_left[t] + ret
+            sp -= 1
+    return ret
+
+
+@nb.njit(**_JIT)
+def abs_sum(a):
+    """np.abs(a).sum() of a flat contiguous array."""
+    return _pairwise(np.ascontiguousarray(a), 0, a.size, True)
+
+
+@nb.njit(inline="always")
+def _abs_max_into(a, mx, seen):
+    """One step of Python's max(..., default) over np.abs(a).max() of the non-empty arrays: a
+    later value replaces only a smaller one (a NaN first stays, a NaN later is never greater)."""
+    if a.size:
+        m = abs(a[0])
+        for i in range(1, a.size):
+            m = _max(m, abs(a[i]))
+        if not seen or m > mx:
+            mx = m
+        seen = True
+    return mx, seen
+
+
+@nb.njit(**_JIT)
+def residual_norms(h2, e2, eN, d2, dN):
+    """(l1, max) of the residual arrays (flat views) as newton.Residuals.l1 and .max compute them:
+    l1 = sum(np.abs(a).sum() for a) (Python's sum from 0, in this order), max = the largest
+    np.abs(a).max() of the non-empty arrays (NaN propagating), 0 when all are empty."""
+    h, e, d = h2.ravel(), e2.ravel(), d2.ravel()       # (N, .) arrays, C-contiguous or copied
+    l1 = 0.0
+    l1 += _pairwise(h, 0, h.size, True)
+    l1 += _pairwise(e, 0, e.size, True)
+    l1 += _pairwise(np.ascontiguousarray(eN), 0, eN.size, True)
+    l1 += _pairwise(d, 0, d.size, True)
+    l1 += _pairwise(np.ascontiguousarray(dN), 0, dN.size, True)
+    mx, seen = 0.0, False
+    mx, seen = _abs_max_into(h, mx, seen)
+    mx, seen = _abs_max_into(e, mx, seen)
+    mx, seen = _abs_max_into(eN, mx, seen)
+    mx, seen = _abs_max_into(d, mx, seen)
+    mx, seen = _abs_max_into(dN, mx, seen)
+    return l1, mx
+
+
+
+
+
+@nb.njit(**_JIT)
+def barrier_logs(v, lo, hi, has_lo, has_hi, sl, su, logs):
+    """The slacks into sl, su (as ``slacks``) and, inside the bounds, np.log(sl).sum() +
+    np.log(su).sum() (``logs``: a work array of v's size); returns (inside, that sum)."""
+    n = v.size
+    inside = True
+    for i in range(n):
+        sl[i] = v[i] - lo[i] if has_lo[i] else 1.0
+        su[i] = hi[i] - v[i] if has_hi[i] else 1.0
+    if n:
+        mn_l, mn_u = sl[0], su[0]
+        for i in range(1, n):
+            mn_l = _min(mn_l, sl[i])
+            mn_u = _min(mn_u, su[i])
+        # sl.min() <= 0 or su.min() <= 0 (a NaN minimum compares False: inside, as numpy)
+        if mn_l <= 0 or mn_u <= 0:
+            return False, 0.0
+    for i in range(n):
+        logs[i] = np.log(sl[i])
+    s = _pairwise(logs, 0, n, False)
+    for i in range(n):
+        logs[i] = np.log(su[i])
+    return True, s + _pairwise(logs, 0, n, False)
+
+
+@nb.njit(**_JIT)
+def dual_infeasibility(s_obj, lx, lu, lN, EA, EB, lam, ECx, ECu, CNL, has_r, has_rN, yd, ydN, zl, zu, nu, nuN):
+    """|grad L - z_L + z_U|_inf over the flat vector (solver.error_terms), with grad L as
+    olado.solvers.common.stage_gradient_terms (sigma = s_obj) and solver.lagrangian_gradient
+    assemble it: rx[:-1] = s lx + EA, rx[1:-1] -= lam[:-1], rx[-1] = s lN - lam[-1],
+    (rx[:-1] += ECx, has_r), ru = s lu + EB (ru += ECu), (rx[-1] += CNL, has_rN), then the
+    slack rows -yd, -ydN; EA, EB, ECx, ECu are the einsum products A^T lam, B^T lam, Cx^T Lg,
+    Cu^T Lg (computed by numpy, as there). The max is np.abs(.).max(initial=0) (NaN propagating);
+    returns it with the multipliers' sums np.abs(zl).sum() + np.abs(zu).sum() and
+    sum(np.abs(a).sum() for a in (lam[1:], nu, nuN, yd, ydN)) (lam: the rows lam[1:])."""
+    N, n = EA.shape
+    m = EB.shape[1]
+    mx = 0.0
+    j = 0
+    for k in range(1, N + 1):
+        for i in range(n):
+            if k < N:
+                g = s_obj * lx[k, i] + EA[k, i]
+                g -= lam[k - 1, i]
+                if has_r:
+                    g += ECx[k, i]
+            else:
+                g = s_obj * lN[i] - lam[N - 1, i]
+                if has_rN:
+                    g += CNL[i]
+            mx = _max(mx, abs((g - zl[j]) + zu[j]))
+            j += 1
+    for k in range(N):
+        for i in range(m):
+            g = s_obj * lu[k, i] + EB[k, i]
+            if has_r:
+                g += ECu[k, i]
+            mx = _max(mx, abs((g - zl[j]) + zu[j]))
+            j += 1
+    yf = yd.ravel()
+    for i in range(yf.size):
+        mx = _max(mx, abs((-yf[i] - zl[j]) + zu[j]))
+        j += 1
+    for i in range(ydN.size):
+        mx = _max(mx, abs((-ydN[i] - zl[j]) + zu[j]))
+        j += 1
+    zl, zu = np.ascontiguousarray(zl), np.ascontiguousarray(zu)
+    zsum = _pairwise(zl, 0, zl.size, True) + _pairwise(zu, 0, zu.size, True)
+    ysum = 0.0
+    ysum += _pairwise(lam.ravel(), 0, lam.size, True)
+    ysum += _pairwise(nu.ravel(), 0, nu.size, True)
+    ysum += _pairwise(np.ascontiguousarray(nuN), 0, nuN.size, True)
+    ysum += _pairwise(yf, 0, yf.size, True)
+    ysum += _pairwise(np.ascontiguousarray(ydN), 0, ydN.size, True)
+    return mx, zsum, ysum
+
+
+@nb.njit(inline="always")
+def _barrier_grad(sl, su, has_lo, has_hi, mu, kd_mu, i):
+    """Entry i of ``barrier_gradient``."""
+    lo_f = 1.0 if has_lo[i] else 0.0
+    hi_f = 1.0 if has_hi[i] else 0.0
+    one_lo_f = 1.0 if has_lo[i] and not has_hi[i] else 0.0
+    one_hi_f = 1.0 if has_hi[i] and not has_lo[i] else 0.0
+    return mu * (hi_f / su[i] - lo_f / sl[i]) + kd_mu * (one_lo_f - one_hi_f)
+
+
+@nb.njit(**_JIT)
+def barrier_direction(s_obj, lx, lN, lu, sl, su, has_lo, has_hi, mu, kd_mu, q, r, gs, gsN, grad):
+    """The Newton right-hand side of solver.barrier_gradient: with bg the barrier gradient
+    (``barrier_gradient``) split over (x^1..x^N, u, s, s_N) (x^0's part 0),
+    q[0] = s lx[0] + 0, q[k] = s lx[k] + bg_x^k (k < N), q[N] = s lN + bg_x^N, r = s lu + bg_u,
+    gs, gsN the slack parts, and grad = (q[1:], r, gs, gsN) flat."""
+    N, n = lx.shape
+    m = lu.shape[1]
+    for j in range(grad.size):      # the barrier gradient first (one inlined copy of its formula)
+        grad[j] = _barrier_grad(sl, su, has_lo, has_hi, mu, kd_mu, j)
+    for i in range(n):
+        q[0, i] = s_obj * lx[0, i] + 0.0
+    j = 0
+    for k in range(1, N + 1):
+        for i in range(n):
+            q[k, i] = (s_obj * lx[k, i] if k < N else s_obj * lN[i]) + grad[j]
+            grad[j] = q[k, i]
+            j += 1
+    for k in range(N):
+        for i in range(m):
+            r[k, i] = s_obj * lu[k, i] + grad[j]
+            grad[j] = r[k, i]
+            j += 1
+    gf = gs.ravel()
+    for i in range(gf.size):
+        gf[i] = grad[j]
+        j += 1
+    for i in range(gsN.size):
+        gsN[i] = grad[j]
+        j += 1
+
+
+@nb.njit(**_JIT)
+def dual_step_lengths(sl, su, zl, zu, dv, has_lo, has_hi, mu, neg_tau, dzl, dzu):
+    """``dual_step`` into dzl, dzu and the fraction-to-boundary minima of both sides
+    (``max_dual_step`` of each: min(where(dz < 0, -tau z / dz, 1), initial 1))."""
+    r_l, r_u = 1.0, 1.0
+    for i in range(sl.size):
+        dzl[i] = (mu / sl[i] - zl[i]) - zl[i] / sl[i] * dv[i] if has_lo[i] else 0.0
+        dzu[i] = (mu / su[i] - zu[i]) + zu[i] / su[i] * dv[i] if has_hi[i] else 0.0
+        if dzl[i] < 0:
+            r_l = _min(r_l, neg_tau * zl[i] / dzl[i])
+        if dzu[i] < 0:
+            r_u = _min(r_u, neg_tau * zu[i] / dzu[i])
+    return r_l, r_u
+
+
+@nb.njit(**_JIT)
+def safeguard_step(sl, su, zl, zu, dzl, dzu, alpha_z, has_lo, has_hi, mu, kappa_sigma, ks_mu, out_l, out_u):
+    """``safeguard`` of the stepped multipliers zl + alpha_z dzl, zu + alpha_z dzu."""
+    for i in range(sl.size):
+        out_l[i] = _clip(zl[i] + alpha_z * dzl[i], mu / (kappa_sigma * sl[i]), ks_mu / sl[i]) if has_lo[i] else 0.0
+        out_u[i] = _clip(zu[i] + alpha_z * dzu[i], mu / (kappa_sigma * su[i]), ks_mu / su[i]) if has_hi[i] else 0.0
+
+
+@nb.njit(**_JIT)
+def sigma_blocks(sl, su, zl, zu, Sx, Su, Ss, SsN):
+    """``sigma`` split as Layout.split(sigma, 0) splits it: Sx (N+1, n) with row 0 zero, Su
+    (N, m), Ss (N, ni), SsN (niN,)."""
+    n = Sx.shape[1]
+    for i in range(n):
+        Sx[0, i] = 0.0
+    j = 0
+    for a in (Sx[1:].ravel(), Su.ravel(), Ss.ravel(), SsN):
+        for i in range(a.size):
+            a[i] = zl[j] / sl[j] + zu[j] / su[j]
+            j += 1
+
+
+@nb.njit(**_JIT)
+def tiny_step(dv, v):
+    """np.max(np.abs(dv) / (1 + np.abs(v)), initial=0) (NaN propagating)."""
+    r = 0.0
+    for i in range(v.size):
+        r = _max(r, abs(dv[i]) / (1.0 + abs(v[i])))
+    return r

@@ -82,10 +82,19 @@ class Residuals(NamedTuple):
         return Residuals(*(alpha * a + b for a, b in zip(self, other)))
 
     def l1(self):
-        return float(sum(np.abs(a).sum() for a in self))
+        """sum(np.abs(a).sum() for a in self), compiled (kernels.residual_norms: the same sums)."""
+        return self.norms()[0]
 
     def max(self):
-        return max((float(np.abs(a).max()) for a in self if a.size), default=0.0)
+        """max(np.abs(a).max() for the non-empty a, default 0), compiled (kernels.residual_norms)."""
+        return self.norms()[1]
+
+    def norms(self):
+        """(l1, max) in one compiled pass."""
+        from .barrier import _kernels    # noqa: PLC0415 - numba loaded on first use
+
+        l1, mx = _kernels().residual_norms(*self)
+        return float(l1), float(mx)
 
 
 class Step(NamedTuple):
@@ -130,6 +139,9 @@ class KKTMatrix:
     kkt: object = None
     delta: float = 0.0
     factorizations: int = 0
+    #: the previous iteration's matrix, whose factorization (back-end object and work arrays)
+    #: this one takes over instead of building its own (:meth:`_take_over`)
+    reuse: "KKTMatrix" = None
 
     def __post_init__(self):
         N, n, m = self.B.shape
@@ -142,16 +154,62 @@ class KKTMatrix:
         Dx[0] = 0.0
         c = self.cons
         N = self.B.shape[0]
-        self.Q[N] = self.QN + c.CNi.T @ ((c.SsN + delta)[:, None] * c.CNi)
+        if c.CNi.shape[0]:
+            self.Q[N] = self.QN + c.CNi.T @ ((c.SsN + delta)[:, None] * c.CNi)
+        else:
+            self.Q[N] = self.QN
         return Dx, self.Su + delta, c.Ss + delta
+
+    def _take_over(self):
+        """Take over the back-end of ``reuse`` (same shapes): the back-end gets this matrix's
+        blocks (Riccati: ``set_blocks``, by reference; their rows copied into its arrays), so the
+        next factorization is a ``refactor`` -- no new back-end object, validation or factor arrays
+        per iteration. ``reuse`` can no longer solve afterwards (its back-end is gone)."""
+        old, self.reuse = self.reuse, None
+        kkt = old.kkt if old is not None else None
+        c, oc = self.cons, old.cons if old is not None else None
+        if kkt is None or self.backend != "riccati" or old.backend != self.backend or \
+                old.Q.shape != self.Q.shape or oc.Ci.shape != c.Ci.shape or oc.E.shape != c.E.shape or \
+                oc.EN.shape != c.EN.shape:
+            return None
+        d = kkt.set_blocks(self.Q, self.S, self.R, self.A, self.B).data
+        self.Q = d.Q        # the same array unless it had to be made contiguous (_diagonals writes Q[N])
+        if c.E.shape[1] or c.EN.shape[0]:
+            for name, held in (("E", d.E), ("F", d.F), ("EN", d.EN)):
+                np.copyto(held, getattr(c, name))
+        if c.Ci.shape[1]:
+            np.copyto(d.Ci, c.Ci)
+        old.kkt = None
+        return kkt
+
+    def _diagonals_into(self, delta, Dx, Du):
+        """:meth:`_diagonals` written into the back-end's arrays Dx, Du (the same values; no new
+        arrays for the back-end to validate); returns the slack rows' weights (None without)."""
+        np.add(self.Sx, delta, out=Dx)
+        Dx[0] = 0.0
+        np.add(self.Su, delta, out=Du)
+        c = self.cons
+        N = self.B.shape[0]
+        if c.CNi.shape[0]:
+            self.Q[N] = self.QN + c.CNi.T @ ((c.SsN + delta)[:, None] * c.CNi)
+        else:
+            self.Q[N] = self.QN
+        return c.Ss + delta if c.Ci.shape[1] else None
 
     def try_factor(self, delta) -> bool:
         """Factor with delta_w = delta; False when the inertia is wrong (reduced Hessian not
         positive definite)."""
-        Dx, Du, sig = self._diagonals(delta)
         c = self.cons
         self.factorizations += 1
         try:
+            if self.kkt is None and self.reuse is not None:
+                self.kkt = self._take_over()
+            if self.kkt is not None and self.backend == "riccati":
+                d = self.kkt.data
+                self.kkt.refactor(Dx=d.Dx, Du=d.Du, sigma=self._diagonals_into(delta, d.Dx, d.Du))
+                self.delta = delta
+                return True
+            Dx, Du, sig = self._diagonals(delta)
             if self.kkt is None:
                 kw = {}
                 if c.E.shape[1] or c.EN.shape[0]:
@@ -186,6 +244,8 @@ class KKTMatrix:
         with dx^0 = 0."""
         c, d = self.cons, self.delta
         N, n, m = self.B.shape
+        if self.backend == "riccati" and not (c.E.shape[1] or c.EN.shape[0] or c.Ci.shape[1] or c.CNi.shape[0]):
+            return self._solve_dynamics_only(q, r, res)
         gs = np.zeros(c.Ss.shape) if gs is None else gs
         gsN = np.zeros(c.SsN.shape) if gsN is None else gsN
         ss, ssN = c.Ss + d, c.SsN + d
@@ -197,13 +257,39 @@ class KKTMatrix:
             kw.update(e=res.e, eN=res.eN)
         if c.Ci.shape[1]:
             kw.update(ci=res.d + gs / ss)
-        sol = self.kkt.solve(q, r, res.h, np.zeros(n), **kw)
-        dz = np.concatenate([sol.X[:N], sol.U], axis=1)
-        ds = np.einsum("kij,kj->ki", c.Ci, dz) + res.d
-        dsN = c.CNi @ sol.X[N] + res.dN
+        if self.backend == "riccati":
+            # the back-end's solve without its argument checks (the arrays are C-contiguous float64
+            # of the system's shapes: the Newton right-hand side's, made here or by the solver)
+            data = self.kkt.data
+            rhs = (q, np.ascontiguousarray(r, dtype=float), np.ascontiguousarray(res.h, dtype=float), np.zeros(n),
+                   np.ascontiguousarray(kw["e"], dtype=float) if "e" in kw else np.zeros((N, data.ne_max)),
+                   np.ascontiguousarray(kw["eN"], dtype=float) if "eN" in kw else np.zeros(data.neN),
+                   np.ascontiguousarray(kw["ci"], dtype=float) if "ci" in kw else np.zeros(data.sig.shape))
+            X, U, lam = np.empty((N + 1, n)), np.empty((N, m)), np.empty((N + 1, n))
+            nu = np.empty((N + 1, max(data.ne_max, data.neN)))
+            self.kkt.solve_into(rhs, (X, U, lam, nu))
+        else:
+            sol = self.kkt.solve(q, r, res.h, np.zeros(n), **kw)
+            X, U, lam, nu = sol.X, sol.U, sol.lam, sol.nu
         ne, neN = c.E.shape[1], c.EN.shape[0]
-        return Step(sol.X, sol.U, ds, dsN, sol.lam, sol.nu[:N, :ne].copy(), sol.nu[N, :neN].copy(),
-                    ss * ds + gs, ssN * dsN + gsN)
+        if c.Ci.shape[1]:
+            dz = np.concatenate([X[:N], U], axis=1)
+            ds = np.einsum("kij,kj->ki", c.Ci, dz) + res.d
+        else:
+            ds = np.zeros((N, 0))
+        dsN = c.CNi @ X[N] + res.dN if c.CNi.shape[0] else np.zeros(0)
+        return Step(X, U, ds, dsN, lam, nu[:N, :ne].copy(), nu[N, :neN].copy(), ss * ds + gs, ssN * dsN + gsN)
+
+
+    def _solve_dynamics_only(self, q, r, res):
+        """:meth:`solve` without constraint rows (the dynamics alone): the back-end's solve_into
+        on the right-hand side (q, r, h), the empty row parts of the Step as they would be."""
+        N, n, m = self.B.shape
+        X, U, lam = np.empty((N + 1, n)), np.empty((N, m)), np.empty((N + 1, n))
+        none, noneN = np.zeros((N, 0)), np.zeros(0)
+        self.kkt.solve_into((q.copy(), np.ascontiguousarray(r, dtype=float), np.ascontiguousarray(res.h, dtype=float),
+                             np.zeros(n), none, noneN, none), (X, U, lam, np.empty((N + 1, 0))))
+        return Step(X, U, none, noneN, lam, none, noneN, none, noneN)
 
 
 def stage_blocks(Hxx, Hxu, Huu, HN):

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import operator
 import time
 from typing import NamedTuple
 
@@ -47,11 +48,13 @@ from ..sqp.residuals import stage_kkt
 from ..sqp.state import BoundMultipliers, Clock, Multipliers, Point
 from .adaptive import (FILTER_MARGIN_FACT, FILTER_MAX_MARGIN, MONOTONE_INIT_FACTOR, MU_MAX_FACT, MU_MIN, AdaptiveMu,
                        QualityFunction, average_complementarity, quality_function_sigma)
-from .barrier import Bounds, Layout, dot
+from .barrier import KAPPA_D, Bounds, Layout, _kernels, dot
 from .filter import Filter
 from .newton import Constraints, KKTMatrix, Residuals, stage_blocks
 from .restoration import Restoration, least_squares_multipliers, restore, restore_l1
 
+#: IPOPT's tiny step: max |dv| / (1 + |v|) below this (10 eps) takes the step without a line search
+TINY_STEP = 10 * np.finfo(float).eps
 #: s_max of eq. (5): the scaling of the optimality error by the multipliers' size
 S_MAX = 100.0
 
@@ -152,12 +155,14 @@ class Setup:
         self.t_start = time.perf_counter()
         #: called after mu changed (the l1 restoration problem's objective follows mu)
         self.on_mu_change = None
+        #: the last Newton matrix (newton_system): the next one takes its back-end over
+        self.last_kkt = None
 
 
 # ---------------------------------------------------------------------------- evaluations
 def evaluate(setup, v, clock, derivatives=False):
     """The Point (values; derivatives on request) at the flat vector v."""
-    X, U, _, _ = setup.layout.split(v)
+    X, U = setup.layout.states_controls(v)
     return Point(setup.problem, X, U, derivatives=derivatives, clock=clock)
 
 
@@ -166,19 +171,35 @@ def residuals(setup, pt, v) -> Residuals:
     Computed once per (point, v) (the line search's theta at the trial point, the optimality
     error and the next direction at the accepted one ask for them): like the iterate's arrays
     (:func:`error_terms`), v is replaced, never changed in place, and the residuals are read only."""
+    return _residual_entry(setup, pt, v)[2]
+
+
+def _residual_entry(setup, pt, v):
+    """The point's cache entry [v, setup, Residuals, (l1, max) or None]."""
     cached = getattr(pt, "_ipm_residuals", None)
     if cached is not None and cached[0] is v and cached[1] is setup:
-        return cached[2]
+        return cached
     L = setup.layout
-    _, _, s, sN = L.split(v)
-    res = Residuals(pt.h, pt.g[:, L.eq], pt.gN[L.eqN], pt.g[:, L.ineq] - s, pt.gN[L.ineqN] - sN)
-    pt._ipm_residuals = (v, setup, res)
-    return res
+    if L.rows:
+        s, sN = L.slack_views(v)
+        res = Residuals(pt.h, pt.g[:, L.eq], pt.gN[L.eqN], pt.g[:, L.ineq] - s, pt.gN[L.ineqN] - sN)
+    else:
+        res = Residuals(pt.h, *L.no_rows)
+    cached = pt._ipm_residuals = [v, setup, res, None]
+    return cached
+
+
+def residual_norms(setup, pt, v):
+    """(theta, max-norm) of the residuals at the point (Residuals.norms), cached with them."""
+    entry = _residual_entry(setup, pt, v)
+    if entry[3] is None:
+        entry[3] = entry[2].norms()
+    return entry[3]
 
 
 def theta(setup, pt, v):
     """The constraint violation theta (the 1-norm of every constraint residual)."""
-    return residuals(setup, pt, v).l1()
+    return residual_norms(setup, pt, v)[0]
 
 
 def barrier_value(setup, pt, v, mu, s_obj):
@@ -197,6 +218,8 @@ def objective_gradient(pt, s_obj):
 
 def full_multipliers(L, st):
     """(Lg (N, r), LgN (rN,)): the equality and inequality multipliers in the problem's order."""
+    if not L.rows:
+        return np.zeros((L.N, 0)), np.zeros(0)
     Lg = np.zeros((L.N, L.eq.size))
     Lg[:, L.eq], Lg[:, L.ineq] = st.nu, st.yd
     LgN = np.zeros(L.eqN.size)
@@ -224,6 +247,25 @@ class ErrorTerms(NamedTuple):
     s_c: float
 
 
+def dual_terms(setup, st):
+    """(|grad L - z_L + z_U|_inf, |z_L|_1 + |z_U|_1, the constraint multipliers' 1-norm) at the
+    iterate: :func:`lagrangian_gradient`'s arithmetic (the einsum products by numpy, the rest in
+    one compiled pass, kernels.dual_infeasibility), the sums numpy's."""
+    p, pt = setup.problem, st.pt
+    lam = st.lam[1:]
+    EA, EB = np.einsum("kij,ki->kj", pt.A, lam), np.einsum("kij,ki->kj", pt.B, lam)
+    ECx, ECu, CNL = EA, EB, pt.lN       # placeholders without stage or final constraints
+    if p.r or p.rN:
+        Lg, LgN = full_multipliers(setup.layout, st)
+        if p.r:
+            ECx, ECu = np.einsum("kij,ki->kj", pt.Cx, Lg), np.einsum("kij,ki->kj", pt.Cu, Lg)
+        if p.rN:
+            CNL = pt.CN.T @ LgN
+    mx, zsum, ysum = _kernels().dual_infeasibility(float(st.s_obj), pt.lx, pt.lu, pt.lN, EA, EB, lam, ECx, ECu, CNL,
+                                                   bool(p.r), bool(p.rN), st.yd, st.ydN, st.zl, st.zu, st.nu, st.nuN)
+    return float(mx), float(zsum), float(ysum)
+
+
 #: the iterate's parts the optimality error reads (with s_obj)
 ERROR_INPUTS = ("v", "pt", "lam", "nu", "nuN", "yd", "ydN", "zl", "zu")
 
@@ -232,17 +274,14 @@ def error_terms(setup, st) -> ErrorTerms:
     """:class:`ErrorTerms` at the iterate, computed once per iterate: the stopping test and the
     barrier update (several mu) ask for them at the same point. The iterate's arrays are
     replaced, never changed in place, so their identities name the iterate."""
-    key = tuple(getattr(st, k) for k in ERROR_INPUTS)
+    key = (st.v, st.pt, st.lam, st.nu, st.nuN, st.yd, st.ydN, st.zl, st.zu)     # ERROR_INPUTS
     cached = st.error_cache
-    if cached is not None and cached[1] == st.s_obj and all(a is b for a, b in zip(cached[0], key)):
+    if cached is not None and cached[1] == st.s_obj and all(map(operator.is_, cached[0], key)):
         return cached[2]
     b = setup.bounds
-    dual = lagrangian_gradient(setup, st) - st.zl + st.zu
-    inf_du = float(np.abs(dual).max(initial=0.0))
-    inf_pr = residuals(setup, st.pt, st.v).max()
+    inf_du, zsum, ysum = dual_terms(setup, st)
+    inf_pr = residual_norms(setup, st.pt, st.v)[1]
     nz = max(b.count, 1)
-    zsum = float(np.abs(st.zl).sum() + np.abs(st.zu).sum())
-    ysum = sum(float(np.abs(a).sum()) for a in (st.lam[1:], st.nu, st.nuN, st.yd, st.ydN))
     ny = st.lam[1:].size + st.nu.size + st.nuN.size + st.yd.size + st.ydN.size
     s_d = max(S_MAX, (ysum + zsum) / (ny + nz)) / S_MAX
     s_c = max(S_MAX, zsum / nz) / S_MAX
@@ -295,6 +334,10 @@ def initial_state(setup, X0, U0, clock):
 def constraint_blocks(setup, pt, Ss, SsN):
     """The iteration's :class:`Constraints` from the constraint Jacobians at pt."""
     L = setup.layout
+    if not L.rows:
+        N, n, m = L.N, L.n, L.m
+        return Constraints(np.zeros((N, 0, n)), np.zeros((N, 0, m)), np.zeros((0, n)), np.zeros((N, 0, n + m)),
+                           np.zeros((0, n)), Ss, SsN)
     Ci = np.ascontiguousarray(np.concatenate([pt.Cx[:, L.ineq], pt.Cu[:, L.ineq]], axis=2))
     return Constraints(np.ascontiguousarray(pt.Cx[:, L.eq]), np.ascontiguousarray(pt.Cu[:, L.eq]),
                        np.ascontiguousarray(pt.CN[L.eqN]), Ci, np.ascontiguousarray(pt.CN[L.ineqN]), Ss, SsN)
@@ -311,9 +354,13 @@ def newton_system(setup, st):
     st.clock.add(("hessian",), t0)
     Q, S, R = stage_blocks(Hxx, Hxu, Huu, HN)
     del Hxx                     # copied into Q: not kept through the factorization
-    sig = setup.bounds.sigma(st.v, st.zl, st.zu)
-    Sx, Su, Ss, SsN = L.split(sig, np.zeros(p.n))
-    kkt = KKTMatrix(Q, S, R, pt.A, pt.B, Sx, Su, constraint_blocks(setup, pt, Ss, SsN))
+    Sx, Su, Ss, SsN = setup.bounds.sigma_blocks(st.v, st.zl, st.zu, L)
+    # the previous iteration's back-end is taken over, unless the watchdog keeps that iteration's
+    # direction (its line search may solve with it again, line_search)
+    prev = setup.last_kkt
+    if st.watch is not None and st.watch.search.kkt is prev:
+        prev = None
+    kkt = setup.last_kkt = KKTMatrix(Q, S, R, pt.A, pt.B, Sx, Su, constraint_blocks(setup, pt, Ss, SsN), reuse=prev)
     delta = kkt.factor(st.delta_last)
     st.factorizations += kkt.factorizations
     if delta is None:
@@ -428,12 +475,17 @@ class Direction(NamedTuple):
 
 def barrier_gradient(setup, st, mu=None) -> Direction:
     """grad phi_mu at the iterate (mu: the iterate's unless given), split for the Newton system."""
-    L = setup.layout
-    q, r = objective_gradient(st.pt, st.s_obj)
-    bgrad = setup.bounds.gradient(st.v, st.mu if mu is None else mu)
-    bx, bu, gs, gsN = L.split(bgrad, np.zeros(L.n))
-    q, r = q + bx, r + bu
-    return Direction(q, r, gs, gsN, L.pack(q, r, gs, gsN))
+    L, b, pt = setup.layout, setup.bounds, st.pt
+    mu = st.mu if mu is None else mu
+    # s_f grad J (objective_gradient) plus the barrier gradient (Bounds.gradient), split and
+    # packed, in one compiled pass (the same operations)
+    sl, su = b.slacks(st.v)
+    q, r = np.empty((L.N + 1, L.n)), np.empty((L.N, L.m))
+    gs, gsN, grad = np.empty((L.N, L.ni)), np.empty(L.niN), np.empty(L.size)
+    s_obj = float(st.s_obj)
+    _kernels().barrier_direction(s_obj, pt.lx, pt.lN, pt.lu, sl, su, b.has_lo, b.has_hi, mu, KAPPA_D * mu,
+                                 q, r, gs, gsN, grad)
+    return Direction(q, r, gs, gsN, grad)
 
 
 def step_vector(setup, step):
@@ -475,7 +527,8 @@ def direction(setup, st, kkt, g) -> Search:
     step = kkt.solve(g.q, g.r, res, g.gs, g.gsN)
     dv = step_vector(setup, step)
     phi = barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0]
-    return Search(kkt, g, res, step, dv, dot(g.grad, dv), res.l1(), phi, setup.bounds.max_step(st.v, dv, st.tau))
+    return Search(kkt, g, res, step, dv, dot(g.grad, dv), theta(setup, st.pt, st.v), phi,
+                  setup.bounds.max_step(st.v, dv, st.tau))
 
 
 def line_search(setup, st, kkt, g):
@@ -484,7 +537,7 @@ def line_search(setup, st, kkt, g):
     alpha, soc) or None (alpha fell below alpha_min: restoration)."""
     o = setup.options
     d = direction(setup, st, kkt, g)
-    tiny = float(np.max(np.abs(d.dv) / (1.0 + np.abs(st.v)), initial=0.0)) < 10 * np.finfo(float).eps
+    tiny = float(_kernels().tiny_step(d.dv, st.v)) < TINY_STEP
     if tiny:     # IPOPT's tiny-step rule: no line search for a step below rounding
         pt_t, _, _ = _trial(setup, st, st.v + d.alpha_max * d.dv)
         if pt_t is not None:
@@ -596,15 +649,16 @@ def take_step(setup, st, accepted):
     safeguard (16)."""
     b = setup.bounds
     v_new, pt_new, dv, step, alpha, soc = accepted
-    dzl, dzu = b.dual_step(st.v, dv, st.zl, st.zu, st.mu)
-    alpha_z = min(b.max_dual_step(st.zl, dzl, st.tau), b.max_dual_step(st.zu, dzu, st.tau))   # dz = 0 off the bounds
+    # dz and the step of both sides (dz = 0 off the bounds) in one pass (Bounds.dual_step_length)
+    dzl, dzu, alpha_z = b.dual_step_length(st.v, dv, st.zl, st.zu, st.mu, st.tau)
     for name in ("lam", "nu", "nuN", "yd", "ydN"):
         old = getattr(st, name)
-        setattr(st, name, old + alpha * (getattr(step, name) - old))
+        if old.size:            # an empty one (no such rows) stays
+            setattr(st, name, old + alpha * (getattr(step, name) - old))
     st.v, st.pt = v_new, pt_new
     st.pt.add_derivatives(setup.problem)
     b.move_tiny(v_new)
-    st.zl, st.zu = b.safeguard(v_new, st.zl + alpha_z * dzl, st.zu + alpha_z * dzu, st.mu)
+    st.zl, st.zu = b.safeguard_step(v_new, st.zl, st.zu, dzl, dzu, alpha_z, st.mu)
     return alpha, alpha_z, soc
 
 

@@ -185,3 +185,116 @@ def test_the_cache_keeps_the_two_latest_points():
     # a copy is another point: equal values, its own entry
     w = v2.copy()
     assert b.slacks(w) is not s2 and np.array_equal(b.slacks(w)[1], s2[1])
+
+
+# ---------------------------------------------------------------------------- the fused passes
+def test_fused_dual_step_safeguard_and_sigma_are_the_numpy_forms(case):
+    """Bounds.dual_step_length, safeguard_step and sigma_blocks (one pass each) against the
+    numpy forms of the separate steps they fuse."""
+    from olado.solvers.ipm.barrier import Layout
+
+    _, b, v, zl, zu, dv = case
+    with np.errstate(all="ignore"):
+        for mu, tau in ((0.1, 0.99), (1e-11, 1.0 - 1e-9)):
+            dzl, dzu, alpha_z = b.dual_step_length(v, dv, zl, zu, mu, tau)
+            rl, ru = ref_dual_step(b, v, dv, zl, zu, mu)
+            assert np.array_equal(dzl, rl, equal_nan=True) and np.array_equal(dzu, ru, equal_nan=True)
+            want = min(ref_max_dual_step(zl, rl, tau), ref_max_dual_step(zu, ru, tau))
+            assert alpha_z == want or (np.isnan(alpha_z) and np.isnan(want))
+            for x, y in zip(b.safeguard_step(v, zl, zu, dzl, dzu, alpha_z, mu),
+                            ref_safeguard(b, v, zl + alpha_z * rl, zu + alpha_z * ru, mu)):
+                assert np.array_equal(x, y, equal_nan=True) and np.array_equal(np.signbit(x), np.signbit(y))
+
+    class P:            # a layout of 4001 = 40 (n + m + ni) + 1: N = 40, n = 50, m = 30, ni = 20, niN = 1
+        N, n, m, x0 = 40, 50, 30, np.zeros(50)
+        stage_equality_mask = np.array([False] * 20)
+        final_equality_mask = np.array([False])
+
+    L = Layout(P)
+    assert L.size == v.size
+    with np.errstate(all="ignore"):
+        ref = L.split(np.divide(zl, ref_slacks(b, v)[0]) + zu / ref_slacks(b, v)[1], np.zeros(L.n))
+    for x, y in zip(b.sigma_blocks(v, zl, zu, L), ref):
+        assert np.array_equal(x, y, equal_nan=True)
+
+
+@pytest.mark.parametrize("size", [0, 1, 7, 8, 9, 127, 128, 129, 255, 1000, 8192, 8193, 100_003])
+def test_pairwise_sums_are_numpys(size):
+    """kernels.abs_sum and the residual norms sum as numpy does (pairwise), bit for bit."""
+    from olado.solvers.ipm import kernels
+    from olado.solvers.ipm.newton import Residuals
+
+    rng = np.random.default_rng(size)
+    a = rng.normal(size=size) * 10.0 ** rng.uniform(-10, 10, size=size)
+    assert kernels.abs_sum(a) == np.abs(a).sum()
+    assert kernels._pairwise(a, 0, a.size, False) == a.sum()
+    res = Residuals(a[: size // 2].reshape(-1, 1), rng.normal(size=(3, 2)), np.zeros(0), np.zeros((3, 0)),
+                    -a[size // 2:])
+    want_l1 = float(sum(np.abs(x).sum() for x in res))
+    want_max = max((float(np.abs(x).max()) for x in res if x.size), default=0.0)
+    assert res.norms() == (want_l1, want_max)
+
+
+def test_residual_max_keeps_pythons_rule_for_nan():
+    from olado.solvers.ipm.newton import Residuals
+
+    for arrays in ((np.array([[np.nan, 1.0]]), np.array([[2.0]])), (np.array([[1.0]]), np.array([[np.nan, 5.0]]))):
+        res = Residuals(arrays[0], arrays[1], np.zeros(0), np.zeros((1, 0)), np.zeros(0))
+        want = max((float(np.abs(x).max()) for x in res if x.size), default=0.0)
+        got = res.max()
+        assert got == want or (np.isnan(got) and np.isnan(want))
+
+
+def test_barrier_direction_and_dual_terms_are_the_numpy_forms():
+    """The compiled Newton right-hand side and dual infeasibility against the numpy assembly they
+    replace (solver.objective_gradient + Bounds.gradient split and packed; stage_gradient_terms)."""
+    from olado.solvers.common import stage_gradient_terms
+    from olado.solvers.ipm import kernels
+
+    rng = np.random.default_rng(11)
+    N, n, m, ni, niN = 7, 4, 3, 2, 1
+    size = N * (n + m + ni) + niN
+    b = _bounds(rng, size)
+    v = _inside(rng, b)
+    sl, su = b.slacks(v)
+    lx, lu, lN = rng.normal(size=(N, n)), rng.normal(size=(N, m)), rng.normal(size=n)
+    mu, s_obj = 0.01, 0.37
+    q, r = np.empty((N + 1, n)), np.empty((N, m))
+    gs, gsN, grad = np.empty((N, ni)), np.empty(niN), np.empty(size)
+    kernels.barrier_direction(s_obj, lx, lN, lu, sl, su, b.has_lo, b.has_hi, mu, KAPPA_D * mu, q, r, gs, gsN, grad)
+    lo_f, hi_f = b.has_lo.astype(float), b.has_hi.astype(float)
+    with np.errstate(divide="ignore"):      # a slack at 0 (a point within rounding of its bound)
+        bg = mu * (hi_f / su - lo_f / sl) + KAPPA_D * mu * (b.one_lo_f - b.one_hi_f)    # ref_barrier's gradient
+    qo = np.concatenate([lx, lN[None]]) * s_obj
+    bx = np.concatenate([np.zeros((1, n)), bg[:N * n].reshape(N, n)])
+    assert np.array_equal(q, qo + bx)
+    assert np.array_equal(r, s_obj * lu + bg[N * n:N * (n + m)].reshape(N, m))
+    assert np.array_equal(gs.ravel(), bg[N * (n + m):N * (n + m + ni)]) and np.array_equal(gsN, bg[-niN:])
+    assert np.array_equal(grad, np.concatenate([(qo + bx)[1:].ravel(), r.ravel(), gs.ravel(), gsN]))
+
+    class Pt:
+        pass
+
+    pt = Pt()
+    pt.lx, pt.lu, pt.lN = lx, lu, lN
+    pt.A, pt.B = rng.normal(size=(N, n, n)), rng.normal(size=(N, n, m))
+    pt.Cx, pt.Cu, pt.CN = rng.normal(size=(N, ni, n)), rng.normal(size=(N, ni, m)), rng.normal(size=(niN, n))
+
+    class P:
+        pass
+
+    p = P()
+    p.N, p.n, p.r, p.rN = N, n, ni, niN
+    lam = rng.normal(size=(N, n))
+    yd, ydN = -rng.exponential(size=(N, ni)), -rng.exponential(size=niN)
+    zl, zu = rng.exponential(size=size), rng.exponential(size=size)
+    rx, ru = stage_gradient_terms(p, pt, lam, yd, ydN, sigma=s_obj)
+    dual = np.concatenate([rx[1:].ravel(), ru.ravel(), -yd.ravel(), -ydN]) - zl + zu
+    EA, EB = np.einsum("kij,ki->kj", pt.A, lam), np.einsum("kij,ki->kj", pt.B, lam)
+    ECx, ECu = np.einsum("kij,ki->kj", pt.Cx, yd), np.einsum("kij,ki->kj", pt.Cu, yd)
+    nu, nuN = np.zeros((N, 0)), np.zeros(0)
+    mx, zsum, ysum = kernels.dual_infeasibility(s_obj, lx, lu, lN, EA, EB, lam, ECx, ECu, pt.CN.T @ ydN, True, True,
+                                                yd, ydN, zl, zu, nu, nuN)
+    assert mx == np.abs(dual).max(initial=0.0)
+    assert zsum == np.abs(zl).sum() + np.abs(zu).sum()
+    assert ysum == sum(float(np.abs(a).sum()) for a in (lam, nu, nuN, yd, ydN))

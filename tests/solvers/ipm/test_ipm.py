@@ -2,6 +2,8 @@
 the filter's acceptance rules against hand computations, the inertia correction on a nonconvex
 stage Hessian, and whole solves against IPOPT (configs/ipopt.ini) on the same problems."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -128,6 +130,58 @@ def test_newton_step_with_equalities_and_slacked_inequalities_equals_the_dense_s
     got = np.concatenate([pack(st.dX, st.dU), st.ds.ravel(), st.dsN, st.lam[1:].ravel(), st.nu.ravel(), st.nuN,
                           st.yd.ravel(), st.ydN])
     np.testing.assert_allclose(got, sol, rtol=1e-8, atol=1e-10)
+
+
+@pytest.mark.parametrize("rows", [False, True])
+def test_a_matrix_that_takes_the_last_back_end_over_solves_as_a_fresh_one(rows):
+    """The Newton matrix of the next iteration reuses the previous one's Riccati back-end (its
+    blocks copied into the back-end's arrays, then a refactor): the same steps bit for bit as a
+    matrix factored afresh, through an inertia correction; the previous matrix's inputs (the
+    point's A, B) are not written into."""
+    rng = np.random.default_rng(21)
+
+    def system(seed, convex=True):
+        r = np.random.default_rng(seed)
+        Q, S, R, A, B, Sx, Su = random_lq(r, N=5, n=3, m=3)
+        N, n, m = B.shape
+        if not convex:
+            R[2] -= 40.0 * np.eye(m)        # negative curvature: delta_w > 0 needed
+        if not rows:
+            return (Q, S, R, A, B, Sx, Su), None, Residuals(r.standard_normal((N, n)), np.zeros((N, 0)), np.zeros(0),
+                                                            np.zeros((N, 0)), np.zeros(0))
+        cons = Constraints(r.standard_normal((N, 1, n)), r.standard_normal((N, 1, m)), r.standard_normal((1, n)),
+                           r.standard_normal((N, 2, n + m)), r.standard_normal((1, n)),
+                           r.uniform(0.1, 3.0, (N, 2)), r.uniform(0.1, 3.0, 1))
+        res = Residuals(r.standard_normal((N, n)), r.standard_normal((N, 1)), r.standard_normal(1),
+                        r.standard_normal((N, 2)), r.standard_normal(1))
+        return (Q, S, R, A, B, Sx, Su), cons, res
+
+    def copy(blocks, cons):
+        blocks = tuple(a.copy() for a in blocks)
+        return blocks, None if cons is None else Constraints(*(a.copy() for a in dataclasses.astuple(cons)))
+
+    blocks1, cons1 = copy(*system(1)[:2])
+    point_A = blocks1[3]
+    point_A_before = point_A.copy()
+    first = KKTMatrix(*blocks1, cons1)
+    assert first.factor(0.0) is not None
+    backend = first.kkt
+    prev, last = first, 0.0
+    for seed in (2, 3, 4):
+        blocks, cons, res = system(seed, convex=seed != 3)     # seed 3 needs the inertia correction
+        reused = KKTMatrix(*copy(blocks, cons)[0], copy(blocks, cons)[1], reuse=prev)
+        fresh = KKTMatrix(*copy(blocks, cons)[0], copy(blocks, cons)[1])
+        d_reused, d_fresh = reused.factor(last), fresh.factor(last)
+        assert d_reused == d_fresh is not None and (d_reused > 0.0) == (seed == 3)
+        assert reused.kkt is backend                        # the back-end object carried over
+        N, n, m = blocks[4].shape
+        q, r = rng.standard_normal((N + 1, n)), rng.standard_normal((N, m))
+        gs, gsN = (rng.standard_normal((N, 2)), rng.standard_normal(1)) if rows else (None, None)
+        for a, b in zip(reused.solve(q, r, res, gs, gsN), fresh.solve(q, r, res, gs, gsN)):
+            assert np.array_equal(a, b)
+        assert prev.kkt is None                            # the old matrix gave its back-end away
+        prev, last = reused, d_reused or last
+    assert np.array_equal(point_A, point_A_before)      # the back-end holds its own copies
 
 
 def test_inertia_correction_on_a_nonconvex_stage_hessian():
