@@ -3,6 +3,8 @@ that importing :mod:`olado.problems` does not load numba."""
 
 from __future__ import annotations
 
+import math
+
 import numba as nb
 
 _EXPONENT = 0x7FF0000000000000
@@ -39,3 +41,16 @@ def gather_hessian_values(Hxx, Hxu, Huu, HN, out):
         for b in range(a + 1):
             out[pos] = HN[a, b]
             pos += 1
+
+
+@nb.njit(cache=True)
+def all_finite_pair(a, b):
+    """True when every entry of the float64 arrays ``a`` and ``b`` (any shape and layout) is
+    finite: the check of a stage function's two returned arrays in one compiled call."""
+    for v in a.flat:
+        if not math.isfinite(v):
+            return False
+    for v in b.flat:
+        if not math.isfinite(v):
+            return False
+    return True
