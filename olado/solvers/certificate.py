@@ -430,6 +430,45 @@ def _values(p, X, U):
             "final_constraints": p.eval_final_constraints(X[-1])}
 
 
+#: the shifts s of the five-point scheme: the spot check evaluates at y + s h v
+_SHIFTS = (1, -1, 2, -2)
+
+
+def _shifted_values(p, pt, directions, h):
+    """:func:`_values` at every point y + s h v (s in _SHIFTS, v in ``directions``), as a list
+    (per direction) of dicts {s: values}: the stage functions are separable per stage, so each is
+    called once on all the points' stages stacked (stage indices repeated), as olado's finite
+    differences call them (:meth:`olado.problems.docp.DOCP._fd_stage_jacobian`); the final ones
+    once per point. The counters advance as :func:`_values` point by point would advance them.
+    A stage function that fails raises here: the caller then evaluates point by point, whose
+    message names the stage."""
+    points = [(pt.X + s * h * Vx, pt.U + s * h * Vu) for Vx, Vu in directions for s in _SHIFTS]
+    P, N = len(points), p.N
+    K = np.tile(p._K, P)
+    Xs = np.concatenate([X[:-1] for X, _ in points])
+    Us = np.concatenate([U for _, U in points])
+    stacked = {"stage_cost": p._stage_values("stage_cost", K, Xs, Us, (), "cost", count=False),
+               "dynamics": p._stage_values("dynamics", K, Xs, Us, (p.n,), "x_next", count=False),
+               "stage_constraints": (p._stage_values("stage_constraints", K, Xs, Us, (p.r,), "g", count=False)
+                                     if p.r else np.zeros((P * N, 0)))}
+    p.counters["stage_cost"] += P
+    p.counters["dynamics"] += P
+    if p.r:
+        p.counters["stage_constraints"] += P
+    out = []
+    for d in range(len(directions)):
+        vals = {}
+        for i, s in enumerate(_SHIFTS):
+            j = d * len(_SHIFTS) + i
+            X = points[j][0]
+            rows = slice(j * N, (j + 1) * N)
+            vals[s] = {"stage_cost": stacked["stage_cost"][rows], "final_cost": np.array([p.eval_final_cost(X[-1])]),
+                       "dynamics": stacked["dynamics"][rows], "stage_constraints": stacked["stage_constraints"][rows],
+                       "final_constraints": p.eval_final_constraints(X[-1])}
+        out.append(vals)
+    return out
+
+
 def _directional(pt, Vx, Vu):
     """The derivatives the problem supplies along v = (Vx, Vu), and the sums of the absolute
     terms (the size against which an error is measured), per function as in :func:`_values`."""
@@ -480,10 +519,18 @@ def spot_check(p, pt, bounds, W, seed=CHECK_SEED) -> _Check:
     h = CHECK_STEP
     worst, bad = 0.0, None
     sources = p.derivative_sources()
-    for _ in range(CHECK_DIRECTIONS):
-        Vx, Vu = _direction(rng, pt, bounds, W, h)
+    directions = [_direction(rng, pt, bounds, W, h) for _ in range(CHECK_DIRECTIONS)]
+    saved = p.counters.copy()
+    try:
+        shifted = _shifted_values(p, pt, directions, h)
+    except OladoError:                  # point by point below, whose message names the stage
+        shifted = None
+        p.counters.clear()
+        p.counters.update(saved)
+    for d, (Vx, Vu) in enumerate(directions):
         try:
-            vals = {s: _values(p, pt.X + s * h * Vx, pt.U + s * h * Vu) for s in (1, -1, 2, -2)}
+            vals = shifted[d] if shifted is not None else {
+                s: _values(p, pt.X + s * h * Vx, pt.U + s * h * Vu) for s in _SHIFTS}
         except OladoError as exc:
             return _Check(None, False, f"spot check skipped: the problem cannot be evaluated near the point ({exc})")
         # every function's entries in one flat vector (the formulas are elementwise, and the
