@@ -592,7 +592,10 @@ class DOCP:
 
     def eval_final_cost(self, xN):
         self.counters["final_cost"] += 1
-        return float(self.check_array(self.final_cost(np.asarray(xN, dtype=float)), (), "final_cost", "cost"))
+        value = self.final_cost(xN if type(xN) is np.ndarray and xN.dtype == np.float64 else np.asarray(xN, dtype=float))
+        if type(value) is float and math.isfinite(value):   # the common case: nothing to convert
+            return value
+        return float(self.check_array(value, (), "final_cost", "cost"))
 
     def eval_stage_constraints(self, X, U):
         """g^k(x^k, u^k) for k = 0..N-1, shape (N, r)."""
