@@ -46,7 +46,7 @@ _DERIVATIVE_OF = {
 }
 
 
-_count_nonfinite = None
+_all_finite_kernel = None
 
 #: the Python functions whose signature :meth:`DOCP.check_functions` accepted, per (method name,
 #: bound or not): a solve checks its problem at entry, and inspect.signature costs tens of
@@ -75,14 +75,16 @@ def _remember_checked(fn, name):
 
 
 def _all_finite(arr):
-    """True when every entry of the float64 array ``arr`` is finite (one compiled pass over its
-    bit pattern: no temporary, no BLAS call -- BLAS threads compete with the solver's)."""
-    global _count_nonfinite
-    if _count_nonfinite is None:
-        from ._kernels import count_nonfinite   # noqa: PLC0415 - numba loads on first use
-        _count_nonfinite = count_nonfinite
-    flat = arr.reshape(-1)
-    return flat.size == 0 or _count_nonfinite(flat.view(np.int64)) == 0
+    """True when every entry of the float64 array ``arr`` is finite (one compiled pass,
+    :func:`olado.problems._kernels.all_finite`: no temporary, no BLAS call -- BLAS threads compete
+    with the solver's)."""
+    global _all_finite_kernel
+    if _all_finite_kernel is None:
+        from ._kernels import all_finite   # noqa: PLC0415 - numba loads on first use
+        _all_finite_kernel = all_finite
+    if arr.ndim == 0:
+        return math.isfinite(arr[()])
+    return _all_finite_kernel(arr)
 
 
 _all_finite_pair = None
