@@ -3,20 +3,9 @@ that importing :mod:`olado.problems` does not load numba."""
 
 from __future__ import annotations
 
+import math
+
 import numba as nb
-
-_EXPONENT = 0x7FF0000000000000
-
-
-@nb.njit(cache=True)
-def count_nonfinite(bits):
-    """Number of inf/NaN entries of a float64 vector given as its int64 bit pattern (all
-    exponent bits set). Integer arithmetic: vectorized without fastmath, no BLAS, no threads."""
-    c = 0
-    for i in range(bits.size):
-        c += (bits[i] & _EXPONENT) == _EXPONENT
-    return c
-
 
 @nb.njit(cache=True)
 def gather_hessian_values(Hxx, Hxu, Huu, HN, out):
@@ -39,3 +28,26 @@ def gather_hessian_values(Hxx, Hxu, Huu, HN, out):
         for b in range(a + 1):
             out[pos] = HN[a, b]
             pos += 1
+
+
+@nb.njit(cache=True)
+def all_finite_pair(a, b):
+    """True when every entry of the float64 arrays ``a`` and ``b`` (any shape and layout) is
+    finite: the check of a stage function's two returned arrays in one compiled call."""
+    for v in a.flat:
+        if not math.isfinite(v):
+            return False
+    for v in b.flat:
+        if not math.isfinite(v):
+            return False
+    return True
+
+
+@nb.njit(cache=True)
+def all_finite(a):
+    """True when every entry of the float64 array ``a`` (any shape of at least one axis, any
+    layout) is finite: one compiled pass, no temporary, no BLAS call, exits at the first NaN/inf."""
+    for v in a.flat:
+        if not math.isfinite(v):
+            return False
+    return True

@@ -46,7 +46,7 @@ _DERIVATIVE_OF = {
 }
 
 
-_count_nonfinite = None
+_all_finite_kernel = None
 
 #: the Python functions whose signature :meth:`DOCP.check_functions` accepted, per (method name,
 #: bound or not): a solve checks its problem at entry, and inspect.signature costs tens of
@@ -75,14 +75,39 @@ def _remember_checked(fn, name):
 
 
 def _all_finite(arr):
-    """True when every entry of the float64 array ``arr`` is finite (one compiled pass over its
-    bit pattern: no temporary, no BLAS call -- BLAS threads compete with the solver's)."""
-    global _count_nonfinite
-    if _count_nonfinite is None:
-        from ._kernels import count_nonfinite   # noqa: PLC0415 - numba loads on first use
-        _count_nonfinite = count_nonfinite
-    flat = arr.reshape(-1)
-    return flat.size == 0 or _count_nonfinite(flat.view(np.int64)) == 0
+    """True when every entry of the float64 array ``arr`` is finite (one compiled pass,
+    :func:`olado.problems._kernels.all_finite`: no temporary, no BLAS call -- BLAS threads compete
+    with the solver's)."""
+    global _all_finite_kernel
+    if _all_finite_kernel is None:
+        from ._kernels import all_finite   # noqa: PLC0415 - numba loads on first use
+        _all_finite_kernel = all_finite
+    if arr.ndim == 0:
+        return math.isfinite(arr[()])
+    return _all_finite_kernel(arr)
+
+
+_all_finite_pair = None
+
+
+def _all_finite_arrays(arrays):
+    """True when every entry of the float64 arrays ``arrays`` (a tuple) is finite: one compiled
+    call per two arrays (the stage functions' derivative tuples), the detailed scan of
+    :meth:`DOCP._check_stacked` only where this fails."""
+    global _all_finite_pair
+    if _all_finite_pair is None:
+        from ._kernels import all_finite_pair   # noqa: PLC0415 - numba loads on first use
+        _all_finite_pair = all_finite_pair
+    for i in range(0, len(arrays) - 1, 2):
+        if not _all_finite_pair(arrays[i], arrays[i + 1]):
+            return False
+    return len(arrays) % 2 == 0 or _all_finite(arrays[-1])
+
+
+def _plain(value, shape):
+    """True when ``value`` is a float64 ndarray of exactly ``shape``: what a well-written stage
+    function returns, accepted by the validation's fast path without conversion."""
+    return type(value) is np.ndarray and value.dtype == np.float64 and value.shape == shape
 
 
 #: user functions and derivative methods (overridable) and the arguments olado calls them with
@@ -129,6 +154,17 @@ def check_problem_size(n, m, N, r=0, function="__init__"):
             f"N={N} stages cannot fit in memory: the stage arrays alone need at least "
             f"{need / 2**30:,.1f} GiB ({per_stage} bytes per stage for n={n}, m={m}, r={r}), "
             f"this machine has {memory / 2**30:,.1f} GiB", function=function, array="N")
+
+
+def _stacked_shapes(nK, shapes, _cache={}):   # noqa: B006 - a deliberate memo
+    """The shapes (nK,) + s of the stacked arrays of a stage method (memoized per (nK, shapes))."""
+    key = (nK, tuple(shapes))
+    found = _cache.get(key)
+    if found is None:
+        if len(_cache) > 256:
+            _cache.clear()
+        found = _cache[key] = tuple((nK,) + tuple(s) for s in shapes)
+    return found
 
 
 def _describe(value):
@@ -423,6 +459,8 @@ class DOCP:
         """Return ``value`` as a float array of ``shape``; ProblemDefinitionError otherwise
         (NonFiniteEvaluationError for a NaN or inf entry). None, complex values, text and object
         arrays are refused by name (:func:`as_real_array`)."""
+        if type(shape) is tuple and _plain(value, shape) and _all_finite(value):
+            return value                                    # the common case: nothing to convert
         arr = as_real_array(value, function, array, stage)
         if arr.shape != tuple(shape):
             if arr.size == int(np.prod(shape)) and arr.ndim <= 1 and len(shape) <= 1:
@@ -440,6 +478,8 @@ class DOCP:
 
     def _check_stacked(self, value, shape, function, array, stage0=0):
         """Validate an all-stages array (leading axis = stage); errors name the stage."""
+        if type(shape) is tuple and _plain(value, shape) and _all_finite(value):
+            return value                                    # the common case: nothing to convert
         arr = as_real_array(value, function, array, None, stage0=stage0)
         if arr.shape != tuple(shape):
             raise ProblemDefinitionError(f"expected shape {tuple(shape)} (one row per stage), got {arr.shape}", function=function, array=array)
@@ -495,7 +535,10 @@ class DOCP:
             self.counters[fname] += 1
         if self.vectorized:
             val = fn(K, X, U)
-            return self._check_stacked(val, (nK,) + tail_shape, fname, out_name, stage0=int(K[0]) if nK else 0)
+            shape = (nK,) + tail_shape
+            if _plain(val, shape) and _all_finite(val):   # the common case: nothing to convert
+                return val
+            return self._check_stacked(val, shape, fname, out_name, stage0=int(K[0]) if nK else 0)
         out = np.empty((nK,) + tail_shape)
         for i, k in enumerate(K):
             v = fn(int(k), X[i], U[i])
@@ -509,6 +552,10 @@ class DOCP:
         self.counters[fname] += 1
         if self.vectorized:
             vals = fn(K, X, U)
+            stacked = _stacked_shapes(nK, shapes)
+            if (type(vals) is tuple and len(vals) == len(stacked)
+                    and all(_plain(v, sh) for v, sh in zip(vals, stacked)) and _all_finite_arrays(vals)):
+                return vals                                 # the common case: nothing to convert
             if not isinstance(vals, (tuple, list)) or len(vals) != len(shapes):
                 raise ProblemDefinitionError(f"must return a tuple of {len(shapes)} arrays", function=fname)
             return tuple(self._check_stacked(v, (nK,) + s, fname, nm, stage0=int(K[0]) if nK else 0)
@@ -523,6 +570,9 @@ class DOCP:
         return outs
 
     def _split_xu(self, X, U):
+        if (type(X) is np.ndarray and type(U) is np.ndarray and X.dtype == np.float64
+                and U.dtype == np.float64 and X.shape == (self.N + 1, self.n) and U.shape == (self.N, self.m)):
+            return X, U
         X = np.asarray(X, dtype=float)
         U = np.asarray(U, dtype=float)
         if X.shape != (self.N + 1, self.n):
@@ -544,7 +594,10 @@ class DOCP:
 
     def eval_final_cost(self, xN):
         self.counters["final_cost"] += 1
-        return float(self.check_array(self.final_cost(np.asarray(xN, dtype=float)), (), "final_cost", "cost"))
+        value = self.final_cost(xN if type(xN) is np.ndarray and xN.dtype == np.float64 else np.asarray(xN, dtype=float))
+        if type(value) is float and math.isfinite(value):   # the common case: nothing to convert
+            return value
+        return float(self.check_array(value, (), "final_cost", "cost"))
 
     def eval_stage_constraints(self, X, U):
         """g^k(x^k, u^k) for k = 0..N-1, shape (N, r)."""
@@ -700,6 +753,8 @@ class DOCP:
         return self._fd_final_jacobian("final_constraints", xN, (self.rN,), "gN")
 
     def _use_analytic(self, method, source):
+        if source is None:
+            return self.provides(method)
         if source == "fd":
             return False
         if source == "analytic":
@@ -747,6 +802,10 @@ class DOCP:
             shapes, names = [(n, n), (n, m), (m, m)], ["hxx", "hxu", "huu"]
             if self.vectorized:
                 vals = fn(self._K, X[:-1], U, sigma, P, L)
+                stacked = _stacked_shapes(N, shapes)
+                if (type(vals) is tuple and len(vals) == 3 and all(_plain(v, sh) for v, sh in zip(vals, stacked))
+                        and _all_finite_arrays(vals)):
+                    return vals                             # the common case: nothing to convert
                 return tuple(self._check_stacked(v, (N,) + s, "stage_hessian", nm) for v, s, nm in zip(vals, shapes, names))
             outs = tuple(np.empty((N,) + s) for s in shapes)
             for k in range(N):

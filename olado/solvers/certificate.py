@@ -430,19 +430,69 @@ def _values(p, X, U):
             "final_constraints": p.eval_final_constraints(X[-1])}
 
 
+#: the shifts s of the five-point scheme: the spot check evaluates at y + s h v
+_SHIFTS = (1, -1, 2, -2)
+#: the functions the spot check differentiates, in the order of its flat vectors
+_NAMES = ("stage_cost", "final_cost", "dynamics", "stage_constraints", "final_constraints")
+
+
+def _shapes(p):
+    """The shapes of the values of :func:`_values`, per function."""
+    return {"stage_cost": (p.N,), "final_cost": (1,), "dynamics": (p.N, p.n), "stage_constraints": (p.N, p.r),
+            "final_constraints": (p.rN,)}
+
+
+def _shifted_values(p, pt, directions, h):
+    """:func:`_values` at every point y + s h v (v in ``directions``, s in _SHIFTS) as one array
+    (directions, shifts, L): each point's values of the functions _NAMES flattened and
+    concatenated. The stage functions are separable per stage, so each is called once on all the
+    points' stages stacked (stage indices repeated), as olado's finite differences call them
+    (:meth:`olado.problems.docp.DOCP._fd_stage_jacobian`); the final ones once per point. The
+    counters advance as :func:`_values` point by point would advance them. A stage function that
+    fails raises here: the caller then evaluates point by point (:func:`_pointwise_values`), whose
+    message names the stage."""
+    points = [(pt.X + s * h * Vx, pt.U + s * h * Vu) for Vx, Vu in directions for s in _SHIFTS]
+    P, N, n, r = len(points), p.N, p.n, p.r
+    K = np.tile(p._K, P)
+    Xs = np.concatenate([X[:-1] for X, _ in points])
+    Us = np.concatenate([U for _, U in points])
+    cost = p._stage_values("stage_cost", K, Xs, Us, (), "cost", count=False)
+    dyn = p._stage_values("dynamics", K, Xs, Us, (n,), "x_next", count=False)
+    g = p._stage_values("stage_constraints", K, Xs, Us, (r,), "g", count=False) if r else np.zeros((P * N, 0))
+    p.counters["stage_cost"] += P
+    p.counters["dynamics"] += P
+    if r:
+        p.counters["stage_constraints"] += P
+    final = np.array([p.eval_final_cost(X[-1]) for X, _ in points])
+    gN = np.array([p.eval_final_constraints(X[-1]) for X, _ in points]).reshape(P, p.rN)
+    parts = (cost.reshape(P, N), final.reshape(P, 1), dyn.reshape(P, N * n), g.reshape(P, N * r), gN)
+    return np.concatenate(parts, axis=1).reshape(len(directions), len(_SHIFTS), -1)
+
+
+def _pointwise_values(p, pt, directions, h):
+    """:func:`_shifted_values` point by point (:func:`_values`): an error names the stage."""
+    rows = []
+    for Vx, Vu in directions:
+        for s in _SHIFTS:
+            vals = _values(p, pt.X + s * h * Vx, pt.U + s * h * Vu)
+            rows.append(np.concatenate([np.ravel(vals[name]) for name in _NAMES]))
+    return np.array(rows).reshape(len(directions), len(_SHIFTS), -1)
+
+
 def _directional(pt, Vx, Vu):
-    """The derivatives the problem supplies along v = (Vx, Vu), and the sums of the absolute
-    terms (the size against which an error is measured), per function as in :func:`_values`."""
+    """The derivatives the problem supplies along the directions v = (Vx (D, N+1, n), Vu (D, N,
+    m)), and the sums of the absolute terms (the size against which an error is measured): two
+    arrays (D, L) in the layout of :func:`_shifted_values`."""
+    D = Vx.shape[0]
     ax, au = np.abs(Vx), np.abs(Vu)
-    ein = lambda M, V: np.einsum("kij,kj->ki", M, V)  # noqa: E731
-    return {
-        "stage_cost": (np.sum(pt.lx * Vx[:-1], axis=1) + np.sum(pt.lu * Vu, axis=1),
-                       np.sum(np.abs(pt.lx) * ax[:-1], axis=1) + np.sum(np.abs(pt.lu) * au, axis=1)),
-        "final_cost": (np.array([pt.lN @ Vx[-1]]), np.array([np.abs(pt.lN) @ ax[-1]])),
-        "dynamics": (ein(pt.A, Vx[:-1]) + ein(pt.B, Vu), ein(np.abs(pt.A), ax[:-1]) + ein(np.abs(pt.B), au)),
-        "stage_constraints": (ein(pt.Cx, Vx[:-1]) + ein(pt.Cu, Vu), ein(np.abs(pt.Cx), ax[:-1]) + ein(np.abs(pt.Cu), au)),
-        "final_constraints": (pt.CN @ Vx[-1], np.abs(pt.CN) @ ax[-1]),
-    }
+    ein = lambda M, V: np.einsum("kij,dkj->dki", M, V).reshape(D, -1)  # noqa: E731
+    an = (np.sum(pt.lx * Vx[:, :-1], axis=2) + np.sum(pt.lu * Vu, axis=2), (Vx[:, -1] @ pt.lN)[:, None],
+          ein(pt.A, Vx[:, :-1]) + ein(pt.B, Vu), ein(pt.Cx, Vx[:, :-1]) + ein(pt.Cu, Vu), Vx[:, -1] @ pt.CN.T)
+    size = (np.sum(np.abs(pt.lx) * ax[:, :-1], axis=2) + np.sum(np.abs(pt.lu) * au, axis=2),
+            (ax[:, -1] @ np.abs(pt.lN))[:, None],
+            ein(np.abs(pt.A), ax[:, :-1]) + ein(np.abs(pt.B), au), ein(np.abs(pt.Cx), ax[:, :-1]) + ein(np.abs(pt.Cu), au),
+            ax[:, -1] @ np.abs(pt.CN).T)
+    return np.concatenate(an, axis=1), np.concatenate(size, axis=1)
 
 
 _DERIVATIVE_NAMES = {"stage_cost": "stage_cost_gradient", "final_cost": "final_cost_gradient",
@@ -463,54 +513,53 @@ def _direction(rng, pt, bounds, W, h):
     return Vx, Vu
 
 
-def _entry_of(names, shaped, j):
-    """(name, index in its array) of entry j of the concatenation of ``shaped[name]`` over ``names``."""
-    for name in names:
-        size = shaped[name].size
+def _entry_of(shapes, j):
+    """(name, index in its array) of entry j of the concatenation of the functions _NAMES' values
+    (``shapes``: their shapes)."""
+    for name in _NAMES:
+        size = int(np.prod(shapes[name]))
         if j < size:
-            return name, np.unravel_index(j, shaped[name].shape)
+            return name, np.unravel_index(j, shapes[name])
         j -= size
     raise IndexError(j)
 
 
 def spot_check(p, pt, bounds, W, seed=CHECK_SEED) -> _Check:
     """Step 4 of the module docstring: five-point central differences of every stage function
-    along CHECK_DIRECTIONS random directions against the derivatives the problem supplies."""
+    along CHECK_DIRECTIONS random directions against the derivatives the problem supplies (every
+    function's entries, of every direction, in one array: the formulas are elementwise, and the
+    first largest ratio over the concatenation is the one the functions and directions in turn
+    would find)."""
     rng = np.random.default_rng(seed)
     h = CHECK_STEP
-    worst, bad = 0.0, None
     sources = p.derivative_sources()
-    for _ in range(CHECK_DIRECTIONS):
-        Vx, Vu = _direction(rng, pt, bounds, W, h)
+    directions = [_direction(rng, pt, bounds, W, h) for _ in range(CHECK_DIRECTIONS)]
+    saved = p.counters.copy()
+    try:
+        vals = _shifted_values(p, pt, directions, h)
+    except OladoError:
+        p.counters.clear()
+        p.counters.update(saved)
         try:
-            vals = {s: _values(p, pt.X + s * h * Vx, pt.U + s * h * Vu) for s in (1, -1, 2, -2)}
+            vals = _pointwise_values(p, pt, directions, h)
         except OladoError as exc:
             return _Check(None, False, f"spot check skipped: the problem cannot be evaluated near the point ({exc})")
-        # every function's entries in one flat vector (the formulas are elementwise, and the
-        # first largest ratio over the concatenation is the one the functions in turn would find)
-        directional = _directional(pt, Vx, Vu)
-        names = [name for name in directional if vals[1][name].size]
-        if not names:
-            continue
-        flat = lambda parts: np.concatenate([np.ravel(a) for a in parts])  # noqa: E731
-        v1, m1, v2, m2 = (flat([vals[s][name] for name in names]) for s in (1, -1, 2, -2))
-        an, size = (flat([directional[name][i] for name in names]) for i in (0, 1))
-        d_h = (v1 - m1) / (2 * h)
-        d_2h = (v2 - m2) / (4 * h)
-        d5 = (4 * d_h - d_2h) / 3
-        rounding = _EPS * (np.abs(v1) + np.abs(m1) + np.abs(v2) + np.abs(m2)) / h
-        allowed = CHECK_RTOL * np.maximum(size, np.abs(d5)) + 10 * (np.abs(d_h - d_2h) + rounding) + 1e-300
-        err = np.abs(d5 - an)
-        rel = err / np.maximum(np.maximum(size, np.abs(d5)), 1e-300)
-        worst = max(worst, float(np.where(err > 10 * rounding, rel, 0.0).max()))
-        ratio = err / allowed
-        j = int(np.argmax(ratio))
-        if ratio[j] > 1.0 and (bad is None or ratio[j] > bad[0]):
-            name, idx = _entry_of(names, vals[1], j)
-            bad = (float(ratio[j]), name, idx, float(d5[j]), float(an[j]), float(rel[j]))
-    if bad is None:
+    v1, m1, v2, m2 = (vals[:, i] for i in range(len(_SHIFTS)))
+    an, size = _directional(pt, np.array([v[0] for v in directions]), np.array([v[1] for v in directions]))
+    d_h = (v1 - m1) / (2 * h)
+    d_2h = (v2 - m2) / (4 * h)
+    d5 = (4 * d_h - d_2h) / 3
+    rounding = _EPS * (np.abs(v1) + np.abs(m1) + np.abs(v2) + np.abs(m2)) / h
+    allowed = CHECK_RTOL * np.maximum(size, np.abs(d5)) + 10 * (np.abs(d_h - d_2h) + rounding) + 1e-300
+    err = np.abs(d5 - an)
+    rel = err / np.maximum(np.maximum(size, np.abs(d5)), 1e-300)
+    worst = max(0.0, float(np.where(err > 10 * rounding, rel, 0.0).max()))
+    ratio = (err / allowed).ravel()
+    j = int(np.argmax(ratio))
+    if not ratio[j] > 1.0:
         return _Check(worst, False, "")
-    _, name, idx, d5, an, rel = bad
+    name, idx = _entry_of(_shapes(p), j % vals.shape[2])
+    d5, an, rel = (float(a.ravel()[j]) for a in (d5, an, rel))
     where = f" at stage {idx[0]}" if name in ("stage_cost", "dynamics", "stage_constraints") else ""
     if len(idx) == 2 or name == "final_constraints":
         where += f", component {idx[-1]}"

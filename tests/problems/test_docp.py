@@ -224,3 +224,41 @@ def test_counters_count_evaluations():
     U = p.initial_guess(); X = p.simulate(U)
     p.eval_dynamics(X, U)
     assert p.counters["dynamics"] == 2
+
+
+def test_fast_path_errors_name_stage_and_array():
+    """The evaluation layer's fast path (a float64 array of the expected shape after one compiled
+    finite check) leaves the detailed messages to the slow path: a NaN in a vectorized
+    derivative tuple names the stage and the array, a wrong shape says so, a list of arrays is
+    accepted as before, and a Python float final cost is taken as it is."""
+    from olado.errors import NonFiniteEvaluationError, ProblemDefinitionError
+    from olado.problems.zambezi import Zambezi
+
+    class Bad(Zambezi):
+        mode = None
+
+        def dynamics_jacobian(self, k, x, u):
+            fx, fu = super().dynamics_jacobian(k, x, u)
+            if self.mode == "nan":
+                fu = fu.copy()
+                fu[5, 2, 3] = np.nan
+            elif self.mode == "shape":
+                fu = fu[:, :, :-1]
+            elif self.mode == "list":
+                return [fx, fu]
+            return fx, fu
+
+    p = Bad(N=12)
+    U = p.initial_guess()
+    X = p.simulate(U)
+    ref = p.eval_dynamics_jacobians(X, U)
+    p.mode = "list"
+    for a, b in zip(p.eval_dynamics_jacobians(X, U), ref):
+        np.testing.assert_array_equal(a, b)
+    p.mode = "nan"
+    with pytest.raises(NonFiniteEvaluationError, match=r"stage k=5.*'fu'.*at entry \(2, 3\)"):
+        p.eval_dynamics_jacobians(X, U)
+    p.mode = "shape"
+    with pytest.raises(ProblemDefinitionError, match=r"'fu'.*expected shape \(12, 6, 7\) \(one row per stage\)"):
+        p.eval_dynamics_jacobians(X, U)
+    assert type(p.eval_final_cost(X[-1])) is float

@@ -11,6 +11,7 @@ import pytest
 import olado
 from fixtures.toy_problems import Pendulum, PendulumFD, RestToRestCart
 from olado.problems import DOCP, get_problems
+from olado.problems.zambezi import zambezi_problem
 from olado.errors import ResultFileError
 from olado.result import Certificate, Result, Status
 from olado.solvers.certificate import (CertificateSettings, StageBounds, StagePoint, certify, kkt_figures,
@@ -319,3 +320,53 @@ def test_soft_rows_pay_complementarity():
         mu = -c * (a + b) / (c + s ** 2)
         assert Lg[0, 0] == pytest.approx(mu, rel=1e-6, abs=1e-12)
         assert lam[0, 0] == pytest.approx((w2 * a - v2 * (b + mu)) / (w2 + v2), rel=1e-6)
+
+
+@pytest.mark.parametrize("make", [lambda: zambezi_problem(N=24), lambda: RestToRestCart()],
+                         ids=["zambezi12-vectorized", "cart-per-stage"])
+def test_spot_check_stacked_evaluations_equal_point_by_point(make):
+    """The spot check's stacked evaluation (every shifted point's stages in one call per stage
+    function) gives the values, and advances the counters, as the point-by-point _values."""
+    from olado.solvers import certificate as C
+    p = make()
+    X = p.simulate(p.initial_guess())
+    U = p.initial_guess()
+    pt = StagePoint(p, X, U)
+    bounds = StageBounds.of(p)
+    W = (np.maximum(1.0, np.abs(X)), np.maximum(1.0, np.abs(U)))
+    rng = np.random.default_rng(C.CHECK_SEED)
+    directions = [C._direction(rng, pt, bounds, W, C.CHECK_STEP) for _ in range(C.CHECK_DIRECTIONS)]
+    p.reset_counters()
+    stacked = C._shifted_values(p, pt, directions, C.CHECK_STEP)
+    counted = p.counters.copy()
+    p.reset_counters()
+    for d, (Vx, Vu) in enumerate(directions):
+        for i, s in enumerate(C._SHIFTS):
+            ref = C._values(p, pt.X + s * C.CHECK_STEP * Vx, pt.U + s * C.CHECK_STEP * Vu)
+            flat = np.concatenate([np.ravel(ref[name]) for name in C._NAMES])
+            np.testing.assert_allclose(stacked[d, i], flat, rtol=1e-15, atol=0.0)
+    assert counted == p.counters
+
+
+def test_spot_check_names_the_stage_when_a_shifted_point_fails():
+    """A stage function that fails near the point: the spot check is skipped with the message of
+    the point-by-point evaluation (the stage it failed at, not a row of the stacked call)."""
+    from olado.solvers import certificate as C
+
+    class Fails(RestToRestCart):
+        vectorized = False
+        _at = None
+
+        def dynamics(self, k, x, u):
+            out = super().dynamics(k, x, u)
+            bad = self._at is not None and k == 3 and np.max(np.abs(x - self._at[k])) > 1e-4  # not an FD step
+            return out * np.nan if bad else out
+
+    p = Fails()
+    U = p.initial_guess()
+    X = p.simulate(U)
+    p._at = X
+    pt = StagePoint(p, X, U)
+    W = (np.maximum(1.0, np.abs(X)), np.maximum(1.0, np.abs(U)))
+    check = C.spot_check(p, pt, StageBounds.of(p), W)
+    assert check.note.startswith("spot check skipped") and "stage k=3" in check.note, check.note
