@@ -27,6 +27,12 @@ class Merit:
         """Constraint violations (arrays) at the point q: (|h|, g, gN, x bounds, u bounds).
         Computed once per point (its values do not change; the KKT test, the penalty and the
         history ask for them several times an iteration): the arrays are read-only to callers."""
+        return self._measured(q)[0]
+
+    def _measured(self, q):
+        """(violations, their largest entry, the penalties computed so far) of the point q, kept
+        on the point; the penalties as a list of (weights, value) pairs (the same weights object:
+        the merit value at a point is asked for several times with the same weights)."""
         cached = getattr(q, "_violations", None)
         if cached is not None and cached[0] is self:
             return cached[1]
@@ -39,12 +45,18 @@ class Merit:
 
     def _violations(self, q):
         p, (eq, _, eqN, _) = self.problem, self.masks
+        if _compiled(q):
+            from . import kernels
+            *arrays, worst = kernels.violations(q.h, q.g, q.gN, q.X, q.U, eq, eqN, p.x_lower, p.x_upper,
+                                                p.u_lower, p.u_upper)
+            return tuple(arrays), worst, []
         vg = np.where(eq, np.abs(q.g), np.maximum(-q.g, 0.0)) if p.r else q.g
         vgN = np.where(eqN, np.abs(q.gN), np.maximum(-q.gN, 0.0)) if p.rN else q.gN
         vbx = np.maximum(p.x_lower - q.X, 0.0) + np.maximum(q.X - p.x_upper, 0.0)
         vbx[0] = 0.0
         vbu = np.maximum(p.u_lower - q.U, 0.0) + np.maximum(q.U - p.u_upper, 0.0)
-        return np.abs(q.h), vg, vgN, vbx, vbu
+        out = (np.abs(q.h), vg, vgN, vbx, vbu)
+        return out, max(float(v.max(initial=0.0)) for v in out), []
 
     def worst(self, q):
         """The largest constraint violation at q, named as olado's infeasibility diagnosis names
@@ -54,10 +66,22 @@ class Merit:
         return (f"{where.where()} (violation {value:.3g})" if where is not None else "no constraint"), value
 
     def max_violation(self, q):
-        return max(float(v.max(initial=0.0)) for v in self.violations(q))
+        return self._measured(q)[1]
 
     def penalty(self, q, weights):
-        return sum(float((w * v).sum()) for w, v in zip(weights, self.violations(q)))
+        """sum rho |c| at q with the weights ``weights`` (kept per point and weights object)."""
+        viol, _, known = self._measured(q)
+        for w, value in known:
+            if w is weights:
+                return value
+        if _compiled(q) and all(w.dtype == np.float64 and w.flags.c_contiguous for w in weights):
+            from . import kernels
+            value = kernels.penalty(weights[0], viol[0], weights[1], viol[1], weights[2], viol[2], weights[3],
+                                    viol[3], weights[4], viol[4], np.empty(max(v.size for v in viol)))
+        else:
+            value = sum(float((w * v).sum()) for w, v in zip(weights, viol))
+        known.append((weights, value))
+        return value
 
     # ------------------------------------------------------------------ the merit function's interface
     # (shared with olado.solvers.sqp.augmented.AugmentedLagrangian; the phases call only these)
@@ -110,6 +134,11 @@ class Merit:
     def value(self, q, weights):
         """phi(q) with the penalty weights ``weights``."""
         return q.J + self.penalty(q, weights)
+
+
+def _compiled(q):
+    """The compiled passes (olado.solvers.sqp.kernels) apply to the point q: its arrays are float."""
+    return all(a.dtype == np.float64 for a in (q.h, q.g, q.gN, q.X, q.U))
 
 
 def zero_weights(N, n, r, rN, m):

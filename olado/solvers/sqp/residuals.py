@@ -33,7 +33,19 @@ from .state import BoundMultipliers
 
 def kkt_residual(p, pt, mult, bounds):
     """Max-norm of the NLP stationarity over x^1..x^N and u (x^0 is fixed), and the gradient
-    scale max|grad J|, at pt with the multipliers ``mult`` and bound multipliers ``bounds``."""
+    scale max|grad J|, at pt with the multipliers ``mult`` and bound multipliers ``bounds``.
+    One compiled pass (olado.solvers.sqp.kernels.kkt_residual, the same arithmetic) where numpy's
+    einsum sums in the kernel's order; the numpy form otherwise."""
+    from . import kernels
+
+    if kernels.einsum_sequential(p.n, p.m) and all(a.dtype == np.float64 for a in (pt.lx, pt.lu, pt.A, pt.B, pt.Cx, pt.Cu)):
+        gN0 = pt.lN + pt.CN.T @ mult.LgN if p.rN else pt.lN
+        return kernels.kkt_residual(pt.lx, pt.lu, gN0, pt.A, pt.B, pt.Cx, pt.Cu, mult.lam, mult.Lg, *bounds, pt.lN)
+    return kkt_residual_reference(p, pt, mult, bounds)
+
+
+def kkt_residual_reference(p, pt, mult, bounds):
+    """:func:`kkt_residual` in numpy (the reference of the compiled pass)."""
     lam = mult.lam
     gz, gN = pt.lagrangian_gradients(mult)
     n = p.n
