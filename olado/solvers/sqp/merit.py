@@ -22,6 +22,7 @@ class Merit:
     def __init__(self, problem, masks):
         self.problem = problem
         self.masks = masks
+        self._work = None       # the compiled penalty's work vector (olado.solvers.sqp.kernels)
 
     def violations(self, q):
         """Constraint violations (arrays) at the point q: (|h|, g, gN, x bounds, u bounds).
@@ -74,10 +75,13 @@ class Merit:
         for w, value in known:
             if w is weights:
                 return value
-        if _compiled(q) and all(w.dtype == np.float64 and w.flags.c_contiguous for w in weights):
+        w0, w1, w2, w3, w4 = weights
+        if (_compiled(q) and w0.flags.c_contiguous and w1.flags.c_contiguous and w2.flags.c_contiguous
+                and w3.flags.c_contiguous and w4.flags.c_contiguous):
             from . import kernels
-            value = kernels.penalty(weights[0], viol[0], weights[1], viol[1], weights[2], viol[2], weights[3],
-                                    viol[3], weights[4], viol[4], np.empty(max(v.size for v in viol)))
+            if self._work is None:
+                self._work = np.empty(max(v.size for v in viol))
+            value = kernels.penalty(w0, viol[0], w1, viol[1], w2, viol[2], w3, viol[3], w4, viol[4], self._work)
         else:
             value = sum(float((w * v).sum()) for w, v in zip(weights, viol))
         known.append((weights, value))
@@ -138,7 +142,8 @@ class Merit:
 
 def _compiled(q):
     """The compiled passes (olado.solvers.sqp.kernels) apply to the point q: its arrays are float."""
-    return all(a.dtype == np.float64 for a in (q.h, q.g, q.gN, q.X, q.U))
+    f = np.float64
+    return q.h.dtype == f and q.g.dtype == f and q.gN.dtype == f and q.X.dtype == f and q.U.dtype == f
 
 
 def zero_weights(N, n, r, rN, m):

@@ -38,7 +38,7 @@ def kkt_residual(p, pt, mult, bounds):
     einsum sums in the kernel's order; the numpy form otherwise."""
     from . import kernels
 
-    if kernels.einsum_sequential(p.n, p.m) and all(a.dtype == np.float64 for a in (pt.lx, pt.lu, pt.A, pt.B, pt.Cx, pt.Cu)):
+    if p.n > 1 and p.m > 1:     # kernels.einsum_sequential (the Point's arrays are float64: olado.problems.docp)
         gN0 = pt.lN + pt.CN.T @ mult.LgN if p.rN else pt.lN
         return kernels.kkt_residual(pt.lx, pt.lu, gN0, pt.A, pt.B, pt.Cx, pt.Cu, mult.lam, mult.Lg, *bounds, pt.lN)
     return kkt_residual_reference(p, pt, mult, bounds)
