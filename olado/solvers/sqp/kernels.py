@@ -41,7 +41,7 @@ def einsum_sequential(*sizes):
 
 # ---------------------------------------------------------------------------- reductions
 @nb.njit(**_JIT)
-def _npmax_abs(a, res):
+def npmax_abs(a, res):
     """max(res, max|a|) with numpy's NaN propagation (res is the running value, NaN stays)."""
     for x in a.flat:
         v = abs(x)
@@ -177,11 +177,11 @@ def violations(h, g, gN, X, U, eq, eqN, x_lower, x_upper, u_lower, u_upper):
     for i in range(U.shape[0]):
         for j in range(U.shape[1]):
             vbu[i, j] = _maximum0(u_lower[i, j] - U[i, j]) + _maximum0(U[i, j] - u_upper[i, j])
-    worst = _npmax_abs(vh, 0.0)
-    worst = _pymax(worst, _npmax_abs(vg, 0.0))
-    worst = _pymax(worst, _npmax_abs(vgN, 0.0))
-    worst = _pymax(worst, _npmax_abs(vbx, 0.0))
-    worst = _pymax(worst, _npmax_abs(vbu, 0.0))
+    worst = npmax_abs(vh, 0.0)
+    worst = _pymax(worst, npmax_abs(vg, 0.0))
+    worst = _pymax(worst, npmax_abs(vgN, 0.0))
+    worst = _pymax(worst, npmax_abs(vbx, 0.0))
+    worst = _pymax(worst, npmax_abs(vbu, 0.0))
     return vh, vg, vgN, vbx, vbu, worst
 
 
@@ -237,7 +237,7 @@ def kkt_residual(lx, lu, gN0, A, B, Cx, Cu, lam, Lg, zl_x, zu_x, zl_u, zu_u, lN)
         elif v > res_N:
             res_N = v
     res = _pymax(_pymax(res_x, res_u), res_N)
-    scale = _pymax(_pymax(_npmax_abs(lx, 0.0), _npmax_abs(lu, 0.0)), _npmax_abs(lN, 0.0))
+    scale = _pymax(_pymax(npmax_abs(lx, 0.0), npmax_abs(lu, 0.0)), npmax_abs(lN, 0.0))
     return res, scale
 
 

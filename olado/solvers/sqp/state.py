@@ -222,6 +222,7 @@ class SQPState(Stoppable):
     grad_scale: float = 1e-300      # largest |grad J| seen
     Bk: np.ndarray | None = None    # Hessian blocks at (pt, mult); None: to be evaluated
     BN: np.ndarray | None = None
+    hscale_of: tuple | None = None  # (Bk, BN, max|H|) measured by the iteration's Hessian phase
     watch: Watch | None = None
     failed_watch: Watch | None = None   # watched point of the last watchdog return
     returned: bool = False          # the last step was a watchdog return: the next one is not relaxed

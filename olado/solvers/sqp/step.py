@@ -51,8 +51,21 @@ def proximal_factor(options, local, local_scale=1.0):
 
 
 def hessian_scale(Bk, BN):
-    """max|H| of the block-diagonal Hessian (at least 1e-300)."""
+    """max|H| of the block-diagonal Hessian (at least 1e-300); numpy's max (a NaN propagates)
+    over each of Bk and BN, compiled (olado.solvers.sqp.kernels) for float arrays."""
+    if Bk.dtype == np.float64 and BN.dtype == np.float64:
+        from . import kernels
+        return max(1e-300, kernels.npmax_abs(Bk, 0.0), kernels.npmax_abs(BN, 0.0))
     return max(1e-300, float(np.max(np.abs(Bk), initial=0.0)), float(np.max(np.abs(BN), initial=0.0)))
+
+
+def current_hessian_scale(st, Bk, BN):
+    """hessian_scale(Bk, BN), taken from the iteration's Hessian phase when Bk, BN are the blocks
+    it measured (``st.hscale_of``; olado.solvers.sqp.phases.hessian_phase)."""
+    known = st.hscale_of
+    if known is not None and known[0] is Bk and known[1] is BN:
+        return known[2]
+    return hessian_scale(Bk, BN)
 
 
 def shift_scale(scale):
@@ -292,7 +305,7 @@ def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=
     o, p, qp_solver = setup.options, setup.problem, setup.qp_solver
     rule = ShiftRule(o)
     iterations = 0
-    scale = hessian_scale(Bk, BN)
+    scale = current_hessian_scale(st, Bk, BN)
     # Levenberg-Marquardt-like: delta shrinks with the relative KKT residual of the last
     # iterate (kept superlinear), but never exceeds proximal * max|H|
     prox_factor = proximal_factor(o, st.qp_local, st.local_proximal_scale)
