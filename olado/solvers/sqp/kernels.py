@@ -426,3 +426,72 @@ def drop_fixed_bounds(A, B, c, x0, xl, xu, EN, eN, X, rtol):
                 if value[k, i] >= xl[k, i] - slack and value[k, i] <= xu[k, i] + slack:
                     xl[k, i] = -np.inf
                     xu[k, i] = np.inf
+
+
+# ---------------------------------------------------------------------------- complementarity
+@nb.njit(inline="always")
+def _nanmax(res, v):
+    """The running max of numpy's np.max: a NaN stays."""
+    if res != res:
+        return res
+    if v != v:
+        return v
+    return v if v > res else res
+
+
+@nb.njit(**_JIT)
+def _bound_parts(y, lb, ub, zl, zu, first, total):
+    """common.bound_complementarity's parts (rows from ``first`` on; x^0's bounds are its fixed
+    value, no condition) combined into ``total`` by Python's max: |z_L (y - lb)|, the negative
+    part of z_L, |z_U (ub - y)|, the negative part of z_U, each over the free variables (lb < ub)
+    and for the products with a finite gap only; a part with a NaN is numpy's NaN, which
+    Python's max passes over."""
+    comp_l = 0.0; sign_l = 0.0; comp_u = 0.0; sign_u = 0.0
+    for k in range(first, y.shape[0]):
+        for j in range(y.shape[1]):
+            if not lb[k, j] < ub[k, j]:
+                continue
+            gl = y[k, j] - lb[k, j]
+            if np.isfinite(gl):
+                comp_l = _nanmax(comp_l, abs(zl[k, j] * gl))
+            sign_l = _nanmax(sign_l, _maximum0(-zl[k, j]))
+            gu = ub[k, j] - y[k, j]
+            if np.isfinite(gu):
+                comp_u = _nanmax(comp_u, abs(zu[k, j] * gu))
+            sign_u = _nanmax(sign_u, _maximum0(-zu[k, j]))
+    total = _pymax(total, comp_l)
+    total = _pymax(total, sign_l)
+    total = _pymax(total, comp_u)
+    total = _pymax(total, sign_u)
+    return total
+
+
+@nb.njit(**_JIT)
+def _row_parts(lam, g, ineq, total):
+    """|lam g| and the positive part of lam over the rows g >= 0 (``ineq``), into ``total``."""
+    comp = 0.0
+    sign = 0.0
+    for k in range(lam.shape[0]):
+        for j in range(lam.shape[1]):
+            if ineq[j]:
+                comp = _nanmax(comp, abs(lam[k, j] * g[k, j]))
+                sign = _nanmax(sign, _maximum0(lam[k, j]))
+    total = _pymax(total, comp)
+    return _pymax(total, sign)
+
+
+@nb.njit(**_JIT)
+def complementarity(X, x_lower, x_upper, U, u_lower, u_upper, zl_x, zu_x, zl_u, zu_u, Lg, g, ineq, LgN, gN, ineqN):
+    """residuals.stage_complementarity: the max of the bound parts of X (x^0 fixed) and U and
+    the inequality rows' parts of g and g^N."""
+    total = _bound_parts(X, x_lower, x_upper, zl_x, zu_x, 1, 0.0)
+    total = _bound_parts(U, u_lower, u_upper, zl_u, zu_u, 0, total)
+    total = _row_parts(Lg, g, ineq, total)
+    comp = 0.0
+    sign = 0.0
+    for j in range(LgN.shape[0]):
+        if ineqN[j]:
+            comp = _nanmax(comp, abs(LgN[j] * gN[j]))
+            sign = _nanmax(sign, _maximum0(LgN[j]))
+    total = _pymax(total, comp)
+    return _pymax(total, sign)

@@ -108,7 +108,17 @@ def _violation(c_parts, y_parts):
 def stage_complementarity(p, pt, mult, bounds):
     """Max-norm of the complementarity and multiplier-sign errors at pt (WORHP's conditions [4]-[5],
     seed 000 sec. IV.II): |z_L (y - lb)|, |z_U (ub - y)| and negative parts of z on the free
-    variables, |Lg g| and positive parts of Lg on the rows g >= 0 (their multipliers are <= 0)."""
+    variables, |Lg g| and positive parts of Lg on the rows g >= 0 (their multipliers are <= 0).
+    One compiled pass (olado.solvers.sqp.kernels.complementarity: maxima, exact in any order)."""
+    from . import kernels
+
+    ineq, ineqN = ~p.stage_equality_mask, ~p.final_equality_mask
+    return kernels.complementarity(pt.X, p.x_lower, p.x_upper, pt.U, p.u_lower, p.u_upper, *bounds, mult.Lg,
+                                   pt.g, ineq, mult.LgN, pt.gN, ineqN)
+
+
+def stage_complementarity_reference(p, pt, mult, bounds):
+    """:func:`stage_complementarity` in numpy (the reference of the compiled pass)."""
     xl, xu, ul, uu = _bounds(p)
     parts = [0.0]
     parts += bound_complementarity(pt.X, xl, xu, bounds.zl_x, bounds.zu_x) + bound_complementarity(pt.U, ul, uu, bounds.zl_u, bounds.zu_u)

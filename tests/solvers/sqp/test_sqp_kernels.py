@@ -100,6 +100,19 @@ def test_kkt_residual_is_the_numpy_form(points):
             assert residuals.kkt_residual(p, pt, mult, bounds) == residuals.kkt_residual_reference(p, pt, mult, bounds)
 
 
+def test_complementarity_is_the_numpy_form(points):
+    rng = np.random.default_rng(19)
+    for p, pt in points:
+        for _ in range(3):
+            mult, bounds = _multipliers(rng, p)
+            bounds = BoundMultipliers(*(b - 0.3 for b in bounds))      # some negative parts too
+            assert residuals.stage_complementarity(p, pt, mult, bounds) == \
+                residuals.stage_complementarity_reference(p, pt, mult, bounds)
+        bounds.zl_u[0, 0] = np.nan                                      # numpy's part is NaN: Python's max passes it
+        assert residuals.stage_complementarity(p, pt, mult, bounds) == \
+            residuals.stage_complementarity_reference(p, pt, mult, bounds)
+
+
 def test_einsum_contraction_order():
     """The kernels' sequential contraction is numpy's einsum wherever einsum_sequential says so."""
     rng = np.random.default_rng(7)
@@ -182,6 +195,8 @@ def _reference_paths(monkeypatch):
     """Patch the numpy forms back in for every compiled pass."""
     monkeypatch.setattr(merit_mod, "_compiled", lambda q: False)
     monkeypatch.setattr(phases, "kkt_residual", residuals.kkt_residual_reference)
+    monkeypatch.setattr(phases, "stage_complementarity", residuals.stage_complementarity_reference)
+    monkeypatch.setattr(residuals, "stage_complementarity", residuals.stage_complementarity_reference)
 
     def assemble(p, pt, Bk, BN, shift, masks, offsets=None):
         if shift is None:
