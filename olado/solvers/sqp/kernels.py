@@ -141,6 +141,23 @@ def _weighted(w, v, tmp):
 
 
 @nb.njit(**_JIT)
+def gradient_sums(lx, dXs, lu, dU):
+    """np.sum(lx * dXs) + np.sum(lu * dU) (C-contiguous arrays), each numpy's pairwise sum."""
+    tmp = np.empty(max(lx.size, lu.size))
+    return _weighted(lx, dXs, tmp) + _weighted(lu, dU, tmp)
+
+
+@nb.njit(**_JIT)
+def abs_sum(a):
+    """float(np.sum(np.abs(a))) of a C-contiguous array: numpy's pairwise sum."""
+    flat = a.ravel()
+    tmp = np.empty(flat.size)
+    for i in range(flat.size):
+        tmp[i] = abs(flat[i])
+    return pairwise_sum(tmp, 0, flat.size)
+
+
+@nb.njit(**_JIT)
 def penalty(w0, v0, w1, v1, w2, v2, w3, v3, w4, v4, tmp):
     """sum(float((w * v).sum()) for w, v in zip(weights, violations)) -- Python's sum from the
     integer 0, in order -- for the five parts of the L1 merit function."""

@@ -97,7 +97,9 @@ class Merit:
         return zero_weights(p.N, p.n, p.r, p.rN, p.m)
 
     def largest_weight(self, weights):
-        return max(float(w.max(initial=0.0)) for w in weights)
+        from .kernels import npmax_abs     # the weights are >= 0: max |w| is numpy's max w (a NaN propagates)
+
+        return max(npmax_abs(w, 0.0) for w in weights)
 
     def elastic_floor(self, weights):
         """The least penalty eta of a relaxed QP (olado.solvers.sqp.relaxation) for these
@@ -140,6 +142,9 @@ class Merit:
         return q.J + self.penalty(q, weights)
 
 
+_EPS = float(np.finfo(float).eps)
+
+
 def _compiled(q):
     """The compiled passes (olado.solvers.sqp.kernels) apply to the point q: its arrays are float."""
     f = np.float64
@@ -162,14 +167,28 @@ def powell_weights(rho, mult, bounds, penalty_min):
 
 def directional_derivative(merit, pt, dX, dU, weights):
     """D = grad J . s - sum rho |c| along the step s = (dX, dU) at pt (Nocedal & Wright (18.29))."""
-    return (float(np.sum(pt.lx * dX[:-1]) + np.sum(pt.lu * dU) + pt.lN @ dX[-1]) - merit.penalty(pt, weights))
+    return gradient_slope(pt, dX, dU) - merit.penalty(pt, weights)
+
+
+def gradient_slope(pt, dX, dU):
+    """grad J . s: numpy's sums of lx * dX[:-1] and lu * dU (pairwise; compiled for contiguous
+    arrays, olado.solvers.sqp.kernels) plus lN . dX_N."""
+    Xs = dX[:-1]
+    if Xs.flags.c_contiguous and dU.flags.c_contiguous and pt.lx.flags.c_contiguous and pt.lu.flags.c_contiguous:
+        from .kernels import gradient_sums
+        return float(gradient_sums(pt.lx, Xs, pt.lu, dU) + pt.lN @ dX[-1])
+    return float(np.sum(pt.lx * Xs) + np.sum(pt.lu * dU) + pt.lN @ dX[-1])
 
 
 def descent_tolerance(phi0, tol, grad_scale, dX, dU):
     """A directional derivative below what the optimality tolerance resolves -- a gradient error
     of tol * |grad J| along the step, or the rounding level of phi -- counts as descent."""
-    return (10.0 * np.finfo(float).eps * max(1.0, abs(phi0))
-            + tol * grad_scale * (float(np.sum(np.abs(dX[1:]))) + float(np.sum(np.abs(dU)))))
+    if dX.flags.c_contiguous and dU.flags.c_contiguous:
+        from .kernels import abs_sum    # numpy's pairwise sum of |a|, compiled
+        size = abs_sum(dX[1:]) + abs_sum(dU)
+    else:
+        size = float(np.sum(np.abs(dX[1:]))) + float(np.sum(np.abs(dU)))
+    return 10.0 * _EPS * max(1.0, abs(phi0)) + tol * grad_scale * size
 
 
 def watch_target(merit, watch, weights, armijo):

@@ -130,7 +130,9 @@ class Multipliers(NamedTuple):
 
     def largest(self):
         """max |multiplier| over the dynamics, stage and final constraints."""
-        return max(float(np.max(np.abs(a), initial=0.0)) for a in (self.lam, self.Lg, self.LgN))
+        from .kernels import npmax_abs     # numpy's max of |a| (a NaN propagates), compiled
+
+        return max(npmax_abs(self.lam, 0.0), npmax_abs(self.Lg, 0.0), npmax_abs(self.LgN, 0.0))
 
 
 class BoundMultipliers(NamedTuple):
