@@ -81,7 +81,9 @@ class Merit:
             from . import kernels
             if self._work is None:
                 self._work = np.empty(max(v.size for v in viol))
-            value = kernels.penalty(w0, viol[0], w1, viol[1], w2, viol[2], w3, viol[3], w4, viol[4], self._work)
+            # flat views (C-contiguous: the same order), so that the kernel compiles once
+            value = kernels.penalty(w0.ravel(), viol[0].ravel(), w1.ravel(), viol[1].ravel(), w2.ravel(),
+                                    viol[2].ravel(), w3.ravel(), viol[3].ravel(), w4.ravel(), viol[4].ravel(), self._work)
         else:
             value = sum(float((w * v).sum()) for w, v in zip(weights, viol))
         known.append((weights, value))
@@ -176,7 +178,7 @@ def gradient_slope(pt, dX, dU):
     Xs = dX[:-1]
     if Xs.flags.c_contiguous and dU.flags.c_contiguous and pt.lx.flags.c_contiguous and pt.lu.flags.c_contiguous:
         from .kernels import gradient_sums
-        return float(gradient_sums(pt.lx, Xs, pt.lu, dU) + pt.lN @ dX[-1])
+        return float(gradient_sums(pt.lx.ravel(), Xs.ravel(), pt.lu.ravel(), dU.ravel()) + pt.lN @ dX[-1])
     return float(np.sum(pt.lx * Xs) + np.sum(pt.lu * dU) + pt.lN @ dX[-1])
 
 
