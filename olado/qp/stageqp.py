@@ -58,6 +58,18 @@ class StageQP:
         self.N, self.n, self.m = N, n, m
         self.Q, self.R, self.q, self.r, self.c, self.x0 = f(self.Q), f(self.R), f(self.q), f(self.r), f(self.c), f(self.x0)
         self.S = np.zeros((N, n, m)) if self.S is None else f(self.S)
+        self._complete_rows()
+        self.x_lower = np.full((N + 1, n), -np.inf) if self.x_lower is None else f(self.x_lower)
+        self.x_upper = np.full((N + 1, n), np.inf) if self.x_upper is None else f(self.x_upper)
+        self.u_lower = np.full((N, m), -np.inf) if self.u_lower is None else f(self.u_lower)
+        self.u_upper = np.full((N, m), np.inf) if self.u_upper is None else f(self.u_upper)
+        self._check_shapes()
+
+    def _complete_rows(self):
+        """The equality and inequality rows as contiguous float arrays, absent ones as empty
+        arrays (and infinite sides for missing inequality bounds)."""
+        f = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731
+        N, n, m = self.N, self.n, self.m
         if self.E is None:
             self.E, self.F, self.e = np.zeros((N, 0, n)), np.zeros((N, 0, m)), np.zeros((N, 0))
         else:
@@ -82,11 +94,24 @@ class StageQP:
             k = self.CN.shape[0]
             self.cN_lower = np.full(k, -np.inf) if self.cN_lower is None else f(self.cN_lower)
             self.cN_upper = np.full(k, np.inf) if self.cN_upper is None else f(self.cN_upper)
-        self.x_lower = np.full((N + 1, n), -np.inf) if self.x_lower is None else f(self.x_lower)
-        self.x_upper = np.full((N + 1, n), np.inf) if self.x_upper is None else f(self.x_upper)
-        self.u_lower = np.full((N, m), -np.inf) if self.u_lower is None else f(self.u_lower)
-        self.u_upper = np.full((N, m), np.inf) if self.u_upper is None else f(self.u_upper)
-        self._check_shapes()
+
+    @classmethod
+    def assembled(cls, *, Q, R, S, q, r, A, B, c, x0, x_lower, x_upper, u_lower, u_upper, **rows) -> StageQP:
+        """A StageQP from arrays that are already C-contiguous float64 of the right shapes (the
+        SQP's compiled QP assembly, olado.solvers.sqp.kernels): the dataclass's conversions and
+        shape checks of these are skipped; the optional rows (``E``, ``C``, ...) in ``rows`` are
+        completed and checked as by the constructor. The same object the constructor would make."""
+        qp = cls.__new__(cls)
+        d = qp.__dict__
+        d.update(Q=Q, R=R, q=q, r=r, A=A, B=B, c=c, x0=x0, S=S, E=None, F=None, e=None, EN=None, eN=None, C=None,
+                 c_lower=None, c_upper=None, CN=None, cN_lower=None, cN_upper=None, x_lower=x_lower,
+                 x_upper=x_upper, u_lower=u_lower, u_upper=u_upper)
+        d.update(rows)
+        qp.N, qp.n, qp.m = A.shape[0], A.shape[1], B.shape[2]
+        qp._complete_rows()
+        if rows:
+            qp._check_shapes()
+        return qp
 
     def _check_shapes(self):
         N, n, m = self.N, self.n, self.m

@@ -237,7 +237,9 @@ def hessian_phase(setup, st):
         if hess.needs_exact:
             hess.set_exact(*pt.lagrangian_hessian(p, st.mult))
         st.Bk, st.BN = hess.current()
-    return hessian_scale(st.Bk, st.BN)
+    scale = hessian_scale(st.Bk, st.BN)
+    st.hscale_of = (st.Bk, st.BN, scale)     # for the iteration's QPs (olado.solvers.sqp.step.solve_qp)
+    return scale
 
 
 # ---------------------------------------------------------------------------- 3. QP
@@ -614,7 +616,7 @@ def accept(setup, st, step):
     st.decreased = new_pt.J < st.pt.J
     st.pt = new_pt
     st.mult = bounded_multipliers(setup, st, step.mult_new)
-    st.Bk = None
+    st.Bk = st.hscale_of = None
     st.shift = step.delta
     # the next QP's warm start: its multipliers and a zero step (its kkt and objective are not
     # measured: the copy does not keep this QP's data alive)

@@ -33,7 +33,19 @@ from .state import BoundMultipliers
 
 def kkt_residual(p, pt, mult, bounds):
     """Max-norm of the NLP stationarity over x^1..x^N and u (x^0 is fixed), and the gradient
-    scale max|grad J|, at pt with the multipliers ``mult`` and bound multipliers ``bounds``."""
+    scale max|grad J|, at pt with the multipliers ``mult`` and bound multipliers ``bounds``.
+    One compiled pass (olado.solvers.sqp.kernels.kkt_residual, the same arithmetic) where numpy's
+    einsum sums in the kernel's order; the numpy form otherwise."""
+    from . import kernels
+
+    if p.n > 1 and p.m > 1:     # kernels.einsum_sequential (the Point's arrays are float64: olado.problems.docp)
+        gN0 = pt.lN + pt.CN.T @ mult.LgN if p.rN else pt.lN
+        return kernels.kkt_residual(pt.lx, pt.lu, gN0, pt.A, pt.B, pt.Cx, pt.Cu, mult.lam, mult.Lg, *bounds, pt.lN)
+    return kkt_residual_reference(p, pt, mult, bounds)
+
+
+def kkt_residual_reference(p, pt, mult, bounds):
+    """:func:`kkt_residual` in numpy (the reference of the compiled pass)."""
     lam = mult.lam
     gz, gN = pt.lagrangian_gradients(mult)
     n = p.n
@@ -96,7 +108,17 @@ def _violation(c_parts, y_parts):
 def stage_complementarity(p, pt, mult, bounds):
     """Max-norm of the complementarity and multiplier-sign errors at pt (WORHP's conditions [4]-[5],
     seed 000 sec. IV.II): |z_L (y - lb)|, |z_U (ub - y)| and negative parts of z on the free
-    variables, |Lg g| and positive parts of Lg on the rows g >= 0 (their multipliers are <= 0)."""
+    variables, |Lg g| and positive parts of Lg on the rows g >= 0 (their multipliers are <= 0).
+    One compiled pass (olado.solvers.sqp.kernels.complementarity: maxima, exact in any order)."""
+    from . import kernels
+
+    ineq, ineqN = ~p.stage_equality_mask, ~p.final_equality_mask
+    return kernels.complementarity(pt.X, p.x_lower, p.x_upper, pt.U, p.u_lower, p.u_upper, *bounds, mult.Lg,
+                                   pt.g, ineq, mult.LgN, pt.gN, ineqN)
+
+
+def stage_complementarity_reference(p, pt, mult, bounds):
+    """:func:`stage_complementarity` in numpy (the reference of the compiled pass)."""
     xl, xu, ul, uu = _bounds(p)
     parts = [0.0]
     parts += bound_complementarity(pt.X, xl, xu, bounds.zl_x, bounds.zu_x) + bound_complementarity(pt.U, ul, uu, bounds.zl_u, bounds.zu_u)

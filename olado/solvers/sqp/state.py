@@ -130,7 +130,9 @@ class Multipliers(NamedTuple):
 
     def largest(self):
         """max |multiplier| over the dynamics, stage and final constraints."""
-        return max(float(np.max(np.abs(a), initial=0.0)) for a in (self.lam, self.Lg, self.LgN))
+        from .kernels import npmax_abs     # numpy's max of |a| (a NaN propagates), compiled
+
+        return max(npmax_abs(self.lam, 0.0), npmax_abs(self.Lg, 0.0), npmax_abs(self.LgN, 0.0))
 
 
 class BoundMultipliers(NamedTuple):
@@ -222,6 +224,7 @@ class SQPState(Stoppable):
     grad_scale: float = 1e-300      # largest |grad J| seen
     Bk: np.ndarray | None = None    # Hessian blocks at (pt, mult); None: to be evaluated
     BN: np.ndarray | None = None
+    hscale_of: tuple | None = None  # (Bk, BN, max|H|) measured by the iteration's Hessian phase
     watch: Watch | None = None
     failed_watch: Watch | None = None   # watched point of the last watchdog return
     returned: bool = False          # the last step was a watchdog return: the next one is not relaxed

@@ -51,8 +51,21 @@ def proximal_factor(options, local, local_scale=1.0):
 
 
 def hessian_scale(Bk, BN):
-    """max|H| of the block-diagonal Hessian (at least 1e-300)."""
+    """max|H| of the block-diagonal Hessian (at least 1e-300); numpy's max (a NaN propagates)
+    over each of Bk and BN, compiled (olado.solvers.sqp.kernels) for float arrays."""
+    if Bk.dtype == np.float64 and BN.dtype == np.float64:
+        from . import kernels
+        return max(1e-300, kernels.npmax_abs(Bk, 0.0), kernels.npmax_abs(BN, 0.0))
     return max(1e-300, float(np.max(np.abs(Bk), initial=0.0)), float(np.max(np.abs(BN), initial=0.0)))
+
+
+def current_hessian_scale(st, Bk, BN):
+    """hessian_scale(Bk, BN), taken from the iteration's Hessian phase when Bk, BN are the blocks
+    it measured (``st.hscale_of``; olado.solvers.sqp.phases.hessian_phase)."""
+    known = st.hscale_of
+    if known is not None and known[0] is Bk and known[1] is BN:
+        return known[2]
+    return hessian_scale(Bk, BN)
 
 
 def shift_scale(scale):
@@ -141,6 +154,20 @@ def build_qp(p, pt, Bk, BN, masks, offsets=None):
     h, g, gN = (pt.h, pt.g, pt.gN) if offsets is None else offsets
     Q = np.empty((N + 1, n, n))
     Q[:-1] = Bk[:, :n, :n]; Q[-1] = BN
+    kw = _constraint_rows(p, pt, masks, g, gN)
+    xl = p.x_lower - X; xu = p.x_upper - X
+    xl[0] = -np.inf; xu[0] = np.inf      # x0 is fixed by the x0 row; its bounds are not the QP's business
+    drop_fixed_bounds(pt.A, pt.B, h, p.x0 - X[0], xl, xu, kw.get("EN"), kw.get("eN"),
+                      slack=FIXED_BOUND_RTOL * (1.0 + np.abs(X)))
+    return StageQP(Q=Q, R=Bk[:, n:, n:], S=Bk[:, :n, n:], q=np.vstack([pt.lx, pt.lN[None, :]]), r=pt.lu,
+                   A=pt.A, B=pt.B, c=h, x0=p.x0 - X[0], x_lower=xl, x_upper=xu,
+                   u_lower=p.u_lower - U, u_upper=p.u_upper - U, **kw)
+
+
+def _constraint_rows(p, pt, masks, g, gN):
+    """The stage and final constraint rows of the QP at pt (keyword arguments of StageQP)."""
+    eq, ineq, eqN, ineqN = masks
+    N = p.N
     kw = {}
     if p.r and eq.any():
         kw.update(E=pt.Cx[:, eq, :], F=pt.Cu[:, eq, :], e=g[:, eq])
@@ -151,13 +178,35 @@ def build_qp(p, pt, Bk, BN, masks, offsets=None):
         kw.update(EN=pt.CN[eqN], eN=gN[eqN])
     if p.rN and ineqN.any():
         kw.update(CN=pt.CN[ineqN], cN_lower=-gN[ineqN], cN_upper=np.full(int(ineqN.sum()), np.inf))
-    xl = p.x_lower - X; xu = p.x_upper - X
-    xl[0] = -np.inf; xu[0] = np.inf      # x0 is fixed by the x0 row; its bounds are not the QP's business
-    drop_fixed_bounds(pt.A, pt.B, h, p.x0 - X[0], xl, xu, kw.get("EN"), kw.get("eN"),
-                      slack=FIXED_BOUND_RTOL * (1.0 + np.abs(X)))
-    return StageQP(Q=Q, R=Bk[:, n:, n:], S=Bk[:, :n, n:], q=np.vstack([pt.lx, pt.lN[None, :]]), r=pt.lu,
-                   A=pt.A, B=pt.B, c=h, x0=p.x0 - X[0], x_lower=xl, x_upper=xu,
-                   u_lower=p.u_lower - U, u_upper=p.u_upper - U, **kw)
+    return kw
+
+
+def assemble_qp(p, pt, Bk, BN, shift, masks, offsets=None):
+    """:func:`build_qp` with the Hessian blocks Bk + shift_k I, BN + shift_N I (``shift``: N + 1
+    values, or None for the blocks unshifted), in compiled passes (olado.solvers.sqp.kernels: the
+    blocks, the step's vectors and boxes, the fixed-state bound rule) -- the same QP, entry for
+    entry, as ``build_qp`` of the shifted blocks."""
+    from . import kernels
+
+    N, n = p.N, p.n
+    X, U = pt.X, pt.U
+    h, g, gN = (pt.h, pt.g, pt.gN) if offsets is None else offsets
+    f = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731   (as StageQP does)
+    Bk = f(Bk); BN = f(BN)
+    if shift is None:
+        Q, S, R = kernels.plain_blocks(Bk, BN, n)
+    else:
+        Q, S, R = kernels.shifted_blocks(Bk, BN, f(shift), n)
+    A, B, c = f(pt.A), f(pt.B), f(h)
+    q, x0, xl, xu, ul, uu = kernels.step_vectors(f(pt.lx), f(pt.lN), f(X), f(U), f(p.x0), f(p.x_lower),
+                                                 f(p.x_upper), f(p.u_lower), f(p.u_upper))
+    kw = _constraint_rows(p, pt, masks, g, gN) if (p.r or p.rN) else {}
+    EN, eN = kw.get("EN"), kw.get("eN")
+    EN = np.zeros((0, n)) if EN is None else f(EN)
+    eN = np.zeros(0) if eN is None else f(eN)
+    kernels.drop_fixed_bounds(A, B, c, x0, xl, xu, EN, eN, f(X), FIXED_BOUND_RTOL)
+    return StageQP.assembled(Q=Q, R=R, S=S, q=q, r=f(pt.lu), A=A, B=B, c=c, x0=x0, x_lower=xl, x_upper=xu,
+                             u_lower=ul, u_upper=uu, **kw)
 
 
 def fixed_states(A, B, c, x0, EN=None, eN=None, wanted=None):
@@ -256,7 +305,7 @@ def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=
     o, p, qp_solver = setup.options, setup.problem, setup.qp_solver
     rule = ShiftRule(o)
     iterations = 0
-    scale = hessian_scale(Bk, BN)
+    scale = current_hessian_scale(st, Bk, BN)
     # Levenberg-Marquardt-like: delta shrinks with the relative KKT residual of the last
     # iterate (kept superlinear), but never exceeds proximal * max|H|
     prox_factor = proximal_factor(o, st.qp_local, st.local_proximal_scale)
@@ -266,13 +315,20 @@ def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=
     ref = shift_scale(scale)
     prox = min(prox_factor, st.kkt_rel) * ref if o.adaptive_proximal else prox_factor * ref
     n, m = p.n, p.m
+    # the compiled assembly unless the shifted blocks themselves are needed (the curvature test) or
+    # the QP's gradient is zeroed in place (build_qp's r is the point's own lu, as here)
+    compiled = not zero_gradient and not (inertia and o.curvature_tol > 0)
     for _ in range(30):
-        if np.any(delta + prox > 0):
-            Bd = Bk + (delta[:-1] + prox)[:, None, None] * np.eye(n + m)
-            BNd = BN + (delta[-1] + prox) * np.eye(n)
+        shifted = delta + prox
+        if compiled:
+            qp = assemble_qp(p, pt, Bk, BN, shifted if np.any(shifted > 0) else None, setup.masks, offsets)
         else:
-            Bd, BNd = Bk, BN
-        qp = build_qp(p, pt, Bd, BNd, setup.masks, offsets)
+            if np.any(shifted > 0):
+                Bd = Bk + (delta[:-1] + prox)[:, None, None] * np.eye(n + m)
+                BNd = BN + (delta[-1] + prox) * np.eye(n)
+            else:
+                Bd, BNd = Bk, BN
+            qp = build_qp(p, pt, Bd, BNd, setup.masks, offsets)
         if zero_gradient:
             qp.q[:] = 0.0
             qp.r[:] = 0.0

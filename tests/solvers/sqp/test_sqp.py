@@ -437,8 +437,9 @@ def test_stalled_cold_start_qp_is_restarted_further_inside(monkeypatch):
     from olado.qp import make_qp_solver
 
     qps = []
-    build = sqp_step.build_qp
+    build, assemble = sqp_step.build_qp, sqp_step.assemble_qp      # the numpy and the compiled assembly
     monkeypatch.setattr(sqp_step, "build_qp", lambda *a, **k: qps.append(build(*a, **k)) or qps[-1])
+    monkeypatch.setattr(sqp_step, "assemble_qp", lambda *a, **k: qps.append(assemble(*a, **k)) or qps[-1])
     r = SQPSolver(hessian="sr1", max_iter=1).solve(zambezi_problem("zambezi", N=276))
     assert r.status == Status.MAX_ITERATIONS, r.message          # not the QP's numerical_error
     qp = qps[0]

@@ -36,7 +36,15 @@ def test_first_qp_hessian_is_not_1e_304(monkeypatch):
         seen.append(float(np.min(np.diagonal(Bd, axis1=1, axis2=2))))
         return build(p, pt, Bd, BNd, *args, **kw)
 
+    assemble = sqp_step.assemble_qp
+
+    def keep_assembled(p, pt, Bk, BN, shift, *args, **kw):      # the compiled assembly: Bk + shift_k I
+        diag = np.diagonal(Bk, axis1=1, axis2=2) + (0.0 if shift is None else shift[:-1][:, None])
+        seen.append(float(np.min(diag)))
+        return assemble(p, pt, Bk, BN, shift, *args, **kw)
+
     monkeypatch.setattr(sqp_step, "build_qp", keep)
+    monkeypatch.setattr(sqp_step, "assemble_qp", keep_assembled)
     olado.solve(problem, guess=guess, config=CONFIGS / "sqp-as.ini", initial_multipliers="zero", max_iter=1)
     assert seen and seen[0] == pytest.approx(1e-4, rel=1e-12)       # proximal (1e-4) * shift_scale (1)
 
