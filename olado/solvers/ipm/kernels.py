@@ -271,7 +271,6 @@ def barrier_logs(v, lo, hi, has_lo, has_hi, sl, su, logs):
     """The slacks into sl, su (as ``slacks``) and, inside the bounds, np.log(sl).sum() +
     np.log(su).sum() (``logs``: a work array of v's size); returns (inside, that sum)."""
     n = v.size
-    inside = True
     for i in range(n):
         sl[i] = v[i] - lo[i] if has_lo[i] else 1.0
         su[i] = hi[i] - v[i] if has_hi[i] else 1.0

@@ -188,7 +188,7 @@ def assemble_qp(p, pt, Bk, BN, shift, masks, offsets=None):
     entry, as ``build_qp`` of the shifted blocks."""
     from . import kernels
 
-    N, n = p.N, p.n
+    n = p.n
     X, U = pt.X, pt.U
     h, g, gN = (pt.h, pt.g, pt.gN) if offsets is None else offsets
     f = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731   (as StageQP does)
@@ -316,7 +316,7 @@ def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=
     prox = min(prox_factor, st.kkt_rel) * ref if o.adaptive_proximal else prox_factor * ref
     n, m = p.n, p.m
     # the compiled assembly unless the shifted blocks themselves are needed (the curvature test) or
-    # the QP's gradient is zeroed in place (build_qp's r is the point's own lu, as here)
+    # the QP's gradient is zeroed (the feasibility QPs)
     compiled = not zero_gradient and not (inertia and o.curvature_tol > 0)
     for _ in range(30):
         shifted = delta + prox
@@ -329,9 +329,9 @@ def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=
             else:
                 Bd, BNd = Bk, BN
             qp = build_qp(p, pt, Bd, BNd, setup.masks, offsets)
-        if zero_gradient:
-            qp.q[:] = 0.0
-            qp.r[:] = 0.0
+        if zero_gradient:     # new arrays: build_qp's r is the point's own lu, which must stay
+            qp.q = np.zeros_like(qp.q)
+            qp.r = np.zeros_like(qp.r)
         if u_box is not None:
             qp.u_lower = np.maximum(qp.u_lower, -u_box)
             qp.u_upper = np.minimum(qp.u_upper, u_box)

@@ -135,3 +135,27 @@ def test_cart_pole_reaches_ipopts_objective():
     assert "restoration" not in [h["mode"] for h in r.history]
     assert r.objective == pytest.approx(ref["objective"], rel=1e-6)
     assert r.max_constraint_violation < 1e-8
+
+
+def test_a_feasibility_qp_leaves_the_iterate_gradient_alone(monkeypatch):
+    """The feasibility QPs (the gradient removed) must not zero the iterate's own cost gradient:
+    the relaxed QP that follows at the same point reads it. lq-unreachable takes the relaxed phase
+    at every iteration; every zero-gradient QP is checked against a copy of pt.lu taken before."""
+    from olado.problems import get_problems
+    from olado.solvers.sqp import step as qp_step
+
+    calls = []
+    solve_qp = qp_step.solve_qp
+
+    def checked(setup, st, pt, *args, zero_gradient=False, **kw):
+        before = (pt.lu.copy(), pt.lx.copy())
+        out = solve_qp(setup, st, pt, *args, zero_gradient=zero_gradient, **kw)
+        if zero_gradient:
+            calls.append(np.array_equal(pt.lu, before[0]) and np.array_equal(pt.lx, before[1]))
+        return out
+
+    monkeypatch.setattr(qp_step, "solve_qp", checked)
+    problem = get_problems()["lq-unreachable"]()
+    r = olado.solve(problem, config=SQP_IP)
+    assert r.status is Status.INFEASIBLE
+    assert calls and all(calls), calls
