@@ -17,6 +17,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from ...linalg.numpy_sums import pairwise_sum
+
 _JIT = {"cache": True, "error_model": "numpy"}   # x / 0 is inf or NaN, as in numpy
 
 
@@ -148,86 +150,6 @@ def move_tiny(v, lo, hi, has_lo, has_hi, eps, move):
     return moved
 
 
-# ---------------------------------------------------------------------------- sums as numpy sums
-#: the one signature of the pairwise-sum helpers: compiled once (when this module is loaded, from
-#: numba's cache after the first time) instead of once per literal argument at every call site
-_SUM_SIG = "float64(float64[::1], int64, int64, boolean)"
-
-
-@nb.njit(_SUM_SIG, **_JIT)
-def _block(a, lo, n, absolute):
-    """numpy's pairwise_sum below its block size (n <= 128): a plain loop below 8 terms, else
-    eight accumulators combined pairwise and the rest added in order."""
-    if n < 8:
-        res = 0.0
-        for i in range(lo, lo + n):
-            res += abs(a[i]) if absolute else a[i]
-        return res
-    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
-    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
-    if absolute:
-        r0, r1, r2, r3, r4, r5, r6, r7 = abs(r0), abs(r1), abs(r2), abs(r3), abs(r4), abs(r5), abs(r6), abs(r7)
-    i = lo + 8
-    end = lo + n - (n % 8)
-    while i < end:
-        if absolute:
-            r0 += abs(a[i]); r1 += abs(a[i + 1]); r2 += abs(a[i + 2]); r3 += abs(a[i + 3])
-            r4 += abs(a[i + 4]); r5 += abs(a[i + 5]); r6 += abs(a[i + 6]); r7 += abs(a[i + 7])
-        else:
-            r0 += a[i]; r1 += a[i + 1]; r2 += a[i + 2]; r3 += a[i + 3]
-            r4 += a[i + 4]; r5 += a[i + 5]; r6 += a[i + 6]; r7 += a[i + 7]
-        i += 8
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < lo + n:
-        res += abs(a[i]) if absolute else a[i]
-        i += 1
-    return res
-
-
-@nb.njit(_SUM_SIG, **_JIT)
-def _pairwise(a, lo, n, absolute):
-    """numpy's pairwise summation of a[lo:lo+n] (np.add.reduce of a contiguous float64 array:
-    blocks of at most 128 terms (_block), halves at multiples of 8 above, left + right), of |a|
-    when ``absolute``: the same rounding as ``np.abs(a).sum()`` or ``a.sum()``. The recursion
-    runs on an explicit stack (frames: start, length, stage, left half's sum)."""
-    if n <= 128:
-        return _block(a, lo, n, absolute)
-    f_lo = np.empty(64, dtype=np.int64)
-    f_n = np.empty(64, dtype=np.int64)
-    f_stage = np.zeros(64, dtype=np.int64)
-    f_left = np.empty(64)
-    f_lo[0], f_n[0], f_stage[0] = lo, n, 0
-    sp, ret = 1, 0.0
-    while sp > 0:
-        t = sp - 1
-        n_t = f_n[t]
-        if n_t <= 128:
-            ret = _block(a, f_lo[t], n_t, absolute)
-            sp -= 1
-            continue
-        n2 = n_t // 2
-        n2 -= n2 % 8
-        if f_stage[t] == 0:
-            f_stage[t] = 1
-            f_lo[sp], f_n[sp], f_stage[sp] = f_lo[t], n2, 0
-            sp += 1
-        elif f_stage[t] == 1:
-            f_left[t] = ret
-            f_stage[t] = 2
-            f_lo[sp], f_n[sp], f_stage[sp] = f_lo[t] + n2, n_t - n2, 0
-            sp += 1
-        else:
-            ret = f_left[t] + ret
-            sp -= 1
-    return ret
-
-
-@nb.njit(**_JIT)
-def abs_sum(a):
-    """np.abs(a).sum() of a flat contiguous array."""
-    return _pairwise(np.ascontiguousarray(a), 0, a.size, True)
-
-
 @nb.njit(inline="always")
 def _abs_max_into(a, mx, seen):
     """One step of Python's max(..., default) over np.abs(a).max() of the non-empty arrays: a
@@ -249,11 +171,11 @@ def residual_norms(h2, e2, eN, d2, dN):
     np.abs(a).max() of the non-empty arrays (NaN propagating), 0 when all are empty."""
     h, e, d = h2.ravel(), e2.ravel(), d2.ravel()       # (N, .) arrays, C-contiguous or copied
     l1 = 0.0
-    l1 += _pairwise(h, 0, h.size, True)
-    l1 += _pairwise(e, 0, e.size, True)
-    l1 += _pairwise(np.ascontiguousarray(eN), 0, eN.size, True)
-    l1 += _pairwise(d, 0, d.size, True)
-    l1 += _pairwise(np.ascontiguousarray(dN), 0, dN.size, True)
+    l1 += pairwise_sum(h, 0, h.size, True)
+    l1 += pairwise_sum(e, 0, e.size, True)
+    l1 += pairwise_sum(np.ascontiguousarray(eN), 0, eN.size, True)
+    l1 += pairwise_sum(d, 0, d.size, True)
+    l1 += pairwise_sum(np.ascontiguousarray(dN), 0, dN.size, True)
     mx, seen = 0.0, False
     mx, seen = _abs_max_into(h, mx, seen)
     mx, seen = _abs_max_into(e, mx, seen)
@@ -284,10 +206,10 @@ def barrier_logs(v, lo, hi, has_lo, has_hi, sl, su, logs):
             return False, 0.0
     for i in range(n):
         logs[i] = np.log(sl[i])
-    s = _pairwise(logs, 0, n, False)
+    s = pairwise_sum(logs, 0, n, False)
     for i in range(n):
         logs[i] = np.log(su[i])
-    return True, s + _pairwise(logs, 0, n, False)
+    return True, s + pairwise_sum(logs, 0, n, False)
 
 
 @nb.njit(**_JIT)
@@ -332,13 +254,13 @@ def dual_infeasibility(s_obj, lx, lu, lN, EA, EB, lam, ECx, ECu, CNL, has_r, has
         mx = _max(mx, abs((-ydN[i] - zl[j]) + zu[j]))
         j += 1
     zl, zu = np.ascontiguousarray(zl), np.ascontiguousarray(zu)
-    zsum = _pairwise(zl, 0, zl.size, True) + _pairwise(zu, 0, zu.size, True)
+    zsum = pairwise_sum(zl, 0, zl.size, True) + pairwise_sum(zu, 0, zu.size, True)
     ysum = 0.0
-    ysum += _pairwise(lam.ravel(), 0, lam.size, True)
-    ysum += _pairwise(nu.ravel(), 0, nu.size, True)
-    ysum += _pairwise(np.ascontiguousarray(nuN), 0, nuN.size, True)
-    ysum += _pairwise(yf, 0, yf.size, True)
-    ysum += _pairwise(np.ascontiguousarray(ydN), 0, ydN.size, True)
+    ysum += pairwise_sum(lam.ravel(), 0, lam.size, True)
+    ysum += pairwise_sum(nu.ravel(), 0, nu.size, True)
+    ysum += pairwise_sum(np.ascontiguousarray(nuN), 0, nuN.size, True)
+    ysum += pairwise_sum(yf, 0, yf.size, True)
+    ysum += pairwise_sum(np.ascontiguousarray(ydN), 0, ydN.size, True)
     return mx, zsum, ysum
 
 

@@ -14,7 +14,7 @@ without fastmath):
   over j); with one entry numpy reduces over i with unrolled partial sums, so the callers use
   :func:`einsum_sequential` to take these kernels only where the order is the sequential one;
 * ``(w * v).sum()`` of a C-contiguous array is numpy's pairwise summation over the flattened
-  array (:func:`pairwise_sum` is numpy's algorithm, blocks of eight with eight partial sums);
+  array (olado.linalg.numpy_sums.pairwise_sum is numpy's algorithm);
 * maxima are exact in any order; Python's ``max`` of floats keeps the first of a NaN and a
   number, numpy's ``max`` propagates a NaN: both rules are kept.
 
@@ -29,6 +29,8 @@ from __future__ import annotations
 
 import numba as nb
 import numpy as np
+
+from ...linalg.numpy_sums import pairwise_sum
 
 _JIT = {"cache": True, "error_model": "numpy"}   # x / 0 is inf or NaN, as in numpy
 
@@ -67,69 +69,6 @@ def _maximum0(x):
 
 
 @nb.njit(**_JIT)
-def _block(a, lo, n):
-    """numpy's pairwise summation of a block of n <= 128 terms: below 8 in order, else eight
-    partial sums combined as ((0+1)+(2+3))+((4+5)+(6+7)) and the rest added in order."""
-    if n < 8:
-        res = 0.0
-        for i in range(n):
-            res += a[lo + i]
-        return res
-    r0 = a[lo]; r1 = a[lo + 1]; r2 = a[lo + 2]; r3 = a[lo + 3]
-    r4 = a[lo + 4]; r5 = a[lo + 5]; r6 = a[lo + 6]; r7 = a[lo + 7]
-    i = 8
-    end = n - n % 8
-    while i < end:
-        r0 += a[lo + i]; r1 += a[lo + i + 1]; r2 += a[lo + i + 2]; r3 += a[lo + i + 3]
-        r4 += a[lo + i + 4]; r5 += a[lo + i + 5]; r6 += a[lo + i + 6]; r7 += a[lo + i + 7]
-        i += 8
-    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < n:
-        res += a[lo + i]
-        i += 1
-    return res
-
-
-@nb.njit(**_JIT)
-def pairwise_sum(a, lo, n):
-    """numpy's pairwise summation of a[lo:lo + n] (a flat contiguous array): blocks of at most
-    128 terms (:func:`_block`); a longer range is the sum of its two halves, the first a multiple
-    of 8 -- numpy's recursion, here on an explicit stack (numba's cache does not take recursive
-    functions)."""
-    if n <= 128:
-        return _block(a, lo, n)
-    los = np.empty(64, np.int64)
-    ns = np.empty(64, np.int64)
-    stage = np.empty(64, np.int64)
-    vals = np.empty(64)
-    sp = 0
-    vsp = 0
-    los[0] = lo; ns[0] = n; stage[0] = 0
-    while sp >= 0:
-        start, count = los[sp], ns[sp]
-        if count <= 128:
-            vals[vsp] = _block(a, start, count)
-            vsp += 1
-            sp -= 1
-            continue
-        n2 = count // 2
-        n2 -= n2 % 8
-        if stage[sp] == 0:
-            stage[sp] = 1
-            sp += 1
-            los[sp] = start; ns[sp] = n2; stage[sp] = 0
-        elif stage[sp] == 1:
-            stage[sp] = 2
-            sp += 1
-            los[sp] = start + n2; ns[sp] = count - n2; stage[sp] = 0
-        else:
-            vals[vsp - 2] = vals[vsp - 2] + vals[vsp - 1]
-            vsp -= 1
-            sp -= 1
-    return vals[0]
-
-
-@nb.njit(**_JIT)
 def _weighted(w, v, tmp):
     """float((w * v).sum()) of two C-contiguous arrays of one shape (tmp: a work vector)."""
     wf = w.ravel()
@@ -137,7 +76,7 @@ def _weighted(w, v, tmp):
     n = wf.size
     for i in range(n):
         tmp[i] = wf[i] * vf[i]
-    return pairwise_sum(tmp, 0, n)
+    return pairwise_sum(tmp, 0, n, False)
 
 
 @nb.njit(**_JIT)
@@ -145,16 +84,6 @@ def gradient_sums(lx, dXs, lu, dU):
     """np.sum(lx * dXs) + np.sum(lu * dU) (C-contiguous arrays), each numpy's pairwise sum."""
     tmp = np.empty(max(lx.size, lu.size))
     return _weighted(lx, dXs, tmp) + _weighted(lu, dU, tmp)
-
-
-@nb.njit(**_JIT)
-def abs_sum(a):
-    """float(np.sum(np.abs(a))) of a C-contiguous array: numpy's pairwise sum."""
-    flat = a.ravel()
-    tmp = np.empty(flat.size)
-    for i in range(flat.size):
-        tmp[i] = abs(flat[i])
-    return pairwise_sum(tmp, 0, flat.size)
 
 
 @nb.njit(**_JIT)

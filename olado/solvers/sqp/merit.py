@@ -186,7 +186,7 @@ def descent_tolerance(phi0, tol, grad_scale, dX, dU):
     """A directional derivative below what the optimality tolerance resolves -- a gradient error
     of tol * |grad J| along the step, or the rounding level of phi -- counts as descent."""
     if dX.flags.c_contiguous and dU.flags.c_contiguous:
-        from .kernels import abs_sum    # numpy's pairwise sum of |a|, compiled
+        from ...linalg.numpy_sums import abs_sum    # numpy's pairwise sum of |a|, compiled
         size = abs_sum(dX[1:]) + abs_sum(dU)
     else:
         size = float(np.sum(np.abs(dX[1:]))) + float(np.sum(np.abs(dU)))

@@ -220,14 +220,17 @@ def test_fused_dual_step_safeguard_and_sigma_are_the_numpy_forms(case):
 
 @pytest.mark.parametrize("size", [0, 1, 7, 8, 9, 127, 128, 129, 255, 1000, 8192, 8193, 100_003])
 def test_pairwise_sums_are_numpys(size):
-    """kernels.abs_sum and the residual norms sum as numpy does (pairwise), bit for bit."""
-    from olado.solvers.ipm import kernels
+    """numpy_sums.abs_sum / pairwise_sum and the residual norms sum as numpy does (pairwise), bit
+    for bit."""
+    from olado.linalg import numpy_sums
     from olado.solvers.ipm.newton import Residuals
 
     rng = np.random.default_rng(size)
     a = rng.normal(size=size) * 10.0 ** rng.uniform(-10, 10, size=size)
-    assert kernels.abs_sum(a) == np.abs(a).sum()
-    assert kernels._pairwise(a, 0, a.size, False) == a.sum()
+    assert numpy_sums.abs_sum(a) == np.abs(a).sum()
+    assert numpy_sums.pairwise_sum(a, 0, a.size, False) == a.sum()
+    if size % 7 == 0 and size:            # a C-contiguous 2-D array (the SQP's step sizes): the flat sum
+        assert numpy_sums.abs_sum(a.reshape(7, -1)[1:]) == np.abs(a.reshape(7, -1)[1:]).sum()
     res = Residuals(a[: size // 2].reshape(-1, 1), rng.normal(size=(3, 2)), np.zeros(0), np.zeros((3, 0)),
                     -a[size // 2:])
     want_l1 = float(sum(np.abs(x).sum() for x in res))
