@@ -149,16 +149,20 @@ class KKTMatrix:
             self.cons = Constraints.none(N, n, m)
         self.QN = self.Q[N].copy()
 
-    def _diagonals(self, delta):
-        Dx = self.Sx + delta
-        Dx[0] = 0.0
+    def _final_block(self, delta):
+        """Q[N] = QN + CNi' (SsN + delta) CNi: the final inequality rows' slack weights."""
         c = self.cons
         N = self.B.shape[0]
         if c.CNi.shape[0]:
             self.Q[N] = self.QN + c.CNi.T @ ((c.SsN + delta)[:, None] * c.CNi)
         else:
             self.Q[N] = self.QN
-        return Dx, self.Su + delta, c.Ss + delta
+
+    def _diagonals(self, delta):
+        Dx = self.Sx + delta
+        Dx[0] = 0.0
+        self._final_block(delta)
+        return Dx, self.Su + delta, self.cons.Ss + delta
 
     def _take_over(self):
         """Take over the back-end of ``reuse`` (same shapes): the back-end gets this matrix's
@@ -188,12 +192,8 @@ class KKTMatrix:
         np.add(self.Sx, delta, out=Dx)
         Dx[0] = 0.0
         np.add(self.Su, delta, out=Du)
+        self._final_block(delta)
         c = self.cons
-        N = self.B.shape[0]
-        if c.CNi.shape[0]:
-            self.Q[N] = self.QN + c.CNi.T @ ((c.SsN + delta)[:, None] * c.CNi)
-        else:
-            self.Q[N] = self.QN
         return c.Ss + delta if c.Ci.shape[1] else None
 
     def try_factor(self, delta) -> bool:
