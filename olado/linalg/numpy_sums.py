@@ -61,32 +61,33 @@ def pairwise_sum(a, lo, n, absolute):
     runs on an explicit stack (frames: start, length, stage, left half's sum)."""
     if n <= 128:
         return _block(a, lo, n, absolute)
-    f_lo = np.empty(64, dtype=np.int64)
-    f_n = np.empty(64, dtype=np.int64)
-    f_stage = np.zeros(64, dtype=np.int64)
-    f_left = np.empty(64)
-    f_lo[0], f_n[0], f_stage[0] = lo, n, 0
+    # one float64 work array for the frames (rows: start, length, stage, left half's sum; the
+    # integers are exact in float64): a single allocation type, no int64 array helpers compiled
+    f = np.empty((4, 64))
+    f[0, 0], f[1, 0], f[2, 0] = lo, n, 0.0
     sp, ret = 1, 0.0
     while sp > 0:
         t = sp - 1
-        n_t = f_n[t]
+        lo_t = int(f[0, t])
+        n_t = int(f[1, t])
         if n_t <= 128:
-            ret = _block(a, f_lo[t], n_t, absolute)
+            ret = _block(a, lo_t, n_t, absolute)
             sp -= 1
             continue
         n2 = n_t // 2
         n2 -= n2 % 8
-        if f_stage[t] == 0:
-            f_stage[t] = 1
-            f_lo[sp], f_n[sp], f_stage[sp] = f_lo[t], n2, 0
+        stage = f[2, t]
+        if stage == 0.0:
+            f[2, t] = 1.0
+            f[0, sp], f[1, sp], f[2, sp] = lo_t, n2, 0.0
             sp += 1
-        elif f_stage[t] == 1:
-            f_left[t] = ret
-            f_stage[t] = 2
-            f_lo[sp], f_n[sp], f_stage[sp] = f_lo[t] + n2, n_t - n2, 0
+        elif stage == 1.0:
+            f[3, t] = ret
+            f[2, t] = 2.0
+            f[0, sp], f[1, sp], f[2, sp] = lo_t + n2, n_t - n2, 0.0
             sp += 1
         else:
-            ret = f_left[t] + ret
+            ret = f[3, t] + ret
             sp -= 1
     return ret
 

@@ -42,16 +42,24 @@ def einsum_sequential(*sizes):
 
 
 # ---------------------------------------------------------------------------- reductions
-@nb.njit(**_JIT)
-def npmax_abs(a, res):
-    """max(res, max|a|) with numpy's NaN propagation (res is the running value, NaN stays)."""
-    for x in a.flat:
-        v = abs(x)
+#: one declared signature (flat float64 arrays of any stride): compiled once, when this module is
+#: loaded, instead of once per array rank and layout met
+@nb.njit("float64(float64[:], float64)", **_JIT)
+def _npmax_abs_flat(a, res):
+    """max(res, max|a|) over a 1-D array, numpy's NaN propagation (res is the running value, NaN stays)."""
+    for i in range(a.size):
+        v = abs(a[i])
         if v != v:
             return v
         if v > res:
             res = v
     return res
+
+
+def npmax_abs(a, res):
+    """max(res, max|a|) of a float64 array of any shape (flattened in C order: the order of
+    ``a.flat``), numpy's NaN propagation (res is the running value, NaN stays)."""
+    return _npmax_abs_flat(np.ravel(a), float(res))
 
 
 @nb.njit(inline="always")
@@ -123,11 +131,11 @@ def violations(h, g, gN, X, U, eq, eqN, x_lower, x_upper, u_lower, u_upper):
     for i in range(U.shape[0]):
         for j in range(U.shape[1]):
             vbu[i, j] = _maximum0(u_lower[i, j] - U[i, j]) + _maximum0(U[i, j] - u_upper[i, j])
-    worst = npmax_abs(vh, 0.0)
-    worst = _pymax(worst, npmax_abs(vg, 0.0))
-    worst = _pymax(worst, npmax_abs(vgN, 0.0))
-    worst = _pymax(worst, npmax_abs(vbx, 0.0))
-    worst = _pymax(worst, npmax_abs(vbu, 0.0))
+    worst = _npmax_abs_flat(vh.ravel(), 0.0)
+    worst = _pymax(worst, _npmax_abs_flat(vg.ravel(), 0.0))
+    worst = _pymax(worst, _npmax_abs_flat(vgN, 0.0))
+    worst = _pymax(worst, _npmax_abs_flat(vbx.ravel(), 0.0))
+    worst = _pymax(worst, _npmax_abs_flat(vbu.ravel(), 0.0))
     return vh, vg, vgN, vbx, vbu, worst
 
 
@@ -183,7 +191,8 @@ def kkt_residual(lx, lu, gN0, A, B, Cx, Cu, lam, Lg, zl_x, zu_x, zl_u, zu_u, lN)
         elif v > res_N:
             res_N = v
     res = _pymax(_pymax(res_x, res_u), res_N)
-    scale = _pymax(_pymax(npmax_abs(lx, 0.0), npmax_abs(lu, 0.0)), npmax_abs(lN, 0.0))
+    scale = _pymax(_pymax(_npmax_abs_flat(lx.ravel(), 0.0), _npmax_abs_flat(lu.ravel(), 0.0)),
+                   _npmax_abs_flat(lN.ravel(), 0.0))
     return res, scale
 
 
@@ -385,7 +394,9 @@ def _nanmax(res, v):
     return v if v > res else res
 
 
-@nb.njit(**_JIT)
+#: one declared signature: the two calls' constant ``first`` (1, 0) would otherwise compile two
+#: literal specializations
+@nb.njit("float64(float64[:, :], float64[:, :], float64[:, :], float64[:, :], float64[:, :], int64, float64)", **_JIT)
 def _bound_parts(y, lb, ub, zl, zu, first, total):
     """common.bound_complementarity's parts (rows from ``first`` on; x^0's bounds are its fixed
     value, no condition) combined into ``total`` by Python's max: |z_L (y - lb)|, the negative
