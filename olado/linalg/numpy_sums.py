@@ -92,10 +92,11 @@ def pairwise_sum(a, lo, n, absolute):
     return ret
 
 
-@nb.njit(**_JIT)
 def abs_sum(a):
-    """float(np.abs(a).sum()) of an array (C-contiguous: numpy's pairwise sum over the flattened array)."""
-    return pairwise_sum(np.ascontiguousarray(a).ravel(), 0, a.size, True)
+    """float(np.abs(a).sum()) of a float64 array (C order: numpy's pairwise sum over the flattened
+    array; a view where ``a`` is C-contiguous). Python glue: nothing compiled besides pairwise_sum."""
+    flat = np.ascontiguousarray(a, dtype=np.float64).reshape(-1)
+    return pairwise_sum(flat, 0, flat.size, True)
 
 
 __all__ = ["pairwise_sum", "abs_sum"]

@@ -76,28 +76,37 @@ def _maximum0(x):
     return x if x > 0.0 else 0.0
 
 
-@nb.njit(**_JIT)
-def _weighted(w, v, tmp):
-    """float((w * v).sum()) of two C-contiguous arrays of one shape (tmp: a work vector)."""
-    wf = w.ravel()
-    vf = v.ravel()
-    n = wf.size
+@nb.njit("float64(float64[::1], float64[::1], float64[::1])", **_JIT)
+def _weighted_flat(w, v, tmp):
+    """float((w * v).sum()) of two 1-D C-contiguous arrays of one size (tmp: a work vector)."""
+    n = w.size
     for i in range(n):
-        tmp[i] = wf[i] * vf[i]
+        tmp[i] = w[i] * v[i]
     return pairwise_sum(tmp, 0, n, False)
 
 
-@nb.njit(**_JIT)
+def _flat(a):
+    """A C-contiguous float64 array as its flat view (a C-order copy otherwise): the one argument
+    type of the declared signatures."""
+    return np.ascontiguousarray(a, dtype=np.float64).reshape(-1)
+
+
+def _weighted(w, v, tmp):
+    """float((w * v).sum()) of two arrays of one shape (C order: numpy's pairwise sum over the
+    flattened product; tmp: a work vector of at least their size)."""
+    return _weighted_flat(_flat(w), _flat(v), tmp)
+
+
 def gradient_sums(lx, dXs, lu, dU):
     """np.sum(lx * dXs) + np.sum(lu * dU) (C-contiguous arrays), each numpy's pairwise sum."""
     tmp = np.empty(max(lx.size, lu.size))
     return _weighted(lx, dXs, tmp) + _weighted(lu, dU, tmp)
 
 
-@nb.njit(**_JIT)
 def penalty(w0, v0, w1, v1, w2, v2, w3, v3, w4, v4, tmp):
     """sum(float((w * v).sum()) for w, v in zip(weights, violations)) -- Python's sum from the
-    integer 0, in order -- for the five parts of the L1 merit function."""
+    integer 0, in order -- for the five parts of the L1 merit function. Python glue around one
+    compiled sum (one specialization, no kernel per combination compiled)."""
     total = _weighted(w0, v0, tmp)
     total += _weighted(w1, v1, tmp)
     total += _weighted(w2, v2, tmp)
