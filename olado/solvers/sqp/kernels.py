@@ -307,18 +307,23 @@ def _fixed_from_here(A, B, k, rows):
     return True
 
 
-@nb.njit(**_JIT)
 def drop_fixed_bounds(A, B, c, x0, xl, xu, EN, eN, X, rtol):
     """step.drop_fixed_bounds with step.fixed_states, in place on xl, xu (x^0's bounds already
-    dropped by the caller), slack rtol * (1 + |X|)."""
+    dropped by the caller), slack rtol * (1 + |X|). The work arrays are allocated here (numpy),
+    so that no allocation helpers are compiled with the kernel."""
+    N, n, _ = B.shape
+    _drop_fixed_bounds(A, B, c, x0, xl, xu, EN, eN, X, rtol, np.zeros((N + 1, n), dtype=np.bool_),
+                       np.zeros((N + 1, n)), np.zeros(n, dtype=np.bool_))
+
+
+@nb.njit(**_JIT)
+def _drop_fixed_bounds(A, B, c, x0, xl, xu, EN, eN, X, rtol, fixed, value, rows):
+    """drop_fixed_bounds on zeroed work arrays fixed (N+1, n; bool), value (N+1, n), rows (n; bool)."""
     N, n, m = B.shape
-    fixed = np.zeros((N + 1, n), dtype=np.bool_)
-    value = np.zeros((N + 1, n))
     for j in range(n):
         fixed[0, j] = True
         value[0, j] = x0[j]
     tail_tested = False
-    rows = np.zeros(n, dtype=np.bool_)
     for k in range(N):
         anyrow = False
         for i in range(n):
@@ -432,7 +437,7 @@ def _bound_parts(y, lb, ub, zl, zu, first, total):
     return total
 
 
-@nb.njit(**_JIT)
+@nb.njit("float64(float64[:, :], float64[:, :], boolean[:], float64)", **_JIT)
 def _row_parts(lam, g, ineq, total):
     """|lam g| and the positive part of lam over the rows g >= 0 (``ineq``), into ``total``."""
     comp = 0.0
@@ -446,18 +451,11 @@ def _row_parts(lam, g, ineq, total):
     return _pymax(total, sign)
 
 
-@nb.njit(**_JIT)
 def complementarity(X, x_lower, x_upper, U, u_lower, u_upper, zl_x, zu_x, zl_u, zu_u, Lg, g, ineq, LgN, gN, ineqN):
     """residuals.stage_complementarity: the max of the bound parts of X (x^0 fixed) and U and
-    the inequality rows' parts of g and g^N."""
+    the inequality rows' parts of g and g^N (g^N as a one-row block: the same operations in the
+    same order). Python glue around two compiled helpers of one declared signature each."""
     total = _bound_parts(X, x_lower, x_upper, zl_x, zu_x, 1, 0.0)
     total = _bound_parts(U, u_lower, u_upper, zl_u, zu_u, 0, total)
-    total = _row_parts(Lg, g, ineq, total)
-    comp = 0.0
-    sign = 0.0
-    for j in range(LgN.shape[0]):
-        if ineqN[j]:
-            comp = _nanmax(comp, abs(LgN[j] * gN[j]))
-            sign = _nanmax(sign, _maximum0(LgN[j]))
-    total = _pymax(total, comp)
-    return _pymax(total, sign)
+    total = _row_parts(Lg, g, np.asarray(ineq, dtype=np.bool_), total)
+    return _row_parts(LgN.reshape(1, -1), gN.reshape(1, -1), np.asarray(ineqN, dtype=np.bool_), total)
