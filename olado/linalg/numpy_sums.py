@@ -20,7 +20,8 @@ _JIT = {"cache": True, "error_model": "numpy"}
 
 #: the one signature of the pairwise-sum helpers: compiled once (when this module is loaded, from
 #: numba's cache after the first time) instead of once per literal argument at every call site
-_SUM_SIG = "float64(float64[::1], int64, int64, boolean)"
+#: (the array read-only in the signature: a writeable array converts to it, a read-only one is taken too)
+_SUM_SIG = nb.float64(nb.types.Array(nb.float64, 1, "C", readonly=True), nb.int64, nb.int64, nb.boolean)
 
 
 @nb.njit(_SUM_SIG, **_JIT)

@@ -33,7 +33,10 @@ def gather_hessian_values(Hxx, Hxu, Huu, HN, out):
 
 #: one declared signature (flat float64 arrays: the callers pass ``a.ravel("K")``, a view of a
 #: contiguous array of any layout): compiled once instead of once per rank and pair of ranks
-@nb.njit("boolean(float64[::1], float64[::1])", cache=True)
+_FLAT_RO = nb.types.Array(nb.float64, 1, "C", readonly=True)   # a writeable array converts to it
+
+
+@nb.njit(nb.boolean(_FLAT_RO, _FLAT_RO), cache=True)
 def all_finite_flat(a, b):
     """True when every entry of the 1-D float64 arrays ``a`` and ``b`` is finite: one compiled
     pass, no temporary, no BLAS call, exits at the first NaN/inf."""

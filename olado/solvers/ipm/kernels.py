@@ -150,7 +150,7 @@ def move_tiny(v, lo, hi, has_lo, has_hi, eps, move):
     return moved
 
 
-@nb.njit("float64(float64[::1])", **_JIT)
+@nb.njit(nb.float64(nb.types.Array(nb.float64, 1, "C", readonly=True)), **_JIT)
 def _abs_max(a):
     """np.abs(a).max() of a non-empty 1-D array (NaN propagating)."""
     m = abs(a[0])

@@ -34,6 +34,13 @@ from ...linalg.numpy_sums import pairwise_sum
 
 _JIT = {"cache": True, "error_model": "numpy"}   # x / 0 is inf or NaN, as in numpy
 
+# argument types of the declared signatures: read-only (a writeable array converts to it, a
+# read-only one -- e.g. a problem's bounds -- is taken too), any stride unless C is required
+_RO1 = nb.types.Array(nb.float64, 1, "A", readonly=True)
+_RO1C = nb.types.Array(nb.float64, 1, "C", readonly=True)
+_RO2 = nb.types.Array(nb.float64, 2, "A", readonly=True)
+_RO_MASK = nb.types.Array(nb.boolean, 1, "A", readonly=True)
+
 
 def einsum_sequential(*sizes):
     """True when ``np.einsum("kij,ki->kj", ...)`` with these output dimensions j sums in the
@@ -44,7 +51,7 @@ def einsum_sequential(*sizes):
 # ---------------------------------------------------------------------------- reductions
 #: one declared signature (flat float64 arrays of any stride): compiled once, when this module is
 #: loaded, instead of once per array rank and layout met
-@nb.njit("float64(float64[:], float64)", **_JIT)
+@nb.njit(nb.float64(_RO1, nb.float64), **_JIT)
 def _npmax_abs_flat(a, res):
     """max(res, max|a|) over a 1-D array, numpy's NaN propagation (res is the running value, NaN stays)."""
     for i in range(a.size):
@@ -76,7 +83,7 @@ def _maximum0(x):
     return x if x > 0.0 else 0.0
 
 
-@nb.njit("float64(float64[::1], float64[::1], float64[::1])", **_JIT)
+@nb.njit(nb.float64(_RO1C, _RO1C, nb.float64[::1]), **_JIT)
 def _weighted_flat(w, v, tmp):
     """float((w * v).sum()) of two 1-D C-contiguous arrays of one size (tmp: a work vector)."""
     n = w.size
@@ -410,7 +417,7 @@ def _nanmax(res, v):
 
 #: one declared signature: the two calls' constant ``first`` (1, 0) would otherwise compile two
 #: literal specializations
-@nb.njit("float64(float64[:, :], float64[:, :], float64[:, :], float64[:, :], float64[:, :], int64, float64)", **_JIT)
+@nb.njit(nb.float64(_RO2, _RO2, _RO2, _RO2, _RO2, nb.int64, nb.float64), **_JIT)
 def _bound_parts(y, lb, ub, zl, zu, first, total):
     """common.bound_complementarity's parts (rows from ``first`` on; x^0's bounds are its fixed
     value, no condition) combined into ``total`` by Python's max: |z_L (y - lb)|, the negative
@@ -437,7 +444,7 @@ def _bound_parts(y, lb, ub, zl, zu, first, total):
     return total
 
 
-@nb.njit("float64(float64[:, :], float64[:, :], boolean[:], float64)", **_JIT)
+@nb.njit(nb.float64(_RO2, _RO2, _RO_MASK, nb.float64), **_JIT)
 def _row_parts(lam, g, ineq, total):
     """|lam g| and the positive part of lam over the rows g >= 0 (``ineq``), into ``total``."""
     comp = 0.0
