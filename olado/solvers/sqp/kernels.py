@@ -123,27 +123,30 @@ def penalty(w0, v0, w1, v1, w2, v2, w3, v3, w4, v4, tmp):
 
 
 # ---------------------------------------------------------------------------- merit violations
-@nb.njit(**_JIT)
 def violations(h, g, gN, X, U, eq, eqN, x_lower, x_upper, u_lower, u_upper):
+    """:func:`_violations_into` on output arrays allocated here (numpy: no allocation helpers
+    compiled); returns (vh, vg, vgN, vbx, vbu, worst)."""
+    out = (np.empty(h.shape), np.empty(g.shape), np.empty(gN.shape), np.empty(X.shape), np.empty(U.shape))
+    worst = _violations_into(h, g, gN, X, U, eq, eqN, x_lower, x_upper, u_lower, u_upper, *out)
+    return (*out, worst)
+
+
+@nb.njit(**_JIT)
+def _violations_into(h, g, gN, X, U, eq, eqN, x_lower, x_upper, u_lower, u_upper, vh, vg, vgN, vbx, vbu):
     """(|h|, vg, vgN, vbx, vbu) of Merit._violations: vg = |g| on equality rows, max(-g, 0) on
     the others; the bound violations max(lo - y, 0) + max(y - hi, 0), x^0's zero; and the largest
     entry of each (max with initial 0, numpy's NaN rule) combined by Python's max in order."""
-    vh = np.empty_like(h)
     for i in range(h.shape[0]):
         for j in range(h.shape[1]):
             vh[i, j] = abs(h[i, j])
-    vg = np.empty_like(g)
     for i in range(g.shape[0]):
         for j in range(g.shape[1]):
             vg[i, j] = abs(g[i, j]) if eq[j] else _maximum0(-g[i, j])
-    vgN = np.empty_like(gN)
     for j in range(gN.shape[0]):
         vgN[j] = abs(gN[j]) if eqN[j] else _maximum0(-gN[j])
-    vbx = np.empty_like(X)
     for i in range(X.shape[0]):
         for j in range(X.shape[1]):
             vbx[i, j] = 0.0 if i == 0 else (_maximum0(x_lower[i, j] - X[i, j]) + _maximum0(X[i, j] - x_upper[i, j]))
-    vbu = np.empty_like(U)
     for i in range(U.shape[0]):
         for j in range(U.shape[1]):
             vbu[i, j] = _maximum0(u_lower[i, j] - U[i, j]) + _maximum0(U[i, j] - u_upper[i, j])
@@ -152,7 +155,7 @@ def violations(h, g, gN, X, U, eq, eqN, x_lower, x_upper, u_lower, u_upper):
     worst = _pymax(worst, _npmax_abs_flat(vgN, 0.0))
     worst = _pymax(worst, _npmax_abs_flat(vbx.ravel(), 0.0))
     worst = _pymax(worst, _npmax_abs_flat(vbu.ravel(), 0.0))
-    return vh, vg, vgN, vbx, vbu, worst
+    return worst
 
 
 # ---------------------------------------------------------------------------- KKT residual
@@ -213,15 +216,20 @@ def kkt_residual(lx, lu, gN0, A, B, Cx, Cu, lam, Lg, zl_x, zu_x, zl_u, zu_u, lN)
 
 
 # ---------------------------------------------------------------------------- QP assembly
-@nb.njit(**_JIT)
 def shifted_blocks(Bk, BN, d, n):
+    """:func:`_shifted_blocks_into` on Q, S, R allocated here (numpy: no allocation helpers compiled)."""
+    N, nz = Bk.shape[0], Bk.shape[1]
+    out = (np.empty((N + 1, n, n)), np.empty((N, n, nz - n)), np.empty((N, nz - n, nz - n)))
+    _shifted_blocks_into(Bk, BN, d, n, *out)
+    return out
+
+
+@nb.njit(**_JIT)
+def _shifted_blocks_into(Bk, BN, d, n, Q, S, R):
     """Q (N+1, n, n), S (N, n, m), R (N, m, m) of Bk + d_k I (and BN + d_N I), each entry
     Bk_ij + d_k * I_ij as numpy's ``Bk + d[:, None, None] * np.eye(n + m)``."""
     N, nz = Bk.shape[0], Bk.shape[1]
     m = nz - n
-    Q = np.empty((N + 1, n, n))
-    S = np.empty((N, n, m))
-    R = np.empty((N, m, m))
     for k in range(N):
         dk = d[k]
         for i in range(nz):
@@ -238,17 +246,21 @@ def shifted_blocks(Bk, BN, d, n):
     for i in range(n):
         for j in range(n):
             Q[N, i, j] = BN[i, j] + dN * (1.0 if i == j else 0.0)
-    return Q, S, R
+
+
+def plain_blocks(Bk, BN, n):
+    """:func:`_plain_blocks_into` on Q, S, R allocated here (numpy: no allocation helpers compiled)."""
+    N, nz = Bk.shape[0], Bk.shape[1]
+    out = (np.empty((N + 1, n, n)), np.empty((N, n, nz - n)), np.empty((N, nz - n, nz - n)))
+    _plain_blocks_into(Bk, BN, n, *out)
+    return out
 
 
 @nb.njit(**_JIT)
-def plain_blocks(Bk, BN, n):
+def _plain_blocks_into(Bk, BN, n, Q, S, R):
     """Q, S, R of the unshifted blocks (copies of Bk's parts and BN)."""
     N, nz = Bk.shape[0], Bk.shape[1]
     m = nz - n
-    Q = np.empty((N + 1, n, n))
-    S = np.empty((N, n, m))
-    R = np.empty((N, m, m))
     for k in range(N):
         for i in range(n):
             for j in range(n):
@@ -261,26 +273,31 @@ def plain_blocks(Bk, BN, n):
     for i in range(n):
         for j in range(n):
             Q[N, i, j] = BN[i, j]
-    return Q, S, R
+
+
+def step_vectors(lx, lN, X, U, x0, x_lower, x_upper, u_lower, u_upper):
+    """:func:`_step_vectors_into` on (q, dx0, xl, xu, ul, uu) allocated here (numpy: no allocation
+    helpers compiled)."""
+    (N, n), m = lx.shape, U.shape[1]
+    out = (np.empty((N + 1, n)), np.empty(n), np.empty((N + 1, n)), np.empty((N + 1, n)), np.empty((N, m)),
+           np.empty((N, m)))
+    _step_vectors_into(lx, lN, X, U, x0, x_lower, x_upper, u_lower, u_upper, *out)
+    return out
 
 
 @nb.njit(**_JIT)
-def step_vectors(lx, lN, X, U, x0, x_lower, x_upper, u_lower, u_upper):
+def _step_vectors_into(lx, lN, X, U, x0, x_lower, x_upper, u_lower, u_upper, q, dx0, xl, xu, ul, uu):
     """q = [lx; lN], x0 - X_0, the state boxes x_lower - X, x_upper - X (x^0's free) and the
     control boxes u_lower - U, u_upper - U of the QP in the step."""
     N, n = lx.shape
     m = U.shape[1]
-    q = np.empty((N + 1, n))
     for k in range(N):
         for j in range(n):
             q[k, j] = lx[k, j]
     for j in range(n):
         q[N, j] = lN[j]
-    dx0 = np.empty(n)
     for j in range(n):
         dx0[j] = x0[j] - X[0, j]
-    xl = np.empty((N + 1, n))
-    xu = np.empty((N + 1, n))
     for k in range(N + 1):
         for j in range(n):
             xl[k, j] = x_lower[k, j] - X[k, j]
@@ -288,13 +305,10 @@ def step_vectors(lx, lN, X, U, x0, x_lower, x_upper, u_lower, u_upper):
     for j in range(n):
         xl[0, j] = -np.inf
         xu[0, j] = np.inf
-    ul = np.empty((N, m))
-    uu = np.empty((N, m))
     for k in range(N):
         for j in range(m):
             ul[k, j] = u_lower[k, j] - U[k, j]
             uu[k, j] = u_upper[k, j] - U[k, j]
-    return q, dx0, xl, xu, ul, uu
 
 
 @nb.njit(**_JIT)
