@@ -20,8 +20,7 @@ _JIT = {"cache": True, "error_model": "numpy"}
 
 #: the one signature of the pairwise-sum helpers: compiled once (when this module is loaded, from
 #: numba's cache after the first time) instead of once per literal argument at every call site
-#: (the array read-only in the signature: a writeable array converts to it, a read-only one is taken too)
-_SUM_SIG = nb.float64(nb.types.Array(nb.float64, 1, "C", readonly=True), nb.int64, nb.int64, nb.boolean)
+_SUM_SIG = "float64(float64[::1], int64, int64, boolean)"
 
 
 @nb.njit(_SUM_SIG, **_JIT)
@@ -62,42 +61,40 @@ def pairwise_sum(a, lo, n, absolute):
     runs on an explicit stack (frames: start, length, stage, left half's sum)."""
     if n <= 128:
         return _block(a, lo, n, absolute)
-    # one float64 work array for the frames (rows: start, length, stage, left half's sum; the
-    # integers are exact in float64): a single allocation type, no int64 array helpers compiled
-    f = np.empty((4, 64))
-    f[0, 0], f[1, 0], f[2, 0] = lo, n, 0.0
+    f_lo = np.empty(64, dtype=np.int64)
+    f_n = np.empty(64, dtype=np.int64)
+    f_stage = np.zeros(64, dtype=np.int64)
+    f_left = np.empty(64)
+    f_lo[0], f_n[0], f_stage[0] = lo, n, 0
     sp, ret = 1, 0.0
     while sp > 0:
         t = sp - 1
-        lo_t = int(f[0, t])
-        n_t = int(f[1, t])
+        n_t = f_n[t]
         if n_t <= 128:
-            ret = _block(a, lo_t, n_t, absolute)
+            ret = _block(a, f_lo[t], n_t, absolute)
             sp -= 1
             continue
         n2 = n_t // 2
         n2 -= n2 % 8
-        stage = f[2, t]
-        if stage == 0.0:
-            f[2, t] = 1.0
-            f[0, sp], f[1, sp], f[2, sp] = lo_t, n2, 0.0
+        if f_stage[t] == 0:
+            f_stage[t] = 1
+            f_lo[sp], f_n[sp], f_stage[sp] = f_lo[t], n2, 0
             sp += 1
-        elif stage == 1.0:
-            f[3, t] = ret
-            f[2, t] = 2.0
-            f[0, sp], f[1, sp], f[2, sp] = lo_t + n2, n_t - n2, 0.0
+        elif f_stage[t] == 1:
+            f_left[t] = ret
+            f_stage[t] = 2
+            f_lo[sp], f_n[sp], f_stage[sp] = f_lo[t] + n2, n_t - n2, 0
             sp += 1
         else:
-            ret = f[3, t] + ret
+            ret = f_left[t] + ret
             sp -= 1
     return ret
 
 
+@nb.njit(**_JIT)
 def abs_sum(a):
-    """float(np.abs(a).sum()) of a float64 array (C order: numpy's pairwise sum over the flattened
-    array; a view where ``a`` is C-contiguous). Python glue: nothing compiled besides pairwise_sum."""
-    flat = np.ascontiguousarray(a, dtype=np.float64).reshape(-1)
-    return pairwise_sum(flat, 0, flat.size, True)
+    """float(np.abs(a).sum()) of an array (C-contiguous: numpy's pairwise sum over the flattened array)."""
+    return pairwise_sum(np.ascontiguousarray(a).ravel(), 0, a.size, True)
 
 
 __all__ = ["pairwise_sum", "abs_sum"]

@@ -6,7 +6,6 @@ from __future__ import annotations
 import math
 
 import numba as nb
-import numpy as np
 
 @nb.njit(cache=True)
 def gather_hessian_values(Hxx, Hxu, Huu, HN, out):
@@ -31,39 +30,24 @@ def gather_hessian_values(Hxx, Hxu, Huu, HN, out):
             pos += 1
 
 
-#: one declared signature (flat float64 arrays: the callers pass ``a.ravel("K")``, a view of a
-#: contiguous array of any layout): compiled once instead of once per rank and pair of ranks
-_FLAT_RO = nb.types.Array(nb.float64, 1, "C", readonly=True)   # a writeable array converts to it
-
-
-@nb.njit(nb.boolean(_FLAT_RO, _FLAT_RO), cache=True)
-def all_finite_flat(a, b):
-    """True when every entry of the 1-D float64 arrays ``a`` and ``b`` is finite: one compiled
-    pass, no temporary, no BLAS call, exits at the first NaN/inf."""
-    for i in range(a.size):
-        if not math.isfinite(a[i]):
+@nb.njit(cache=True)
+def all_finite_pair(a, b):
+    """True when every entry of the float64 arrays ``a`` and ``b`` (any shape and layout) is
+    finite: the check of a stage function's two returned arrays in one compiled call."""
+    for v in a.flat:
+        if not math.isfinite(v):
             return False
-    for i in range(b.size):
-        if not math.isfinite(b[i]):
+    for v in b.flat:
+        if not math.isfinite(v):
             return False
     return True
 
 
-_NONE = np.empty(0)
-
-
-def _flat(a):
-    """``a`` as a 1-D float64 array (a view where ``a`` is contiguous in any order)."""
-    return np.ravel(np.asarray(a, dtype=np.float64), order="K")
-
-
-def all_finite_pair(a, b):
-    """True when every entry of the float64 arrays ``a`` and ``b`` (any shape and layout) is
-    finite: the check of a stage function's two returned arrays in one compiled call."""
-    return all_finite_flat(_flat(a), _flat(b))
-
-
+@nb.njit(cache=True)
 def all_finite(a):
     """True when every entry of the float64 array ``a`` (any shape of at least one axis, any
     layout) is finite: one compiled pass, no temporary, no BLAS call, exits at the first NaN/inf."""
-    return all_finite_flat(_flat(a), _NONE)
+    for v in a.flat:
+        if not math.isfinite(v):
+            return False
+    return True

@@ -150,37 +150,42 @@ def move_tiny(v, lo, hi, has_lo, has_hi, eps, move):
     return moved
 
 
-@nb.njit(nb.float64(nb.types.Array(nb.float64, 1, "C", readonly=True)), **_JIT)
-def _abs_max(a):
-    """np.abs(a).max() of a non-empty 1-D array (NaN propagating)."""
-    m = abs(a[0])
-    for i in range(1, a.size):
-        m = _max(m, abs(a[i]))
-    return m
+@nb.njit(inline="always")
+def _abs_max_into(a, mx, seen):
+    """One step of Python's max(..., default) over np.abs(a).max() of the non-empty arrays: a
+    later value replaces only a smaller one (a NaN first stays, a NaN later is never greater)."""
+    if a.size:
+        m = abs(a[0])
+        for i in range(1, a.size):
+            m = _max(m, abs(a[i]))
+        if not seen or m > mx:
+            mx = m
+        seen = True
+    return mx, seen
 
 
-def _flat(a):
-    """A C-contiguous float64 array as its flat view (a C-order copy otherwise)."""
-    return np.ascontiguousarray(a, dtype=np.float64).reshape(-1)
-
-
+@nb.njit(**_JIT)
 def residual_norms(h2, e2, eN, d2, dN):
-    """(l1, max) of the residual arrays as newton.Residuals.l1 and .max compute them:
+    """(l1, max) of the residual arrays (flat views) as newton.Residuals.l1 and .max compute them:
     l1 = sum(np.abs(a).sum() for a) (Python's sum from 0, in this order), max = the largest
-    np.abs(a).max() of the non-empty arrays (NaN propagating; Python's max: a later value replaces
-    only a smaller one), 0 when all are empty. Python glue around two compiled helpers of one
-    signature each (pairwise_sum, _abs_max)."""
-    l1, mx, seen = 0.0, 0.0, False
-    for a in (h2, e2, eN, d2, dN):
-        f = _flat(a)
-        l1 += pairwise_sum(f, 0, f.size, True)
-    for a in (h2, e2, eN, d2, dN):
-        if a.size:
-            m = _abs_max(_flat(a))
-            if not seen or m > mx:
-                mx = m
-            seen = True
+    np.abs(a).max() of the non-empty arrays (NaN propagating), 0 when all are empty."""
+    h, e, d = h2.ravel(), e2.ravel(), d2.ravel()       # (N, .) arrays, C-contiguous or copied
+    l1 = 0.0
+    l1 += pairwise_sum(h, 0, h.size, True)
+    l1 += pairwise_sum(e, 0, e.size, True)
+    l1 += pairwise_sum(np.ascontiguousarray(eN), 0, eN.size, True)
+    l1 += pairwise_sum(d, 0, d.size, True)
+    l1 += pairwise_sum(np.ascontiguousarray(dN), 0, dN.size, True)
+    mx, seen = 0.0, False
+    mx, seen = _abs_max_into(h, mx, seen)
+    mx, seen = _abs_max_into(e, mx, seen)
+    mx, seen = _abs_max_into(eN, mx, seen)
+    mx, seen = _abs_max_into(d, mx, seen)
+    mx, seen = _abs_max_into(dN, mx, seen)
     return l1, mx
+
+
+
 
 
 @nb.njit(**_JIT)
@@ -208,14 +213,15 @@ def barrier_logs(v, lo, hi, has_lo, has_hi, sl, su, logs):
 
 
 @nb.njit(**_JIT)
-def _dual_infeasibility_max(s_obj, lx, lu, lN, EA, EB, lam, ECx, ECu, CNL, has_r, has_rN, yd, ydN, zl, zu, nu, nuN):
+def dual_infeasibility(s_obj, lx, lu, lN, EA, EB, lam, ECx, ECu, CNL, has_r, has_rN, yd, ydN, zl, zu, nu, nuN):
     """|grad L - z_L + z_U|_inf over the flat vector (solver.error_terms), with grad L as
     olado.solvers.common.stage_gradient_terms (sigma = s_obj) and solver.lagrangian_gradient
     assemble it: rx[:-1] = s lx + EA, rx[1:-1] -= lam[:-1], rx[-1] = s lN - lam[-1],
     (rx[:-1] += ECx, has_r), ru = s lu + EB (ru += ECu), (rx[-1] += CNL, has_rN), then the
     slack rows -yd, -ydN; EA, EB, ECx, ECu are the einsum products A^T lam, B^T lam, Cx^T Lg,
     Cu^T Lg (computed by numpy, as there). The max is np.abs(.).max(initial=0) (NaN propagating);
-    :func:`dual_infeasibility` adds the multipliers' sums (lam: the rows lam[1:])."""
+    returns it with the multipliers' sums np.abs(zl).sum() + np.abs(zu).sum() and
+    sum(np.abs(a).sum() for a in (lam[1:], nu, nuN, yd, ydN)) (lam: the rows lam[1:])."""
     N, n = EA.shape
     m = EB.shape[1]
     mx = 0.0
@@ -247,23 +253,14 @@ def _dual_infeasibility_max(s_obj, lx, lu, lN, EA, EB, lam, ECx, ECu, CNL, has_r
     for i in range(ydN.size):
         mx = _max(mx, abs((-ydN[i] - zl[j]) + zu[j]))
         j += 1
-    return mx
-
-
-def _abs_sum(a):
-    f = _flat(a)
-    return pairwise_sum(f, 0, f.size, True)
-
-
-def dual_infeasibility(s_obj, lx, lu, lN, EA, EB, lam, ECx, ECu, CNL, has_r, has_rN, yd, ydN, zl, zu, nu, nuN):
-    """(max, zsum, ysum) of :func:`_dual_infeasibility_max` with the multipliers' sums
-    np.abs(zl).sum() + np.abs(zu).sum() and sum(np.abs(a).sum() for a in (lam, nu, nuN, yd, ydN))
-    (Python's sum from 0, in order; numpy's pairwise sums, compiled in pairwise_sum)."""
-    mx = _dual_infeasibility_max(s_obj, lx, lu, lN, EA, EB, lam, ECx, ECu, CNL, has_r, has_rN, yd, ydN, zl, zu, nu, nuN)
-    zsum = _abs_sum(zl) + _abs_sum(zu)
+    zl, zu = np.ascontiguousarray(zl), np.ascontiguousarray(zu)
+    zsum = pairwise_sum(zl, 0, zl.size, True) + pairwise_sum(zu, 0, zu.size, True)
     ysum = 0.0
-    for a in (lam, nu, nuN, yd, ydN):
-        ysum += _abs_sum(a)
+    ysum += pairwise_sum(lam.ravel(), 0, lam.size, True)
+    ysum += pairwise_sum(nu.ravel(), 0, nu.size, True)
+    ysum += pairwise_sum(np.ascontiguousarray(nuN), 0, nuN.size, True)
+    ysum += pairwise_sum(yf, 0, yf.size, True)
+    ysum += pairwise_sum(np.ascontiguousarray(ydN), 0, ydN.size, True)
     return mx, zsum, ysum
 
 

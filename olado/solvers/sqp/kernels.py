@@ -34,13 +34,6 @@ from ...linalg.numpy_sums import pairwise_sum
 
 _JIT = {"cache": True, "error_model": "numpy"}   # x / 0 is inf or NaN, as in numpy
 
-# argument types of the declared signatures: read-only (a writeable array converts to it, a
-# read-only one -- e.g. a problem's bounds -- is taken too), any stride unless C is required
-_RO1 = nb.types.Array(nb.float64, 1, "A", readonly=True)
-_RO1C = nb.types.Array(nb.float64, 1, "C", readonly=True)
-_RO2 = nb.types.Array(nb.float64, 2, "A", readonly=True)
-_RO_MASK = nb.types.Array(nb.boolean, 1, "A", readonly=True)
-
 
 def einsum_sequential(*sizes):
     """True when ``np.einsum("kij,ki->kj", ...)`` with these output dimensions j sums in the
@@ -49,24 +42,16 @@ def einsum_sequential(*sizes):
 
 
 # ---------------------------------------------------------------------------- reductions
-#: one declared signature (flat float64 arrays of any stride): compiled once, when this module is
-#: loaded, instead of once per array rank and layout met
-@nb.njit(nb.float64(_RO1, nb.float64), **_JIT)
-def _npmax_abs_flat(a, res):
-    """max(res, max|a|) over a 1-D array, numpy's NaN propagation (res is the running value, NaN stays)."""
-    for i in range(a.size):
-        v = abs(a[i])
+@nb.njit(**_JIT)
+def npmax_abs(a, res):
+    """max(res, max|a|) with numpy's NaN propagation (res is the running value, NaN stays)."""
+    for x in a.flat:
+        v = abs(x)
         if v != v:
             return v
         if v > res:
             res = v
     return res
-
-
-def npmax_abs(a, res):
-    """max(res, max|a|) of a float64 array of any shape (flattened in C order: the order of
-    ``a.flat``), numpy's NaN propagation (res is the running value, NaN stays)."""
-    return _npmax_abs_flat(np.ravel(a), float(res))
 
 
 @nb.njit(inline="always")
@@ -83,37 +68,28 @@ def _maximum0(x):
     return x if x > 0.0 else 0.0
 
 
-@nb.njit(nb.float64(_RO1C, _RO1C, nb.float64[::1]), **_JIT)
-def _weighted_flat(w, v, tmp):
-    """float((w * v).sum()) of two 1-D C-contiguous arrays of one size (tmp: a work vector)."""
-    n = w.size
+@nb.njit(**_JIT)
+def _weighted(w, v, tmp):
+    """float((w * v).sum()) of two C-contiguous arrays of one shape (tmp: a work vector)."""
+    wf = w.ravel()
+    vf = v.ravel()
+    n = wf.size
     for i in range(n):
-        tmp[i] = w[i] * v[i]
+        tmp[i] = wf[i] * vf[i]
     return pairwise_sum(tmp, 0, n, False)
 
 
-def _flat(a):
-    """A C-contiguous float64 array as its flat view (a C-order copy otherwise): the one argument
-    type of the declared signatures."""
-    return np.ascontiguousarray(a, dtype=np.float64).reshape(-1)
-
-
-def _weighted(w, v, tmp):
-    """float((w * v).sum()) of two arrays of one shape (C order: numpy's pairwise sum over the
-    flattened product; tmp: a work vector of at least their size)."""
-    return _weighted_flat(_flat(w), _flat(v), tmp)
-
-
+@nb.njit(**_JIT)
 def gradient_sums(lx, dXs, lu, dU):
     """np.sum(lx * dXs) + np.sum(lu * dU) (C-contiguous arrays), each numpy's pairwise sum."""
     tmp = np.empty(max(lx.size, lu.size))
     return _weighted(lx, dXs, tmp) + _weighted(lu, dU, tmp)
 
 
+@nb.njit(**_JIT)
 def penalty(w0, v0, w1, v1, w2, v2, w3, v3, w4, v4, tmp):
     """sum(float((w * v).sum()) for w, v in zip(weights, violations)) -- Python's sum from the
-    integer 0, in order -- for the five parts of the L1 merit function. Python glue around one
-    compiled sum (one specialization, no kernel per combination compiled)."""
+    integer 0, in order -- for the five parts of the L1 merit function."""
     total = _weighted(w0, v0, tmp)
     total += _weighted(w1, v1, tmp)
     total += _weighted(w2, v2, tmp)
@@ -123,39 +99,36 @@ def penalty(w0, v0, w1, v1, w2, v2, w3, v3, w4, v4, tmp):
 
 
 # ---------------------------------------------------------------------------- merit violations
-def violations(h, g, gN, X, U, eq, eqN, x_lower, x_upper, u_lower, u_upper):
-    """:func:`_violations_into` on output arrays allocated here (numpy: no allocation helpers
-    compiled); returns (vh, vg, vgN, vbx, vbu, worst)."""
-    out = (np.empty(h.shape), np.empty(g.shape), np.empty(gN.shape), np.empty(X.shape), np.empty(U.shape))
-    worst = _violations_into(h, g, gN, X, U, eq, eqN, x_lower, x_upper, u_lower, u_upper, *out)
-    return (*out, worst)
-
-
 @nb.njit(**_JIT)
-def _violations_into(h, g, gN, X, U, eq, eqN, x_lower, x_upper, u_lower, u_upper, vh, vg, vgN, vbx, vbu):
+def violations(h, g, gN, X, U, eq, eqN, x_lower, x_upper, u_lower, u_upper):
     """(|h|, vg, vgN, vbx, vbu) of Merit._violations: vg = |g| on equality rows, max(-g, 0) on
     the others; the bound violations max(lo - y, 0) + max(y - hi, 0), x^0's zero; and the largest
     entry of each (max with initial 0, numpy's NaN rule) combined by Python's max in order."""
+    vh = np.empty_like(h)
     for i in range(h.shape[0]):
         for j in range(h.shape[1]):
             vh[i, j] = abs(h[i, j])
+    vg = np.empty_like(g)
     for i in range(g.shape[0]):
         for j in range(g.shape[1]):
             vg[i, j] = abs(g[i, j]) if eq[j] else _maximum0(-g[i, j])
+    vgN = np.empty_like(gN)
     for j in range(gN.shape[0]):
         vgN[j] = abs(gN[j]) if eqN[j] else _maximum0(-gN[j])
+    vbx = np.empty_like(X)
     for i in range(X.shape[0]):
         for j in range(X.shape[1]):
             vbx[i, j] = 0.0 if i == 0 else (_maximum0(x_lower[i, j] - X[i, j]) + _maximum0(X[i, j] - x_upper[i, j]))
+    vbu = np.empty_like(U)
     for i in range(U.shape[0]):
         for j in range(U.shape[1]):
             vbu[i, j] = _maximum0(u_lower[i, j] - U[i, j]) + _maximum0(U[i, j] - u_upper[i, j])
-    worst = _npmax_abs_flat(vh.ravel(), 0.0)
-    worst = _pymax(worst, _npmax_abs_flat(vg.ravel(), 0.0))
-    worst = _pymax(worst, _npmax_abs_flat(vgN, 0.0))
-    worst = _pymax(worst, _npmax_abs_flat(vbx.ravel(), 0.0))
-    worst = _pymax(worst, _npmax_abs_flat(vbu.ravel(), 0.0))
-    return worst
+    worst = npmax_abs(vh, 0.0)
+    worst = _pymax(worst, npmax_abs(vg, 0.0))
+    worst = _pymax(worst, npmax_abs(vgN, 0.0))
+    worst = _pymax(worst, npmax_abs(vbx, 0.0))
+    worst = _pymax(worst, npmax_abs(vbu, 0.0))
+    return vh, vg, vgN, vbx, vbu, worst
 
 
 # ---------------------------------------------------------------------------- KKT residual
@@ -210,26 +183,20 @@ def kkt_residual(lx, lu, gN0, A, B, Cx, Cu, lam, Lg, zl_x, zu_x, zl_u, zu_u, lN)
         elif v > res_N:
             res_N = v
     res = _pymax(_pymax(res_x, res_u), res_N)
-    scale = _pymax(_pymax(_npmax_abs_flat(lx.ravel(), 0.0), _npmax_abs_flat(lu.ravel(), 0.0)),
-                   _npmax_abs_flat(lN.ravel(), 0.0))
+    scale = _pymax(_pymax(npmax_abs(lx, 0.0), npmax_abs(lu, 0.0)), npmax_abs(lN, 0.0))
     return res, scale
 
 
 # ---------------------------------------------------------------------------- QP assembly
-def shifted_blocks(Bk, BN, d, n):
-    """:func:`_shifted_blocks_into` on Q, S, R allocated here (numpy: no allocation helpers compiled)."""
-    N, nz = Bk.shape[0], Bk.shape[1]
-    out = (np.empty((N + 1, n, n)), np.empty((N, n, nz - n)), np.empty((N, nz - n, nz - n)))
-    _shifted_blocks_into(Bk, BN, d, n, *out)
-    return out
-
-
 @nb.njit(**_JIT)
-def _shifted_blocks_into(Bk, BN, d, n, Q, S, R):
+def shifted_blocks(Bk, BN, d, n):
     """Q (N+1, n, n), S (N, n, m), R (N, m, m) of Bk + d_k I (and BN + d_N I), each entry
     Bk_ij + d_k * I_ij as numpy's ``Bk + d[:, None, None] * np.eye(n + m)``."""
     N, nz = Bk.shape[0], Bk.shape[1]
     m = nz - n
+    Q = np.empty((N + 1, n, n))
+    S = np.empty((N, n, m))
+    R = np.empty((N, m, m))
     for k in range(N):
         dk = d[k]
         for i in range(nz):
@@ -246,21 +213,17 @@ def _shifted_blocks_into(Bk, BN, d, n, Q, S, R):
     for i in range(n):
         for j in range(n):
             Q[N, i, j] = BN[i, j] + dN * (1.0 if i == j else 0.0)
-
-
-def plain_blocks(Bk, BN, n):
-    """:func:`_plain_blocks_into` on Q, S, R allocated here (numpy: no allocation helpers compiled)."""
-    N, nz = Bk.shape[0], Bk.shape[1]
-    out = (np.empty((N + 1, n, n)), np.empty((N, n, nz - n)), np.empty((N, nz - n, nz - n)))
-    _plain_blocks_into(Bk, BN, n, *out)
-    return out
+    return Q, S, R
 
 
 @nb.njit(**_JIT)
-def _plain_blocks_into(Bk, BN, n, Q, S, R):
+def plain_blocks(Bk, BN, n):
     """Q, S, R of the unshifted blocks (copies of Bk's parts and BN)."""
     N, nz = Bk.shape[0], Bk.shape[1]
     m = nz - n
+    Q = np.empty((N + 1, n, n))
+    S = np.empty((N, n, m))
+    R = np.empty((N, m, m))
     for k in range(N):
         for i in range(n):
             for j in range(n):
@@ -273,31 +236,26 @@ def _plain_blocks_into(Bk, BN, n, Q, S, R):
     for i in range(n):
         for j in range(n):
             Q[N, i, j] = BN[i, j]
-
-
-def step_vectors(lx, lN, X, U, x0, x_lower, x_upper, u_lower, u_upper):
-    """:func:`_step_vectors_into` on (q, dx0, xl, xu, ul, uu) allocated here (numpy: no allocation
-    helpers compiled)."""
-    (N, n), m = lx.shape, U.shape[1]
-    out = (np.empty((N + 1, n)), np.empty(n), np.empty((N + 1, n)), np.empty((N + 1, n)), np.empty((N, m)),
-           np.empty((N, m)))
-    _step_vectors_into(lx, lN, X, U, x0, x_lower, x_upper, u_lower, u_upper, *out)
-    return out
+    return Q, S, R
 
 
 @nb.njit(**_JIT)
-def _step_vectors_into(lx, lN, X, U, x0, x_lower, x_upper, u_lower, u_upper, q, dx0, xl, xu, ul, uu):
+def step_vectors(lx, lN, X, U, x0, x_lower, x_upper, u_lower, u_upper):
     """q = [lx; lN], x0 - X_0, the state boxes x_lower - X, x_upper - X (x^0's free) and the
     control boxes u_lower - U, u_upper - U of the QP in the step."""
     N, n = lx.shape
     m = U.shape[1]
+    q = np.empty((N + 1, n))
     for k in range(N):
         for j in range(n):
             q[k, j] = lx[k, j]
     for j in range(n):
         q[N, j] = lN[j]
+    dx0 = np.empty(n)
     for j in range(n):
         dx0[j] = x0[j] - X[0, j]
+    xl = np.empty((N + 1, n))
+    xu = np.empty((N + 1, n))
     for k in range(N + 1):
         for j in range(n):
             xl[k, j] = x_lower[k, j] - X[k, j]
@@ -305,10 +263,13 @@ def _step_vectors_into(lx, lN, X, U, x0, x_lower, x_upper, u_lower, u_upper, q, 
     for j in range(n):
         xl[0, j] = -np.inf
         xu[0, j] = np.inf
+    ul = np.empty((N, m))
+    uu = np.empty((N, m))
     for k in range(N):
         for j in range(m):
             ul[k, j] = u_lower[k, j] - U[k, j]
             uu[k, j] = u_upper[k, j] - U[k, j]
+    return q, dx0, xl, xu, ul, uu
 
 
 @nb.njit(**_JIT)
@@ -328,23 +289,18 @@ def _fixed_from_here(A, B, k, rows):
     return True
 
 
+@nb.njit(**_JIT)
 def drop_fixed_bounds(A, B, c, x0, xl, xu, EN, eN, X, rtol):
     """step.drop_fixed_bounds with step.fixed_states, in place on xl, xu (x^0's bounds already
-    dropped by the caller), slack rtol * (1 + |X|). The work arrays are allocated here (numpy),
-    so that no allocation helpers are compiled with the kernel."""
-    N, n, _ = B.shape
-    _drop_fixed_bounds(A, B, c, x0, xl, xu, EN, eN, X, rtol, np.zeros((N + 1, n), dtype=np.bool_),
-                       np.zeros((N + 1, n)), np.zeros(n, dtype=np.bool_))
-
-
-@nb.njit(**_JIT)
-def _drop_fixed_bounds(A, B, c, x0, xl, xu, EN, eN, X, rtol, fixed, value, rows):
-    """drop_fixed_bounds on zeroed work arrays fixed (N+1, n; bool), value (N+1, n), rows (n; bool)."""
+    dropped by the caller), slack rtol * (1 + |X|)."""
     N, n, m = B.shape
+    fixed = np.zeros((N + 1, n), dtype=np.bool_)
+    value = np.zeros((N + 1, n))
     for j in range(n):
         fixed[0, j] = True
         value[0, j] = x0[j]
     tail_tested = False
+    rows = np.zeros(n, dtype=np.bool_)
     for k in range(N):
         anyrow = False
         for i in range(n):
@@ -429,9 +385,7 @@ def _nanmax(res, v):
     return v if v > res else res
 
 
-#: one declared signature: the two calls' constant ``first`` (1, 0) would otherwise compile two
-#: literal specializations
-@nb.njit(nb.float64(_RO2, _RO2, _RO2, _RO2, _RO2, nb.int64, nb.float64), **_JIT)
+@nb.njit(**_JIT)
 def _bound_parts(y, lb, ub, zl, zu, first, total):
     """common.bound_complementarity's parts (rows from ``first`` on; x^0's bounds are its fixed
     value, no condition) combined into ``total`` by Python's max: |z_L (y - lb)|, the negative
@@ -458,7 +412,7 @@ def _bound_parts(y, lb, ub, zl, zu, first, total):
     return total
 
 
-@nb.njit(nb.float64(_RO2, _RO2, _RO_MASK, nb.float64), **_JIT)
+@nb.njit(**_JIT)
 def _row_parts(lam, g, ineq, total):
     """|lam g| and the positive part of lam over the rows g >= 0 (``ineq``), into ``total``."""
     comp = 0.0
@@ -472,11 +426,18 @@ def _row_parts(lam, g, ineq, total):
     return _pymax(total, sign)
 
 
+@nb.njit(**_JIT)
 def complementarity(X, x_lower, x_upper, U, u_lower, u_upper, zl_x, zu_x, zl_u, zu_u, Lg, g, ineq, LgN, gN, ineqN):
     """residuals.stage_complementarity: the max of the bound parts of X (x^0 fixed) and U and
-    the inequality rows' parts of g and g^N (g^N as a one-row block: the same operations in the
-    same order). Python glue around two compiled helpers of one declared signature each."""
+    the inequality rows' parts of g and g^N."""
     total = _bound_parts(X, x_lower, x_upper, zl_x, zu_x, 1, 0.0)
     total = _bound_parts(U, u_lower, u_upper, zl_u, zu_u, 0, total)
-    total = _row_parts(Lg, g, np.asarray(ineq, dtype=np.bool_), total)
-    return _row_parts(LgN.reshape(1, -1), gN.reshape(1, -1), np.asarray(ineqN, dtype=np.bool_), total)
+    total = _row_parts(Lg, g, ineq, total)
+    comp = 0.0
+    sign = 0.0
+    for j in range(LgN.shape[0]):
+        if ineqN[j]:
+            comp = _nanmax(comp, abs(LgN[j] * gN[j]))
+            sign = _nanmax(sign, _maximum0(LgN[j]))
+    total = _pymax(total, comp)
+    return _pymax(total, sign)
