@@ -155,11 +155,7 @@ def kkt_residual(lx, lu, gN0, A, B, Cx, Cu, lam, Lg, zl_x, zu_x, zl_u, zu_u, lN)
                 gx -= lam[k, j]
                 gx = gx - zl_x[k, j]
                 gx = gx + zu_x[k, j]
-                v = abs(gx)
-                if v != v or res_x != res_x:
-                    res_x = v if res_x == res_x else res_x
-                elif v > res_x:
-                    res_x = v
+                res_x = _nanmax(res_x, abs(gx))
     res_u = 0.0
     for k in range(N):
         for j in range(m):
@@ -167,21 +163,13 @@ def kkt_residual(lx, lu, gN0, A, B, Cx, Cu, lam, Lg, zl_x, zu_x, zl_u, zu_u, lN)
             gu = gu + _contract(Cu, Lg, 0, k, j)
             gu = gu - zl_u[k, j]
             gu = gu + zu_u[k, j]
-            v = abs(gu)
-            if v != v or res_u != res_u:
-                res_u = v if res_u == res_u else res_u
-            elif v > res_u:
-                res_u = v
+            res_u = _nanmax(res_u, abs(gu))
     res_N = 0.0
     for j in range(n):
         gn = gN0[j] - lam[N, j]
         gn = gn - zl_x[N, j]
         gn = gn + zu_x[N, j]
-        v = abs(gn)
-        if v != v or res_N != res_N:
-            res_N = v if res_N == res_N else res_N
-        elif v > res_N:
-            res_N = v
+        res_N = _nanmax(res_N, abs(gn))
     res = _pymax(_pymax(res_x, res_u), res_N)
     scale = _pymax(_pymax(npmax_abs(lx, 0.0), npmax_abs(lu, 0.0)), npmax_abs(lN, 0.0))
     return res, scale
