@@ -371,6 +371,23 @@ class Stoppable:
         return True
 
 
+def run_iterations(limits, start, step, start_again, after):
+    """A solve's loop in ``limits.catch()``: ``st = start()``, then ``step(st)`` until it returns
+    True. Stopped from outside (time limit, interrupt) during the start's evaluations,
+    ``start_again()`` (no clock limit) gives the state to report; stopped at any point, the state
+    records :func:`stop_outcome` with ``after(st)`` ("after 12 iterations"). Returns the state."""
+    st = None
+    with limits.catch() as stop:
+        st = start()
+        while not step(st):
+            pass
+    if st is None:
+        st = start_again()
+    if stop.reason:
+        st.stop(*stop_outcome(stop.reason, limits, after(st)))
+    return st
+
+
 def stop_outcome(reason, limits, after="") -> tuple:
     """(Status, message) of a solve ended from outside, ``reason`` "max_time" or "interrupted"
     (:meth:`Limits.reason`, the ``reason`` of its catch block): MAX_TIME, or INTERRUPTED naming

@@ -38,7 +38,7 @@ from ...options import option
 from ...result import Result, Status
 from ..base import Solver, SolverOptions
 from ..certificate import CertificateSettings, certify
-from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION, Stoppable, stop_outcome
+from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION, Stoppable, run_iterations
 from ..sqp.residuals import stage_kkt
 from ..sqp.state import BoundMultipliers, Clock, Multipliers, Point
 from .bfgs import damped_bfgs_update, positive_definite_start, scaled_identity_start
@@ -431,14 +431,7 @@ class FQLNKSolver(Solver):
         check_supported(problem, self.options)
         limits = Limits(self.options.max_time)
         setup = Setup(self.options, problem, limits, self._call_callback)
-        clock = Clock(limits)
-        st = None
-        with limits.catch() as stop:
-            st = initial_state(setup, X0, U0, clock)
-            while not iterate(setup, st):
-                pass
-        if st is None:
-            st = initial_state(setup, X0, U0, Clock(None))
-        if stop.reason:
-            st.stop(*stop_outcome(stop.reason, limits, f"after {st.k} Newton iterations"))
+        st = run_iterations(limits, lambda: initial_state(setup, X0, U0, Clock(limits)),
+                            lambda st: iterate(setup, st), lambda: initial_state(setup, X0, U0, Clock(None)),
+                            lambda st: f"after {st.k} Newton iterations")
         return finish(setup, st)

@@ -43,7 +43,7 @@ from ...interrupts import Limits
 from ...options import option
 from ...result import Result, Status
 from ..base import Solver, SolverOptions
-from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION, Stoppable, stage_gradient_terms, stop_outcome
+from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION, Stoppable, run_iterations, stage_gradient_terms
 from ..sqp.residuals import stage_kkt
 from ..sqp.state import BoundMultipliers, Clock, Multipliers, Point
 from .adaptive import (FILTER_MARGIN_FACT, FILTER_MAX_MARGIN, MONOTONE_INIT_FACTOR, MU_MAX_FACT, MU_MIN, AdaptiveMu,
@@ -762,14 +762,7 @@ class IPMSolver(Solver):
     def _solve(self, problem, X0, U0):
         limits = Limits(self.options.max_time)
         setup = Setup(self.options, problem, limits, self._call_callback)
-        clock = Clock(limits)
-        st = None
-        with limits.catch() as stop:
-            st = initial_state(setup, X0, U0, clock)
-            while not iterate(setup, st):
-                pass
-        if st is None:      # stopped in the start's evaluations: the start, evaluated outside the catch block
-            st = initial_state(setup, X0, U0, Clock(None))
-        if stop.reason:
-            st.stop(*stop_outcome(stop.reason, limits, f"after {st.it} iterations"))
+        st = run_iterations(limits, lambda: initial_state(setup, X0, U0, Clock(limits)),
+                            lambda st: iterate(setup, st), lambda: initial_state(setup, X0, U0, Clock(None)),
+                            lambda st: f"after {st.it} iterations")
         return finish(setup, st)
