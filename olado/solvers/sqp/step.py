@@ -315,9 +315,8 @@ def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=
     ref = shift_scale(scale)
     prox = min(prox_factor, st.kkt_rel) * ref if o.adaptive_proximal else prox_factor * ref
     n, m = p.n, p.m
-    # the compiled assembly unless the shifted blocks themselves are needed (the curvature test) or
-    # the QP's gradient is zeroed (the feasibility QPs)
-    compiled = not zero_gradient and not (inertia and o.curvature_tol > 0)
+    # the compiled assembly unless the shifted blocks themselves are needed (the curvature test)
+    compiled = not (inertia and o.curvature_tol > 0)
     for _ in range(30):
         shifted = delta + prox
         if compiled:
@@ -329,7 +328,7 @@ def solve_qp(setup, st, pt, Bk, BN, delta, *, inertia, warm=None, zero_gradient=
             else:
                 Bd, BNd = Bk, BN
             qp = build_qp(p, pt, Bd, BNd, setup.masks, offsets)
-        if zero_gradient:     # new arrays: build_qp's r is the point's own lu, which must stay
+        if zero_gradient:     # new arrays: the QP's r may be the point's own lu, which must stay
             qp.q = np.zeros_like(qp.q)
             qp.r = np.zeros_like(qp.r)
         if u_box is not None:
