@@ -88,8 +88,8 @@ PEERS = ("sqp-ip", "ipopt")
 SAME = 1e-6
 
 
-def problem(N, bound):
-    p = PROBLEMS["orbit-raising"](N=N)
+def problem(N, bound, method="rk4"):
+    p = PROBLEMS["orbit-raising"](N=N, method=method)
     if not bound:
         p.x_bounds = None        # the seed's problem: no r >= 0.5
     return p
@@ -149,6 +149,8 @@ def main(argv=None):
     ap.add_argument("--starts", action="store_true", help="bfgs and exact from linear thrust-angle guesses (RAMPS) "
                     "instead")
     ap.add_argument("--ramps", nargs="+", type=int, default=None, help="with --starts: indices into RAMPS")
+    ap.add_argument("--method", default="rk4", choices=("rk4", "euler"), help="with --starts: the transcription of "
+                    "the built-in (RK4 or explicit Euler; the seed's is the trapezoidal rule, not an olado method)")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args(argv)
     if args.variants:
@@ -310,24 +312,26 @@ def starts(args, argv):
     """bfgs and exact from linear thrust-angle guesses phi = a + (b - a) t / t_f (the seed's start is
     'some reasonable control variables', Fig. 4.3, not given in numbers; olado's is phi = 0)."""
     ipopt = make_solver(load_config(HERE.parent / "configs" / "ipopt.ini"))
-    refs = {N: float(ipopt.solve(problem(N, False)).x[-1, 0]) for N in args.N}
+    refs = {N: float(ipopt.solve(problem(N, False, args.method)).x[-1, 0]) for N in args.N}
     ramps = RAMPS if args.ramps is None else [RAMPS[i] for i in args.ramps]
     head = " | ".join(f"{h} N = {N}" for h in ("bfgs", "exact") for N in args.N)
     rows = [f"| phi(0) .. phi(t_f) (rad) | {head} |", "|:--" + "|--:" * (2 * len(args.N)) + "|"]
     for a, b in ramps:
-        cells = [cell(fqlnk_solve(problem(N, False), {"hessian": h}, ramp_guess(N, a, b)), refs[N], "r")
+        cells = [cell(fqlnk_solve(problem(N, False, args.method), {"hessian": h}, ramp_guess(N, a, b)), refs[N], "r")
                  for h in ("bfgs", "exact") for N in args.N]
         rows.append(f"| {a:+.1f} .. {b:+.1f}{' (olado)' if a == b == 0 else ''} | " + " | ".join(cells) + " |")
         print(rows[-1], flush=True)
     command = f"python benchmarks/bench_fqlnk.py {' '.join(argv if argv is not None else sys.argv[1:])}".strip()
-    text = (f"## {SECTION_STARTS}\n\n`{command}` at {commit()}, {datetime.date.today()}, {machine()}. configs/fqlnk.ini "
+    title = SECTION_STARTS + ("" if args.method == "rk4" else f", {args.method} transcription")
+    text = (f"## {title}\n\n`{command}` at {commit()}, {datetime.date.today()}, {machine()}. configs/fqlnk.ini "
             "with hessian = bfgs / exact from the guess phi^k = a + (b - a) (k + 1/2) / N (states simulated, "
             "least-squares multipliers: the seed's sec. 4.3); the seed's problem (no r >= 0.5). Newton iterations, "
-            "a status when not success, and in parentheses r(t_f) when it is not IPOPT's (relative 1e-6). The "
+            f"a status when not success, and in parentheses r(t_f) when it is not IPOPT's (relative 1e-6, IPOPT on the same "
+            f"{args.method.upper()} transcription). The "
             "seed's Table 4.5 (subintervals 8 / 16 / 32 / 64 / 128): BFGS 14 / 17 / 16 / 14 / 15, AD 6 / 8 / 8 / "
             "14 / 21.\n\n" + "\n".join(rows) + "\n")
     if not args.no_write:
-        write_section(SECTION_STARTS, text)
+        write_section(title, text)
     print(text)
 
 
