@@ -292,12 +292,23 @@ def variants(args, argv):
             cells.append(cell(r, ref, what))
         rows.append(f"| {label} | " + " | ".join(cells) + f" | {total} |")
         print(rows[-1], flush=True)
+    lbfgs = make_solver(load_config(HERE.parent / "configs" / "ipopt.ini"))
+    lbfgs.options.hessian = "limited-memory"
+    for label, solver in (("IPOPT, exact Hessian", ipopt), ("IPOPT, L-BFGS", lbfgs)):
+        cells, total = [], 0
+        for (_, make, what), ref in zip(cases, refs):
+            r = solver.solve(make())
+            total += r.iterations
+            cells.append(cell(r, ref, what))
+        rows.append(f"| {label} | " + " | ".join(cells) + f" | {total} |")
+        print(rows[-1], flush=True)
     command = f"python benchmarks/bench_fqlnk.py {' '.join(argv if argv is not None else sys.argv[1:])}".strip()
     text = (f"## {SECTION_VARIANTS}\n\n`{command}` at {commit()}, {datetime.date.today()}, {machine()}. configs/fqlnk.ini "
             "(hessian = bfgs) with one option changed per row (docs/fqlnk.md, \"Closing the iteration gap\"); Newton "
             "iterations, a status when not success, and in parentheses r(t_f) or J when the point is not IPOPT's "
             "(configs/ipopt.ini, relative 1e-6). Earth-to-Mars: the seed's problem (no r >= 0.5), olado's start "
-            "(phi = 0); the others at their default N.\n\n" + "\n".join(rows) + "\n")
+            "(phi = 0); the others at their default N. The last two rows: IPOPT's iterations with its exact Hessian "
+            "and with its own quasi-Newton Hessian (hessian = limited-memory).\n\n" + "\n".join(rows) + "\n")
     if not args.no_write:
         write_section(SECTION_VARIANTS, text)
     print(text)
