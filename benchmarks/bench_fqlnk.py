@@ -95,6 +95,57 @@ def problem(N, bound, method="rk4"):
     return p
 
 
+def trapezoidal_problem(N, phi):
+    """The seed's transcription of its Earth-to-Mars problem (sec. 2.3, 4.1) as an olado OCP: the
+    trapezoidal rule with the controls at the N + 1 nodes. Its residuals R_k are implicit in
+    s_{k+1}, so the DOCP carries the next node as the control: state z^k = (s_k, phi_k), control
+    w^k = (s_{k+1}, phi_{k+1}) - ZREF, z^{k+1} = w^k + ZREF (an explicit Euler step of
+    (w + ZREF - z) / h), and R_k = 0 as stage equality rows; phi_0 is a free initial component
+    (olado's parameter stage). ``phi`` (N + 1,): the guess at the nodes; the states are integrated
+    from it by the same rule (the seed's sec. 4.3). Twice the seed's unknowns (z and w), the extra
+    ones fixed by linear rows: exact Newton steps are those of the seed's problem, BFGS's are not
+    quite (its matrix lives on both copies)."""
+    from olado.problems.autodiff.functions import cos, sin
+    from olado.problems.ocp import OCP
+    thrust, mdot, tf = 0.1405, 0.0749, 3.32
+    h = tf / N
+
+    def f(t, s, ph, c=cos, sn=sin):
+        a = thrust / (1.0 - mdot * t)
+        return [s[1], s[2] * s[2] / s[0] - 1.0 / (s[0] * s[0]) + a * sn(ph), -s[1] * s[2] / s[0] + a * c(ph)]
+
+    def residuals(t, z, w, p):
+        w = [w[i] + ZREF[i] for i in range(4)]
+        fz, fw = f(t, z, z[3]), f(t + h, w, w[3])
+        return [w[i] - z[i] - 0.5 * h * (fz[i] + fw[i]) for i in range(3)]
+
+    S = np.empty((N + 1, 3))
+    S[0] = (1.0, 0.0, 1.0)
+    fn = lambda t, s, ph: np.array(f(t, s, ph, np.cos, np.sin))      # noqa: E731
+    for k in range(N):                 # the implicit step by fixed-point iteration (h |df/ds| < 1 here)
+        nxt = S[k] + h * fn(k * h, S[k], phi[k])
+        for _ in range(60):
+            nxt = S[k] + 0.5 * h * (fn(k * h, S[k], phi[k]) + fn((k + 1) * h, nxt, phi[k + 1]))
+        S[k + 1] = nxt
+    Z = np.column_stack([S, phi])
+    return OCP(lambda t, z, w, p: [(w[i] + ZREF[i] - z[i]) / h for i in range(4)], [1.0, 0.0, 1.0, float(phi[0])],
+               controls=4, N=N, T=tf, final_cost=lambda t, x, p: -x[0], path=residuals, path_equalities=[0, 1, 2],
+               terminal=lambda t, x, p: [x[1], x[2] - x[0] ** -0.5], terminal_equalities=[0, 1], method="euler",
+               free_x0=[False, False, False, True], u_guess=Z[1:] - ZREF, x_guess=Z, name="earth-to-mars-trapezoidal")
+
+
+#: trapezoidal_problem's offset of the next node in the control (its stand-in control 0 on the
+#: parameter stage then means r = 1, not the singular r = 0)
+ZREF = np.array([1.0, 0.0, 1.0, 0.0])
+
+
+def earth_to_mars(N, method, a, b):
+    """(problem, guess) of the seed's problem from the linear thrust-angle guess a -> b."""
+    if method == "trapezoidal":
+        return trapezoidal_problem(N, a + (b - a) * np.arange(N + 1) / N), None
+    return problem(N, False, method), ramp_guess(N, a, b)
+
+
 def reduced_hessian_min(p, result, bound):
     """Smallest eigenvalue of Z' H Z at the result (H the exact Lagrangian Hessian with the
     result's multipliers, Z a basis of the null space of G, both in fqlnk's full space -- with
@@ -149,8 +200,9 @@ def main(argv=None):
     ap.add_argument("--starts", action="store_true", help="bfgs and exact from linear thrust-angle guesses (RAMPS) "
                     "instead")
     ap.add_argument("--ramps", nargs="+", type=int, default=None, help="with --starts: indices into RAMPS")
-    ap.add_argument("--method", default="rk4", choices=("rk4", "euler"), help="with --starts: the transcription of "
-                    "the built-in (RK4 or explicit Euler; the seed's is the trapezoidal rule, not an olado method)")
+    ap.add_argument("--method", default="rk4", choices=("rk4", "euler", "trapezoidal"), help="with --starts: the "
+                    "transcription: the built-in's RK4 or explicit Euler, or the seed's trapezoidal rule "
+                    "(trapezoidal_problem)")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args(argv)
     if args.variants:
@@ -323,22 +375,26 @@ def starts(args, argv):
     """bfgs and exact from linear thrust-angle guesses phi = a + (b - a) t / t_f (the seed's start is
     'some reasonable control variables', Fig. 4.3, not given in numbers; olado's is phi = 0)."""
     ipopt = make_solver(load_config(HERE.parent / "configs" / "ipopt.ini"))
-    refs = {N: float(ipopt.solve(problem(N, False, args.method)).x[-1, 0]) for N in args.N}
+    refs = {N: float(ipopt.solve(*earth_to_mars(N, args.method, 0.0, 0.0)).x[-1, 0]) for N in args.N}
     ramps = RAMPS if args.ramps is None else [RAMPS[i] for i in args.ramps]
     head = " | ".join(f"{h} N = {N}" for h in ("bfgs", "exact") for N in args.N)
     rows = [f"| phi(0) .. phi(t_f) (rad) | {head} |", "|:--" + "|--:" * (2 * len(args.N)) + "|"]
     for a, b in ramps:
-        cells = [cell(fqlnk_solve(problem(N, False, args.method), {"hessian": h}, ramp_guess(N, a, b)), refs[N], "r")
-                 for h in ("bfgs", "exact") for N in args.N]
+        cells = []
+        for h in ("bfgs", "exact"):
+            for N in args.N:
+                p, guess = earth_to_mars(N, args.method, a, b)
+                cells.append(cell(fqlnk_solve(p, {"hessian": h}, guess), refs[N], "r"))
         rows.append(f"| {a:+.1f} .. {b:+.1f}{' (olado)' if a == b == 0 else ''} | " + " | ".join(cells) + " |")
         print(rows[-1], flush=True)
     command = f"python benchmarks/bench_fqlnk.py {' '.join(argv if argv is not None else sys.argv[1:])}".strip()
     title = SECTION_STARTS + ("" if args.method == "rk4" else f", {args.method} transcription")
     text = (f"## {title}\n\n`{command}` at {commit()}, {datetime.date.today()}, {machine()}. configs/fqlnk.ini "
-            "with hessian = bfgs / exact from the guess phi^k = a + (b - a) (k + 1/2) / N (states simulated, "
+            "with hessian = bfgs / exact from the guess phi^k = a + (b - a) (k + 1/2) / N (the trapezoidal transcription: "
+            "a + (b - a) k / N at the nodes k = 0..N; states simulated, "
             "least-squares multipliers: the seed's sec. 4.3); the seed's problem (no r >= 0.5). Newton iterations, "
-            f"a status when not success, and in parentheses r(t_f) when it is not IPOPT's (relative 1e-6, IPOPT on the same "
-            f"{args.method.upper()} transcription). The "
+            f"a status when not success, and in parentheses r(t_f) when it is not IPOPT's from phi = 0 (relative 1e-6, "
+            f"IPOPT on the same {args.method} transcription). The "
             "seed's Table 4.5 (subintervals 8 / 16 / 32 / 64 / 128): BFGS 14 / 17 / 16 / 14 / 15, AD 6 / 8 / 8 / "
             "14 / 21.\n\n" + "\n".join(rows) + "\n")
     if not args.no_write:
