@@ -200,6 +200,8 @@ def main(argv=None):
     ap.add_argument("--starts", action="store_true", help="bfgs and exact from linear thrust-angle guesses (RAMPS) "
                     "instead")
     ap.add_argument("--ramps", nargs="+", type=int, default=None, help="with --starts: indices into RAMPS")
+    ap.add_argument("--options", nargs="+", default=[], metavar="KEY=VALUE", help="with --starts: fqlnk options over "
+                    "configs/fqlnk.ini (numbers parsed as float), e.g. bfgs_scaling=first-step")
     ap.add_argument("--method", default="rk4", choices=("rk4", "euler", "trapezoidal"), help="with --starts: the "
                     "transcription: the built-in's RK4 or explicit Euler, or the seed's trapezoidal rule "
                     "(trapezoidal_problem)")
@@ -366,6 +368,13 @@ def variants(args, argv):
     print(text)
 
 
+def _number(text):
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
 def ramp_guess(N, a, b):
     t = (np.arange(N) + 0.5) / N
     return (a + (b - a) * t)[:, None]
@@ -377,18 +386,21 @@ def starts(args, argv):
     ipopt = make_solver(load_config(HERE.parent / "configs" / "ipopt.ini"))
     refs = {N: float(ipopt.solve(*earth_to_mars(N, args.method, 0.0, 0.0)).x[-1, 0]) for N in args.N}
     ramps = RAMPS if args.ramps is None else [RAMPS[i] for i in args.ramps]
-    head = " | ".join(f"{h} N = {N}" for h in ("bfgs", "exact") for N in args.N)
-    rows = [f"| phi(0) .. phi(t_f) (rad) | {head} |", "|:--" + "|--:" * (2 * len(args.N)) + "|"]
+    hessians = [h for h in ("bfgs", "exact") if h in args.hessians]
+    extra = {k: _number(v) for k, v in (kv.split("=", 1) for kv in args.options)}
+    head = " | ".join(f"{h} N = {N}" for h in hessians for N in args.N)
+    rows = [f"| phi(0) .. phi(t_f) (rad) | {head} |", "|:--" + "|--:" * (len(hessians) * len(args.N)) + "|"]
     for a, b in ramps:
         cells = []
-        for h in ("bfgs", "exact"):
+        for h in hessians:
             for N in args.N:
                 p, guess = earth_to_mars(N, args.method, a, b)
-                cells.append(cell(fqlnk_solve(p, {"hessian": h}, guess), refs[N], "r"))
+                cells.append(cell(fqlnk_solve(p, {"hessian": h, **extra}, guess), refs[N], "r"))
         rows.append(f"| {a:+.1f} .. {b:+.1f}{' (olado)' if a == b == 0 else ''} | " + " | ".join(cells) + " |")
         print(rows[-1], flush=True)
     command = f"python benchmarks/bench_fqlnk.py {' '.join(argv if argv is not None else sys.argv[1:])}".strip()
     title = SECTION_STARTS + ("" if args.method == "rk4" else f", {args.method} transcription")
+    title += "".join(f", {kv}" for kv in args.options)
     text = (f"## {title}\n\n`{command}` at {commit()}, {datetime.date.today()}, {machine()}. configs/fqlnk.ini "
             "with hessian = bfgs / exact from the guess phi^k = a + (b - a) (k + 1/2) / N (the trapezoidal transcription: "
             "a + (b - a) k / N at the nodes k = 0..N; states simulated, "
