@@ -12,6 +12,14 @@ constrained case, so y is replaced by
 and B+ = B - B s s' B / (s'Bs) + r r' / (s'r). Then s'r >= 0.2 s'Bs > 0, so B+ is symmetric
 positive definite whenever B is, and B+ s = r (the secant equation with the damped r).
 
+The seed fixes 0.2 / 0.8 (Powell's constants, "suggested by [20]"). Two variants the field uses
+where the seed is silent, kept as options for measurement (docs/fqlnk.md, "Closing the iteration
+gap"): another threshold t (theta = (1 - t) s'Bs / (s'Bs - s'y) below t s'Bs: s'r = t s'Bs), and
+skipping the update instead of damping it (Nocedal and Wright sec. 18.3: B+ = B when
+s'y < t s'Bs). And the scaling of a Hessian start after the first step, B^(0) <- (s'y / s'B s)
+B^(0) when s'y > 0 (the Shanno-Phua / Oren-Luenberger factor: Nocedal and Wright eq. (6.20) is
+its case B^(0) = I).
+
 B is dense: the seed's full-space BFGS matrix, whose rank-two updates fill the (1,1) block.
 """
 
@@ -29,27 +37,31 @@ DAMP_FACTOR = 0.8
 
 class Update(NamedTuple):
     """One update: the new matrix, theta (1: undamped) and whether it was skipped (s'Bs <= 0:
-    a zero step)."""
+    a zero step; or, with ``skip``, s'y below the threshold)."""
 
     B: np.ndarray
     theta: float
     skipped: bool
 
 
-def damping_theta(sBs: float, sy: float) -> float:
-    """The seed's theta^(k) (sec. 3.2)."""
-    if sy >= DAMP_THRESHOLD * sBs:
+def damping_theta(sBs: float, sy: float, threshold: float = DAMP_THRESHOLD) -> float:
+    """The seed's theta^(k) (sec. 3.2) for threshold 0.2; in general 1 when s'y >= t s'Bs, else
+    (1 - t) s'Bs / (s'Bs - s'y), so that s'r = t s'Bs."""
+    if sy >= threshold * sBs:
         return 1.0
-    return DAMP_FACTOR * sBs / (sBs - sy)
+    return (1.0 - threshold) * sBs / (sBs - sy)
 
 
-def damped_bfgs_update(B, s, y) -> Update:
-    """B+ of the damped BFGS formula (module docstring). ``B`` dense symmetric positive definite."""
+def damped_bfgs_update(B, s, y, threshold: float = DAMP_THRESHOLD, skip: bool = False) -> Update:
+    """B+ of the damped BFGS formula (module docstring). ``B`` dense symmetric positive definite;
+    ``skip``: B unchanged where the formula would damp (s'y < threshold s'Bs)."""
     Bs = B @ s
     sBs = float(s @ Bs)
     if not sBs > 0.0 or not np.isfinite(sBs):
         return Update(B, 1.0, True)
-    theta = damping_theta(sBs, float(s @ y))
+    theta = damping_theta(sBs, float(s @ y), threshold)
+    if skip and theta < 1.0:
+        return Update(B, 1.0, True)
     r = theta * y + (1.0 - theta) * Bs
     sr = float(s @ r)
     B_new = B - np.outer(Bs, Bs) / sBs + np.outer(r, r) / sr
@@ -84,3 +96,13 @@ def scaled_identity_start(nv, s=None, y=None):
         if sy > 0:
             gamma = float(y @ y) / sy
     return gamma * np.eye(nv)
+
+
+def scaled_start(B0, s, y):
+    """B^(0) (s'y / s'B^(0) s) before the first update, when both are positive; B^(0) unchanged
+    otherwise (module docstring). Returns (B, the factor applied or 1)."""
+    sy, sBs = float(s @ y), float(s @ (B0 @ s))
+    if sy > 0.0 and sBs > 0.0 and np.isfinite(sy / sBs):
+        gamma = sy / sBs
+        return gamma * B0, gamma
+    return B0, 1.0

@@ -41,7 +41,7 @@ from ..certificate import CertificateSettings, certify
 from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION, Stoppable, run_iterations
 from ..sqp.residuals import stage_kkt
 from ..sqp.state import BoundMultipliers, Clock, Multipliers, Point
-from .bfgs import damped_bfgs_update, positive_definite_start, scaled_identity_start
+from .bfgs import damped_bfgs_update, positive_definite_start, scaled_identity_start, scaled_start
 from .krylov import kkt_matrix, solve_kkt
 from .layout import Layout
 from .merit import armijo_backtracking, augmented_lagrangian, penalty_and_slope, residual_merit
@@ -58,6 +58,12 @@ class FQLNKOptions(SolverOptions):
     bfgs_init: str = option("exact", "B^(0) of the BFGS matrix: exact (the problem's Hessian at the start, its "
                             "eigenvalues made positive; the seed's choice) or identity (y'y/s'y I after the first step)",
                             choices=("exact", "identity"))
+    bfgs_damping: str = option("powell", "a BFGS update whose curvature s'y is below bfgs_threshold s'Bs: powell "
+                               "(damped, the seed's sec. 3.2) or skip (B unchanged)", choices=("powell", "skip"))
+    bfgs_threshold: float = option(0.2, "t of the damping: undamped when s'y >= t s'Bs, else damped to s'r = t s'Bs "
+                                   "(the seed: 0.2)", min=0.0, max=0.99, min_exclusive=True)
+    bfgs_scaling: str = option("none", "B^(0) = exact scaled by s'y / s'Bs after the first step (first-step) or not "
+                               "(none, the seed)", choices=("none", "first-step"))
     atol: float = option(1e-6, "absolute tolerance of the seed's stopping test ||F||_2 <= atol", min=0.0)
     rtol: float = option(1e-6, "relative tolerance of the seed's stopping test ||F||_2 <= rtol ||F_0||_2", min=0.0)
     forcing: float = option(1e-6, "forcing term eta_k: GMRES stops at ||F + K dp|| <= eta_k ||F||", min=0.0, max=0.5,
@@ -153,6 +159,7 @@ class FQLNKState(Stoppable):
     damped_updates: int = 0
     skipped_updates: int = 0
     bfgs_negative_eigenvalue: float = 0.0
+    bfgs_start_scale: float = 1.0
     certificates: int = 0
     certificate: object = None
     status: Status = Status.MAX_ITERATIONS
@@ -282,14 +289,19 @@ def search(setup, st, dp, K):
 
 
 def bfgs_update(setup, st, old: Iterate):
-    """s = v^k - v^{k-1}, y = grad_v L(v^k, lam^k) - grad_v L(v^{k-1}, lam^k) (sec. 3.2)."""
+    """s = v^k - v^{k-1}, y = grad_v L(v^k, lam^k) - grad_v L(v^{k-1}, lam^k) (sec. 3.2); before
+    the first update B^(0) is scaled (bfgs_init = identity: y'y/s'y I; bfgs_scaling = first-step:
+    s'y/s'Bs B^(0)), then damped (or skipped, bfgs_damping) with bfgs_threshold."""
     t0 = time.perf_counter()
     L, new = setup.layout, st.it
     s = new.v - old.v
     y = new.gradL - L.lagrangian_gradient(old.pt, old.v, new.lam)
-    if setup.options.bfgs_init == "identity" and st.k == 1:
+    o = setup.options
+    if o.bfgs_init == "identity" and st.k == 1:
         st.B = scaled_identity_start(L.nv, s, y)
-    up = damped_bfgs_update(st.B, s, y)
+    elif o.bfgs_scaling == "first-step" and st.k == 1:
+        st.B, st.bfgs_start_scale = scaled_start(st.B, s, y)
+    up = damped_bfgs_update(st.B, s, y, o.bfgs_threshold, skip=o.bfgs_damping == "skip")
     st.B = up.B
     st.damped_updates += up.theta < 1.0
     st.skipped_updates += up.skipped
@@ -406,7 +418,8 @@ def finish(setup, st) -> Result:
             "kkt_time_s": st.kkt_time, "avg_hessian_time_s": st.hessian_time / k, "avg_kkt_time_s": st.kkt_time / k,
             "rho": st.rho, "residual_merit_searches": st.residual_searches,
             "damped_bfgs_updates": st.damped_updates, "skipped_bfgs_updates": st.skipped_updates,
-            "bfgs_initial_negative_eigenvalue": st.bfgs_negative_eigenvalue, "variables": setup.layout.nv, "constraints": setup.layout.nc,
+            "bfgs_initial_negative_eigenvalue": st.bfgs_negative_eigenvalue,
+            "bfgs_start_scale": st.bfgs_start_scale, "variables": setup.layout.nv, "constraints": setup.layout.nc,
             "slacks": setup.layout.ns, "kkt": "ilutp-gmres"}
     multipliers = {"dynamics": mult.lam[1:].copy(), "stage_constraints": mult.Lg, "final_constraints": mult.LgN,
                    "bound_lower_x": z.zl_x, "bound_lower_u": z.zl_u, "bound_upper_x": z.zu_x, "bound_upper_u": z.zu_u}
