@@ -100,6 +100,8 @@ class Bounds:
         self.one_lo_f = (self.has_lo & ~self.has_hi).astype(float)
         self.one_hi_f = (self.has_hi & ~self.has_lo).astype(float)
         self.one_sided = bool(self.one_lo_f.any() or self.one_hi_f.any())
+        #: the number of finite sides (the masks never change; lo, hi may be moved or replaced)
+        self._count = int(self.has_lo.sum() + self.has_hi.sum())
         self._work = None
         #: what depends on the point alone, for the two points last asked about (:class:`AtPoint`)
         self._points = []
@@ -118,7 +120,7 @@ class Bounds:
 
     @property
     def count(self):
-        return int(self.has_lo.sum() + self.has_hi.sum())
+        return self._count
 
     def push(self, v, kappa1=1e-2, kappa2=1e-2):
         """The starting point moved strictly inside the bounds (sec. 3.6, IPOPT's bound_push and
@@ -157,19 +159,40 @@ class Bounds:
         if e.terms is None:
             # the slacks (cached with the point) and np.log(sl).sum() + np.log(su).sum() in one
             # compiled pass (kernels.barrier_logs: numpy's sums); log(1) = 0 on the infinite sides
-            if e.slacks is None:
-                e.slacks = np.empty_like(v), np.empty_like(v)
-            if self._work is None or self._work.size != v.size:
-                self._work = np.empty_like(v)
-            inside, logs = _kernels().barrier_logs(v, self.lo, self.hi, self.has_lo, self.has_hi, *e.slacks, self._work)
-            if not inside:
-                e.terms = (None,)
-            else:
-                sl, su = e.slacks
-                # 1/1 times a zero mask on the infinite sides; exactly 0 without one-sided bounds
-                damped = dot(self.one_lo_f, sl) + dot(self.one_hi_f, su) if self.one_sided else 0.0
-                e.terms = (logs, damped)
+            self._prepare(e, v)
+            self._store_terms(e, *_kernels().barrier_logs(v, self.lo, self.hi, self.has_lo, self.has_hi, *e.slacks,
+                                                          self._work))
         return None if e.terms[0] is None else e.terms
+
+    def _prepare(self, e, v):
+        """The slack arrays of the point's entry and the work array, allocated once."""
+        if e.slacks is None:
+            e.slacks = np.empty_like(v), np.empty_like(v)
+        if self._work is None or self._work.size != v.size:
+            self._work = np.empty_like(v)
+
+    def _store_terms(self, e, inside, logs):
+        """The entry's barrier terms from barrier_logs' (inside, sum of logs) and its slacks."""
+        if not inside:
+            e.terms = (None,)
+        else:
+            sl, su = e.slacks
+            # 1/1 times a zero mask on the infinite sides; exactly 0 without one-sided bounds
+            damped = dot(self.one_lo_f, sl) + dot(self.one_hi_f, su) if self.one_sided else 0.0
+            e.terms = (logs, damped)
+
+    def point_terms(self, v, res, mu):
+        """(l1, max) of the residual arrays ``res`` (newton.Residuals) and :meth:`barrier_value`
+        at v (the barrier terms cached with the point, as :meth:`barrier_terms`), in one compiled
+        pass (kernels.point_terms) for a new point -- the line search's trial point."""
+        e = self.at(v)
+        if e.terms is not None:
+            return (*res.norms(), self.barrier_value(v, mu))
+        self._prepare(e, v)
+        l1, mx, inside, logs = _kernels().point_terms(v, self.lo, self.hi, self.has_lo, self.has_hi, *e.slacks,
+                                                      self._work, *res)
+        self._store_terms(e, inside, logs)
+        return l1, mx, self.barrier_value(v, mu)
 
     def barrier_value(self, v, mu):
         """The barrier terms of phi_mu at v (eq. (3) with the damping of sec. 3.7); +inf outside
@@ -215,6 +238,35 @@ class Bounds:
         sl, su = self.slacks(v)
         a_lo, a_hi = _kernels().max_step(sl, su, dv, self.has_lo, self.has_hi, -tau, tau)
         return min(1.0, float(a_lo), float(a_hi))
+
+    def step_terms(self, v, step, tau):
+        """(dv, alpha_max, tiny) of a Newton step (newton.Step) at v in one compiled pass
+        (kernels.step_terms): dv = Layout.pack(step.dX, step.dU, step.ds, step.dsN), alpha_max
+        = :meth:`max_step` (v, dv, tau), tiny = max |dv| / (1 + |v|) (IPOPT's tiny step test)."""
+        sl, su = self.slacks(v)
+        dv = np.empty_like(v)
+        alpha_max, tiny = _kernels().step_terms(step.dX, step.dU, step.ds, step.dsN, v, sl, su, self.has_lo,
+                                                self.has_hi, -tau, tau, dv)
+        return dv, alpha_max, tiny
+
+    def step_multipliers(self, slacks, v_new, dv, zl, zu, mu, tau, kappa_sigma=1e10):
+        """The bound multipliers after a step from the point of ``slacks`` (its :meth:`slacks`)
+        to v_new along dv: :meth:`dual_step_length`, :meth:`move_tiny` at v_new, then
+        :meth:`safeguard_step` there, in one compiled pass (kernels.step_bound_multipliers).
+        Returns (z_L, z_U, alpha_z); the slacks at v_new are cached with it."""
+        sl, su = slacks
+        sl_new, su_new, zl_new, zu_new = (np.empty_like(v_new) for _ in range(4))
+        eps = np.finfo(float).eps
+        alpha_z, moved = _kernels().step_bound_multipliers(sl, su, v_new, dv, self.lo, self.hi, self.has_lo,
+                                                           self.has_hi, zl, zu, mu, -tau, eps, eps ** 0.75,
+                                                           kappa_sigma, kappa_sigma * mu, sl_new, su_new, zl_new,
+                                                           zu_new)
+        if moved:
+            self._points = []          # the slacks changed with the bounds
+        e = self.at(v_new)
+        if e.slacks is None:
+            e.slacks = sl_new, su_new
+        return zl_new, zu_new, alpha_z
 
     def dual_step_length(self, v, dv, zl, zu, mu, tau):
         """(dz_L, dz_U, alpha_z): :meth:`dual_step` and the smaller of the two sides'

@@ -350,3 +350,86 @@ def tiny_step(dv, v):
     for i in range(v.size):
         r = _max(r, abs(dv[i]) / (1.0 + abs(v[i])))
     return r
+
+
+# ---------------------------------------------------------------------------- the loop's fused passes
+# (solver.py: one call each for the trial point, its measures, the step's line-search terms and the
+# step taken; their callees are this file's kernels, so their caches stay in step with them)
+
+
+@nb.njit(**_JIT)
+def trial_point(v, dv, alpha, x0, v_t, X, U):
+    """v_t = v + alpha dv, and (X, U) of barrier.Layout.states_controls(v_t): X[0] = x0, X[1:] and
+    U the first N n and the next N m entries of v_t."""
+    for i in range(v.size):
+        v_t[i] = v[i] + alpha * dv[i]
+    N1, n = X.shape
+    m = U.shape[1]
+    for i in range(n):
+        X[0, i] = x0[i]
+    j = 0
+    for k in range(1, N1):
+        for i in range(n):
+            X[k, i] = v_t[j]
+            j += 1
+    for k in range(U.shape[0]):
+        for i in range(m):
+            U[k, i] = v_t[j]
+            j += 1
+
+
+@nb.njit(**_JIT)
+def point_terms(v, lo, hi, has_lo, has_hi, sl, su, logs, h, e, eN, d, dN):
+    """``residual_norms`` of the residual arrays (h, e, eN, d, dN) and ``barrier_logs`` at v in
+    one call: (l1, max, inside, the sum of logs)."""
+    l1, mx = residual_norms(h, e, eN, d, dN)
+    inside, s = barrier_logs(v, lo, hi, has_lo, has_hi, sl, su, logs)
+    return l1, mx, inside, s
+
+
+@nb.njit(inline="always")
+def _py_min(a, b):
+    """Python's min(a, b) of floats: b only when b < a (a NaN b never replaces a, a NaN a stays)."""
+    return b if b < a else a
+
+
+@nb.njit(**_JIT)
+def step_terms(dX, dU, ds, dsN, v, sl, su, has_lo, has_hi, neg_tau, tau, dv):
+    """The step dv = barrier.Layout.pack(dX, dU, ds, dsN) (dX[0] left out), the fraction-to-boundary
+    step min(1, a_lo, a_hi) of ``max_step`` (Python's min, as barrier.Bounds.max_step) and
+    ``tiny_step`` (dv, v); returns (alpha_max, tiny)."""
+    j = 0
+    for k in range(1, dX.shape[0]):
+        for i in range(dX.shape[1]):
+            dv[j] = dX[k, i]
+            j += 1
+    for k in range(dU.shape[0]):
+        for i in range(dU.shape[1]):
+            dv[j] = dU[k, i]
+            j += 1
+    for k in range(ds.shape[0]):
+        for i in range(ds.shape[1]):
+            dv[j] = ds[k, i]
+            j += 1
+    for i in range(dsN.size):
+        dv[j] = dsN[i]
+        j += 1
+    a_lo, a_hi = max_step(sl, su, dv, has_lo, has_hi, neg_tau, tau)
+    return _py_min(_py_min(1.0, a_lo), a_hi), tiny_step(dv, v)
+
+
+@nb.njit(**_JIT)
+def step_bound_multipliers(sl, su, v_new, dv, lo, hi, has_lo, has_hi, zl, zu, mu, neg_tau, eps, move, kappa_sigma,
+                           ks_mu, sl_new, su_new, zl_new, zu_new):
+    """The bound side of solver.take_step in one call: ``dual_step_lengths`` at the old slacks
+    (sl, su; the steps dz held in zl_new, zu_new), alpha_z = min(min(1, r_l), min(1, r_u)) (Python's
+    min, as barrier.Bounds.dual_step_length), ``move_tiny`` at v_new (lo, hi in place), the slacks
+    at v_new (after the move) into sl_new, su_new and ``safeguard_step`` of z + alpha_z dz there
+    into zl_new, zu_new. Returns (alpha_z, the number of bound sides moved)."""
+    r_l, r_u = dual_step_lengths(sl, su, zl, zu, dv, has_lo, has_hi, mu, neg_tau, zl_new, zu_new)
+    alpha_z = _py_min(_py_min(1.0, r_l), _py_min(1.0, r_u))
+    moved = move_tiny(v_new, lo, hi, has_lo, has_hi, eps, move)
+    slacks(v_new, lo, hi, has_lo, has_hi, sl_new, su_new)
+    safeguard_step(sl_new, su_new, zl, zu, zl_new, zu_new, alpha_z, has_lo, has_hi, mu, kappa_sigma, ks_mu,
+                   zl_new, zu_new)
+    return alpha_z, moved

@@ -453,14 +453,22 @@ def converged(setup, st):
     return False
 
 
-def _trial(setup, st, v_t):
-    """A trial point's (point, theta, phi); phi = inf when a function is not finite there."""
+def _trial(setup, st, dv, alpha):
+    """The trial point v + alpha dv of the iterate: (v_t, point, theta, phi); (v_t, None, inf, inf)
+    when a function is not finite there. v_t and its (X, U) are made in one compiled pass
+    (kernels.trial_point), the point evaluated as :func:`evaluate` does, its theta, max-norm
+    (cached with its residuals) and phi in another (barrier.Bounds.point_terms)."""
+    L = setup.layout
+    v_t, X, U = np.empty_like(st.v), np.empty((L.N + 1, L.n)), np.empty((L.N, L.m))
+    _kernels().trial_point(st.v, dv, alpha, L.x0, v_t, X, U)
     try:
-        pt = evaluate(setup, v_t, st.clock)
+        pt = Point(setup.problem, X, U, derivatives=False, clock=st.clock)
     except NonFiniteEvaluationError:
-        return None, math.inf, math.inf
-    phi, _ = barrier_value(setup, pt, v_t, st.mu, st.s_obj)
-    return pt, theta(setup, pt, v_t), phi
+        return v_t, None, math.inf, math.inf
+    entry = _residual_entry(setup, pt, v_t)
+    l1, mx, barrier = setup.bounds.point_terms(v_t, entry[2], st.mu)
+    entry[3] = (l1, mx)
+    return v_t, pt, l1, st.s_obj * pt.J + barrier
 
 
 class Direction(NamedTuple):
@@ -506,6 +514,7 @@ class Search(NamedTuple):
     theta: float
     phi: float
     alpha_max: float
+    tiny: float = math.inf
 
 
 @dataclasses.dataclass
@@ -525,10 +534,10 @@ def direction(setup, st, kkt, g) -> Search:
     """The Newton direction at the iterate and its line-search quantities."""
     res = residuals(setup, st.pt, st.v)
     step = kkt.solve(g.q, g.r, res, g.gs, g.gsN)
-    dv = step_vector(setup, step)
+    # step_vector, Bounds.max_step and the tiny-step measure in one compiled pass
+    dv, alpha_max, tiny = setup.bounds.step_terms(st.v, step, st.tau)
     phi = barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0]
-    return Search(kkt, g, res, step, dv, dot(g.grad, dv), theta(setup, st.pt, st.v), phi,
-                  setup.bounds.max_step(st.v, dv, st.tau))
+    return Search(kkt, g, res, step, dv, dot(g.grad, dv), theta(setup, st.pt, st.v), phi, alpha_max, tiny)
 
 
 def line_search(setup, st, kkt, g):
@@ -537,11 +546,10 @@ def line_search(setup, st, kkt, g):
     alpha, soc) or None (alpha fell below alpha_min: restoration)."""
     o = setup.options
     d = direction(setup, st, kkt, g)
-    tiny = float(_kernels().tiny_step(d.dv, st.v)) < TINY_STEP
-    if tiny:     # IPOPT's tiny-step rule: no line search for a step below rounding
-        pt_t, _, _ = _trial(setup, st, st.v + d.alpha_max * d.dv)
+    if d.tiny < TINY_STEP:     # IPOPT's tiny-step rule: no line search for a step below rounding
+        v_t, pt_t, _, _ = _trial(setup, st, d.dv, d.alpha_max)
         if pt_t is not None:
-            return st.v + d.alpha_max * d.dv, pt_t, d.dv, d.step, d.alpha_max, 0
+            return v_t, pt_t, d.dv, d.step, d.alpha_max, 0
     if st.watch is None and o.watchdog_shortened_iter_trigger and st.shortened >= o.watchdog_shortened_iter_trigger:
         st.watch = Watchdog({k: getattr(st, k) for k in WATCHED}, d)
         st.shortened = 0
@@ -563,8 +571,7 @@ def line_search(setup, st, kkt, g):
 def _watchdog_step(setup, st, d):
     """A full step taken without the acceptance test (IPOPT's "w" iteration); None when the
     functions are not finite there."""
-    v_t = st.v + d.alpha_max * d.dv
-    pt_t, _, _ = _trial(setup, st, v_t)
+    v_t, pt_t, _, _ = _trial(setup, st, d.dv, d.alpha_max)
     return None if pt_t is None else (v_t, pt_t, d.dv, d.step, d.alpha_max, 0)
 
 
@@ -573,8 +580,7 @@ def _watched_trial(setup, st, d):
     against the watchdog's starting point; else another "w" step while watchdog_trial_iter_max
     allows; None: the watchdog fails and the line search starts again from its starting point."""
     ref = st.watch.search
-    v_t = st.v + d.alpha_max * d.dv
-    pt_t, th_t, phi_t = _trial(setup, st, v_t)
+    v_t, pt_t, th_t, phi_t = _trial(setup, st, d.dv, d.alpha_max)
     # the tests use the watched point's values and step to the boundary (IPOPT's watchdog_alpha_primal_test)
     ok, f_type = st.filt.accept(ref.alpha_max, ref.theta, ref.phi, ref.gphi, th_t, phi_t)
     if ok:
@@ -598,8 +604,7 @@ def backtrack(setup, st, d: Search):
     while alpha > alpha_min or trials == 0:     # the first trial always (IPOPT)
         setup.limits.check()
         trials += 1
-        v_t = st.v + alpha * d.dv
-        pt_t, th_t, phi_t = _trial(setup, st, v_t)
+        v_t, pt_t, th_t, phi_t = _trial(setup, st, d.dv, alpha)
         ok, f_type = st.filt.accept(alpha, th, phi, gphi, th_t, phi_t)
         if ok:
             if not f_type:
@@ -627,8 +632,7 @@ def second_order_correction(setup, st, kkt, g, res, alpha_max, current, pt_t, v_
         step = kkt.solve(g.q, g.r, c_soc, g.gs, g.gsN)
         dv = step_vector(setup, step)
         a_soc = b.max_step(st.v, dv, st.tau)
-        v_s = st.v + a_soc * dv
-        pt_s, th_s, phi_s = _trial(setup, st, v_s)
+        v_s, pt_s, th_s, phi_s = _trial(setup, st, dv, a_soc)
         if pt_s is None:
             return None
         ok, f_type = st.filt.accept(alpha_max, th, phi, gphi, th_s, phi_s)
@@ -649,16 +653,19 @@ def take_step(setup, st, accepted):
     safeguard (16)."""
     b = setup.bounds
     v_new, pt_new, dv, step, alpha, soc = accepted
-    # dz and the step of both sides (dz = 0 off the bounds) in one pass (Bounds.dual_step_length)
-    dzl, dzu, alpha_z = b.dual_step_length(st.v, dv, st.zl, st.zu, st.mu, st.tau)
-    for name in ("lam", "nu", "nuN", "yd", "ydN"):
-        old = getattr(st, name)
-        if old.size:            # an empty one (no such rows) stays
-            setattr(st, name, old + alpha * (getattr(step, name) - old))
+    slacks = b.slacks(st.v)     # the step of the bound multipliers is taken at the old point's
+    if st.lam.size:
+        st.lam = st.lam + alpha * (step.lam - st.lam)
+    if setup.layout.rows:
+        for name in ("nu", "nuN", "yd", "ydN"):
+            old = getattr(st, name)
+            if old.size:            # an empty one (no such rows) stays
+                setattr(st, name, old + alpha * (getattr(step, name) - old))
     st.v, st.pt = v_new, pt_new
     st.pt.add_derivatives(setup.problem)
-    b.move_tiny(v_new)
-    st.zl, st.zu = b.safeguard_step(v_new, st.zl, st.zu, dzl, dzu, alpha_z, st.mu)
+    # dz and the step of both sides (dz = 0 off the bounds: Bounds.dual_step_length), the bounds
+    # moved (Bounds.move_tiny) and the safeguard (Bounds.safeguard_step) in one compiled pass
+    st.zl, st.zu, alpha_z = b.step_multipliers(slacks, v_new, dv, st.zl, st.zu, st.mu, st.tau)
     return alpha, alpha_z, soc
 
 
