@@ -306,9 +306,22 @@ class Bounds:
 
     def complementarity(self, v, zl, zu, mu):
         """max |s z - mu| over the finite sides (the complementarity part of eq. (5))."""
+        return self.complementarities(v, zl, zu, mu, mu)[0]
+
+    def complementarities(self, v, zl, zu, mu, mu1):
+        """:meth:`complementarity` for two barrier parameters, in one compiled pass."""
         sl, su = self.slacks(v)
-        n_lo, m_lo, n_hi, m_hi = _kernels().complementarity(sl, su, zl, zu, self.has_lo, self.has_hi, mu)
-        return max((float(m) for n, m in ((n_lo, m_lo), (n_hi, m_hi)) if n), default=0.0)
+        n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1 = _kernels().complementarity(sl, su, zl, zu, self.has_lo, self.has_hi,
+                                                                          mu, mu1)
+        return _sides_max(n_lo, m_lo, n_hi, m_hi), _sides_max(n_lo, m_lo1, n_hi, m_hi1)
+
+
+def _sides_max(n_lo, m_lo, n_hi, m_hi):
+    """max((m for n, m in ((n_lo, m_lo), (n_hi, m_hi)) if n), default=0.0): Python's max (a later
+    value replaces only a smaller one, so a NaN first stays)."""
+    if not n_lo:
+        return float(m_hi) if n_hi else 0.0
+    return float(m_hi) if n_hi and m_hi > m_lo else float(m_lo)
 
 
 _KERNEL_MODULE = None

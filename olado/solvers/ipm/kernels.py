@@ -114,18 +114,23 @@ def _max(r, a):
 
 
 @nb.njit(**_JIT)
-def complementarity(sl, su, zl, zu, has_lo, has_hi, mu):
-    """(count, max) of |s_L z_L - mu| over has_lo and of |s_U z_U - mu| over has_hi (max -inf when
-    the count is 0)."""
-    n_lo, n_hi, m_lo, m_hi = 0, 0, -np.inf, -np.inf
+def complementarity(sl, su, zl, zu, has_lo, has_hi, mu, mu1):
+    """(count, max for mu, max for mu1) of |s_L z_L - mu| over has_lo, then the same of
+    |s_U z_U - mu| over has_hi (a max is -inf when its count is 0): two barrier parameters in one
+    pass (the stopping test's mu = 0 and the barrier update's)."""
+    n_lo, n_hi, m_lo, m_hi, m_lo1, m_hi1 = 0, 0, -np.inf, -np.inf, -np.inf, -np.inf
     for i in range(sl.size):
         if has_lo[i]:
-            m_lo = _max(m_lo, abs(sl[i] * zl[i] - mu))
+            p = sl[i] * zl[i]
+            m_lo = _max(m_lo, abs(p - mu))
+            m_lo1 = _max(m_lo1, abs(p - mu1))
             n_lo += 1
         if has_hi[i]:
-            m_hi = _max(m_hi, abs(su[i] * zu[i] - mu))
+            p = su[i] * zu[i]
+            m_hi = _max(m_hi, abs(p - mu))
+            m_hi1 = _max(m_hi1, abs(p - mu1))
             n_hi += 1
-    return n_lo, m_lo, n_hi, m_hi
+    return n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1
 
 
 @nb.njit(inline="always")
@@ -433,3 +438,17 @@ def step_bound_multipliers(sl, su, v_new, dv, lo, hi, has_lo, has_hi, zl, zu, mu
     safeguard_step(sl_new, su_new, zl, zu, zl_new, zu_new, alpha_z, has_lo, has_hi, mu, kappa_sigma, ks_mu,
                    zl_new, zu_new)
     return alpha_z, moved
+
+
+@nb.njit(**_JIT)
+def shifted_diagonals(Sx, Su, delta, Dx, Du):
+    """The diagonals of newton.KKTMatrix with the shift delta: Dx = Sx + delta with Dx[0] = 0,
+    Du = Su + delta (np.add's sums)."""
+    for i in range(Dx.shape[1]):
+        Dx[0, i] = 0.0
+    for k in range(1, Dx.shape[0]):
+        for i in range(Dx.shape[1]):
+            Dx[k, i] = Sx[k, i] + delta
+    for k in range(Du.shape[0]):
+        for i in range(Du.shape[1]):
+            Du[k, i] = Su[k, i] + delta

@@ -189,9 +189,9 @@ class KKTMatrix:
     def _diagonals_into(self, delta, Dx, Du):
         """:meth:`_diagonals` written into the back-end's arrays Dx, Du (the same values; no new
         arrays for the back-end to validate); returns the slack rows' weights (None without)."""
-        np.add(self.Sx, delta, out=Dx)
-        Dx[0] = 0.0
-        np.add(self.Su, delta, out=Du)
+        from .barrier import _kernels    # noqa: PLC0415 - numba loaded on first use
+
+        _kernels().shifted_diagonals(self.Sx, self.Su, float(delta), Dx, Du)   # np.add's sums, Dx[0] = 0
         self._final_block(delta)
         c = self.cons
         return c.Ss + delta if c.Ci.shape[1] else None

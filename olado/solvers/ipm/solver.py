@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import operator
 import time
 from typing import NamedTuple
 
@@ -140,6 +139,7 @@ class IPMState(Stoppable):
     infeasibility_certificate: dict = None   # the converged l1 restoration's figures (restoration.restore_l1)
     adaptive: AdaptiveMu = None  # the adaptive mu update's memory (mu_strategy = adaptive)
     error_cache: tuple = None   # (inputs, s_obj, ErrorTerms) of the last error_terms call
+    compl_cache: tuple = None   # (slacks, zl, zu, {mu: complementarity}) of the iterate (complementarity)
 
 
 class Setup:
@@ -274,10 +274,13 @@ def error_terms(setup, st) -> ErrorTerms:
     """:class:`ErrorTerms` at the iterate, computed once per iterate: the stopping test and the
     barrier update (several mu) ask for them at the same point. The iterate's arrays are
     replaced, never changed in place, so their identities name the iterate."""
-    key = (st.v, st.pt, st.lam, st.nu, st.nuN, st.yd, st.ydN, st.zl, st.zu)     # ERROR_INPUTS
     cached = st.error_cache
-    if cached is not None and cached[1] == st.s_obj and all(map(operator.is_, cached[0], key)):
-        return cached[2]
+    if cached is not None and cached[1] == st.s_obj:
+        k = cached[0]           # ERROR_INPUTS
+        if (k[0] is st.v and k[1] is st.pt and k[2] is st.lam and k[3] is st.nu and k[4] is st.nuN and k[5] is st.yd
+                and k[6] is st.ydN and k[7] is st.zl and k[8] is st.zu):
+            return cached[2]
+    key = (st.v, st.pt, st.lam, st.nu, st.nuN, st.yd, st.ydN, st.zl, st.zu)
     b = setup.bounds
     inf_du, zsum, ysum = dual_terms(setup, st)
     inf_pr = residual_norms(setup, st.pt, st.v)[1]
@@ -290,11 +293,27 @@ def error_terms(setup, st) -> ErrorTerms:
     return terms
 
 
+def complementarity(setup, st, mu):
+    """max |s z - mu| over the finite sides at the iterate (Bounds.complementarity). The stopping
+    test (mu = 0) and the barrier update (the iterate's mu) ask at the same iterate: both are
+    computed in one pass (Bounds.complementarities) and kept until the slacks (the point, or the
+    bounds moved) or the bound multipliers change."""
+    b = setup.bounds
+    slacks = b.slacks(st.v)
+    c = st.compl_cache
+    if c is None or c[0] is not slacks or c[1] is not st.zl or c[2] is not st.zu:
+        c = st.compl_cache = (slacks, st.zl, st.zu, {})
+    values = c[3]
+    if mu not in values:
+        values[mu], values[st.mu] = b.complementarities(st.v, st.zl, st.zu, mu, st.mu)
+    return values[mu]
+
+
 def optimality_errors(setup, st, mu):
     """(E_mu scaled (eq. (5)), dual infeasibility unscaled, constraint violation max-norm,
     complementarity unscaled) at the current iterate."""
     inf_du, inf_pr, s_d, s_c = error_terms(setup, st)
-    compl = setup.bounds.complementarity(st.v, st.zl, st.zu, mu)
+    compl = complementarity(setup, st, mu)
     return max(inf_du / s_d, inf_pr, compl / s_c), inf_du / st.s_obj, inf_pr, compl / st.s_obj
 
 

@@ -219,3 +219,28 @@ def test_a_solve_takes_the_reference_iterates(problem, monkeypatch):
     assert fast.status == ref.status and fast.iterations == ref.iterations
     assert _history(fast) == _history(ref)
     assert fast.objective == ref.objective and np.array_equal(fast.x, ref.x) and np.array_equal(fast.u, ref.u)
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+@pytest.mark.parametrize("seed", range(4))
+def test_two_complementarities_in_one_pass_are_the_numpy_forms(shape, seed):
+    from test_barrier_kernels import ref_complementarity
+
+    _, _, b, v, zl, zu, _ = _case(seed, shape, special=seed >= 2)
+    for mu, mu1 in ((0.0, 0.1), (1e-9, 1e-9), (0.5, 0.0)):
+        with np.errstate(all="ignore"):
+            got = b.complementarities(v, zl, zu, mu, mu1)
+            want = ref_complementarity(b, v, zl, zu, mu), ref_complementarity(b, v, zl, zu, mu1)
+        assert all(_same_float(x, y) for x, y in zip(got, want))
+
+
+@pytest.mark.parametrize("delta", [0.0, 1e-4, 3.7e8])
+def test_shifted_diagonals_are_np_add(delta):
+    rng = np.random.default_rng(3)
+    for N, n, m in ((5, 3, 2), (1, 1, 0), (0, 2, 1)):
+        Sx, Su = _special_nd(rng, rng.exponential(size=(N + 1, n))), rng.exponential(size=(N, m))
+        Dx, Du = np.full((N + 1, n), np.nan), np.full((N, m), np.nan)
+        kernels.shifted_diagonals(Sx, Su, delta, Dx, Du)
+        want = Sx + delta
+        want[0] = 0.0
+        assert _same(Dx, want) and _same(Du, Su + delta)
