@@ -452,3 +452,24 @@ def shifted_diagonals(Sx, Su, delta, Dx, Du):
     for k in range(Du.shape[0]):
         for i in range(Du.shape[1]):
             Du[k, i] = Su[k, i] + delta
+
+
+@nb.njit(**_JIT)
+def stage_products(A, B, lam, EA, EB):
+    """EA = A^T lam, EB = B^T lam per stage (np.einsum("kij,ki->kj", .)): every entry the sum over
+    i in order from 0, one product added at a time -- the order of numpy's einsum for these
+    operands (C-contiguous, an output row of 2 or more entries: its loop runs along the output
+    row, adding A[k, i, :] lam[k, i] for i = 0, 1, ...; with one entry it sums in SIMD lanes
+    instead, and solver.dual_terms keeps einsum then)."""
+    N, n = lam.shape
+    for k in range(N):
+        for j in range(EA.shape[1]):
+            EA[k, j] = 0.0
+        for j in range(EB.shape[1]):
+            EB[k, j] = 0.0
+        for i in range(n):
+            li = lam[k, i]
+            for j in range(EA.shape[1]):
+                EA[k, j] += A[k, i, j] * li
+            for j in range(EB.shape[1]):
+                EB[k, j] += B[k, i, j] * li

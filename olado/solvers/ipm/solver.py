@@ -253,7 +253,7 @@ def dual_terms(setup, st):
     one compiled pass, kernels.dual_infeasibility), the sums numpy's."""
     p, pt = setup.problem, st.pt
     lam = st.lam[1:]
-    EA, EB = np.einsum("kij,ki->kj", pt.A, lam), np.einsum("kij,ki->kj", pt.B, lam)
+    EA, EB = _stage_products(pt.A, pt.B, lam)
     ECx, ECu, CNL = EA, EB, pt.lN       # placeholders without stage or final constraints
     if p.r or p.rN:
         Lg, LgN = full_multipliers(setup.layout, st)
@@ -264,6 +264,19 @@ def dual_terms(setup, st):
     mx, zsum, ysum = _kernels().dual_infeasibility(float(st.s_obj), pt.lx, pt.lu, pt.lN, EA, EB, lam, ECx, ECu, CNL,
                                                    bool(p.r), bool(p.rN), st.yd, st.ydN, st.zl, st.zu, st.nu, st.nuN)
     return float(mx), float(zsum), float(ysum)
+
+
+def _stage_products(A, B, lam):
+    """(np.einsum("kij,ki->kj", A, lam), the same of B): in one compiled pass (kernels.stage_products,
+    the same sums in einsum's order) where einsum's order is that plain one -- C-contiguous float64
+    operands, rows of two or more entries in both products; else by einsum."""
+    N, n, m = B.shape
+    if (n >= 2 and m >= 2 and A.dtype == np.float64 and B.dtype == np.float64 and lam.dtype == np.float64
+            and A.flags.c_contiguous and B.flags.c_contiguous and lam.flags.c_contiguous):
+        EA, EB = np.empty((N, n)), np.empty((N, m))
+        _kernels().stage_products(A, B, lam, EA, EB)
+        return EA, EB
+    return np.einsum("kij,ki->kj", A, lam), np.einsum("kij,ki->kj", B, lam)
 
 
 #: the iterate's parts the optimality error reads (with s_obj)

@@ -244,3 +244,34 @@ def test_shifted_diagonals_are_np_add(delta):
         want = Sx + delta
         want[0] = 0.0
         assert _same(Dx, want) and _same(Du, Su + delta)
+
+
+def _sequential_products(A, lam):
+    """A^T lam per stage, summed over i in order from 0 (the reference formula)."""
+    out = np.zeros((A.shape[0], A.shape[2]))
+    for i in range(A.shape[1]):
+        out = out + A[:, i, :] * lam[:, i, None]
+    return out
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_stage_products_are_the_sequential_sums_and_einsums(seed):
+    """solver._stage_products: the compiled pass equals the sequential sums (the reference) and,
+    where it is used, numpy's einsum (whose order it follows); einsum elsewhere (one-entry rows,
+    non-contiguous operands)."""
+    rng = np.random.default_rng(seed)
+    N, n, m = int(rng.integers(1, 40)), int(rng.integers(1, 12)), int(rng.integers(1, 12))
+    if seed < 4:
+        n, m = (1, 3, 2, 1)[seed], (3, 1, 1, 2)[seed]
+    A = rng.normal(size=(N, n, n)) * 10.0 ** rng.integers(-8, 8, size=(N, n, n))
+    B = rng.normal(size=(N, n, m)) * 10.0 ** rng.integers(-8, 8, size=(N, n, m))
+    lam = (rng.normal(size=(N + 1, n)) * 10.0 ** rng.integers(-8, 8, size=(N + 1, n)))[1:]
+    if seed == 5:
+        A = np.ascontiguousarray(A.transpose(0, 2, 1)).transpose(0, 2, 1)      # not C-contiguous: einsum
+    EA, EB = S._stage_products(A, B, lam)
+    assert np.array_equal(EA, np.einsum("kij,ki->kj", A, lam)) and np.array_equal(EB, np.einsum("kij,ki->kj", B, lam))
+    if n >= 2 and m >= 2 and seed != 5:
+        assert np.array_equal(EA, _sequential_products(A, lam)) and np.array_equal(EB, _sequential_products(B, lam))
+    A0, B0, l0 = np.zeros((0, n, n)), np.zeros((0, n, m)), np.zeros((0, n))
+    EA, EB = S._stage_products(A0, B0, l0)
+    assert EA.shape == (0, n) and EB.shape == (0, m)
