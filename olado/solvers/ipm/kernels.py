@@ -473,3 +473,26 @@ def stage_products(A, B, lam, EA, EB):
                 EA[k, j] += A[k, i, j] * li
             for j in range(EB.shape[1]):
                 EB[k, j] += B[k, i, j] * li
+
+
+@nb.njit(**_JIT)
+def error_pass(s_obj, lx, lu, lN, A, B, EA, EB, products, lam, ECx, ECu, CNL, has_r, has_rN, yd, ydN, zl, zu, nu, nuN,
+               sl, su, has_lo, has_hi, mu0, mu1):
+    """The optimality error's passes at an iterate in one call (solver.error_terms): with
+    ``products``, ``stage_products`` (A, B, lam) into EA, EB first; then ``dual_infeasibility``
+    and ``complementarity`` (sl, su, ..., mu0, mu1). Returns (max, z sum, y sum) and the
+    complementarity's (n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1)."""
+    if products:
+        stage_products(A, B, lam, EA, EB)
+    mx, zsum, ysum = dual_infeasibility(s_obj, lx, lu, lN, EA, EB, lam, ECx, ECu, CNL, has_r, has_rN, yd, ydN, zl, zu,
+                                        nu, nuN)
+    n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1 = complementarity(sl, su, zl, zu, has_lo, has_hi, mu0, mu1)
+    return mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1
+
+
+@nb.njit(**_JIT)
+def newton_terms(s_obj, lx, lN, lu, sl, su, zl, zu, has_lo, has_hi, mu, kd_mu, Sx, Su, Ss, SsN, q, r, gs, gsN, grad):
+    """``sigma_blocks`` and ``barrier_direction`` at an iterate in one call (solver.newton_system
+    with the gradient: the Newton matrix's Sigma and the right-hand side)."""
+    sigma_blocks(sl, su, zl, zu, Sx, Su, Ss, SsN)
+    barrier_direction(s_obj, lx, lN, lu, sl, su, has_lo, has_hi, mu, kd_mu, q, r, gs, gsN, grad)

@@ -47,7 +47,7 @@ from ..sqp.residuals import stage_kkt
 from ..sqp.state import BoundMultipliers, Clock, Multipliers, Point
 from .adaptive import (FILTER_MARGIN_FACT, FILTER_MAX_MARGIN, MONOTONE_INIT_FACTOR, MU_MAX_FACT, MU_MIN, AdaptiveMu,
                        QualityFunction, average_complementarity, quality_function_sigma)
-from .barrier import KAPPA_D, Bounds, Layout, _kernels, dot
+from .barrier import KAPPA_D, Bounds, Layout, _kernels, _sides_max, dot
 from .filter import Filter
 from .newton import Constraints, KKTMatrix, Residuals, stage_blocks
 from .restoration import Restoration, least_squares_multipliers, restore, restore_l1
@@ -249,11 +249,23 @@ class ErrorTerms(NamedTuple):
 
 def dual_terms(setup, st):
     """(|grad L - z_L + z_U|_inf, |z_L|_1 + |z_U|_1, the constraint multipliers' 1-norm) at the
-    iterate: :func:`lagrangian_gradient`'s arithmetic (the einsum products by numpy, the rest in
-    one compiled pass, kernels.dual_infeasibility), the sums numpy's."""
-    p, pt = setup.problem, st.pt
+    iterate: :func:`lagrangian_gradient`'s arithmetic, the sums numpy's (:func:`iterate_errors`)."""
+    return iterate_errors(setup, st)[0]
+
+
+def iterate_errors(setup, st):
+    """(:func:`dual_terms`, (complementarity at mu = 0, at the iterate's mu)) in one compiled pass
+    (kernels.error_pass: the stage products A^T lam, B^T lam where :func:`_plain_products` says
+    einsum's order is the plain one, the dual infeasibility, kernels.dual_infeasibility, and the
+    complementarity, Bounds.complementarities); the products with the constraint rows by numpy."""
+    p, pt, b = setup.problem, st.pt, setup.bounds
     lam = st.lam[1:]
-    EA, EB = _stage_products(pt.A, pt.B, lam)
+    products = _plain_products(pt.A, pt.B, lam)
+    if products:
+        N, n, m = pt.B.shape
+        EA, EB = np.empty((N, n)), np.empty((N, m))
+    else:
+        EA, EB = np.einsum("kij,ki->kj", pt.A, lam), np.einsum("kij,ki->kj", pt.B, lam)
     ECx, ECu, CNL = EA, EB, pt.lN       # placeholders without stage or final constraints
     if p.r or p.rN:
         Lg, LgN = full_multipliers(setup.layout, st)
@@ -261,18 +273,28 @@ def dual_terms(setup, st):
             ECx, ECu = np.einsum("kij,ki->kj", pt.Cx, Lg), np.einsum("kij,ki->kj", pt.Cu, Lg)
         if p.rN:
             CNL = pt.CN.T @ LgN
-    mx, zsum, ysum = _kernels().dual_infeasibility(float(st.s_obj), pt.lx, pt.lu, pt.lN, EA, EB, lam, ECx, ECu, CNL,
-                                                   bool(p.r), bool(p.rN), st.yd, st.ydN, st.zl, st.zu, st.nu, st.nuN)
-    return float(mx), float(zsum), float(ysum)
+    sl, su = b.slacks(st.v)
+    mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1 = _kernels().error_pass(
+        float(st.s_obj), pt.lx, pt.lu, pt.lN, pt.A, pt.B, EA, EB, products, lam, ECx, ECu, CNL, bool(p.r), bool(p.rN),
+        st.yd, st.ydN, st.zl, st.zu, st.nu, st.nuN, sl, su, b.has_lo, b.has_hi, 0.0, float(st.mu))
+    return ((float(mx), float(zsum), float(ysum)),
+            (_sides_max(n_lo, m_lo, n_hi, m_hi), _sides_max(n_lo, m_lo1, n_hi, m_hi1)))
+
+
+def _plain_products(A, B, lam):
+    """Whether np.einsum("kij,ki->kj", .) of A and of B with lam sums in the plain order of
+    kernels.stage_products (C-contiguous float64 operands, rows of two or more entries in both
+    products: einsum's loop then runs along the output row; with one entry it sums in SIMD lanes)."""
+    n, m = B.shape[1], B.shape[2]
+    return (n >= 2 and m >= 2 and A.dtype == np.float64 and B.dtype == np.float64 and lam.dtype == np.float64
+            and A.flags.c_contiguous and B.flags.c_contiguous and lam.flags.c_contiguous)
 
 
 def _stage_products(A, B, lam):
-    """(np.einsum("kij,ki->kj", A, lam), the same of B): in one compiled pass (kernels.stage_products,
-    the same sums in einsum's order) where einsum's order is that plain one -- C-contiguous float64
-    operands, rows of two or more entries in both products; else by einsum."""
-    N, n, m = B.shape
-    if (n >= 2 and m >= 2 and A.dtype == np.float64 and B.dtype == np.float64 and lam.dtype == np.float64
-            and A.flags.c_contiguous and B.flags.c_contiguous and lam.flags.c_contiguous):
+    """(np.einsum("kij,ki->kj", A, lam), the same of B): kernels.stage_products where
+    :func:`_plain_products`, else einsum."""
+    if _plain_products(A, B, lam):
+        N, n, m = B.shape
         EA, EB = np.empty((N, n)), np.empty((N, m))
         _kernels().stage_products(A, B, lam, EA, EB)
         return EA, EB
@@ -295,7 +317,9 @@ def error_terms(setup, st) -> ErrorTerms:
             return cached[2]
     key = (st.v, st.pt, st.lam, st.nu, st.nuN, st.yd, st.ydN, st.zl, st.zu)
     b = setup.bounds
-    inf_du, zsum, ysum = dual_terms(setup, st)
+    (inf_du, zsum, ysum), (c0, c1) = iterate_errors(setup, st)
+    # the complementarities of the same pass (complementarity's cache)
+    st.compl_cache = (b.slacks(st.v), st.zl, st.zu, {0.0: c0, st.mu: c1})
     inf_pr = residual_norms(setup, st.pt, st.v)[1]
     nz = max(b.count, 1)
     ny = st.lam[1:].size + st.nu.size + st.nuN.size + st.yd.size + st.ydN.size
@@ -375,9 +399,11 @@ def constraint_blocks(setup, pt, Ss, SsN):
                        np.ascontiguousarray(pt.CN[L.eqN]), Ci, np.ascontiguousarray(pt.CN[L.ineqN]), Ss, SsN)
 
 
-def newton_system(setup, st):
+def newton_system(setup, st, gradient=False):
     """The iteration's KKT matrix (Hessian blocks of the Lagrangian at (pt, multipliers), Sigma)
-    factored with the inertia correction; None when Algorithm IC gives up."""
+    factored with the inertia correction; None when Algorithm IC gives up. With ``gradient``:
+    (the matrix or None, :func:`barrier_gradient` at the iterate), its Sigma and the gradient in
+    one compiled pass (kernels.newton_terms)."""
     p, pt, L = setup.problem, st.pt, setup.layout
     Lg, LgN = full_multipliers(L, st)
     t0 = time.perf_counter()
@@ -386,7 +412,10 @@ def newton_system(setup, st):
     st.clock.add(("hessian",), t0)
     Q, S, R = stage_blocks(Hxx, Hxu, Huu, HN)
     del Hxx                     # copied into Q: not kept through the factorization
-    Sx, Su, Ss, SsN = setup.bounds.sigma_blocks(st.v, st.zl, st.zu, L)
+    if gradient:
+        Sx, Su, Ss, SsN, g = _newton_terms(setup, st)
+    else:
+        Sx, Su, Ss, SsN = setup.bounds.sigma_blocks(st.v, st.zl, st.zu, L)
     # the previous iteration's back-end is taken over, unless the watchdog keeps that iteration's
     # direction (its line search may solve with it again, line_search)
     prev = setup.last_kkt
@@ -396,11 +425,24 @@ def newton_system(setup, st):
     delta = kkt.factor(st.delta_last)
     st.factorizations += kkt.factorizations
     if delta is None:
-        return None
+        return (None, g) if gradient else None
     st.delta = delta
     if delta > 0.0:       # delta_w^last of Algorithm IC: the last shift that was needed (IC-4)
         st.delta_last = delta
-    return kkt
+    return (kkt, g) if gradient else kkt
+
+
+def _newton_terms(setup, st):
+    """(Sx, Su, Ss, SsN) of Bounds.sigma_blocks and :func:`barrier_gradient` at the iterate, in one
+    compiled pass (kernels.newton_terms: the two kernels in turn)."""
+    L, b, pt, mu = setup.layout, setup.bounds, st.pt, st.mu
+    sl, su = b.slacks(st.v)
+    sig = np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N, L.ni)), np.empty(L.niN)
+    q, r = np.empty((L.N + 1, L.n)), np.empty((L.N, L.m))
+    gs, gsN, grad = np.empty((L.N, L.ni)), np.empty(L.niN), np.empty(L.size)
+    _kernels().newton_terms(float(st.s_obj), pt.lx, pt.lN, pt.lu, sl, su, st.zl, st.zu, b.has_lo, b.has_hi, mu,
+                            KAPPA_D * mu, *sig, q, r, gs, gsN, grad)
+    return (*sig, Direction(q, r, gs, gsN, grad))
 
 
 def update_barrier(setup, st):
@@ -714,11 +756,12 @@ def iterate(setup, st):
         kkt = newton_system(setup, st)      # the matrix does not depend on mu: the oracle uses it
         if kkt is not None:
             adaptive_barrier(setup, st, kkt)
+        g = None if kkt is None else barrier_gradient(setup, st)
     else:
         update_barrier(setup, st)
-        kkt = newton_system(setup, st)
+        kkt, g = newton_system(setup, st, gradient=True)
     factored = kkt is not None
-    accepted = None if kkt is None else line_search(setup, st, kkt, barrier_gradient(setup, st))
+    accepted = None if kkt is None else line_search(setup, st, kkt, g)
     # the factors and Hessian blocks (a third of the iteration's memory) go before the step
     # evaluates the new point's derivatives (the watchdog keeps its own reference)
     del kkt
