@@ -41,6 +41,10 @@ class Layout:
         self.rows = bool(self.eq.size or self.eqN.size)
         #: the (empty) residual arrays of the constraint rows of a problem without any
         self.no_rows = (np.zeros((self.N, 0)), np.zeros(0), np.zeros((self.N, 0)), np.zeros(0))
+        #: the (empty) Jacobian rows E, F, EN, Ci, CNi of newton.Constraints without any
+        N, n, m = self.N, self.n, self.m
+        self.no_constraint_rows = (np.zeros((N, 0, n)), np.zeros((N, 0, m)), np.zeros((0, n)), np.zeros((N, 0, n + m)),
+                                   np.zeros((0, n)))
 
     def pack(self, X, U, s=None, sN=None):
         parts = [X[1:].ravel(), U.ravel()]
@@ -192,7 +196,10 @@ class Bounds:
         l1, mx, inside, logs = _kernels().point_terms(v, self.lo, self.hi, self.has_lo, self.has_hi, *e.slacks,
                                                       self._work, *res)
         self._store_terms(e, inside, logs)
-        return l1, mx, self.barrier_value(v, mu)
+        if e.terms[0] is None:
+            return l1, mx, np.inf
+        logs, damped = e.terms          # barrier_value's formula
+        return l1, mx, -mu * logs + KAPPA_D * mu * damped
 
     def barrier_value(self, v, mu):
         """The barrier terms of phi_mu at v (eq. (3) with the damping of sec. 3.7); +inf outside

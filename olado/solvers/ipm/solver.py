@@ -219,7 +219,7 @@ def objective_gradient(pt, s_obj):
 def full_multipliers(L, st):
     """(Lg (N, r), LgN (rN,)): the equality and inequality multipliers in the problem's order."""
     if not L.rows:
-        return np.zeros((L.N, 0)), np.zeros(0)
+        return L.no_rows[0], L.no_rows[1]       # empty: shared
     Lg = np.zeros((L.N, L.eq.size))
     Lg[:, L.eq], Lg[:, L.ineq] = st.nu, st.yd
     LgN = np.zeros(L.eqN.size)
@@ -391,9 +391,7 @@ def constraint_blocks(setup, pt, Ss, SsN):
     """The iteration's :class:`Constraints` from the constraint Jacobians at pt."""
     L = setup.layout
     if not L.rows:
-        N, n, m = L.N, L.n, L.m
-        return Constraints(np.zeros((N, 0, n)), np.zeros((N, 0, m)), np.zeros((0, n)), np.zeros((N, 0, n + m)),
-                           np.zeros((0, n)), Ss, SsN)
+        return Constraints(*L.no_constraint_rows, Ss, SsN)
     Ci = np.ascontiguousarray(np.concatenate([pt.Cx[:, L.ineq], pt.Cu[:, L.ineq]], axis=2))
     return Constraints(np.ascontiguousarray(pt.Cx[:, L.eq]), np.ascontiguousarray(pt.Cu[:, L.eq]),
                        np.ascontiguousarray(pt.CN[L.eqN]), Ci, np.ascontiguousarray(pt.CN[L.ineqN]), Ss, SsN)
