@@ -14,6 +14,7 @@ import numpy as np
 
 #: kappa_d of sec. 3.7: the linear damping of variables with one finite bound only
 KAPPA_D = 1e-5
+EPS = float(np.finfo(float).eps)
 
 
 def dot(a, b):
@@ -256,24 +257,25 @@ class Bounds:
                                                 self.has_hi, -tau, tau, dv)
         return dv, alpha_max, tiny
 
-    def step_multipliers(self, slacks, v_new, dv, zl, zu, mu, tau, kappa_sigma=1e10):
-        """The bound multipliers after a step from the point of ``slacks`` (its :meth:`slacks`)
-        to v_new along dv: :meth:`dual_step_length`, :meth:`move_tiny` at v_new, then
-        :meth:`safeguard_step` there, in one compiled pass (kernels.step_bound_multipliers).
-        Returns (z_L, z_U, alpha_z); the slacks at v_new are cached with it."""
+    def step_multipliers(self, slacks, v_new, dv, zl, zu, mu, tau, lam, lam_step, alpha, kappa_sigma=1e10):
+        """The multipliers after a step from the point of ``slacks`` (its :meth:`slacks`) to v_new
+        along dv: the bound multipliers by :meth:`dual_step_length`, :meth:`move_tiny` at v_new,
+        then :meth:`safeguard_step` there, and lam + alpha (lam_step - lam) (the dynamics
+        multipliers' step), in one compiled pass (kernels.step_bound_multipliers). Returns (z_L,
+        z_U, alpha_z, the new lam); the slacks at v_new are cached with it."""
         sl, su = slacks
         sl_new, su_new, zl_new, zu_new = (np.empty_like(v_new) for _ in range(4))
-        eps = np.finfo(float).eps
+        lam_new = np.empty(lam.shape)
         alpha_z, moved = _kernels().step_bound_multipliers(sl, su, v_new, dv, self.lo, self.hi, self.has_lo,
-                                                           self.has_hi, zl, zu, mu, -tau, eps, eps ** 0.75,
+                                                           self.has_hi, zl, zu, mu, -tau, EPS, EPS ** 0.75,
                                                            kappa_sigma, kappa_sigma * mu, sl_new, su_new, zl_new,
-                                                           zu_new)
+                                                           zu_new, lam, lam_step, alpha, lam_new)
         if moved:
             self._points = []          # the slacks changed with the bounds
         e = self.at(v_new)
         if e.slacks is None:
             e.slacks = sl_new, su_new
-        return zl_new, zu_new, alpha_z
+        return zl_new, zu_new, alpha_z, lam_new
 
     def dual_step_length(self, v, dv, zl, zu, mu, tau):
         """(dz_L, dz_U, alpha_z): :meth:`dual_step` and the smaller of the two sides'

@@ -425,12 +425,16 @@ def step_terms(dX, dU, ds, dsN, v, sl, su, has_lo, has_hi, neg_tau, tau, dv):
 
 @nb.njit(**_JIT)
 def step_bound_multipliers(sl, su, v_new, dv, lo, hi, has_lo, has_hi, zl, zu, mu, neg_tau, eps, move, kappa_sigma,
-                           ks_mu, sl_new, su_new, zl_new, zu_new):
+                           ks_mu, sl_new, su_new, zl_new, zu_new, lam, lam_step, alpha, lam_new):
     """The bound side of solver.take_step in one call: ``dual_step_lengths`` at the old slacks
     (sl, su; the steps dz held in zl_new, zu_new), alpha_z = min(min(1, r_l), min(1, r_u)) (Python's
     min, as barrier.Bounds.dual_step_length), ``move_tiny`` at v_new (lo, hi in place), the slacks
     at v_new (after the move) into sl_new, su_new and ``safeguard_step`` of z + alpha_z dz there
-    into zl_new, zu_new. Returns (alpha_z, the number of bound sides moved)."""
+    into zl_new, zu_new; and the dynamics multipliers' step lam_new = lam + alpha (lam_step - lam)
+    (the numpy expression's operations). Returns (alpha_z, the number of bound sides moved)."""
+    lf, sf, nf = lam.ravel(), lam_step.ravel(), lam_new.ravel()
+    for i in range(nf.size):
+        nf[i] = lf[i] + alpha * (sf[i] - lf[i])
     r_l, r_u = dual_step_lengths(sl, su, zl, zu, dv, has_lo, has_hi, mu, neg_tau, zl_new, zu_new)
     alpha_z = _py_min(_py_min(1.0, r_l), _py_min(1.0, r_u))
     moved = move_tiny(v_new, lo, hi, has_lo, has_hi, eps, move)

@@ -726,8 +726,6 @@ def take_step(setup, st, accepted):
     b = setup.bounds
     v_new, pt_new, dv, step, alpha, soc = accepted
     slacks = b.slacks(st.v)     # the step of the bound multipliers is taken at the old point's
-    if st.lam.size:
-        st.lam = st.lam + alpha * (step.lam - st.lam)
     if setup.layout.rows:
         for name in ("nu", "nuN", "yd", "ydN"):
             old = getattr(st, name)
@@ -735,9 +733,13 @@ def take_step(setup, st, accepted):
                 setattr(st, name, old + alpha * (getattr(step, name) - old))
     st.v, st.pt = v_new, pt_new
     st.pt.add_derivatives(setup.problem)
-    # dz and the step of both sides (dz = 0 off the bounds: Bounds.dual_step_length), the bounds
-    # moved (Bounds.move_tiny) and the safeguard (Bounds.safeguard_step) in one compiled pass
-    st.zl, st.zu, alpha_z = b.step_multipliers(slacks, v_new, dv, st.zl, st.zu, st.mu, st.tau)
+    # lam + alpha (lam^+ - lam), dz and the step of both sides (dz = 0 off the bounds:
+    # Bounds.dual_step_length), the bounds moved (Bounds.move_tiny) and the safeguard
+    # (Bounds.safeguard_step) in one compiled pass
+    st.zl, st.zu, alpha_z, lam = b.step_multipliers(slacks, v_new, dv, st.zl, st.zu, st.mu, st.tau, st.lam, step.lam,
+                                                    alpha)
+    if lam.size:                # an empty one stays
+        st.lam = lam
     return alpha, alpha_z, soc
 
 

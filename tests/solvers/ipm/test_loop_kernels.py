@@ -153,7 +153,10 @@ def test_step_bound_multipliers_are_the_separate_steps(shape, seed):
             want = ref.safeguard_step(v_new, zl, zu, dzl, dzu, alpha_z, mu)
             for x, y in zip(want, ref_safeguard(ref, v_new, zl + alpha_z * rl, zu + alpha_z * ru, mu)):
                 assert _same(x, y)
-            got_l, got_u, got_a = b.step_multipliers(b.slacks(v), v_new, dv, zl, zu, mu, tau)
+            lam, lam_step = rng.normal(size=(L.N + 1, L.n)), _special_nd(rng, rng.normal(size=(L.N + 1, L.n)))
+            got_l, got_u, got_a, got_lam = b.step_multipliers(b.slacks(v), v_new, dv, zl, zu, mu, tau, lam, lam_step,
+                                                              0.3)
+            assert _same(got_lam, lam + 0.3 * (lam_step - lam))
         assert _same_float(got_a, alpha_z)
         assert _same(got_l, want[0]) and _same(got_u, want[1])
         assert _same(b.lo, ref.lo) and _same(b.hi, ref.hi)
@@ -183,14 +186,41 @@ def _reference_step_terms(self, v, step, tau):
 
 
 @np.errstate(all="ignore")
-def _reference_step_multipliers(self, slacks, v_new, dv, zl, zu, mu, tau, kappa_sigma=1e10):
+def _reference_step_multipliers(self, slacks, v_new, dv, zl, zu, mu, tau, lam, lam_step, alpha, kappa_sigma=1e10):
     sl, su = slacks
     rl = np.where(self.has_lo, mu / sl - zl - zl / sl * dv, 0.0)
     ru = np.where(self.has_hi, mu / su - zu + zu / su * dv, 0.0)
     alpha_z = min(ref_max_dual_step(zl, rl, tau), ref_max_dual_step(zu, ru, tau))
     self.move_tiny(v_new)
     out = ref_safeguard(self, v_new, zl + alpha_z * rl, zu + alpha_z * ru, mu, kappa_sigma)
-    return out[0], out[1], alpha_z
+    return out[0], out[1], alpha_z, lam + alpha * (lam_step - lam)
+
+
+def _reference_iterate_errors(setup, st):
+    """solver.iterate_errors by its parts: einsum's products, the dual infeasibility's own pass
+    (kernels.dual_infeasibility, itself checked against numpy in test_barrier_kernels) and the
+    numpy complementarity at mu = 0 and at the iterate's mu."""
+    from test_barrier_kernels import ref_complementarity
+
+    p, pt, b = setup.problem, st.pt, setup.bounds
+    lam = st.lam[1:]
+    EA, EB = np.einsum("kij,ki->kj", pt.A, lam), np.einsum("kij,ki->kj", pt.B, lam)
+    ECx, ECu, CNL = EA, EB, pt.lN
+    if p.r or p.rN:
+        Lg, LgN = S.full_multipliers(setup.layout, st)
+        if p.r:
+            ECx, ECu = np.einsum("kij,ki->kj", pt.Cx, Lg), np.einsum("kij,ki->kj", pt.Cu, Lg)
+        if p.rN:
+            CNL = pt.CN.T @ LgN
+    mx, zsum, ysum = kernels.dual_infeasibility(float(st.s_obj), pt.lx, pt.lu, pt.lN, EA, EB, lam, ECx, ECu, CNL,
+                                                bool(p.r), bool(p.rN), st.yd, st.ydN, st.zl, st.zu, st.nu, st.nuN)
+    with np.errstate(all="ignore"):
+        compl = tuple(ref_complementarity(b, st.v, st.zl, st.zu, mu) for mu in (0.0, st.mu))
+    return (float(mx), float(zsum), float(ysum)), compl
+
+
+def _reference_newton_terms(setup, st):
+    return (*setup.bounds.sigma_blocks(st.v, st.zl, st.zu, setup.layout), S.barrier_gradient(setup, st))
 
 
 def _history(result):
@@ -215,6 +245,8 @@ def test_a_solve_takes_the_reference_iterates(problem, monkeypatch):
         mp.setattr(S, "_trial", _reference_trial)
         mp.setattr(Bounds, "step_terms", _reference_step_terms)
         mp.setattr(Bounds, "step_multipliers", _reference_step_multipliers)
+        mp.setattr(S, "iterate_errors", _reference_iterate_errors)
+        mp.setattr(S, "_newton_terms", _reference_newton_terms)
         ref = solver.solve(problem())
     assert fast.status == ref.status and fast.iterations == ref.iterations
     assert _history(fast) == _history(ref)
