@@ -253,8 +253,8 @@ def dual_terms(setup, st):
     return iterate_errors(setup, st)[0]
 
 
-def iterate_errors(setup, st):
-    """(:func:`dual_terms`, (complementarity at mu = 0, at the iterate's mu)) in one compiled pass
+def iterate_errors(setup, st, mu=None):
+    """(:func:`dual_terms`, (complementarity at mu = 0, at mu: the iterate's unless given)) in one compiled pass
     (kernels.error_pass: the stage products A^T lam, B^T lam where :func:`_plain_products` says
     einsum's order is the plain one, the dual infeasibility, kernels.dual_infeasibility, and the
     complementarity, Bounds.complementarities); the products with the constraint rows by numpy."""
@@ -276,7 +276,7 @@ def iterate_errors(setup, st):
     sl, su = b.slacks(st.v)
     mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1 = _kernels().error_pass(
         float(st.s_obj), pt.lx, pt.lu, pt.lN, pt.A, pt.B, EA, EB, products, lam, ECx, ECu, CNL, bool(p.r), bool(p.rN),
-        st.yd, st.ydN, st.zl, st.zu, st.nu, st.nuN, sl, su, b.has_lo, b.has_hi, 0.0, float(st.mu))
+        st.yd, st.ydN, st.zl, st.zu, st.nu, st.nuN, sl, su, b.has_lo, b.has_hi, 0.0, float(st.mu if mu is None else mu))
     return ((float(mx), float(zsum), float(ysum)),
             (_sides_max(n_lo, m_lo, n_hi, m_hi), _sides_max(n_lo, m_lo1, n_hi, m_hi1)))
 
@@ -288,17 +288,6 @@ def _plain_products(A, B, lam):
     n, m = B.shape[1], B.shape[2]
     return (n >= 2 and m >= 2 and A.dtype == np.float64 and B.dtype == np.float64 and lam.dtype == np.float64
             and A.flags.c_contiguous and B.flags.c_contiguous and lam.flags.c_contiguous)
-
-
-def _stage_products(A, B, lam):
-    """(np.einsum("kij,ki->kj", A, lam), the same of B): kernels.stage_products where
-    :func:`_plain_products`, else einsum."""
-    if _plain_products(A, B, lam):
-        N, n, m = B.shape
-        EA, EB = np.empty((N, n)), np.empty((N, m))
-        _kernels().stage_products(A, B, lam, EA, EB)
-        return EA, EB
-    return np.einsum("kij,ki->kj", A, lam), np.einsum("kij,ki->kj", B, lam)
 
 
 #: the iterate's parts the optimality error reads (with s_obj)
@@ -333,8 +322,9 @@ def error_terms(setup, st) -> ErrorTerms:
 def complementarity(setup, st, mu):
     """max |s z - mu| over the finite sides at the iterate (Bounds.complementarity). The stopping
     test (mu = 0) and the barrier update (the iterate's mu) ask at the same iterate: both are
-    computed in one pass (Bounds.complementarities) and kept until the slacks (the point, or the
-    bounds moved) or the bound multipliers change."""
+    computed in one pass (:func:`iterate_errors`, with the error terms) and kept until the slacks
+    (the point, or the bounds moved) or the bound multipliers change; another mu (the barrier
+    update lowered it) takes that pass again (no kernel of its own to compile)."""
     b = setup.bounds
     slacks = b.slacks(st.v)
     c = st.compl_cache
@@ -342,7 +332,7 @@ def complementarity(setup, st, mu):
         c = st.compl_cache = (slacks, st.zl, st.zu, {})
     values = c[3]
     if mu not in values:
-        values[mu], values[st.mu] = b.complementarities(st.v, st.zl, st.zu, mu, st.mu)
+        values[mu] = iterate_errors(setup, st, mu)[1][1]
     return values[mu]
 
 

@@ -196,7 +196,7 @@ def _reference_step_multipliers(self, slacks, v_new, dv, zl, zu, mu, tau, lam, l
     return out[0], out[1], alpha_z, lam + alpha * (lam_step - lam)
 
 
-def _reference_iterate_errors(setup, st):
+def _reference_iterate_errors(setup, st, mu=None):
     """solver.iterate_errors by its parts: einsum's products, the dual infeasibility's own pass
     (kernels.dual_infeasibility, itself checked against numpy in test_barrier_kernels) and the
     numpy complementarity at mu = 0 and at the iterate's mu."""
@@ -215,7 +215,7 @@ def _reference_iterate_errors(setup, st):
     mx, zsum, ysum = kernels.dual_infeasibility(float(st.s_obj), pt.lx, pt.lu, pt.lN, EA, EB, lam, ECx, ECu, CNL,
                                                 bool(p.r), bool(p.rN), st.yd, st.ydN, st.zl, st.zu, st.nu, st.nuN)
     with np.errstate(all="ignore"):
-        compl = tuple(ref_complementarity(b, st.v, st.zl, st.zu, mu) for mu in (0.0, st.mu))
+        compl = tuple(ref_complementarity(b, st.v, st.zl, st.zu, m) for m in (0.0, st.mu if mu is None else mu))
     return (float(mx), float(zsum), float(ysum)), compl
 
 
@@ -288,9 +288,9 @@ def _sequential_products(A, lam):
 
 @pytest.mark.parametrize("seed", range(40))
 def test_stage_products_are_the_sequential_sums_and_einsums(seed):
-    """solver._stage_products: the compiled pass equals the sequential sums (the reference) and,
-    where it is used, numpy's einsum (whose order it follows); einsum elsewhere (one-entry rows,
-    non-contiguous operands)."""
+    """kernels.stage_products equals the sequential sums (the reference) and, where the solver
+    uses it (solver._plain_products), numpy's einsum (whose order it follows there); one-entry
+    rows and non-contiguous operands go to einsum."""
     rng = np.random.default_rng(seed)
     N, n, m = int(rng.integers(1, 40)), int(rng.integers(1, 12)), int(rng.integers(1, 12))
     if seed < 4:
@@ -300,10 +300,13 @@ def test_stage_products_are_the_sequential_sums_and_einsums(seed):
     lam = (rng.normal(size=(N + 1, n)) * 10.0 ** rng.integers(-8, 8, size=(N + 1, n)))[1:]
     if seed == 5:
         A = np.ascontiguousarray(A.transpose(0, 2, 1)).transpose(0, 2, 1)      # not C-contiguous: einsum
-    EA, EB = S._stage_products(A, B, lam)
-    assert np.array_equal(EA, np.einsum("kij,ki->kj", A, lam)) and np.array_equal(EB, np.einsum("kij,ki->kj", B, lam))
-    if n >= 2 and m >= 2 and seed != 5:
-        assert np.array_equal(EA, _sequential_products(A, lam)) and np.array_equal(EB, _sequential_products(B, lam))
-    A0, B0, l0 = np.zeros((0, n, n)), np.zeros((0, n, m)), np.zeros((0, n))
-    EA, EB = S._stage_products(A0, B0, l0)
-    assert EA.shape == (0, n) and EB.shape == (0, m)
+    plain = S._plain_products(A, B, lam)
+    assert plain == (n >= 2 and m >= 2 and seed != 5)
+    EA, EB = np.full((N, n), np.nan), np.full((N, m), np.nan)
+    kernels.stage_products(np.ascontiguousarray(A), B, lam, EA, EB)
+    assert np.array_equal(EA, _sequential_products(A, lam)) and np.array_equal(EB, _sequential_products(B, lam))
+    if plain:       # where the solver takes the compiled products: einsum's own values
+        assert np.array_equal(EA, np.einsum("kij,ki->kj", A, lam))
+        assert np.array_equal(EB, np.einsum("kij,ki->kj", B, lam))
+    EA, EB = np.empty((0, n)), np.empty((0, m))
+    kernels.stage_products(np.zeros((0, n, n)), np.zeros((0, n, m)), np.zeros((0, n)), EA, EB)
