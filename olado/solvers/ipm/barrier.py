@@ -15,6 +15,12 @@ import numpy as np
 #: kappa_d of sec. 3.7: the linear damping of variables with one finite bound only
 KAPPA_D = 1e-5
 EPS = float(np.finfo(float).eps)
+#: empty residual arrays (h, e, eN, d, dN) for kernels.point_terms without residuals, and an empty
+#: point (v, lo, hi, has_lo, has_hi, sl, su, work) for it without a point: the one compiled pass
+#: serves the barrier terms, the residual norms (newton.Residuals.norms) and both at a trial point
+NO_RESIDUALS = (np.zeros((0, 0)), np.zeros((0, 0)), np.zeros(0), np.zeros((0, 0)), np.zeros(0))
+NO_POINT = (np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0, dtype=bool), np.zeros(0, dtype=bool), np.zeros(0),
+            np.zeros(0), np.zeros(0))
 
 
 def dot(a, b):
@@ -163,10 +169,12 @@ class Bounds:
         e = self.at(v)
         if e.terms is None:
             # the slacks (cached with the point) and np.log(sl).sum() + np.log(su).sum() in one
-            # compiled pass (kernels.barrier_logs: numpy's sums); log(1) = 0 on the infinite sides
+            # compiled pass (kernels.barrier_logs in kernels.point_terms, here without residuals:
+            # numpy's sums); log(1) = 0 on the infinite sides
             self._prepare(e, v)
-            self._store_terms(e, *_kernels().barrier_logs(v, self.lo, self.hi, self.has_lo, self.has_hi, *e.slacks,
-                                                          self._work))
+            _, _, inside, logs = _kernels().point_terms(v, self.lo, self.hi, self.has_lo, self.has_hi, *e.slacks,
+                                                        self._work, *NO_RESIDUALS)
+            self._store_terms(e, inside, logs)
         return None if e.terms[0] is None else e.terms
 
     def _prepare(self, e, v):

@@ -90,10 +90,11 @@ class Residuals(NamedTuple):
         return self.norms()[1]
 
     def norms(self):
-        """(l1, max) in one compiled pass."""
-        from .barrier import _kernels    # noqa: PLC0415 - numba loaded on first use
+        """(l1, max) in one compiled pass (kernels.residual_norms in kernels.point_terms, here
+        without a point)."""
+        from .barrier import NO_POINT, _kernels    # noqa: PLC0415 - numba loaded on first use
 
-        l1, mx = _kernels().residual_norms(*self)
+        l1, mx, _, _ = _kernels().point_terms(*NO_POINT, *self)
         return float(l1), float(mx)
 
 
