@@ -14,6 +14,13 @@ import numpy as np
 
 #: kappa_d of sec. 3.7: the linear damping of variables with one finite bound only
 KAPPA_D = 1e-5
+EPS = float(np.finfo(float).eps)
+#: empty residual arrays (h, e, eN, d, dN) for kernels.point_terms without residuals, and an empty
+#: point (v, lo, hi, has_lo, has_hi, sl, su, work) for it without a point: the one compiled pass
+#: serves the barrier terms, the residual norms (newton.Residuals.norms) and both at a trial point
+NO_RESIDUALS = (np.zeros((0, 0)), np.zeros((0, 0)), np.zeros(0), np.zeros((0, 0)), np.zeros(0))
+NO_POINT = (np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0, dtype=bool), np.zeros(0, dtype=bool), np.zeros(0),
+            np.zeros(0), np.zeros(0))
 
 
 def dot(a, b):
@@ -41,6 +48,10 @@ class Layout:
         self.rows = bool(self.eq.size or self.eqN.size)
         #: the (empty) residual arrays of the constraint rows of a problem without any
         self.no_rows = (np.zeros((self.N, 0)), np.zeros(0), np.zeros((self.N, 0)), np.zeros(0))
+        #: the (empty) Jacobian rows E, F, EN, Ci, CNi of newton.Constraints without any
+        N, n, m = self.N, self.n, self.m
+        self.no_constraint_rows = (np.zeros((N, 0, n)), np.zeros((N, 0, m)), np.zeros((0, n)), np.zeros((N, 0, n + m)),
+                                   np.zeros((0, n)))
 
     def pack(self, X, U, s=None, sN=None):
         parts = [X[1:].ravel(), U.ravel()]
@@ -100,6 +111,8 @@ class Bounds:
         self.one_lo_f = (self.has_lo & ~self.has_hi).astype(float)
         self.one_hi_f = (self.has_hi & ~self.has_lo).astype(float)
         self.one_sided = bool(self.one_lo_f.any() or self.one_hi_f.any())
+        #: the number of finite sides (the masks never change; lo, hi may be moved or replaced)
+        self._count = int(self.has_lo.sum() + self.has_hi.sum())
         self._work = None
         #: what depends on the point alone, for the two points last asked about (:class:`AtPoint`)
         self._points = []
@@ -118,7 +131,7 @@ class Bounds:
 
     @property
     def count(self):
-        return int(self.has_lo.sum() + self.has_hi.sum())
+        return self._count
 
     def push(self, v, kappa1=1e-2, kappa2=1e-2):
         """The starting point moved strictly inside the bounds (sec. 3.6, IPOPT's bound_push and
@@ -156,20 +169,46 @@ class Bounds:
         e = self.at(v)
         if e.terms is None:
             # the slacks (cached with the point) and np.log(sl).sum() + np.log(su).sum() in one
-            # compiled pass (kernels.barrier_logs: numpy's sums); log(1) = 0 on the infinite sides
-            if e.slacks is None:
-                e.slacks = np.empty_like(v), np.empty_like(v)
-            if self._work is None or self._work.size != v.size:
-                self._work = np.empty_like(v)
-            inside, logs = _kernels().barrier_logs(v, self.lo, self.hi, self.has_lo, self.has_hi, *e.slacks, self._work)
-            if not inside:
-                e.terms = (None,)
-            else:
-                sl, su = e.slacks
-                # 1/1 times a zero mask on the infinite sides; exactly 0 without one-sided bounds
-                damped = dot(self.one_lo_f, sl) + dot(self.one_hi_f, su) if self.one_sided else 0.0
-                e.terms = (logs, damped)
+            # compiled pass (kernels.barrier_logs in kernels.point_terms, here without residuals:
+            # numpy's sums); log(1) = 0 on the infinite sides
+            self._prepare(e, v)
+            _, _, inside, logs = _kernels().point_terms(v, self.lo, self.hi, self.has_lo, self.has_hi, *e.slacks,
+                                                        self._work, *NO_RESIDUALS)
+            self._store_terms(e, inside, logs)
         return None if e.terms[0] is None else e.terms
+
+    def _prepare(self, e, v):
+        """The slack arrays of the point's entry and the work array, allocated once."""
+        if e.slacks is None:
+            e.slacks = np.empty_like(v), np.empty_like(v)
+        if self._work is None or self._work.size != v.size:
+            self._work = np.empty_like(v)
+
+    def _store_terms(self, e, inside, logs):
+        """The entry's barrier terms from barrier_logs' (inside, sum of logs) and its slacks."""
+        if not inside:
+            e.terms = (None,)
+        else:
+            sl, su = e.slacks
+            # 1/1 times a zero mask on the infinite sides; exactly 0 without one-sided bounds
+            damped = dot(self.one_lo_f, sl) + dot(self.one_hi_f, su) if self.one_sided else 0.0
+            e.terms = (logs, damped)
+
+    def point_terms(self, v, res, mu):
+        """(l1, max) of the residual arrays ``res`` (newton.Residuals) and :meth:`barrier_value`
+        at v (the barrier terms cached with the point, as :meth:`barrier_terms`), in one compiled
+        pass (kernels.point_terms) for a new point -- the line search's trial point."""
+        e = self.at(v)
+        if e.terms is not None:
+            return (*res.norms(), self.barrier_value(v, mu))
+        self._prepare(e, v)
+        l1, mx, inside, logs = _kernels().point_terms(v, self.lo, self.hi, self.has_lo, self.has_hi, *e.slacks,
+                                                      self._work, *res)
+        self._store_terms(e, inside, logs)
+        if e.terms[0] is None:
+            return l1, mx, np.inf
+        logs, damped = e.terms          # barrier_value's formula
+        return l1, mx, -mu * logs + KAPPA_D * mu * damped
 
     def barrier_value(self, v, mu):
         """The barrier terms of phi_mu at v (eq. (3) with the damping of sec. 3.7); +inf outside
@@ -216,6 +255,36 @@ class Bounds:
         a_lo, a_hi = _kernels().max_step(sl, su, dv, self.has_lo, self.has_hi, -tau, tau)
         return min(1.0, float(a_lo), float(a_hi))
 
+    def step_terms(self, v, step, tau):
+        """(dv, alpha_max, tiny) of a Newton step (newton.Step) at v in one compiled pass
+        (kernels.step_terms): dv = Layout.pack(step.dX, step.dU, step.ds, step.dsN), alpha_max
+        = :meth:`max_step` (v, dv, tau), tiny = max |dv| / (1 + |v|) (IPOPT's tiny step test)."""
+        sl, su = self.slacks(v)
+        dv = np.empty_like(v)
+        alpha_max, tiny = _kernels().step_terms(step.dX, step.dU, step.ds, step.dsN, v, sl, su, self.has_lo,
+                                                self.has_hi, -tau, tau, dv)
+        return dv, alpha_max, tiny
+
+    def step_multipliers(self, slacks, v_new, dv, zl, zu, mu, tau, lam, lam_step, alpha, kappa_sigma=1e10):
+        """The multipliers after a step from the point of ``slacks`` (its :meth:`slacks`) to v_new
+        along dv: the bound multipliers by :meth:`dual_step_length`, :meth:`move_tiny` at v_new,
+        then :meth:`safeguard_step` there, and lam + alpha (lam_step - lam) (the dynamics
+        multipliers' step), in one compiled pass (kernels.step_bound_multipliers). Returns (z_L,
+        z_U, alpha_z, the new lam); the slacks at v_new are cached with it."""
+        sl, su = slacks
+        sl_new, su_new, zl_new, zu_new = (np.empty_like(v_new) for _ in range(4))
+        lam_new = np.empty(lam.shape)
+        alpha_z, moved = _kernels().step_bound_multipliers(sl, su, v_new, dv, self.lo, self.hi, self.has_lo,
+                                                           self.has_hi, zl, zu, mu, -tau, EPS, EPS ** 0.75,
+                                                           kappa_sigma, kappa_sigma * mu, sl_new, su_new, zl_new,
+                                                           zu_new, lam, lam_step, alpha, lam_new)
+        if moved:
+            self._points = []          # the slacks changed with the bounds
+        e = self.at(v_new)
+        if e.slacks is None:
+            e.slacks = sl_new, su_new
+        return zl_new, zu_new, alpha_z, lam_new
+
     def dual_step_length(self, v, dv, zl, zu, mu, tau):
         """(dz_L, dz_U, alpha_z): :meth:`dual_step` and the smaller of the two sides'
         :meth:`max_dual_step` in one compiled pass."""
@@ -254,9 +323,22 @@ class Bounds:
 
     def complementarity(self, v, zl, zu, mu):
         """max |s z - mu| over the finite sides (the complementarity part of eq. (5))."""
+        return self.complementarities(v, zl, zu, mu, mu)[0]
+
+    def complementarities(self, v, zl, zu, mu, mu1):
+        """:meth:`complementarity` for two barrier parameters, in one compiled pass."""
         sl, su = self.slacks(v)
-        n_lo, m_lo, n_hi, m_hi = _kernels().complementarity(sl, su, zl, zu, self.has_lo, self.has_hi, mu)
-        return max((float(m) for n, m in ((n_lo, m_lo), (n_hi, m_hi)) if n), default=0.0)
+        n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1 = _kernels().complementarity(sl, su, zl, zu, self.has_lo, self.has_hi,
+                                                                          mu, mu1)
+        return _sides_max(n_lo, m_lo, n_hi, m_hi), _sides_max(n_lo, m_lo1, n_hi, m_hi1)
+
+
+def _sides_max(n_lo, m_lo, n_hi, m_hi):
+    """max((m for n, m in ((n_lo, m_lo), (n_hi, m_hi)) if n), default=0.0): Python's max (a later
+    value replaces only a smaller one, so a NaN first stays)."""
+    if not n_lo:
+        return float(m_hi) if n_hi else 0.0
+    return float(m_hi) if n_hi and m_hi > m_lo else float(m_lo)
 
 
 _KERNEL_MODULE = None

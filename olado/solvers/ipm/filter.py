@@ -21,6 +21,7 @@ derivative g = grad phi . d:
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
@@ -95,20 +96,25 @@ class Filter:
         the barrier function rising by more than obj_max_inc orders of magnitude, the decrease
         with respect to the current point, then the filter; and the filter reset heuristic."""
         c = self.const
-        if not np.isfinite(phi_t) or theta_t > self.theta_max:
+        if not math.isfinite(phi_t) or theta_t > self.theta_max:
             return False, False
-        switching = self.switching(alpha, theta, gphi)
+        # switching (19), the Armijo test (20), the decrease (18) and acceptable() inline (the
+        # line search asks once per trial point)
+        switching = gphi < 0 and alpha * (-gphi) ** c.s_phi > c.delta * theta ** c.s_theta
         armijo = bool(phi_t <= phi + c.eta_phi * alpha * gphi)
         if theta <= self.theta_min and switching:
             ok = armijo
-        else:
+        elif phi_t > phi:
             ok = self._decrease(theta, phi, theta_t, phi_t)
+        else:
+            ok = theta_t <= (1.0 - c.gamma_theta) * theta or phi_t <= phi - c.gamma_phi * theta
         if not ok:
             self.rejected_by_filter = False
             return False, False
-        if not self.acceptable(theta_t, phi_t):
-            self.rejected_by_filter = True
-            return False, False
+        for tj, pj in self.entries:
+            if not (theta_t < tj or phi_t < pj):
+                self.rejected_by_filter = True
+                return False, False
         self._reset_heuristic()
         return True, switching and armijo
 

@@ -114,18 +114,23 @@ def _max(r, a):
 
 
 @nb.njit(**_JIT)
-def complementarity(sl, su, zl, zu, has_lo, has_hi, mu):
-    """(count, max) of |s_L z_L - mu| over has_lo and of |s_U z_U - mu| over has_hi (max -inf when
-    the count is 0)."""
-    n_lo, n_hi, m_lo, m_hi = 0, 0, -np.inf, -np.inf
+def complementarity(sl, su, zl, zu, has_lo, has_hi, mu, mu1):
+    """(count, max for mu, max for mu1) of |s_L z_L - mu| over has_lo, then the same of
+    |s_U z_U - mu| over has_hi (a max is -inf when its count is 0): two barrier parameters in one
+    pass (the stopping test's mu = 0 and the barrier update's)."""
+    n_lo, n_hi, m_lo, m_hi, m_lo1, m_hi1 = 0, 0, -np.inf, -np.inf, -np.inf, -np.inf
     for i in range(sl.size):
         if has_lo[i]:
-            m_lo = _max(m_lo, abs(sl[i] * zl[i] - mu))
+            p = sl[i] * zl[i]
+            m_lo = _max(m_lo, abs(p - mu))
+            m_lo1 = _max(m_lo1, abs(p - mu1))
             n_lo += 1
         if has_hi[i]:
-            m_hi = _max(m_hi, abs(su[i] * zu[i] - mu))
+            p = su[i] * zu[i]
+            m_hi = _max(m_hi, abs(p - mu))
+            m_hi1 = _max(m_hi1, abs(p - mu1))
             n_hi += 1
-    return n_lo, m_lo, n_hi, m_hi
+    return n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1
 
 
 @nb.njit(inline="always")
@@ -350,3 +355,148 @@ def tiny_step(dv, v):
     for i in range(v.size):
         r = _max(r, abs(dv[i]) / (1.0 + abs(v[i])))
     return r
+
+
+# ---------------------------------------------------------------------------- the loop's fused passes
+# (solver.py: one call each for the trial point, its measures, the step's line-search terms and the
+# step taken; their callees are this file's kernels, so their caches stay in step with them)
+
+
+@nb.njit(**_JIT)
+def trial_point(v, dv, alpha, x0, v_t, X, U):
+    """v_t = v + alpha dv, and (X, U) of barrier.Layout.states_controls(v_t): X[0] = x0, X[1:] and
+    U the first N n and the next N m entries of v_t."""
+    for i in range(v.size):
+        v_t[i] = v[i] + alpha * dv[i]
+    N1, n = X.shape
+    m = U.shape[1]
+    for i in range(n):
+        X[0, i] = x0[i]
+    j = 0
+    for k in range(1, N1):
+        for i in range(n):
+            X[k, i] = v_t[j]
+            j += 1
+    for k in range(U.shape[0]):
+        for i in range(m):
+            U[k, i] = v_t[j]
+            j += 1
+
+
+@nb.njit(**_JIT)
+def point_terms(v, lo, hi, has_lo, has_hi, sl, su, logs, h, e, eN, d, dN):
+    """``residual_norms`` of the residual arrays (h, e, eN, d, dN) and ``barrier_logs`` at v in
+    one call: (l1, max, inside, the sum of logs)."""
+    l1, mx = residual_norms(h, e, eN, d, dN)
+    inside, s = barrier_logs(v, lo, hi, has_lo, has_hi, sl, su, logs)
+    return l1, mx, inside, s
+
+
+@nb.njit(inline="always")
+def _py_min(a, b):
+    """Python's min(a, b) of floats: b only when b < a (a NaN b never replaces a, a NaN a stays)."""
+    return b if b < a else a
+
+
+@nb.njit(**_JIT)
+def step_terms(dX, dU, ds, dsN, v, sl, su, has_lo, has_hi, neg_tau, tau, dv):
+    """The step dv = barrier.Layout.pack(dX, dU, ds, dsN) (dX[0] left out), the fraction-to-boundary
+    step min(1, a_lo, a_hi) of ``max_step`` (Python's min, as barrier.Bounds.max_step) and
+    ``tiny_step`` (dv, v); returns (alpha_max, tiny)."""
+    j = 0
+    for k in range(1, dX.shape[0]):
+        for i in range(dX.shape[1]):
+            dv[j] = dX[k, i]
+            j += 1
+    for k in range(dU.shape[0]):
+        for i in range(dU.shape[1]):
+            dv[j] = dU[k, i]
+            j += 1
+    for k in range(ds.shape[0]):
+        for i in range(ds.shape[1]):
+            dv[j] = ds[k, i]
+            j += 1
+    for i in range(dsN.size):
+        dv[j] = dsN[i]
+        j += 1
+    a_lo, a_hi = max_step(sl, su, dv, has_lo, has_hi, neg_tau, tau)
+    return _py_min(_py_min(1.0, a_lo), a_hi), tiny_step(dv, v)
+
+
+@nb.njit(**_JIT)
+def step_bound_multipliers(sl, su, v_new, dv, lo, hi, has_lo, has_hi, zl, zu, mu, neg_tau, eps, move, kappa_sigma,
+                           ks_mu, sl_new, su_new, zl_new, zu_new, lam, lam_step, alpha, lam_new):
+    """The bound side of solver.take_step in one call: ``dual_step_lengths`` at the old slacks
+    (sl, su; the steps dz held in zl_new, zu_new), alpha_z = min(min(1, r_l), min(1, r_u)) (Python's
+    min, as barrier.Bounds.dual_step_length), ``move_tiny`` at v_new (lo, hi in place), the slacks
+    at v_new (after the move) into sl_new, su_new and ``safeguard_step`` of z + alpha_z dz there
+    into zl_new, zu_new; and the dynamics multipliers' step lam_new = lam + alpha (lam_step - lam)
+    (the numpy expression's operations). Returns (alpha_z, the number of bound sides moved)."""
+    lf, sf, nf = lam.ravel(), lam_step.ravel(), lam_new.ravel()
+    for i in range(nf.size):
+        nf[i] = lf[i] + alpha * (sf[i] - lf[i])
+    r_l, r_u = dual_step_lengths(sl, su, zl, zu, dv, has_lo, has_hi, mu, neg_tau, zl_new, zu_new)
+    alpha_z = _py_min(_py_min(1.0, r_l), _py_min(1.0, r_u))
+    moved = move_tiny(v_new, lo, hi, has_lo, has_hi, eps, move)
+    slacks(v_new, lo, hi, has_lo, has_hi, sl_new, su_new)
+    safeguard_step(sl_new, su_new, zl, zu, zl_new, zu_new, alpha_z, has_lo, has_hi, mu, kappa_sigma, ks_mu,
+                   zl_new, zu_new)
+    return alpha_z, moved
+
+
+@nb.njit(**_JIT)
+def shifted_diagonals(Sx, Su, delta, Dx, Du):
+    """The diagonals of newton.KKTMatrix with the shift delta: Dx = Sx + delta with Dx[0] = 0,
+    Du = Su + delta (np.add's sums)."""
+    for i in range(Dx.shape[1]):
+        Dx[0, i] = 0.0
+    for k in range(1, Dx.shape[0]):
+        for i in range(Dx.shape[1]):
+            Dx[k, i] = Sx[k, i] + delta
+    for k in range(Du.shape[0]):
+        for i in range(Du.shape[1]):
+            Du[k, i] = Su[k, i] + delta
+
+
+@nb.njit(**_JIT)
+def stage_products(A, B, lam, EA, EB):
+    """EA = A^T lam, EB = B^T lam per stage (np.einsum("kij,ki->kj", .)): every entry the sum over
+    i in order from 0, one product added at a time -- the order of numpy's einsum for these
+    operands (C-contiguous, an output row of 2 or more entries: its loop runs along the output
+    row, adding A[k, i, :] lam[k, i] for i = 0, 1, ...; with one entry it sums in SIMD lanes
+    instead, and solver.dual_terms keeps einsum then)."""
+    N, n = lam.shape
+    for k in range(N):
+        for j in range(EA.shape[1]):
+            EA[k, j] = 0.0
+        for j in range(EB.shape[1]):
+            EB[k, j] = 0.0
+        for i in range(n):
+            li = lam[k, i]
+            for j in range(EA.shape[1]):
+                EA[k, j] += A[k, i, j] * li
+            for j in range(EB.shape[1]):
+                EB[k, j] += B[k, i, j] * li
+
+
+@nb.njit(**_JIT)
+def error_pass(s_obj, lx, lu, lN, A, B, EA, EB, products, lam, ECx, ECu, CNL, has_r, has_rN, yd, ydN, zl, zu, nu, nuN,
+               sl, su, has_lo, has_hi, mu0, mu1):
+    """The optimality error's passes at an iterate in one call (solver.error_terms): with
+    ``products``, ``stage_products`` (A, B, lam) into EA, EB first; then ``dual_infeasibility``
+    and ``complementarity`` (sl, su, ..., mu0, mu1). Returns (max, z sum, y sum) and the
+    complementarity's (n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1)."""
+    if products:
+        stage_products(A, B, lam, EA, EB)
+    mx, zsum, ysum = dual_infeasibility(s_obj, lx, lu, lN, EA, EB, lam, ECx, ECu, CNL, has_r, has_rN, yd, ydN, zl, zu,
+                                        nu, nuN)
+    n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1 = complementarity(sl, su, zl, zu, has_lo, has_hi, mu0, mu1)
+    return mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1
+
+
+@nb.njit(**_JIT)
+def newton_terms(s_obj, lx, lN, lu, sl, su, zl, zu, has_lo, has_hi, mu, kd_mu, Sx, Su, Ss, SsN, q, r, gs, gsN, grad):
+    """``sigma_blocks`` and ``barrier_direction`` at an iterate in one call (solver.newton_system
+    with the gradient: the Newton matrix's Sigma and the right-hand side)."""
+    sigma_blocks(sl, su, zl, zu, Sx, Su, Ss, SsN)
+    barrier_direction(s_obj, lx, lN, lu, sl, su, has_lo, has_hi, mu, kd_mu, q, r, gs, gsN, grad)

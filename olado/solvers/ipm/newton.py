@@ -90,10 +90,11 @@ class Residuals(NamedTuple):
         return self.norms()[1]
 
     def norms(self):
-        """(l1, max) in one compiled pass."""
-        from .barrier import _kernels    # noqa: PLC0415 - numba loaded on first use
+        """(l1, max) in one compiled pass (kernels.residual_norms in kernels.point_terms, here
+        without a point)."""
+        from .barrier import NO_POINT, _kernels    # noqa: PLC0415 - numba loaded on first use
 
-        l1, mx = _kernels().residual_norms(*self)
+        l1, mx, _, _ = _kernels().point_terms(*NO_POINT, *self)
         return float(l1), float(mx)
 
 
@@ -189,9 +190,9 @@ class KKTMatrix:
     def _diagonals_into(self, delta, Dx, Du):
         """:meth:`_diagonals` written into the back-end's arrays Dx, Du (the same values; no new
         arrays for the back-end to validate); returns the slack rows' weights (None without)."""
-        np.add(self.Sx, delta, out=Dx)
-        Dx[0] = 0.0
-        np.add(self.Su, delta, out=Du)
+        from .barrier import _kernels    # noqa: PLC0415 - numba loaded on first use
+
+        _kernels().shifted_diagonals(self.Sx, self.Su, float(delta), Dx, Du)   # np.add's sums, Dx[0] = 0
         self._final_block(delta)
         c = self.cons
         return c.Ss + delta if c.Ci.shape[1] else None

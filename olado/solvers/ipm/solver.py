@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import operator
 import time
 from typing import NamedTuple
 
@@ -48,7 +47,7 @@ from ..sqp.residuals import stage_kkt
 from ..sqp.state import BoundMultipliers, Clock, Multipliers, Point
 from .adaptive import (FILTER_MARGIN_FACT, FILTER_MAX_MARGIN, MONOTONE_INIT_FACTOR, MU_MAX_FACT, MU_MIN, AdaptiveMu,
                        QualityFunction, average_complementarity, quality_function_sigma)
-from .barrier import KAPPA_D, Bounds, Layout, _kernels, dot
+from .barrier import KAPPA_D, Bounds, Layout, _kernels, _sides_max, dot
 from .filter import Filter
 from .newton import Constraints, KKTMatrix, Residuals, stage_blocks
 from .restoration import Restoration, least_squares_multipliers, restore, restore_l1
@@ -140,6 +139,7 @@ class IPMState(Stoppable):
     infeasibility_certificate: dict = None   # the converged l1 restoration's figures (restoration.restore_l1)
     adaptive: AdaptiveMu = None  # the adaptive mu update's memory (mu_strategy = adaptive)
     error_cache: tuple = None   # (inputs, s_obj, ErrorTerms) of the last error_terms call
+    compl_cache: tuple = None   # (slacks, zl, zu, {mu: complementarity}) of the iterate (complementarity)
 
 
 class Setup:
@@ -219,7 +219,7 @@ def objective_gradient(pt, s_obj):
 def full_multipliers(L, st):
     """(Lg (N, r), LgN (rN,)): the equality and inequality multipliers in the problem's order."""
     if not L.rows:
-        return np.zeros((L.N, 0)), np.zeros(0)
+        return L.no_rows[0], L.no_rows[1]       # empty: shared
     Lg = np.zeros((L.N, L.eq.size))
     Lg[:, L.eq], Lg[:, L.ineq] = st.nu, st.yd
     LgN = np.zeros(L.eqN.size)
@@ -249,11 +249,23 @@ class ErrorTerms(NamedTuple):
 
 def dual_terms(setup, st):
     """(|grad L - z_L + z_U|_inf, |z_L|_1 + |z_U|_1, the constraint multipliers' 1-norm) at the
-    iterate: :func:`lagrangian_gradient`'s arithmetic (the einsum products by numpy, the rest in
-    one compiled pass, kernels.dual_infeasibility), the sums numpy's."""
-    p, pt = setup.problem, st.pt
+    iterate: :func:`lagrangian_gradient`'s arithmetic, the sums numpy's (:func:`iterate_errors`)."""
+    return iterate_errors(setup, st)[0]
+
+
+def iterate_errors(setup, st, mu=None):
+    """(:func:`dual_terms`, (complementarity at mu = 0, at mu: the iterate's unless given)) in one compiled pass
+    (kernels.error_pass: the stage products A^T lam, B^T lam where :func:`_plain_products` says
+    einsum's order is the plain one, the dual infeasibility, kernels.dual_infeasibility, and the
+    complementarity, Bounds.complementarities); the products with the constraint rows by numpy."""
+    p, pt, b = setup.problem, st.pt, setup.bounds
     lam = st.lam[1:]
-    EA, EB = np.einsum("kij,ki->kj", pt.A, lam), np.einsum("kij,ki->kj", pt.B, lam)
+    products = _plain_products(pt.A, pt.B, lam)
+    if products:
+        N, n, m = pt.B.shape
+        EA, EB = np.empty((N, n)), np.empty((N, m))
+    else:
+        EA, EB = np.einsum("kij,ki->kj", pt.A, lam), np.einsum("kij,ki->kj", pt.B, lam)
     ECx, ECu, CNL = EA, EB, pt.lN       # placeholders without stage or final constraints
     if p.r or p.rN:
         Lg, LgN = full_multipliers(setup.layout, st)
@@ -261,9 +273,21 @@ def dual_terms(setup, st):
             ECx, ECu = np.einsum("kij,ki->kj", pt.Cx, Lg), np.einsum("kij,ki->kj", pt.Cu, Lg)
         if p.rN:
             CNL = pt.CN.T @ LgN
-    mx, zsum, ysum = _kernels().dual_infeasibility(float(st.s_obj), pt.lx, pt.lu, pt.lN, EA, EB, lam, ECx, ECu, CNL,
-                                                   bool(p.r), bool(p.rN), st.yd, st.ydN, st.zl, st.zu, st.nu, st.nuN)
-    return float(mx), float(zsum), float(ysum)
+    sl, su = b.slacks(st.v)
+    mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1 = _kernels().error_pass(
+        float(st.s_obj), pt.lx, pt.lu, pt.lN, pt.A, pt.B, EA, EB, products, lam, ECx, ECu, CNL, bool(p.r), bool(p.rN),
+        st.yd, st.ydN, st.zl, st.zu, st.nu, st.nuN, sl, su, b.has_lo, b.has_hi, 0.0, float(st.mu if mu is None else mu))
+    return ((float(mx), float(zsum), float(ysum)),
+            (_sides_max(n_lo, m_lo, n_hi, m_hi), _sides_max(n_lo, m_lo1, n_hi, m_hi1)))
+
+
+def _plain_products(A, B, lam):
+    """Whether np.einsum("kij,ki->kj", .) of A and of B with lam sums in the plain order of
+    kernels.stage_products (C-contiguous float64 operands, rows of two or more entries in both
+    products: einsum's loop then runs along the output row; with one entry it sums in SIMD lanes)."""
+    n, m = B.shape[1], B.shape[2]
+    return (n >= 2 and m >= 2 and A.dtype == np.float64 and B.dtype == np.float64 and lam.dtype == np.float64
+            and A.flags.c_contiguous and B.flags.c_contiguous and lam.flags.c_contiguous)
 
 
 #: the iterate's parts the optimality error reads (with s_obj)
@@ -274,12 +298,17 @@ def error_terms(setup, st) -> ErrorTerms:
     """:class:`ErrorTerms` at the iterate, computed once per iterate: the stopping test and the
     barrier update (several mu) ask for them at the same point. The iterate's arrays are
     replaced, never changed in place, so their identities name the iterate."""
-    key = (st.v, st.pt, st.lam, st.nu, st.nuN, st.yd, st.ydN, st.zl, st.zu)     # ERROR_INPUTS
     cached = st.error_cache
-    if cached is not None and cached[1] == st.s_obj and all(map(operator.is_, cached[0], key)):
-        return cached[2]
+    if cached is not None and cached[1] == st.s_obj:
+        k = cached[0]           # ERROR_INPUTS
+        if (k[0] is st.v and k[1] is st.pt and k[2] is st.lam and k[3] is st.nu and k[4] is st.nuN and k[5] is st.yd
+                and k[6] is st.ydN and k[7] is st.zl and k[8] is st.zu):
+            return cached[2]
+    key = (st.v, st.pt, st.lam, st.nu, st.nuN, st.yd, st.ydN, st.zl, st.zu)
     b = setup.bounds
-    inf_du, zsum, ysum = dual_terms(setup, st)
+    (inf_du, zsum, ysum), (c0, c1) = iterate_errors(setup, st)
+    # the complementarities of the same pass (complementarity's cache)
+    st.compl_cache = (b.slacks(st.v), st.zl, st.zu, {0.0: c0, st.mu: c1})
     inf_pr = residual_norms(setup, st.pt, st.v)[1]
     nz = max(b.count, 1)
     ny = st.lam[1:].size + st.nu.size + st.nuN.size + st.yd.size + st.ydN.size
@@ -290,11 +319,28 @@ def error_terms(setup, st) -> ErrorTerms:
     return terms
 
 
+def complementarity(setup, st, mu):
+    """max |s z - mu| over the finite sides at the iterate (Bounds.complementarity). The stopping
+    test (mu = 0) and the barrier update (the iterate's mu) ask at the same iterate: both are
+    computed in one pass (:func:`iterate_errors`, with the error terms) and kept until the slacks
+    (the point, or the bounds moved) or the bound multipliers change; another mu (the barrier
+    update lowered it) takes that pass again (no kernel of its own to compile)."""
+    b = setup.bounds
+    slacks = b.slacks(st.v)
+    c = st.compl_cache
+    if c is None or c[0] is not slacks or c[1] is not st.zl or c[2] is not st.zu:
+        c = st.compl_cache = (slacks, st.zl, st.zu, {})
+    values = c[3]
+    if mu not in values:
+        values[mu] = iterate_errors(setup, st, mu)[1][1]
+    return values[mu]
+
+
 def optimality_errors(setup, st, mu):
     """(E_mu scaled (eq. (5)), dual infeasibility unscaled, constraint violation max-norm,
     complementarity unscaled) at the current iterate."""
     inf_du, inf_pr, s_d, s_c = error_terms(setup, st)
-    compl = setup.bounds.complementarity(st.v, st.zl, st.zu, mu)
+    compl = complementarity(setup, st, mu)
     return max(inf_du / s_d, inf_pr, compl / s_c), inf_du / st.s_obj, inf_pr, compl / st.s_obj
 
 
@@ -335,17 +381,17 @@ def constraint_blocks(setup, pt, Ss, SsN):
     """The iteration's :class:`Constraints` from the constraint Jacobians at pt."""
     L = setup.layout
     if not L.rows:
-        N, n, m = L.N, L.n, L.m
-        return Constraints(np.zeros((N, 0, n)), np.zeros((N, 0, m)), np.zeros((0, n)), np.zeros((N, 0, n + m)),
-                           np.zeros((0, n)), Ss, SsN)
+        return Constraints(*L.no_constraint_rows, Ss, SsN)
     Ci = np.ascontiguousarray(np.concatenate([pt.Cx[:, L.ineq], pt.Cu[:, L.ineq]], axis=2))
     return Constraints(np.ascontiguousarray(pt.Cx[:, L.eq]), np.ascontiguousarray(pt.Cu[:, L.eq]),
                        np.ascontiguousarray(pt.CN[L.eqN]), Ci, np.ascontiguousarray(pt.CN[L.ineqN]), Ss, SsN)
 
 
-def newton_system(setup, st):
+def newton_system(setup, st, gradient=False):
     """The iteration's KKT matrix (Hessian blocks of the Lagrangian at (pt, multipliers), Sigma)
-    factored with the inertia correction; None when Algorithm IC gives up."""
+    factored with the inertia correction; None when Algorithm IC gives up. With ``gradient``:
+    (the matrix or None, :func:`barrier_gradient` at the iterate), its Sigma and the gradient in
+    one compiled pass (kernels.newton_terms)."""
     p, pt, L = setup.problem, st.pt, setup.layout
     Lg, LgN = full_multipliers(L, st)
     t0 = time.perf_counter()
@@ -354,7 +400,10 @@ def newton_system(setup, st):
     st.clock.add(("hessian",), t0)
     Q, S, R = stage_blocks(Hxx, Hxu, Huu, HN)
     del Hxx                     # copied into Q: not kept through the factorization
-    Sx, Su, Ss, SsN = setup.bounds.sigma_blocks(st.v, st.zl, st.zu, L)
+    if gradient:
+        Sx, Su, Ss, SsN, g = _newton_terms(setup, st)
+    else:
+        Sx, Su, Ss, SsN = setup.bounds.sigma_blocks(st.v, st.zl, st.zu, L)
     # the previous iteration's back-end is taken over, unless the watchdog keeps that iteration's
     # direction (its line search may solve with it again, line_search)
     prev = setup.last_kkt
@@ -364,11 +413,24 @@ def newton_system(setup, st):
     delta = kkt.factor(st.delta_last)
     st.factorizations += kkt.factorizations
     if delta is None:
-        return None
+        return (None, g) if gradient else None
     st.delta = delta
     if delta > 0.0:       # delta_w^last of Algorithm IC: the last shift that was needed (IC-4)
         st.delta_last = delta
-    return kkt
+    return (kkt, g) if gradient else kkt
+
+
+def _newton_terms(setup, st):
+    """(Sx, Su, Ss, SsN) of Bounds.sigma_blocks and :func:`barrier_gradient` at the iterate, in one
+    compiled pass (kernels.newton_terms: the two kernels in turn)."""
+    L, b, pt, mu = setup.layout, setup.bounds, st.pt, st.mu
+    sl, su = b.slacks(st.v)
+    sig = np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N, L.ni)), np.empty(L.niN)
+    q, r = np.empty((L.N + 1, L.n)), np.empty((L.N, L.m))
+    gs, gsN, grad = np.empty((L.N, L.ni)), np.empty(L.niN), np.empty(L.size)
+    _kernels().newton_terms(float(st.s_obj), pt.lx, pt.lN, pt.lu, sl, su, st.zl, st.zu, b.has_lo, b.has_hi, mu,
+                            KAPPA_D * mu, *sig, q, r, gs, gsN, grad)
+    return (*sig, Direction(q, r, gs, gsN, grad))
 
 
 def update_barrier(setup, st):
@@ -453,14 +515,22 @@ def converged(setup, st):
     return False
 
 
-def _trial(setup, st, v_t):
-    """A trial point's (point, theta, phi); phi = inf when a function is not finite there."""
+def _trial(setup, st, dv, alpha):
+    """The trial point v + alpha dv of the iterate: (v_t, point, theta, phi); (v_t, None, inf, inf)
+    when a function is not finite there. v_t and its (X, U) are made in one compiled pass
+    (kernels.trial_point), the point evaluated as :func:`evaluate` does, its theta, max-norm
+    (cached with its residuals) and phi in another (barrier.Bounds.point_terms)."""
+    L = setup.layout
+    v_t, X, U = np.empty_like(st.v), np.empty((L.N + 1, L.n)), np.empty((L.N, L.m))
+    _kernels().trial_point(st.v, dv, alpha, L.x0, v_t, X, U)
     try:
-        pt = evaluate(setup, v_t, st.clock)
+        pt = Point(setup.problem, X, U, derivatives=False, clock=st.clock)
     except NonFiniteEvaluationError:
-        return None, math.inf, math.inf
-    phi, _ = barrier_value(setup, pt, v_t, st.mu, st.s_obj)
-    return pt, theta(setup, pt, v_t), phi
+        return v_t, None, math.inf, math.inf
+    entry = _residual_entry(setup, pt, v_t)
+    l1, mx, barrier = setup.bounds.point_terms(v_t, entry[2], st.mu)
+    entry[3] = (l1, mx)
+    return v_t, pt, l1, st.s_obj * pt.J + barrier
 
 
 class Direction(NamedTuple):
@@ -506,6 +576,7 @@ class Search(NamedTuple):
     theta: float
     phi: float
     alpha_max: float
+    tiny: float = math.inf
 
 
 @dataclasses.dataclass
@@ -525,10 +596,10 @@ def direction(setup, st, kkt, g) -> Search:
     """The Newton direction at the iterate and its line-search quantities."""
     res = residuals(setup, st.pt, st.v)
     step = kkt.solve(g.q, g.r, res, g.gs, g.gsN)
-    dv = step_vector(setup, step)
+    # step_vector, Bounds.max_step and the tiny-step measure in one compiled pass
+    dv, alpha_max, tiny = setup.bounds.step_terms(st.v, step, st.tau)
     phi = barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0]
-    return Search(kkt, g, res, step, dv, dot(g.grad, dv), theta(setup, st.pt, st.v), phi,
-                  setup.bounds.max_step(st.v, dv, st.tau))
+    return Search(kkt, g, res, step, dv, dot(g.grad, dv), theta(setup, st.pt, st.v), phi, alpha_max, tiny)
 
 
 def line_search(setup, st, kkt, g):
@@ -537,11 +608,10 @@ def line_search(setup, st, kkt, g):
     alpha, soc) or None (alpha fell below alpha_min: restoration)."""
     o = setup.options
     d = direction(setup, st, kkt, g)
-    tiny = float(_kernels().tiny_step(d.dv, st.v)) < TINY_STEP
-    if tiny:     # IPOPT's tiny-step rule: no line search for a step below rounding
-        pt_t, _, _ = _trial(setup, st, st.v + d.alpha_max * d.dv)
+    if d.tiny < TINY_STEP:     # IPOPT's tiny-step rule: no line search for a step below rounding
+        v_t, pt_t, _, _ = _trial(setup, st, d.dv, d.alpha_max)
         if pt_t is not None:
-            return st.v + d.alpha_max * d.dv, pt_t, d.dv, d.step, d.alpha_max, 0
+            return v_t, pt_t, d.dv, d.step, d.alpha_max, 0
     if st.watch is None and o.watchdog_shortened_iter_trigger and st.shortened >= o.watchdog_shortened_iter_trigger:
         st.watch = Watchdog({k: getattr(st, k) for k in WATCHED}, d)
         st.shortened = 0
@@ -563,8 +633,7 @@ def line_search(setup, st, kkt, g):
 def _watchdog_step(setup, st, d):
     """A full step taken without the acceptance test (IPOPT's "w" iteration); None when the
     functions are not finite there."""
-    v_t = st.v + d.alpha_max * d.dv
-    pt_t, _, _ = _trial(setup, st, v_t)
+    v_t, pt_t, _, _ = _trial(setup, st, d.dv, d.alpha_max)
     return None if pt_t is None else (v_t, pt_t, d.dv, d.step, d.alpha_max, 0)
 
 
@@ -573,8 +642,7 @@ def _watched_trial(setup, st, d):
     against the watchdog's starting point; else another "w" step while watchdog_trial_iter_max
     allows; None: the watchdog fails and the line search starts again from its starting point."""
     ref = st.watch.search
-    v_t = st.v + d.alpha_max * d.dv
-    pt_t, th_t, phi_t = _trial(setup, st, v_t)
+    v_t, pt_t, th_t, phi_t = _trial(setup, st, d.dv, d.alpha_max)
     # the tests use the watched point's values and step to the boundary (IPOPT's watchdog_alpha_primal_test)
     ok, f_type = st.filt.accept(ref.alpha_max, ref.theta, ref.phi, ref.gphi, th_t, phi_t)
     if ok:
@@ -598,8 +666,7 @@ def backtrack(setup, st, d: Search):
     while alpha > alpha_min or trials == 0:     # the first trial always (IPOPT)
         setup.limits.check()
         trials += 1
-        v_t = st.v + alpha * d.dv
-        pt_t, th_t, phi_t = _trial(setup, st, v_t)
+        v_t, pt_t, th_t, phi_t = _trial(setup, st, d.dv, alpha)
         ok, f_type = st.filt.accept(alpha, th, phi, gphi, th_t, phi_t)
         if ok:
             if not f_type:
@@ -627,8 +694,7 @@ def second_order_correction(setup, st, kkt, g, res, alpha_max, current, pt_t, v_
         step = kkt.solve(g.q, g.r, c_soc, g.gs, g.gsN)
         dv = step_vector(setup, step)
         a_soc = b.max_step(st.v, dv, st.tau)
-        v_s = st.v + a_soc * dv
-        pt_s, th_s, phi_s = _trial(setup, st, v_s)
+        v_s, pt_s, th_s, phi_s = _trial(setup, st, dv, a_soc)
         if pt_s is None:
             return None
         ok, f_type = st.filt.accept(alpha_max, th, phi, gphi, th_s, phi_s)
@@ -649,16 +715,21 @@ def take_step(setup, st, accepted):
     safeguard (16)."""
     b = setup.bounds
     v_new, pt_new, dv, step, alpha, soc = accepted
-    # dz and the step of both sides (dz = 0 off the bounds) in one pass (Bounds.dual_step_length)
-    dzl, dzu, alpha_z = b.dual_step_length(st.v, dv, st.zl, st.zu, st.mu, st.tau)
-    for name in ("lam", "nu", "nuN", "yd", "ydN"):
-        old = getattr(st, name)
-        if old.size:            # an empty one (no such rows) stays
-            setattr(st, name, old + alpha * (getattr(step, name) - old))
+    slacks = b.slacks(st.v)     # the step of the bound multipliers is taken at the old point's
+    if setup.layout.rows:
+        for name in ("nu", "nuN", "yd", "ydN"):
+            old = getattr(st, name)
+            if old.size:            # an empty one (no such rows) stays
+                setattr(st, name, old + alpha * (getattr(step, name) - old))
     st.v, st.pt = v_new, pt_new
     st.pt.add_derivatives(setup.problem)
-    b.move_tiny(v_new)
-    st.zl, st.zu = b.safeguard_step(v_new, st.zl, st.zu, dzl, dzu, alpha_z, st.mu)
+    # lam + alpha (lam^+ - lam), dz and the step of both sides (dz = 0 off the bounds:
+    # Bounds.dual_step_length), the bounds moved (Bounds.move_tiny) and the safeguard
+    # (Bounds.safeguard_step) in one compiled pass
+    st.zl, st.zu, alpha_z, lam = b.step_multipliers(slacks, v_new, dv, st.zl, st.zu, st.mu, st.tau, st.lam, step.lam,
+                                                    alpha)
+    if lam.size:                # an empty one stays
+        st.lam = lam
     return alpha, alpha_z, soc
 
 
@@ -675,11 +746,12 @@ def iterate(setup, st):
         kkt = newton_system(setup, st)      # the matrix does not depend on mu: the oracle uses it
         if kkt is not None:
             adaptive_barrier(setup, st, kkt)
+        g = None if kkt is None else barrier_gradient(setup, st)
     else:
         update_barrier(setup, st)
-        kkt = newton_system(setup, st)
+        kkt, g = newton_system(setup, st, gradient=True)
     factored = kkt is not None
-    accepted = None if kkt is None else line_search(setup, st, kkt, barrier_gradient(setup, st))
+    accepted = None if kkt is None else line_search(setup, st, kkt, g)
     # the factors and Hessian blocks (a third of the iteration's memory) go before the step
     # evaluates the new point's derivatives (the watchdog keeps its own reference)
     del kkt
