@@ -26,8 +26,11 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from ...linalg.codegen import REASSOC, as_bundle
-from .bundles import Slacks
+from ...linalg.backend import RHS, Solution
+from ...linalg.codegen import REASSOC, SizeTags, as_bundle, stack_vector
+from ...linalg.riccati_fixed import _solve_back_sweep, _solve_forward_sweep
+from ...linalg.riccati_kernels import Dynamics, IPTerms, PlainFactors
+from .bundles import Residuals, Slacks
 
 
 @nb.njit(cache=True)
@@ -479,3 +482,221 @@ def _symmetric_stage_hessians(Q, S, R, H):
             for j in range(m):
                 H[k, n + i, n + j] = 0.5 * (R[k, i, j] + R[k, j, i])
     return H
+
+
+# ----------------------------------------------------------------------------- the fused Newton solve
+# One Newton solve of the reduced system (25) for the plain Riccati recursion of small blocks
+# (olado.linalg.riccati_fixed: no equality rows, n + m <= FIXED_SIZE_MAX): the right-hand side
+# (_newton_rhs), the two sweeps of the solve (_solve_unconstrained_fixed) and the recovery of the
+# eliminated parts (_recover_step) in one call and one pass over the stage data, stage block by
+# stage block. Each value is computed by the same expression, in the same order of operations,
+# as by the three kernels in turn (the helpers below are compiled without fast-math flags, like
+# _newton_rhs and _recover_step; the sweeps are the same intrinsics), so the results are the
+# same bit for bit. numba's cache of _newton_solve_fixed does not see the sweeps' source file
+# (riccati_fixed.py): delete this module's cache files after changing those intrinsics.
+
+_BLOCK = 64     # stages per block: the block's stage data stay in the cache between its passes
+
+
+@nb.njit(cache=True)
+def _box_rhs(k, rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, q, r, ci):
+    """Stage k of _newton_rhs: q[k] (k >= 1: the bounds of x_k; q[0] = rx[0]), and for k < N
+    r[k] (the bounds of u_k) and ci[k] (the stage rows); the C_N rows: _box_rhs_final."""
+    N = ru.shape[0]
+    n = rx.shape[1]
+    m = ru.shape[1]
+    nc = Ds.shape[1]
+    ou = N * n
+    os_ = ou + N * m
+    if k == 0:
+        for i in range(n):
+            q[0, i] = rx[0, i]
+    else:
+        for i in range(n):
+            idx = (k - 1) * n + i
+            g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
+            q[k, i] = rx[k, i] + g
+    if k < N:
+        for i in range(m):
+            idx = ou + k * m + i
+            g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
+            r[k, i] = ru[k, i] + g
+        for l in range(nc):
+            idx = os_ + k * nc + l
+            g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
+            d = Ds[k, l]
+            ci[k, l] = g / d if d > 0 else 0.0
+
+
+@nb.njit(cache=True)
+def _box_rhs_final(rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, CN, q):
+    """The C_N rows of _newton_rhs: q[N] += C_N^T g (after _box_rhs of stage N)."""
+    N = q.shape[0] - 1
+    n = q.shape[1]
+    osN = rl.shape[0] - CN.shape[0]
+    for l in range(CN.shape[0]):
+        idx = osN + l
+        g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
+        for i in range(n):
+            q[N, i] += CN[l, i] * g
+
+
+@nb.njit(cache=True)
+def _slack_step(i, v, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad):
+    """Entry i of _recover_step's last loop for w_i = v: dtl, dtu, dzl, dzu and the running step
+    lengths (ap, ad)."""
+    tl, tu, zl, zu = it
+    dtl, dtu, dzl, dzu = d
+    inf = np.inf
+    a = v + rl[i] if fl[i] else 0.0
+    b = -v + rup[i] if fu[i] else 0.0
+    c = (rho_l[i] - zl[i] * a) * inv_tl[i]
+    e = (rho_u[i] - zu[i] * b) * inv_tu[i]
+    dtl[i] = a
+    dtu[i] = b
+    dzl[i] = c
+    dzu[i] = e
+    ap = min(ap, -tl[i] / a if a < 0.0 else inf)
+    ap = min(ap, -tu[i] / b if b < 0.0 else inf)
+    ad = min(ad, -zl[i] / c if c < 0.0 else inf)
+    ad = min(ad, -zu[i] / e if e < 0.0 else inf)
+    return ap, ad
+
+
+@nb.njit(cache=True)
+def _recover_stages(k_lo, k_hi, X, U, Ct, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad):
+    """_recover_step for the bounds of x_{k+1} and u_k and the stage rows of stage k, k_lo <= k <
+    k_hi (the C_N rows: _recover_final); returns (ok, ap, ad), ok False if X[k+1] or U[k] is
+    not finite."""
+    N = U.shape[0]
+    n = X.shape[1]
+    m = U.shape[1]
+    nc = Ct.shape[2]
+    ou = N * n
+    os_ = ou + N * m
+    for k in range(k_lo, k_hi):
+        for i in range(n):
+            t = X[k + 1, i]
+            if not np.isfinite(t):
+                return False, ap, ad
+            ap, ad = _slack_step(k * n + i, t, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad)
+        for i in range(m):
+            t = U[k, i]
+            if not np.isfinite(t):
+                return False, ap, ad
+            ap, ad = _slack_step(ou + k * m + i, t, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad)
+        o = os_ + k * nc
+        for l in range(nc):
+            s = 0.0
+            for j in range(n):
+                s += Ct[k, j, l] * X[k, j]
+            for j in range(m):
+                s += Ct[k, n + j, l] * U[k, j]
+            ap, ad = _slack_step(o + l, s, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad)
+    return True, ap, ad
+
+
+@nb.njit(cache=True)
+def _recover_final(X, CN, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad):
+    """_recover_step for the C_N rows (after the forward sweep); returns (ok, ap, ad), ok False
+    if X[0] is not finite (the other entries of X and U: _recover_stages)."""
+    N = X.shape[0] - 1
+    n = X.shape[1]
+    for i in range(n):
+        if not np.isfinite(X[0, i]):
+            return False, ap, ad
+    osN = rl.shape[0] - CN.shape[0]
+    for l in range(CN.shape[0]):
+        s = 0.0
+        for j in range(n):
+            s += CN[l, j] * X[N, j]
+        ap, ad = _slack_step(osN + l, s, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad)
+    return True, ap, ad
+
+
+@nb.njit(cache=True, fastmath=REASSOC)
+def _newton_solve_fixed(tags, dyn, ipt, fac, rhs, sol, res, rho_l, rho_u, it, inv_tl, inv_tu, Ds, Ct, CN, fl, fu, d):
+    """_newton_rhs, the solve of the plain Riccati recursion compiled for the sizes of tags
+    (olado.linalg.riccati_fixed._solve_unconstrained_fixed, with the factors ``fac`` of
+    _factor_unconstrained_fixed(_loops) and its bundles ``dyn``, ``ipt``) and _recover_step, in
+    one pass over the stages: the backward sweep forms the gradient terms q, r and the stage-row
+    constants ci of a block of stages (into the work arrays of ``rhs``, the RHS bundle whose c, x0
+    are the residuals' dyn, x0r) just before it sweeps the block; the forward sweep recovers the
+    slack and multiplier steps of each block (into ``d``, the direction's Slacks) just after.
+    ``sol``: the direction's Solution bundle (nu is zeroed, as RiccatiFactorization.solve_into
+    does); ``res``: the Residuals bundle; ``it``: the iterate's Slacks. Returns (ok, ap, ad) as
+    _recover_step (ok False: a non-finite solution; the direction is then partly written)."""
+    dyn = as_bundle(dyn, Dynamics)
+    A, B = dyn.A, dyn.B
+    ipt = as_bundle(ipt, IPTerms)
+    Ci, sig, ni = ipt.Ci, ipt.sig, ipt.ni
+    fac = as_bundle(fac, PlainFactors)
+    P, K, L = fac.P, fac.K, fac.L
+    rhs = as_bundle(rhs, RHS)
+    q, r, c, x0, ci = rhs.q, rhs.r, rhs.c, rhs.x0, rhs.ci
+    sol = as_bundle(sol, Solution)
+    X, U, lam, nu = sol.X, sol.U, sol.lam, sol.nu
+    res = as_bundle(res, Residuals)
+    rx, ru, rl, rup = res.rx, res.ru, res.rl, res.rup
+    it = as_bundle(it, Slacks)
+    its = (it.tl, it.tu, it.zl, it.zu)
+    zl, zu = it.zl, it.zu
+    d = as_bundle(d, Slacks)
+    ds = (d.tl, d.tu, d.zl, d.zu)
+    tags = as_bundle(tags, SizeTags)
+    nt, mt, zt = tags.n, tags.m, tags.nz
+    n, m = len(nt), len(mt)
+    N = A.shape[0]
+    gc = stack_vector(zt)
+    for i in range(nu.shape[0]):
+        for j in range(nu.shape[1]):
+            nu[i, j] = 0.0
+    # backward: q_N (bounds of x_N, then the C_N rows), then block by block the right-hand side
+    # of the block's stages and the block's sweep (as _solve_unconstrained_fixed: runs of stages
+    # without stage rows in one sweep, the others one at a time)
+    _box_rhs(N, rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, q, r, ci)
+    _box_rhs_final(rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, CN, q)
+    for i in range(n):
+        lam[N, i] = q[N, i]
+    k = N - 1
+    while k >= 0:
+        lo = max(k - _BLOCK + 1, 0)
+        for j in range(k, lo - 1, -1):
+            _box_rhs(j, rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, q, r, ci)
+        while k >= lo:
+            if ni[k] > 0:
+                for i in range(n + m):
+                    gc[i] = 0.0
+                for cc in range(ni[k]):
+                    wgt = sig[k, cc] * ci[k, cc]
+                    if wgt != 0.0:
+                        for i in range(n + m):
+                            gc[i] += Ci[k, cc, i] * wgt
+                _solve_back_sweep(tags, k, k + 1, P, lam, c, A, B, K, L, q, r, gc, U)
+                k -= 1
+            else:
+                j = k - 1
+                while j >= lo and ni[j] == 0:
+                    j -= 1
+                _solve_back_sweep(tags, j + 1, k + 1, P, lam, c, A, B, K, L, q, r, None, U)
+                k = j
+    # forward: block by block the sweep, then the recovery of the block's stages
+    for i in range(n):
+        X[0, i] = x0[i]
+    ok, ap, ad = True, 1e30, 1e30
+    k = 0
+    while ok and k < N:
+        hi = min(k + _BLOCK, N)
+        _solve_forward_sweep(tags, k, hi, X, K, U, P, lam, A, B, c)
+        ok, ap, ad = _recover_stages(k, hi, X, U, Ct, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, its, ds, ap, ad)
+        k = hi
+    if ok:
+        ok, ap, ad = _recover_final(X, CN, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, its, ds, ap, ad)
+    if not ok:
+        return False, ap, ad
+    for i in range(n):
+        s = lam[N, i]
+        for l in range(n):
+            s += P[N, i, l] * X[N, l]
+        lam[N, i] = s
+    return True, ap, ad
