@@ -491,14 +491,15 @@ def _symmetric_stage_hessians(Q, S, R, H):
 # eliminated parts (_recover_step) in one call and one pass over the stage data, stage block by
 # stage block. Each value is computed by the same expression, in the same order of operations,
 # as by the three kernels in turn (the helpers below are compiled without fast-math flags, like
-# _newton_rhs and _recover_step; the sweeps are the same intrinsics), so the results are the
-# same bit for bit. numba's cache of _newton_solve_fixed does not see the sweeps' source file
+# _newton_rhs and _recover_step -- explicitly: a callee without a fastmath option inherits the
+# caller's flags, and the fused kernel's own loops have those of _solve_unconstrained_fixed; the
+# sweeps are the same intrinsics), so the results are the same bit for bit. numba's cache of _newton_solve_fixed does not see the sweeps' source file
 # (riccati_fixed.py): delete this module's cache files after changing those intrinsics.
 
 _BLOCK = 64     # stages per block: the block's stage data stay in the cache between its passes
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, fastmath=False)
 def _box_rhs(k, rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, q, r, ci):
     """Stage k of _newton_rhs: q[k] (k >= 1: the bounds of x_k; q[0] = rx[0]), and for k < N
     r[k] (the bounds of u_k) and ci[k] (the stage rows); the C_N rows: _box_rhs_final."""
@@ -528,7 +529,7 @@ def _box_rhs(k, rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, q, r,
             ci[k, l] = g / d if d > 0 else 0.0
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, fastmath=False)
 def _box_rhs_final(rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, CN, q):
     """The C_N rows of _newton_rhs: q[N] += C_N^T g (after _box_rhs of stage N)."""
     N = q.shape[0] - 1
@@ -541,7 +542,7 @@ def _box_rhs_final(rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, CN, q):
             q[N, i] += CN[l, i] * g
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, fastmath=False)
 def _slack_step(i, v, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad):
     """Entry i of _recover_step's last loop for w_i = v: dtl, dtu, dzl, dzu and the running step
     lengths (ap, ad)."""
@@ -563,7 +564,7 @@ def _slack_step(i, v, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, 
     return ap, ad
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, fastmath=False)
 def _recover_stages(k_lo, k_hi, X, U, Ct, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad):
     """_recover_step for the bounds of x_{k+1} and u_k and the stage rows of stage k, k_lo <= k <
     k_hi (the C_N rows: _recover_final); returns (ok, ap, ad), ok False if X[k+1] or U[k] is
@@ -596,7 +597,7 @@ def _recover_stages(k_lo, k_hi, X, U, Ct, fl, fu, rl, rup, rho_l, rho_u, inv_tl,
     return True, ap, ad
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, fastmath=False)
 def _recover_final(X, CN, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad):
     """_recover_step for the C_N rows (after the forward sweep); returns (ok, ap, ad), ok False
     if X[0] is not finite (the other entries of X and U: _recover_stages)."""
