@@ -496,37 +496,42 @@ def _symmetric_stage_hessians(Q, S, R, H):
 # sweeps are the same intrinsics), so the results are the same bit for bit. numba's cache of _newton_solve_fixed does not see the sweeps' source file
 # (riccati_fixed.py): delete this module's cache files after changing those intrinsics.
 
-_BLOCK = 64     # stages per block: the block's stage data stay in the cache between its passes
+_BLOCK = 1 << 40     # stages per block: the block's stage data stay in the cache between its passes
 
 
 @nb.njit(cache=True, fastmath=False)
-def _box_rhs(k, rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, q, r, ci):
-    """Stage k of _newton_rhs: q[k] (k >= 1: the bounds of x_k; q[0] = rx[0]), and for k < N
-    r[k] (the bounds of u_k) and ci[k] (the stage rows); the C_N rows: _box_rhs_final."""
+def _box_rhs(k_lo, k_hi, rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, q, r, ci):
+    """Stages k_lo <= k < k_hi of _newton_rhs: q[k] (k >= 1: the bounds of x_k; q[0] = rx[0]),
+    and for k < N r[k] (the bounds of u_k) and ci[k] (the stage rows); the C_N rows:
+    _box_rhs_final. (The indices are unsigned: numba tests a signed index for wraparound at
+    every access, which made these loops 10-20 % slower.)"""
     N = ru.shape[0]
     n = rx.shape[1]
     m = ru.shape[1]
     nc = Ds.shape[1]
     ou = N * n
     os_ = ou + N * m
-    if k == 0:
-        for i in range(n):
-            q[0, i] = rx[0, i]
-    else:
-        for i in range(n):
-            idx = (k - 1) * n + i
-            g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
-            q[k, i] = rx[k, i] + g
-    if k < N:
-        for i in range(m):
-            idx = ou + k * m + i
-            g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
-            r[k, i] = ru[k, i] + g
-        for l in range(nc):
-            idx = os_ + k * nc + l
-            g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
-            d = Ds[k, l]
-            ci[k, l] = g / d if d > 0 else 0.0
+    for kk in range(k_hi - k_lo):
+        k = k_lo + kk
+        ku = np.uint64(k)
+        if k == 0:
+            for i in range(n):
+                q[0, i] = rx[0, i]
+        else:
+            for i in range(n):
+                idx = np.uint64((k - 1) * n + i)
+                g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
+                q[ku, i] = rx[ku, i] + g
+        if k < N:
+            for i in range(m):
+                idx = np.uint64(ou + k * m + i)
+                g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
+                r[ku, i] = ru[ku, i] + g
+            for l in range(nc):
+                idx = np.uint64(os_ + k * nc + l)
+                g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
+                d = Ds[ku, l]
+                ci[ku, l] = g / d if d > 0 else 0.0
 
 
 @nb.njit(cache=True, fastmath=False)
@@ -543,62 +548,73 @@ def _box_rhs_final(rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, CN, q):
 
 
 @nb.njit(cache=True, fastmath=False)
-def _slack_step(i, v, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad):
-    """Entry i of _recover_step's last loop for w_i = v: dtl, dtu, dzl, dzu and the running step
-    lengths (ap, ad)."""
+def _slack_steps(i_lo, i_hi, w, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad):
+    """The last loop of _recover_step for the entries i_lo <= i < i_hi of w: dtl, dtu, dzl, dzu
+    and the running step lengths (ap, ad), returned."""
     tl, tu, zl, zu = it
     dtl, dtu, dzl, dzu = d
     inf = np.inf
-    a = v + rl[i] if fl[i] else 0.0
-    b = -v + rup[i] if fu[i] else 0.0
-    c = (rho_l[i] - zl[i] * a) * inv_tl[i]
-    e = (rho_u[i] - zu[i] * b) * inv_tu[i]
-    dtl[i] = a
-    dtu[i] = b
-    dzl[i] = c
-    dzu[i] = e
-    ap = min(ap, -tl[i] / a if a < 0.0 else inf)
-    ap = min(ap, -tu[i] / b if b < 0.0 else inf)
-    ad = min(ad, -zl[i] / c if c < 0.0 else inf)
-    ad = min(ad, -zu[i] / e if e < 0.0 else inf)
+    for j in range(i_hi - i_lo):
+        i = np.uint64(i_lo + j)     # an unsigned index: no wraparound test per access
+        a = w[i] + rl[i] if fl[i] else 0.0
+        b = -w[i] + rup[i] if fu[i] else 0.0
+        c = (rho_l[i] - zl[i] * a) * inv_tl[i]
+        e = (rho_u[i] - zu[i] * b) * inv_tu[i]
+        dtl[i] = a
+        dtu[i] = b
+        dzl[i] = c
+        dzu[i] = e
+        ap = min(ap, -tl[i] / a if a < 0.0 else inf)
+        ap = min(ap, -tu[i] / b if b < 0.0 else inf)
+        ad = min(ad, -zl[i] / c if c < 0.0 else inf)
+        ad = min(ad, -zu[i] / e if e < 0.0 else inf)
     return ap, ad
 
 
 @nb.njit(cache=True, fastmath=False)
-def _recover_stages(k_lo, k_hi, X, U, Ct, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad):
+def _recover_stages(k_lo, k_hi, X, U, Ct, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, w, ap, ad):
     """_recover_step for the bounds of x_{k+1} and u_k and the stage rows of stage k, k_lo <= k <
-    k_hi (the C_N rows: _recover_final); returns (ok, ap, ad), ok False if X[k+1] or U[k] is
-    not finite."""
+    k_hi (w: their values, in the scratch w; the C_N rows: _recover_final); returns (ok, ap, ad),
+    ok False if an X[k+1] or U[k] is not finite."""
     N = U.shape[0]
     n = X.shape[1]
     m = U.shape[1]
     nc = Ct.shape[2]
     ou = N * n
     os_ = ou + N * m
-    for k in range(k_lo, k_hi):
+    for kk in range(k_hi - k_lo):
+        k = k_lo + kk
+        ku, k1 = np.uint64(k), np.uint64(k + 1)
         for i in range(n):
-            t = X[k + 1, i]
+            t = X[k1, i]
             if not np.isfinite(t):
                 return False, ap, ad
-            ap, ad = _slack_step(k * n + i, t, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad)
+            w[np.uint64(k * n + i)] = t
         for i in range(m):
-            t = U[k, i]
+            t = U[ku, i]
             if not np.isfinite(t):
                 return False, ap, ad
-            ap, ad = _slack_step(ou + k * m + i, t, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad)
+            w[np.uint64(ou + k * m + i)] = t
         o = os_ + k * nc
         for l in range(nc):
-            s = 0.0
-            for j in range(n):
-                s += Ct[k, j, l] * X[k, j]
-            for j in range(m):
-                s += Ct[k, n + j, l] * U[k, j]
-            ap, ad = _slack_step(o + l, s, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad)
+            w[o + l] = 0.0
+        for j in range(n):
+            t = X[ku, j]
+            for l in range(nc):
+                w[o + l] += Ct[ku, j, l] * t
+        for j in range(m):
+            t = U[ku, j]
+            for l in range(nc):
+                w[o + l] += Ct[ku, n + j, l] * t
+    ap, ad = _slack_steps(k_lo * n, k_hi * n, w, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad)
+    ap, ad = _slack_steps(ou + k_lo * m, ou + k_hi * m, w, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad)
+    ap, ad = _slack_steps(os_ + k_lo * nc, os_ + k_hi * nc, w, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d,
+                          ap, ad)
     return True, ap, ad
 
 
 @nb.njit(cache=True, fastmath=False)
-def _recover_final(X, CN, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad):
+def _recover_final(X, CN, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, w, ap, ad):
     """_recover_step for the C_N rows (after the forward sweep); returns (ok, ap, ad), ok False
     if X[0] is not finite (the other entries of X and U: _recover_stages)."""
     N = X.shape[0] - 1
@@ -611,12 +627,14 @@ def _recover_final(X, CN, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, 
         s = 0.0
         for j in range(n):
             s += CN[l, j] * X[N, j]
-        ap, ad = _slack_step(osN + l, s, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad)
+        w[osN + l] = s
+    ap, ad = _slack_steps(osN, rl.shape[0], w, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad)
     return True, ap, ad
 
 
 @nb.njit(cache=True, fastmath=REASSOC)
-def _newton_solve_fixed(tags, dyn, ipt, fac, rhs, sol, res, rho_l, rho_u, it, inv_tl, inv_tu, Ds, Ct, CN, fl, fu, d):
+def _newton_solve_fixed(tags, dyn, ipt, fac, rhs, sol, res, rho_l, rho_u, it, inv_tl, inv_tu, Ds, Ct, CN, fl, fu, d,
+                        w):
     """_newton_rhs, the solve of the plain Riccati recursion compiled for the sizes of tags
     (olado.linalg.riccati_fixed._solve_unconstrained_fixed, with the factors ``fac`` of
     _factor_unconstrained_fixed(_loops) and its bundles ``dyn``, ``ipt``) and _recover_step, in
@@ -625,8 +643,10 @@ def _newton_solve_fixed(tags, dyn, ipt, fac, rhs, sol, res, rho_l, rho_u, it, in
     are the residuals' dyn, x0r) just before it sweeps the block; the forward sweep recovers the
     slack and multiplier steps of each block (into ``d``, the direction's Slacks) just after.
     ``sol``: the direction's Solution bundle (nu is zeroed, as RiccatiFactorization.solve_into
-    does); ``res``: the Residuals bundle; ``it``: the iterate's Slacks. Returns (ok, ap, ad) as
-    _recover_step (ok False: a non-finite solution; the direction is then partly written)."""
+    does); ``res``: the Residuals bundle; ``it``: the iterate's Slacks; ``w`` scratch (nw,). Returns
+    (ok, ap, ad) as _recover_step (ok False: a non-finite solution; the direction is then partly
+    written). The helpers are called per block, not per stage or entry: each call of a compiled
+    function with array arguments costs reference counting per array."""
     dyn = as_bundle(dyn, Dynamics)
     A, B = dyn.A, dyn.B
     ipt = as_bundle(ipt, IPTerms)
@@ -655,15 +675,14 @@ def _newton_solve_fixed(tags, dyn, ipt, fac, rhs, sol, res, rho_l, rho_u, it, in
     # backward: q_N (bounds of x_N, then the C_N rows), then block by block the right-hand side
     # of the block's stages and the block's sweep (as _solve_unconstrained_fixed: runs of stages
     # without stage rows in one sweep, the others one at a time)
-    _box_rhs(N, rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, q, r, ci)
+    _box_rhs(N, N + 1, rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, q, r, ci)
     _box_rhs_final(rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, CN, q)
     for i in range(n):
         lam[N, i] = q[N, i]
     k = N - 1
     while k >= 0:
         lo = max(k - _BLOCK + 1, 0)
-        for j in range(k, lo - 1, -1):
-            _box_rhs(j, rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, q, r, ci)
+        _box_rhs(lo, k + 1, rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, q, r, ci)
         while k >= lo:
             if ni[k] > 0:
                 for i in range(n + m):
@@ -689,10 +708,11 @@ def _newton_solve_fixed(tags, dyn, ipt, fac, rhs, sol, res, rho_l, rho_u, it, in
     while ok and k < N:
         hi = min(k + _BLOCK, N)
         _solve_forward_sweep(tags, k, hi, X, K, U, P, lam, A, B, c)
-        ok, ap, ad = _recover_stages(k, hi, X, U, Ct, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, its, ds, ap, ad)
+        ok, ap, ad = _recover_stages(k, hi, X, U, Ct, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, its, ds, w, ap,
+                                     ad)
         k = hi
     if ok:
-        ok, ap, ad = _recover_final(X, CN, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, its, ds, ap, ad)
+        ok, ap, ad = _recover_final(X, CN, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, its, ds, w, ap, ad)
     if not ok:
         return False, ap, ad
     for i in range(n):

@@ -168,7 +168,8 @@ class _StepContext:
         if fused is not None:
             f = self.fact
             ok, ap, ad = fused(f._size_tags, f._dyn, f._ipt, f._factors, res.kkt_rhs, d.solution, res.arrays, rho_l,
-                               rho_u, it.slacks, self.inv_tl, self.inv_tu, self.Ds, P.Ct, P.CN, P.fl, P.fu, d.slacks)
+                               rho_u, it.slacks, self.inv_tl, self.inv_tu, self.Ds, P.Ct, P.CN, P.fl, P.fu, d.slacks,
+                               P.work_w)
         else:
             P.kernels.newton_rhs(res.rx, res.ru, res.rl, res.rup, rho_l, rho_u, it.slacks, self.inv_tl, self.inv_tu,
                                  self.Ds, P.CN, P.work_q, P.work_r, P.work_ci)
