@@ -8,6 +8,8 @@ N (n+m) + k nc + l, then C_N x_N) or the flat point vectors:
   the Newton right-hand side of the reduced system (25) (:func:`_newton_rhs`) and the recovery of
   the eliminated parts after the solve, delta lambda = W^{-1} Lambda (r_3 - C delta s) below (25)
   (:func:`_recover_step`), with the complementarity residual of (22) (:func:`_complementarity_residual`);
+  for the plain Riccati recursion of small blocks the three steps of a Newton solve in one kernel,
+  the right-hand side, the Riccati sweeps and the recovery (:func:`_newton_solve_fixed`);
 * the step lengths of (23): ratio tests (:func:`_max_step`, :func:`_max_step_split`) and the
   neighbourhood test (:func:`_neighbourhood_step`); the right-hand sides of the correctors
   (:func:`_corrector_rhs`, :func:`_combined_rhs`, :func:`_centrality_rhs`);
@@ -488,16 +490,17 @@ def _symmetric_stage_hessians(Q, S, R, H):
 # One Newton solve of the reduced system (25) for the plain Riccati recursion of small blocks
 # (olado.linalg.riccati_fixed: no equality rows, n + m <= FIXED_SIZE_MAX): the right-hand side
 # (_newton_rhs), the two sweeps of the solve (_solve_unconstrained_fixed) and the recovery of the
-# eliminated parts (_recover_step) in one call and one pass over the stage data, stage block by
-# stage block. Each value is computed by the same expression, in the same order of operations,
-# as by the three kernels in turn (the helpers below are compiled without fast-math flags, like
-# _newton_rhs and _recover_step -- explicitly: a callee without a fastmath option inherits the
-# caller's flags, and the fused kernel's own loops have those of _solve_unconstrained_fixed; the
-# sweeps are the same intrinsics), so the results are the same bit for bit. numba's cache of _newton_solve_fixed does not see the sweeps' source file
-# (riccati_fixed.py): delete this module's cache files after changing those intrinsics.
-
-_BLOCK = 1 << 40     # stages per block: the block's stage data stay in the cache between its passes
-
+# eliminated parts (_recover_step) in one call. Each value is computed by the same expression, in
+# the same order of operations, as by the three kernels in turn (the helpers below are compiled
+# without fast-math flags, like _newton_rhs and _recover_step -- explicitly: a callee without a
+# fastmath option inherits its caller's flags --, the fused kernel's own loops have those of
+# _solve_unconstrained_fixed, the sweeps are the same intrinsics), so the results are the same
+# bit for bit (tests/qp/test_newton_solve_fused.py). Interleaving the passes stage block by stage
+# block (64 stages) was slower than running them in turn over the horizon at N = 2 400 and
+# 12 000: the passes read disjoint arrays, so a block shares no data between them.
+# numba's cache of _newton_solve_fixed does not see the sweeps' source file (riccati_fixed.py):
+# delete this module's cache files (__pycache__/kernels.*.nbi, *.nbc) after changing those
+# intrinsics (docs/architecture.md "Caches").
 
 @nb.njit(cache=True, fastmath=False)
 def _box_rhs(k_lo, k_hi, rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, q, r, ci):
@@ -547,88 +550,97 @@ def _box_rhs_final(rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, CN, q):
             q[N, i] += CN[l, i] * g
 
 
+_K = 1.0 + 2.0 ** -50   # p = fl(fl(ap y) _K) > ap y for fl(ap y) normal: see _slack_steps
+_TINY = 1e-290
+
+
 @nb.njit(cache=True, fastmath=False)
-def _slack_steps(i_lo, i_hi, w, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad):
-    """The last loop of _recover_step for the entries i_lo <= i < i_hi of w: dtl, dtu, dzl, dzu
-    and the running step lengths (ap, ad), returned."""
+def _slack_steps(i_lo, i_hi, src, s_off, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad):
+    """The last loop of _recover_step for the entries i_lo <= i < i_hi of w, w_i = src[s_off + i
+    - i_lo] (src: the flat X, U, or the stage rows' values): dtl, dtu, dzl, dzu and the running
+    step lengths; returns (ok, ap, ad), ok whether every w_i read is finite.
+
+    The ratio tests skip the division -t/a (a < 0) when t >= p = fl(fl(ap (-a)) (1 + 2^-50)) and
+    p is a normal number: then p > ap (-a) (the two roundings lose at most a factor (1 - 2^-53)^2),
+    so t / (-a) > ap and its rounded value is >= ap (rounding is monotone, ap a double): the
+    minimum is the same, bit for bit, with most divisions skipped once ap is small."""
     tl, tu, zl, zu = it
     dtl, dtu, dzl, dzu = d
-    inf = np.inf
+    ok = True
     for j in range(i_hi - i_lo):
-        i = np.uint64(i_lo + j)     # an unsigned index: no wraparound test per access
-        a = w[i] + rl[i] if fl[i] else 0.0
-        b = -w[i] + rup[i] if fu[i] else 0.0
+        i = np.uint64(i_lo + j)     # unsigned indices: no wraparound test per access
+        v = src[np.uint64(s_off + j)]
+        ok = ok and np.isfinite(v)
+        a = v + rl[i] if fl[i] else 0.0
+        b = -v + rup[i] if fu[i] else 0.0
         c = (rho_l[i] - zl[i] * a) * inv_tl[i]
         e = (rho_u[i] - zu[i] * b) * inv_tu[i]
         dtl[i] = a
         dtu[i] = b
         dzl[i] = c
         dzu[i] = e
-        ap = min(ap, -tl[i] / a if a < 0.0 else inf)
-        ap = min(ap, -tu[i] / b if b < 0.0 else inf)
-        ad = min(ad, -zl[i] / c if c < 0.0 else inf)
-        ad = min(ad, -zu[i] / e if e < 0.0 else inf)
-    return ap, ad
+        if a < 0.0:
+            t, p = tl[i], ap * -a * _K
+            if not (t >= p and p >= _TINY):
+                ap = min(ap, -t / a)
+        if b < 0.0:
+            t, p = tu[i], ap * -b * _K
+            if not (t >= p and p >= _TINY):
+                ap = min(ap, -t / b)
+        if c < 0.0:
+            t, p = zl[i], ad * -c * _K
+            if not (t >= p and p >= _TINY):
+                ad = min(ad, -t / c)
+        if e < 0.0:
+            t, p = zu[i], ad * -e * _K
+            if not (t >= p and p >= _TINY):
+                ad = min(ad, -t / e)
+    return ok, ap, ad
 
 
 @nb.njit(cache=True, fastmath=False)
-def _recover_stages(k_lo, k_hi, X, U, Ct, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, w, ap, ad):
-    """_recover_step for the bounds of x_{k+1} and u_k and the stage rows of stage k, k_lo <= k <
-    k_hi (w: their values, in the scratch w; the C_N rows: _recover_final); returns (ok, ap, ad),
-    ok False if an X[k+1] or U[k] is not finite."""
+def _recover_all(X, U, Ct, CN, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, w):
+    """_recover_step after the forward sweep of _newton_solve_fixed: the bounds of x_1..x_N and
+    of u read from X and U directly, the values of the stage rows and of the C_N rows through the
+    scratch w; returns (ok, ap, ad) as _recover_step."""
     N = U.shape[0]
     n = X.shape[1]
     m = U.shape[1]
     nc = Ct.shape[2]
     ou = N * n
     os_ = ou + N * m
-    for kk in range(k_hi - k_lo):
-        k = k_lo + kk
-        ku, k1 = np.uint64(k), np.uint64(k + 1)
-        for i in range(n):
-            t = X[k1, i]
-            if not np.isfinite(t):
-                return False, ap, ad
-            w[np.uint64(k * n + i)] = t
-        for i in range(m):
-            t = U[ku, i]
-            if not np.isfinite(t):
-                return False, ap, ad
-            w[np.uint64(ou + k * m + i)] = t
-        o = os_ + k * nc
-        for l in range(nc):
-            w[o + l] = 0.0
-        for j in range(n):
-            t = X[ku, j]
-            for l in range(nc):
-                w[o + l] += Ct[ku, j, l] * t
-        for j in range(m):
-            t = U[ku, j]
-            for l in range(nc):
-                w[o + l] += Ct[ku, n + j, l] * t
-    ap, ad = _slack_steps(k_lo * n, k_hi * n, w, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad)
-    ap, ad = _slack_steps(ou + k_lo * m, ou + k_hi * m, w, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad)
-    ap, ad = _slack_steps(os_ + k_lo * nc, os_ + k_hi * nc, w, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d,
-                          ap, ad)
-    return True, ap, ad
-
-
-@nb.njit(cache=True, fastmath=False)
-def _recover_final(X, CN, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, w, ap, ad):
-    """_recover_step for the C_N rows (after the forward sweep); returns (ok, ap, ad), ok False
-    if X[0] is not finite (the other entries of X and U: _recover_stages)."""
-    N = X.shape[0] - 1
-    n = X.shape[1]
+    osN = os_ + N * nc
+    ap, ad = 1e30, 1e30
     for i in range(n):
         if not np.isfinite(X[0, i]):
             return False, ap, ad
-    osN = rl.shape[0] - CN.shape[0]
+    ok, ap, ad = _slack_steps(0, ou, X.reshape(X.size), n, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap,
+                              ad)
+    if not ok:
+        return False, ap, ad
+    ok, ap, ad = _slack_steps(ou, os_, U.reshape(U.size), 0, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap,
+                              ad)
+    if not ok:
+        return False, ap, ad
+    if nc > 0:
+        for k in range(N):
+            o = os_ + k * nc
+            for l in range(nc):
+                w[o + l] = 0.0
+            for j in range(n):
+                t = X[k, j]
+                for l in range(nc):
+                    w[o + l] += Ct[k, j, l] * t
+            for j in range(m):
+                t = U[k, j]
+                for l in range(nc):
+                    w[o + l] += Ct[k, n + j, l] * t
     for l in range(CN.shape[0]):
         s = 0.0
         for j in range(n):
             s += CN[l, j] * X[N, j]
         w[osN + l] = s
-    ap, ad = _slack_steps(osN, rl.shape[0], w, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad)
+    ok, ap, ad = _slack_steps(os_, w.shape[0], w, os_, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad)
     return True, ap, ad
 
 
@@ -637,16 +649,16 @@ def _newton_solve_fixed(tags, dyn, ipt, fac, rhs, sol, res, rho_l, rho_u, it, in
                         w):
     """_newton_rhs, the solve of the plain Riccati recursion compiled for the sizes of tags
     (olado.linalg.riccati_fixed._solve_unconstrained_fixed, with the factors ``fac`` of
-    _factor_unconstrained_fixed(_loops) and its bundles ``dyn``, ``ipt``) and _recover_step, in
-    one pass over the stages: the backward sweep forms the gradient terms q, r and the stage-row
-    constants ci of a block of stages (into the work arrays of ``rhs``, the RHS bundle whose c, x0
-    are the residuals' dyn, x0r) just before it sweeps the block; the forward sweep recovers the
-    slack and multiplier steps of each block (into ``d``, the direction's Slacks) just after.
-    ``sol``: the direction's Solution bundle (nu is zeroed, as RiccatiFactorization.solve_into
-    does); ``res``: the Residuals bundle; ``it``: the iterate's Slacks; ``w`` scratch (nw,). Returns
-    (ok, ap, ad) as _recover_step (ok False: a non-finite solution; the direction is then partly
-    written). The helpers are called per block, not per stage or entry: each call of a compiled
-    function with array arguments costs reference counting per array."""
+    _factor_unconstrained_fixed(_loops) and its bundles ``dyn``, ``ipt``) and _recover_step in
+    one call (paper 001 (25) and the recovery below it): the gradient terms q, r and the stage-row
+    constants ci go into the work arrays of ``rhs`` (the RHS bundle whose c, x0 are the
+    residuals' dyn, x0r), the solution into ``sol`` (the direction's Solution bundle; nu is
+    zeroed, as RiccatiFactorization.solve_into does), the slack and multiplier steps into ``d``
+    (the direction's Slacks); ``res``: the Residuals bundle, ``it``: the iterate's Slacks, ``w``
+    scratch (nw,). Returns (ok, ap, ad) as _recover_step (ok False: a non-finite solution; the
+    direction is then partly written). The helpers are called once per pass, not per stage or
+    entry: each call of a compiled function with array arguments costs reference counting per
+    array (called per entry, it made the kernel 4x slower at N = 24)."""
     dyn = as_bundle(dyn, Dynamics)
     A, B = dyn.A, dyn.B
     ipt = as_bundle(ipt, IPTerms)
@@ -672,47 +684,36 @@ def _newton_solve_fixed(tags, dyn, ipt, fac, rhs, sol, res, rho_l, rho_u, it, in
     for i in range(nu.shape[0]):
         for j in range(nu.shape[1]):
             nu[i, j] = 0.0
-    # backward: q_N (bounds of x_N, then the C_N rows), then block by block the right-hand side
-    # of the block's stages and the block's sweep (as _solve_unconstrained_fixed: runs of stages
-    # without stage rows in one sweep, the others one at a time)
-    _box_rhs(N, N + 1, rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, q, r, ci)
+    # backward: the right-hand side (q_N with the C_N rows last, as _newton_rhs), then the sweep
+    # (as _solve_unconstrained_fixed: runs of stages without stage rows in one sweep, the others
+    # one at a time)
+    _box_rhs(0, N + 1, rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, q, r, ci)
     _box_rhs_final(rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, CN, q)
     for i in range(n):
         lam[N, i] = q[N, i]
     k = N - 1
     while k >= 0:
-        lo = max(k - _BLOCK + 1, 0)
-        _box_rhs(lo, k + 1, rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, q, r, ci)
-        while k >= lo:
-            if ni[k] > 0:
-                for i in range(n + m):
-                    gc[i] = 0.0
-                for cc in range(ni[k]):
-                    wgt = sig[k, cc] * ci[k, cc]
-                    if wgt != 0.0:
-                        for i in range(n + m):
-                            gc[i] += Ci[k, cc, i] * wgt
-                _solve_back_sweep(tags, k, k + 1, P, lam, c, A, B, K, L, q, r, gc, U)
-                k -= 1
-            else:
-                j = k - 1
-                while j >= lo and ni[j] == 0:
-                    j -= 1
-                _solve_back_sweep(tags, j + 1, k + 1, P, lam, c, A, B, K, L, q, r, None, U)
-                k = j
-    # forward: block by block the sweep, then the recovery of the block's stages
+        if ni[k] > 0:
+            for i in range(n + m):
+                gc[i] = 0.0
+            for cc in range(ni[k]):
+                wgt = sig[k, cc] * ci[k, cc]
+                if wgt != 0.0:
+                    for i in range(n + m):
+                        gc[i] += Ci[k, cc, i] * wgt
+            _solve_back_sweep(tags, k, k + 1, P, lam, c, A, B, K, L, q, r, gc, U)
+            k -= 1
+        else:
+            j = k - 1
+            while j >= 0 and ni[j] == 0:
+                j -= 1
+            _solve_back_sweep(tags, j + 1, k + 1, P, lam, c, A, B, K, L, q, r, None, U)
+            k = j
+    # forward: the sweep, then the recovery
     for i in range(n):
         X[0, i] = x0[i]
-    ok, ap, ad = True, 1e30, 1e30
-    k = 0
-    while ok and k < N:
-        hi = min(k + _BLOCK, N)
-        _solve_forward_sweep(tags, k, hi, X, K, U, P, lam, A, B, c)
-        ok, ap, ad = _recover_stages(k, hi, X, U, Ct, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, its, ds, w, ap,
-                                     ad)
-        k = hi
-    if ok:
-        ok, ap, ad = _recover_final(X, CN, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, its, ds, w, ap, ad)
+    _solve_forward_sweep(tags, 0, N, X, K, U, P, lam, A, B, c)
+    ok, ap, ad = _recover_all(X, U, Ct, CN, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, its, ds, w)
     if not ok:
         return False, ap, ad
     for i in range(n):

@@ -160,7 +160,9 @@ class _StepContext:
 
         by elimination of (dtl, dtu, dzl, dzu) and one solve with the factorization.  The direction
         is written into ``out`` (a reused direction of the prepared problem, every field
-        overwritten) or a new one."""
+        overwritten) or a new one.  With the plain Riccati recursion of small blocks the
+        right-hand side, the solve and the recovery are one kernel call (kernels._newton_solve_fixed,
+        the same values as the three calls of the other back-ends)."""
         P, it = self.P, self.it
         self.n_solves += 1
         d = P.point(np.empty(P.point_layout.size)) if out is None else out
