@@ -29,9 +29,8 @@ import numba as nb
 import numpy as np
 
 from ...linalg.backend import RHS, Solution
-from ...linalg.codegen import REASSOC, SizeTags, as_bundle, stack_vector
-from ...linalg.riccati_fixed import _solve_back_sweep, _solve_forward_sweep
-from ...linalg.riccati_kernels import Dynamics, IPTerms, PlainFactors
+from ...linalg.codegen import REASSOC, as_bundle
+from ...linalg.riccati_fixed import _solve_unconstrained_fixed
 from .bundles import Residuals, Slacks
 
 
@@ -489,60 +488,49 @@ def _symmetric_stage_hessians(Q, S, R, H):
 # ----------------------------------------------------------------------------- the fused Newton solve
 # One Newton solve of the reduced system (25) for the plain Riccati recursion of small blocks
 # (olado.linalg.riccati_fixed: no equality rows, n + m <= FIXED_SIZE_MAX): the right-hand side
-# (_newton_rhs), the two sweeps of the solve (_solve_unconstrained_fixed) and the recovery of the
-# eliminated parts (_recover_step) in one call. Each value is computed by the same expression, in
-# the same order of operations, as by the three kernels in turn (the helpers below are compiled
-# without fast-math flags, like _newton_rhs and _recover_step -- explicitly: a callee without a
-# fastmath option inherits its caller's flags --, the fused kernel's own loops have those of
-# _solve_unconstrained_fixed, the sweeps are the same intrinsics), so the results are the same
-# bit for bit (tests/qp/test_newton_solve_fused.py). Interleaving the passes stage block by stage
-# block (64 stages) was slower than running them in turn over the horizon at N = 2 400 and
-# 12 000: the passes read disjoint arrays, so a block shares no data between them.
-# numba's cache of _newton_solve_fixed does not see the sweeps' source file (riccati_fixed.py):
-# delete this module's cache files (__pycache__/kernels.*.nbi, *.nbc) after changing those
-# intrinsics (docs/architecture.md "Caches").
+# (_newton_rhs), the solve (_solve_unconstrained_fixed itself, the compiled function the KKT
+# back-end calls: its code is not generated twice) and the recovery of the eliminated parts
+# (_recover_step) in one call. Each value is computed by the same expression, in the same order
+# of operations, as by the three kernels in turn (the helpers below are compiled without
+# fast-math flags, like _newton_rhs and _recover_step -- explicitly: a callee without a fastmath
+# option inherits its caller's flags), so the results are the same bit for bit
+# (tests/qp/test_newton_solve_fused.py). Interleaving the three passes stage block by stage block
+# (64 stages, the sweeps' intrinsics called per block) was slower than running them in turn at
+# N = 2 400 and 12 000 -- the passes read disjoint arrays, a block shares no data between them --
+# and compiled 2.7 s longer. numba's cache of _newton_solve_fixed does not see riccati_fixed.py:
+# delete this module's cache files (__pycache__/kernels.*.nbi, *.nbc) after changing
+# _solve_unconstrained_fixed (docs/architecture.md "Caches").
 
 @nb.njit(cache=True, fastmath=False)
-def _box_rhs(k_lo, k_hi, rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, q, r, ci):
-    """Stages k_lo <= k < k_hi of _newton_rhs: q[k] (k >= 1: the bounds of x_k; q[0] = rx[0]),
-    and for k < N r[k] (the bounds of u_k) and ci[k] (the stage rows); the C_N rows:
-    _box_rhs_final. (The indices are unsigned: numba tests a signed index for wraparound at
-    every access, which made these loops 10-20 % slower.)"""
+def _box_rhs(rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, CN, q, r, ci):
+    """_newton_rhs (the same values) with unsigned indices: numba tests a signed index for
+    wraparound at every access, which made these loops 10-20 % slower."""
     N = ru.shape[0]
     n = rx.shape[1]
     m = ru.shape[1]
     nc = Ds.shape[1]
     ou = N * n
     os_ = ou + N * m
-    for kk in range(k_hi - k_lo):
-        k = k_lo + kk
-        ku = np.uint64(k)
-        if k == 0:
-            for i in range(n):
-                q[0, i] = rx[0, i]
-        else:
-            for i in range(n):
-                idx = np.uint64((k - 1) * n + i)
-                g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
-                q[ku, i] = rx[ku, i] + g
-        if k < N:
-            for i in range(m):
-                idx = np.uint64(ou + k * m + i)
-                g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
-                r[ku, i] = ru[ku, i] + g
-            for l in range(nc):
-                idx = np.uint64(os_ + k * nc + l)
-                g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
-                d = Ds[ku, l]
-                ci[ku, l] = g / d if d > 0 else 0.0
-
-
-@nb.njit(cache=True, fastmath=False)
-def _box_rhs_final(rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, CN, q):
-    """The C_N rows of _newton_rhs: q[N] += C_N^T g (after _box_rhs of stage N)."""
-    N = q.shape[0] - 1
-    n = q.shape[1]
-    osN = rl.shape[0] - CN.shape[0]
+    osN = os_ + N * nc
+    for i in range(n):
+        q[0, i] = rx[0, i]
+    for kk in range(1, N + 1):
+        k = np.uint64(kk)
+        for i in range(n):
+            idx = np.uint64((kk - 1) * n + i)
+            g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
+            q[k, i] = rx[k, i] + g
+    for kk in range(N):
+        k = np.uint64(kk)
+        for i in range(m):
+            idx = np.uint64(ou + kk * m + i)
+            g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
+            r[k, i] = ru[k, i] + g
+        for l in range(nc):
+            idx = np.uint64(os_ + kk * nc + l)
+            g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
+            d = Ds[k, l]
+            ci[k, l] = g / d if d > 0 else 0.0
     for l in range(CN.shape[0]):
         idx = osN + l
         g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
@@ -555,10 +543,9 @@ _TINY = 1e-290
 
 
 @nb.njit(cache=True, fastmath=False)
-def _slack_steps(i_lo, i_hi, src, s_off, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad):
-    """The last loop of _recover_step for the entries i_lo <= i < i_hi of w, w_i = src[s_off + i
-    - i_lo] (src: the flat X, U, or the stage rows' values): dtl, dtu, dzl, dzu and the running
-    step lengths; returns (ok, ap, ad), ok whether every w_i read is finite.
+def _slack_steps(w, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d):
+    """The last loop of _recover_step: dtl, dtu, dzl, dzu and the step lengths; returns (True,
+    ap, ad).
 
     The ratio tests skip the division -t/a (a < 0) when t >= p = fl(fl(ap (-a)) (1 + 2^-50)) and
     p is a normal number: then p > ap (-a) (the two roundings lose at most a factor (1 - 2^-53)^2),
@@ -566,13 +553,10 @@ def _slack_steps(i_lo, i_hi, src, s_off, fl, fu, rl, rup, rho_l, rho_u, inv_tl, 
     minimum is the same, bit for bit, with most divisions skipped once ap is small."""
     tl, tu, zl, zu = it
     dtl, dtu, dzl, dzu = d
-    ok = True
-    for j in range(i_hi - i_lo):
-        i = np.uint64(i_lo + j)     # unsigned indices: no wraparound test per access
-        v = src[np.uint64(s_off + j)]
-        ok = ok and np.isfinite(v)
-        a = v + rl[i] if fl[i] else 0.0
-        b = -v + rup[i] if fu[i] else 0.0
+    ap, ad = 1e30, 1e30
+    for i in range(w.shape[0]):
+        a = w[i] + rl[i] if fl[i] else 0.0
+        b = -w[i] + rup[i] if fu[i] else 0.0
         c = (rho_l[i] - zl[i] * a) * inv_tl[i]
         e = (rho_u[i] - zu[i] * b) * inv_tu[i]
         dtl[i] = a
@@ -595,14 +579,13 @@ def _slack_steps(i_lo, i_hi, src, s_off, fl, fu, rl, rup, rho_l, rho_u, inv_tl, 
             t, p = zu[i], ad * -e * _K
             if not (t >= p and p >= _TINY):
                 ad = min(ad, -t / e)
-    return ok, ap, ad
+    return True, ap, ad
 
 
 @nb.njit(cache=True, fastmath=False)
 def _recover_all(X, U, Ct, CN, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, w):
-    """_recover_step after the forward sweep of _newton_solve_fixed: the bounds of x_1..x_N and
-    of u read from X and U directly, the values of the stage rows and of the C_N rows through the
-    scratch w; returns (ok, ap, ad) as _recover_step."""
+    """_recover_step (the same values; the step lengths' divisions partly skipped, see
+    _slack_steps); returns (ok, ap, ad) as _recover_step."""
     N = U.shape[0]
     n = X.shape[1]
     m = U.shape[1]
@@ -610,41 +593,42 @@ def _recover_all(X, U, Ct, CN, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it
     ou = N * n
     os_ = ou + N * m
     osN = os_ + N * nc
-    ap, ad = 1e30, 1e30
+    # w = (x_1..x_N, u, C_k z_k, C_N x_N), X and U checked for finiteness on the way
     for i in range(n):
         if not np.isfinite(X[0, i]):
-            return False, ap, ad
-    ok, ap, ad = _slack_steps(0, ou, X.reshape(X.size), n, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap,
-                              ad)
-    if not ok:
-        return False, ap, ad
-    ok, ap, ad = _slack_steps(ou, os_, U.reshape(U.size), 0, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap,
-                              ad)
-    if not ok:
-        return False, ap, ad
-    if nc > 0:
-        for k in range(N):
-            o = os_ + k * nc
+            return False, 1e30, 1e30
+    for kk in range(N):
+        k = np.uint64(kk)
+        for i in range(n):
+            t = X[k + np.uint64(1), i]
+            if not np.isfinite(t):
+                return False, 1e30, 1e30
+            w[np.uint64(kk * n + i)] = t
+        for i in range(m):
+            t = U[k, i]
+            if not np.isfinite(t):
+                return False, 1e30, 1e30
+            w[np.uint64(ou + kk * m + i)] = t
+        o = os_ + kk * nc
+        for l in range(nc):
+            w[o + l] = 0.0
+        for j in range(n):
+            t = X[k, j]
             for l in range(nc):
-                w[o + l] = 0.0
-            for j in range(n):
-                t = X[k, j]
-                for l in range(nc):
-                    w[o + l] += Ct[k, j, l] * t
-            for j in range(m):
-                t = U[k, j]
-                for l in range(nc):
-                    w[o + l] += Ct[k, n + j, l] * t
+                w[o + l] += Ct[k, j, l] * t
+        for j in range(m):
+            t = U[k, j]
+            for l in range(nc):
+                w[o + l] += Ct[k, n + j, l] * t
     for l in range(CN.shape[0]):
         s = 0.0
         for j in range(n):
             s += CN[l, j] * X[N, j]
         w[osN + l] = s
-    ok, ap, ad = _slack_steps(os_, w.shape[0], w, os_, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, ap, ad)
-    return True, ap, ad
+    return _slack_steps(w, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d)
 
 
-@nb.njit(cache=True, fastmath=REASSOC)
+@nb.njit(cache=True, fastmath=False)
 def _newton_solve_fixed(tags, dyn, ipt, fac, rhs, sol, res, rho_l, rho_u, it, inv_tl, inv_tu, Ds, Ct, CN, fl, fu, d,
                         w):
     """_newton_rhs, the solve of the plain Riccati recursion compiled for the sizes of tags
@@ -658,67 +642,17 @@ def _newton_solve_fixed(tags, dyn, ipt, fac, rhs, sol, res, rho_l, rho_u, it, in
     scratch (nw,). Returns (ok, ap, ad) as _recover_step (ok False: a non-finite solution; the
     direction is then partly written). The helpers are called once per pass, not per stage or
     entry: each call of a compiled function with array arguments costs reference counting per
-    array (called per entry, it made the kernel 4x slower at N = 24)."""
-    dyn = as_bundle(dyn, Dynamics)
-    A, B = dyn.A, dyn.B
-    ipt = as_bundle(ipt, IPTerms)
-    Ci, sig, ni = ipt.Ci, ipt.sig, ipt.ni
-    fac = as_bundle(fac, PlainFactors)
-    P, K, L = fac.P, fac.K, fac.L
-    rhs = as_bundle(rhs, RHS)
-    q, r, c, x0, ci = rhs.q, rhs.r, rhs.c, rhs.x0, rhs.ci
-    sol = as_bundle(sol, Solution)
-    X, U, lam, nu = sol.X, sol.U, sol.lam, sol.nu
+    array (a helper called per box entry made the kernel 4x slower at N = 24)."""
+    rhs_ = as_bundle(rhs, RHS)
+    q, r, ci = rhs_.q, rhs_.r, rhs_.ci
+    sol_ = as_bundle(sol, Solution)
+    X, U, nu = sol_.X, sol_.U, sol_.nu
     res = as_bundle(res, Residuals)
     rx, ru, rl, rup = res.rx, res.ru, res.rl, res.rup
-    it = as_bundle(it, Slacks)
-    its = (it.tl, it.tu, it.zl, it.zu)
-    zl, zu = it.zl, it.zu
-    d = as_bundle(d, Slacks)
-    ds = (d.tl, d.tu, d.zl, d.zu)
-    tags = as_bundle(tags, SizeTags)
-    nt, mt, zt = tags.n, tags.m, tags.nz
-    n, m = len(nt), len(mt)
-    N = A.shape[0]
-    gc = stack_vector(zt)
+    zl, zu = it[2], it[3]
     for i in range(nu.shape[0]):
         for j in range(nu.shape[1]):
             nu[i, j] = 0.0
-    # backward: the right-hand side (q_N with the C_N rows last, as _newton_rhs), then the sweep
-    # (as _solve_unconstrained_fixed: runs of stages without stage rows in one sweep, the others
-    # one at a time)
-    _box_rhs(0, N + 1, rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, q, r, ci)
-    _box_rhs_final(rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, CN, q)
-    for i in range(n):
-        lam[N, i] = q[N, i]
-    k = N - 1
-    while k >= 0:
-        if ni[k] > 0:
-            for i in range(n + m):
-                gc[i] = 0.0
-            for cc in range(ni[k]):
-                wgt = sig[k, cc] * ci[k, cc]
-                if wgt != 0.0:
-                    for i in range(n + m):
-                        gc[i] += Ci[k, cc, i] * wgt
-            _solve_back_sweep(tags, k, k + 1, P, lam, c, A, B, K, L, q, r, gc, U)
-            k -= 1
-        else:
-            j = k - 1
-            while j >= 0 and ni[j] == 0:
-                j -= 1
-            _solve_back_sweep(tags, j + 1, k + 1, P, lam, c, A, B, K, L, q, r, None, U)
-            k = j
-    # forward: the sweep, then the recovery
-    for i in range(n):
-        X[0, i] = x0[i]
-    _solve_forward_sweep(tags, 0, N, X, K, U, P, lam, A, B, c)
-    ok, ap, ad = _recover_all(X, U, Ct, CN, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, its, ds, w)
-    if not ok:
-        return False, ap, ad
-    for i in range(n):
-        s = lam[N, i]
-        for l in range(n):
-            s += P[N, i, l] * X[N, l]
-        lam[N, i] = s
-    return True, ap, ad
+    _box_rhs(rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, CN, q, r, ci)
+    _solve_unconstrained_fixed(tags, dyn, ipt, fac, rhs, sol)
+    return _recover_all(X, U, Ct, CN, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, w)
