@@ -480,40 +480,39 @@ def _solve_back_sweep(typingctx, tags, k_lo, k_hi, P, p, c, A, B, K, L, q, r, gk
 
 
 @intrinsic
-def _solve_forward_sweep(typingctx, tags, k_lo, k_hi, X, K, U, P, lam, A, B, c):
-    """Stages k = k_lo, ..., k_hi - 1 of the forward sweep of _solve_unconstrained_fixed as
-    straight-line SIMD code in one loop over the stages, x_k carried in registers (arguments as
-    _solve_back_sweep): from x_{k_lo} in X[k_lo], k_k in U[k] and p_k in lam[k], stage k writes
-    u_k = K_k x_k + k_k -> U[k], lam_k = P_k x_k + p_k -> lam[k] (sum of rows of the symmetric
-    P_k) and x_{k+1} = A_k x_k + B_k u_k + c_k -> X[k + 1] (row products summed by a transposing
+def _solve_forward_sweep(typingctx, tags, X, K, U, P, lam, A, B, c):
+    """The forward sweep of _solve_unconstrained_fixed as straight-line SIMD code in one loop
+    over the stages, x_k carried in registers (arguments as _solve_back_sweep): from x_0 in
+    X[0], k_k in U[k] and p_k in lam[k], stage k writes u_k = K_k x_k + k_k -> U[k],
+    lam_k = P_k x_k + p_k -> lam[k] (sum of rows of the symmetric P_k) and
+    x_{k+1} = A_k x_k + B_k u_k + c_k -> X[k + 1] (row products summed by a transposing
     reduction)."""
-    if not (c_arrays(X, K, U, P, lam, A, B, c, ndim=(2, 3, 2, 3, 2, 3, 3, 2))
-            and isinstance(k_lo, types.Integer) and isinstance(k_hi, types.Integer)):
+    if not c_arrays(X, K, U, P, lam, A, B, c, ndim=(2, 3, 2, 3, 2, 3, 3, 2)):
         return None
     n, m = len(tags[0]), len(tags[1])
 
     def codegen(context, builder, signature, args):
         g = _SolveRowCode(builder)
         names = ("X", "K", "U", "P", "lam", "A", "B", "c")
+        aryX = context.make_array(signature.args[1])(context, builder, args[1])
         data = {name: context.make_array(t)(context, builder, v).data
-                for name, t, v in zip(names, signature.args[3:], args[3:])}
-        k_lo, k_hi = as_i64(builder, args[1]), as_i64(builder, args[2])
+                for name, t, v in zip(names, signature.args[1:], args[1:])}
+        N = builder.extract_value(aryX.shape, 0)
+        N = builder.sub(N, llir.Constant(N.type, 1))
         where = {"X1": (data["X"], 1, n), "K": (data["K"], 0, m * n), "U": (data["U"], 0, m),
                  "P": (data["P"], 0, n * n), "lam": (data["lam"], 0, n), "A": (data["A"], 0, n * n),
                  "B": (data["B"], 0, n * m), "c": (data["c"], 0, n)}
         xp = pieces(0, n)
         slots = carry_slots(builder, xp)
-        x0 = g.row(builder.gep(data["X"], [builder.mul(k_lo, llir.Constant(I64, n))]), xp)
-        for (_, _, v), (_, _, s) in zip(x0, slots):
+        for (_, _, v), (_, _, s) in zip(g.row(data["X"], xp), slots):
             builder.store(v, s)
-        with cgutils.for_range(builder, builder.sub(k_hi, k_lo)) as loop:
+        with cgutils.for_range(builder, N) as loop:
             x = [(c0, w, builder.load(s)) for c0, w, s in slots]
-            k = builder.add(k_lo, as_i64(builder, loop.index))
-            xn = _forward_stage(g, stage_pointers(builder, k, data, where), n, m, x)
+            xn = _forward_stage(g, stage_pointers(builder, as_i64(builder, loop.index), data, where), n, m, x)
             for (_, _, v), (_, _, s) in zip(xn, slots):
                 builder.store(v, s)
         return context.get_dummy_value()
-    return types.none(tags, k_lo, k_hi, X, K, U, P, lam, A, B, c), codegen
+    return types.none(tags, X, K, U, P, lam, A, B, c), codegen
 
 
 @nb.njit(cache=True, fastmath=REASSOC)
@@ -567,7 +566,7 @@ def _solve_unconstrained_fixed(tags, dyn, ipt, fac, rhs, sol):
             k = j
     for i in range(n):
         X[0, i] = x0[i]
-    _solve_forward_sweep(tags, 0, N, X, K, U, P, lam, A, B, c)
+    _solve_forward_sweep(tags, X, K, U, P, lam, A, B, c)
     for i in range(n):
         s = lam[N, i]
         for l in range(n):
