@@ -33,7 +33,7 @@ from olado.solvers.ipm import newton as ipm_newton, solver as ipm_solver
 SECTION = "Interior-point iterations: time per stage (issue 16 item 2)"
 CASES = ["zambezi12:24", "zambezi:12000"]
 RICCATI = ("k:factor", "k:factor_fixed", "k:factor_fixed_loops", "k:factor_plain", "k:solve", "k:solve_fixed",
-           "k:solve_plain")
+           "k:solve_plain", "k:newton_solve")
 
 
 class Timers:

@@ -8,6 +8,8 @@ N (n+m) + k nc + l, then C_N x_N) or the flat point vectors:
   the Newton right-hand side of the reduced system (25) (:func:`_newton_rhs`) and the recovery of
   the eliminated parts after the solve, delta lambda = W^{-1} Lambda (r_3 - C delta s) below (25)
   (:func:`_recover_step`), with the complementarity residual of (22) (:func:`_complementarity_residual`);
+  for the plain Riccati recursion of small blocks the three steps of a Newton solve in one kernel,
+  the right-hand side, the Riccati sweeps and the recovery (:func:`_newton_solve_fixed`);
 * the step lengths of (23): ratio tests (:func:`_max_step`, :func:`_max_step_split`) and the
   neighbourhood test (:func:`_neighbourhood_step`); the right-hand sides of the correctors
   (:func:`_corrector_rhs`, :func:`_combined_rhs`, :func:`_centrality_rhs`);
@@ -26,8 +28,10 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from ...linalg.backend import RHS, Solution
 from ...linalg.codegen import REASSOC, as_bundle
-from .bundles import Slacks
+from ...linalg.riccati_fixed import _solve_unconstrained_fixed
+from .bundles import Residuals, Slacks
 
 
 @nb.njit(cache=True)
@@ -479,3 +483,176 @@ def _symmetric_stage_hessians(Q, S, R, H):
             for j in range(m):
                 H[k, n + i, n + j] = 0.5 * (R[k, i, j] + R[k, j, i])
     return H
+
+
+# ----------------------------------------------------------------------------- the fused Newton solve
+# One Newton solve of the reduced system (25) for the plain Riccati recursion of small blocks
+# (olado.linalg.riccati_fixed: no equality rows, n + m <= FIXED_SIZE_MAX): the right-hand side
+# (_newton_rhs), the solve (_solve_unconstrained_fixed itself, the compiled function the KKT
+# back-end calls: its code is not generated twice) and the recovery of the eliminated parts
+# (_recover_step) in one call. Each value is computed by the same expression, in the same order
+# of operations, as by the three kernels in turn (the helpers below are compiled without
+# fast-math flags, like _newton_rhs and _recover_step -- explicitly: a callee without a fastmath
+# option inherits its caller's flags), so the results are the same bit for bit
+# (tests/qp/test_newton_solve_fused.py). Interleaving the three passes stage block by stage block
+# (64 stages, the sweeps' intrinsics called per block) was slower than running them in turn at
+# N = 2 400 and 12 000 -- the passes read disjoint arrays, a block shares no data between them --
+# and compiled 2.7 s longer. numba's cache of _newton_solve_fixed does not see riccati_fixed.py:
+# delete this module's cache files (__pycache__/kernels.*.nbi, *.nbc) after changing
+# _solve_unconstrained_fixed (docs/architecture.md "Caches").
+
+@nb.njit(cache=True, fastmath=False)
+def _box_rhs(rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, CN, q, r, ci):
+    """_newton_rhs (the same values) with unsigned indices: numba tests a signed index for
+    wraparound at every access, which made these loops 10-20 % slower."""
+    N = ru.shape[0]
+    n = rx.shape[1]
+    m = ru.shape[1]
+    nc = Ds.shape[1]
+    ou = N * n
+    os_ = ou + N * m
+    osN = os_ + N * nc
+    for i in range(n):
+        q[0, i] = rx[0, i]
+    for kk in range(1, N + 1):
+        k = np.uint64(kk)
+        for i in range(n):
+            idx = np.uint64((kk - 1) * n + i)
+            g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
+            q[k, i] = rx[k, i] + g
+    for kk in range(N):
+        k = np.uint64(kk)
+        for i in range(m):
+            idx = np.uint64(ou + kk * m + i)
+            g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
+            r[k, i] = ru[k, i] + g
+        for l in range(nc):
+            idx = np.uint64(os_ + kk * nc + l)
+            g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
+            d = Ds[k, l]
+            ci[k, l] = g / d if d > 0 else 0.0
+    for l in range(CN.shape[0]):
+        idx = osN + l
+        g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
+        for i in range(n):
+            q[N, i] += CN[l, i] * g
+
+
+_K = 1.0 + 2.0 ** -50   # p = fl(fl(ap y) _K) > ap y for fl(ap y) normal: see _slack_steps
+_TINY = 1e-290
+
+
+@nb.njit(cache=True, fastmath=False)
+def _slack_steps(w, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d):
+    """The last loop of _recover_step: dtl, dtu, dzl, dzu and the step lengths; returns (True,
+    ap, ad).
+
+    The ratio tests skip the division -t/a (a < 0) when t >= p = fl(fl(ap (-a)) (1 + 2^-50)) and
+    p is a normal number: then p > ap (-a) (the two roundings lose at most a factor (1 - 2^-53)^2),
+    so t / (-a) > ap and its rounded value is >= ap (rounding is monotone, ap a double): the
+    minimum is the same, bit for bit, with most divisions skipped once ap is small."""
+    tl, tu, zl, zu = it
+    dtl, dtu, dzl, dzu = d
+    ap, ad = 1e30, 1e30
+    for i in range(w.shape[0]):
+        a = w[i] + rl[i] if fl[i] else 0.0
+        b = -w[i] + rup[i] if fu[i] else 0.0
+        c = (rho_l[i] - zl[i] * a) * inv_tl[i]
+        e = (rho_u[i] - zu[i] * b) * inv_tu[i]
+        dtl[i] = a
+        dtu[i] = b
+        dzl[i] = c
+        dzu[i] = e
+        if a < 0.0:
+            t, p = tl[i], ap * -a * _K
+            if not (t >= p and p >= _TINY):
+                ap = min(ap, -t / a)
+        if b < 0.0:
+            t, p = tu[i], ap * -b * _K
+            if not (t >= p and p >= _TINY):
+                ap = min(ap, -t / b)
+        if c < 0.0:
+            t, p = zl[i], ad * -c * _K
+            if not (t >= p and p >= _TINY):
+                ad = min(ad, -t / c)
+        if e < 0.0:
+            t, p = zu[i], ad * -e * _K
+            if not (t >= p and p >= _TINY):
+                ad = min(ad, -t / e)
+    return True, ap, ad
+
+
+@nb.njit(cache=True, fastmath=False)
+def _recover_all(X, U, Ct, CN, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, w):
+    """_recover_step (the same values; the step lengths' divisions partly skipped, see
+    _slack_steps); returns (ok, ap, ad) as _recover_step."""
+    N = U.shape[0]
+    n = X.shape[1]
+    m = U.shape[1]
+    nc = Ct.shape[2]
+    ou = N * n
+    os_ = ou + N * m
+    osN = os_ + N * nc
+    # w = (x_1..x_N, u, C_k z_k, C_N x_N), X and U checked for finiteness on the way
+    for i in range(n):
+        if not np.isfinite(X[0, i]):
+            return False, 1e30, 1e30
+    for kk in range(N):
+        k = np.uint64(kk)
+        for i in range(n):
+            t = X[k + np.uint64(1), i]
+            if not np.isfinite(t):
+                return False, 1e30, 1e30
+            w[np.uint64(kk * n + i)] = t
+        for i in range(m):
+            t = U[k, i]
+            if not np.isfinite(t):
+                return False, 1e30, 1e30
+            w[np.uint64(ou + kk * m + i)] = t
+        o = os_ + kk * nc
+        for l in range(nc):
+            w[o + l] = 0.0
+        for j in range(n):
+            t = X[k, j]
+            for l in range(nc):
+                w[o + l] += Ct[k, j, l] * t
+        for j in range(m):
+            t = U[k, j]
+            for l in range(nc):
+                w[o + l] += Ct[k, n + j, l] * t
+    for l in range(CN.shape[0]):
+        s = 0.0
+        for j in range(n):
+            s += CN[l, j] * X[N, j]
+        w[osN + l] = s
+    return _slack_steps(w, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d)
+
+
+@nb.njit(cache=True, fastmath=False)
+def _newton_solve_fixed(tags, dyn, ipt, fac, rhs, sol, res, rho_l, rho_u, it, inv_tl, inv_tu, Ds, Ct, CN, fl, fu, d,
+                        w):
+    """_newton_rhs, the solve of the plain Riccati recursion compiled for the sizes of tags
+    (olado.linalg.riccati_fixed._solve_unconstrained_fixed, with the factors ``fac`` of
+    _factor_unconstrained_fixed(_loops) and its bundles ``dyn``, ``ipt``) and _recover_step in
+    one call (paper 001 (25) and the recovery below it): the gradient terms q, r and the stage-row
+    constants ci go into the work arrays of ``rhs`` (the RHS bundle whose c, x0 are the
+    residuals' dyn, x0r), the solution into ``sol`` (the direction's Solution bundle; nu is
+    zeroed, as RiccatiFactorization.solve_into does), the slack and multiplier steps into ``d``
+    (the direction's Slacks); ``res``: the Residuals bundle, ``it``: the iterate's Slacks, ``w``
+    scratch (nw,). Returns (ok, ap, ad) as _recover_step (ok False: a non-finite solution; the
+    direction is then partly written). The helpers are called once per pass, not per stage or
+    entry: each call of a compiled function with array arguments costs reference counting per
+    array (a helper called per box entry made the kernel 4x slower at N = 24)."""
+    rhs_ = as_bundle(rhs, RHS)
+    q, r, ci = rhs_.q, rhs_.r, rhs_.ci
+    sol_ = as_bundle(sol, Solution)
+    X, U, nu = sol_.X, sol_.U, sol_.nu
+    res = as_bundle(res, Residuals)
+    rx, ru, rl, rup = res.rx, res.ru, res.rl, res.rup
+    zl, zu = it[2], it[3]
+    for i in range(nu.shape[0]):
+        for j in range(nu.shape[1]):
+            nu[i, j] = 0.0
+    _box_rhs(rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, CN, q, r, ci)
+    _solve_unconstrained_fixed(tags, dyn, ipt, fac, rhs, sol)
+    return _recover_all(X, U, Ct, CN, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, w)

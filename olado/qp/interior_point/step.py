@@ -15,6 +15,13 @@ import math
 import numpy as np
 
 from ...linalg.backend import NotPositiveDefiniteError, make_kkt_solver
+from ...linalg.codegen import kernel_set
+from ...linalg.riccati import RiccatiFactorization
+from .kernels import _newton_solve_fixed
+
+#: the fused Newton solve (right-hand side, Riccati solve, recovery in one kernel), called
+#: through a KernelSet per block sizes (olado.linalg.codegen.kernel_set)
+_FUSED_KERNELS = {"newton_solve": _newton_solve_fixed}
 
 
 class _InconsistentRows(ArithmeticError):
@@ -95,6 +102,12 @@ class _StepContext:
             if not last_ok:
                 factorize(rungs[j])    # the lowest successful rung again (a failure overwrote it)
         P.reg_rung = j
+        # the fused Newton solve when the factorization is the plain Riccati recursion of small
+        # blocks (kernels._newton_solve_fixed: the same values as newton_rhs, solve_into and
+        # recover_step in turn); other back-ends take the three steps
+        f = self.fact
+        self._fused = (kernel_set(_FUSED_KERNELS, (P.n, P.m)).newton_solve
+                       if type(f) is RiccatiFactorization and f.unconstrained and f._size_tags is not None else None)
         reg = rungs[j]
         self.reg = reg
         # nonconvex = "shift": a factorization that needed more than the base regularization makes
@@ -147,23 +160,28 @@ class _StepContext:
 
         by elimination of (dtl, dtu, dzl, dzu) and one solve with the factorization.  The direction
         is written into ``out`` (a reused direction of the prepared problem, every field
-        overwritten) or a new one."""
+        overwritten) or a new one.  With the plain Riccati recursion of small blocks the
+        right-hand side, the solve and the recovery are one kernel call (kernels._newton_solve_fixed,
+        the same values as the three calls of the other back-ends)."""
         P, it = self.P, self.it
         self.n_solves += 1
-        q, r, ci = P.work_q, P.work_r, P.work_ci
-        P.kernels.newton_rhs(res.rx, res.ru, res.rl, res.rup, rho_l, rho_u, it.slacks, self.inv_tl, self.inv_tu, self.Ds, P.CN,
-                    q, r, ci)
-        if out is None:
-            d = P.point(np.empty(P.point_layout.size))
+        d = P.point(np.empty(P.point_layout.size)) if out is None else out
+        fused = self._fused
+        if fused is not None:
+            f = self.fact
+            ok, ap, ad = fused(f._size_tags, f._dyn, f._ipt, f._factors, res.kkt_rhs, d.solution, res.arrays, rho_l,
+                               rho_u, it.slacks, self.inv_tl, self.inv_tu, self.Ds, P.Ct, P.CN, P.fl, P.fu, d.slacks,
+                               P.work_w)
         else:
-            d = out
-        # the work arrays were validated when the QP was prepared: the solution goes straight into
-        # the direction's arrays
-        defect = self.fact.solve_into(res.kkt_rhs, d.solution)
-        if defect:
-            _check_rows(P, defect, res, "Newton step")
-        ok, ap, ad = P.kernels.recover_step(d.X, d.U, P.Ct, P.CN, P.fl, P.fu, res.rl, res.rup, rho_l, rho_u, self.inv_tl,
-                                   self.inv_tu, it.slacks, d.slacks, P.work_w)
+            P.kernels.newton_rhs(res.rx, res.ru, res.rl, res.rup, rho_l, rho_u, it.slacks, self.inv_tl, self.inv_tu,
+                                 self.Ds, P.CN, P.work_q, P.work_r, P.work_ci)
+            # the work arrays were validated when the QP was prepared: the solution goes straight
+            # into the direction's arrays
+            defect = self.fact.solve_into(res.kkt_rhs, d.solution)
+            if defect:
+                _check_rows(P, defect, res, "Newton step")
+            ok, ap, ad = P.kernels.recover_step(d.X, d.U, P.Ct, P.CN, P.fl, P.fu, res.rl, res.rup, rho_l, rho_u,
+                                                self.inv_tl, self.inv_tu, it.slacks, d.slacks, P.work_w)
         if not ok:
             raise FloatingPointError("non-finite Newton step")
         d.max_split = (ap, ad)
