@@ -315,6 +315,22 @@ def _stage_hessian_kernel(k, x, u, inflow, evap, fa, fh, alpha, psi, sig, p, LX,
     return finite
 
 
+@nb.njit(cache=True)
+def _simulate_kernel(drive, evap, fa, u, X):
+    """The recursion of eq. (40) from X[0] (Zambezi.simulate): drive = Z + Lu u per stage."""
+    v1, v2, v3, v4, d1, d2 = X[0, 0], X[0, 1], X[0, 2], X[0, 3], X[0, 4], X[0, 5]
+    A0, A1, A2, A3 = fa[0, 0], fa[0, 1], fa[0, 2], fa[0, 3]
+    B0, B1, B2, B3 = fa[1, 0], fa[1, 1], fa[1, 2], fa[1, 3]
+    C0, C1, C2, C3 = fa[2, 0], fa[2, 1], fa[2, 2], fa[2, 3]
+    for k in range(drive.shape[0]):
+        n1 = v1 + drive[k, 0] - evap[k, 0] * ((A0 * v1 + B0) * v1 + C0)
+        n2 = v2 + drive[k, 1] - evap[k, 1] * ((A1 * v2 + B1) * v2 + C1)
+        n3 = v3 + d2 + drive[k, 2] - evap[k, 2] * ((A2 * v3 + B2) * v3 + C2)
+        n4 = v4 + drive[k, 3] - evap[k, 3] * ((A3 * v4 + B3) * v4 + C3)
+        v1, v2, v3, v4, d1, d2 = n1, n2, n3, n4, u[k, 4], d1
+        X[k + 1, 0], X[k + 1, 1], X[k + 1, 2], X[k + 1, 3], X[k + 1, 4], X[k + 1, 5] = v1, v2, v3, v4, d1, d2
+
+
 #: an empty array: no final point for the fused kernels (the stage functions alone)
 _NONE = np.empty(0)
 #: the functions the fused kernels compute or bypass (Zambezi.eval_values,
@@ -640,23 +656,10 @@ class Zambezi(DOCP):
         self.counters["dynamics"] += 1
         N = self.N
         # everything that does not depend on the states, per stage: Z + Lu u, and e
-        drive = (self.inflow + U @ _LU[:4].T).tolist()
-        e = self.evaporation.tolist()
-        A, B, C = (row.tolist() for row in self.fa)
-        F2 = U[:, 4].tolist()
+        drive = np.ascontiguousarray(self.inflow + U @ _LU[:4].T)
         X = np.empty((N + 1, 6))
         X[0] = self.x0
-        v1, v2, v3, v4, d1, d2 = self.x0.tolist()
-        out = [None] * N
-        for k in range(N):
-            dk, ek = drive[k], e[k]
-            n1 = v1 + dk[0] - ek[0] * ((A[0] * v1 + B[0]) * v1 + C[0])
-            n2 = v2 + dk[1] - ek[1] * ((A[1] * v2 + B[1]) * v2 + C[1])
-            n3 = v3 + d2 + dk[2] - ek[2] * ((A[2] * v3 + B[2]) * v3 + C[2])
-            n4 = v4 + dk[3] - ek[3] * ((A[3] * v4 + B[3]) * v4 + C[3])
-            v1, v2, v3, v4, d1, d2 = n1, n2, n3, n4, F2[k], d1
-            out[k] = (v1, v2, v3, v4, d1, d2)
-        X[1:] = out
+        _simulate_kernel(drive, self.evaporation, self.fa, self._rows(U), X)
         return self._check_stacked(X, (N + 1, 6), "simulate", "x")
 
     # ------------------------------------------------------------------ start points

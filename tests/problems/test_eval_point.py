@@ -206,3 +206,15 @@ def test_replaced_stage_functions_are_called():
     # a function replaced on the instance is called too
     q.dynamics = lambda k, x, u: Zambezi.dynamics(q, k, x, u) - 1.0
     np.testing.assert_array_equal(q.eval_values(X, U).f, w.f - 1.0)
+
+
+def test_zambezi_simulate_follows_the_dynamics():
+    """The compiled recursion of Zambezi.simulate against the generic stage-by-stage DOCP.simulate
+    (which calls the dynamics): the same trajectory up to rounding, and a divergent one refused
+    with the stage named."""
+    p = zambezi_problem("zambezi12", N=48)
+    U = p.initial_guess() * 1.1
+    np.testing.assert_allclose(p.simulate(U), DOCP.simulate(p, U), rtol=1e-12, atol=1e-9)
+    q = zambezi_problem("zambezi", N=420, start="sif")
+    with pytest.raises(NonFiniteEvaluationError, match=r"simulate\(\), stage k=\d+, array 'x'"):
+        q.simulate(q.initial_guess() * 3.0)
