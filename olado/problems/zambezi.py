@@ -251,7 +251,7 @@ def _stage_hessian_kernel(k, x, u, inflow, evap, fa, fh, alpha, psi, sig, p, LX,
                           hxx, hxu, huu):
     """The blocks (hxx, hxu, huu) of the Hessian of sig[i] f_0 + p[i].f at the stage rows i;
     returns True when every entry is finite."""
-    finite = True
+    nonfinite = 0.0         # sum of entry * 0: NaN as soon as one entry is NaN or inf
     Vn, dV, d2V = np.empty(4), np.empty(4), np.empty(4)
     h, dh, hn, dhn, d2h = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     J = np.empty((4, 13))
@@ -306,13 +306,13 @@ def _stage_hessian_kernel(k, x, u, inflow, evap, fa, fh, alpha, psi, sig, p, LX,
             hxx[i, j, j] += p[i, j] * d2V[j]
         for w in range(6):
             for v in range(6):
-                finite = finite and math.isfinite(hxx[i, w, v])
+                nonfinite += hxx[i, w, v] * 0.0
             for v in range(7):
-                finite = finite and math.isfinite(hxu[i, w, v])
+                nonfinite += hxu[i, w, v] * 0.0
         for w in range(7):
             for v in range(7):
-                finite = finite and math.isfinite(huu[i, w, v])
-    return finite
+                nonfinite += huu[i, w, v] * 0.0
+    return nonfinite == 0.0
 
 
 @nb.njit(cache=True)
