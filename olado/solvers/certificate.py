@@ -67,12 +67,10 @@ stops and iterates on when the certificate fails (olado.solvers.sqp.phases).
 from __future__ import annotations
 
 import dataclasses
-import math
 import threading
 import time
 from typing import NamedTuple
 
-import numba as nb
 import numpy as np
 
 from ..errors import OladoError
@@ -179,36 +177,17 @@ def _violation(p, pt):
 def _bound_choice(r, y, lo, hi, w):
     """Per variable, the bound multiplier that minimises max(|r - z| w, z slack) (module docstring,
     step 2): returns the remaining |r - z| and z * slack. Fixed variables (lo == hi) take any
-    multiplier: both are 0 there. (One compiled pass, :func:`_bound_choice_kernel`.)"""
-    stat, comp = np.empty(r.shape), np.empty(r.shape)
-    _bound_choice_kernel(r, y, lo, hi, w, stat, comp)
-    return stat, comp
-
-
-@nb.njit(cache=True)
-def _npmax(a, b):
-    """numpy's maximum of two floats: a NaN in either gives NaN."""
-    return a if (a >= b or a != a) else b
-
-
-@nb.njit(cache=True)
-def _bound_choice_kernel(r, y, lo, hi, w, stat, comp):
-    """:func:`_bound_choice` entry by entry, for (K, k) arrays: the slack of the bound that can
-    cancel r (inf: none; at least 0), z = |r| w / (w + slack), stat = |r| - z, comp = z slack, both
-    0 on fixed variables -- numpy's elementwise operations in their order (the same bits)."""
-    for i in range(r.shape[0]):
-        for j in range(r.shape[1]):
-            ri = r[i, j]
-            slack = _npmax(y[i, j] - lo[i, j] if ri > 0 else hi[i, j] - y[i, j], 0.0)
-            a = abs(ri)
-            z, c = 0.0, 0.0
-            if math.isfinite(slack):
-                z = a * w[i, j] / (w[i, j] + slack)
-                c = z * slack
-            if lo[i, j] == hi[i, j]:
-                stat[i, j], comp[i, j] = 0.0, 0.0
-            else:
-                stat[i, j], comp[i, j] = a - z, c
+    multiplier: both are 0 there."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        slack = np.where(r > 0, y - lo, hi - y)            # the bound that can cancel r; inf: none
+        slack = np.maximum(slack, 0.0)
+        bounded = np.isfinite(slack)
+        a = np.abs(r)
+        z = np.where(bounded, a * w / (w + np.where(bounded, slack, 0.0)), 0.0)
+        stat = a - z
+        comp = np.where(bounded, z * np.where(bounded, slack, 0.0), 0.0)
+    fixed = lo == hi
+    return np.where(fixed, 0.0, stat), np.where(fixed, 0.0, comp)
 
 
 def _largest(arrays):
@@ -588,10 +567,19 @@ def spot_check(p, pt, bounds, W, seed=CHECK_SEED) -> _Check:
             vals = _pointwise_values(p, pt, directions, h)
         except OladoError as exc:
             return _Check(None, False, f"spot check skipped: the problem cannot be evaluated near the point ({exc})")
+    v1, m1, v2, m2 = (vals[:, i] for i in range(len(_SHIFTS)))
     an, size = _directional(pt, np.array([v[0] for v in directions]), np.array([v[1] for v in directions]))
-    d5, rel = np.empty(an.shape), np.empty(an.shape)
-    worst, j, ratio_j = _spot_figures(np.ascontiguousarray(vals), an, size, h, d5, rel)
-    if not ratio_j > 1.0:
+    d_h = (v1 - m1) / (2 * h)
+    d_2h = (v2 - m2) / (4 * h)
+    d5 = (4 * d_h - d_2h) / 3
+    rounding = _EPS * (np.abs(v1) + np.abs(m1) + np.abs(v2) + np.abs(m2)) / h
+    allowed = CHECK_RTOL * np.maximum(size, np.abs(d5)) + 10 * (np.abs(d_h - d_2h) + rounding) + 1e-300
+    err = np.abs(d5 - an)
+    rel = err / np.maximum(np.maximum(size, np.abs(d5)), 1e-300)
+    worst = max(0.0, float(np.where(err > 10 * rounding, rel, 0.0).max()))
+    ratio = (err / allowed).ravel()
+    j = int(np.argmax(ratio))
+    if not ratio[j] > 1.0:
         return _Check(worst, False, "")
     name, idx = _entry_of(_shapes(p), j % vals.shape[2])
     d5, an, rel = (float(a.ravel()[j]) for a in (d5, an, rel))
@@ -601,40 +589,6 @@ def spot_check(p, pt, bounds, W, seed=CHECK_SEED) -> _Check:
     source = p.derivative_sources().get(_DERIVATIVE_NAMES[name], "")
     return _Check(worst, True, (f"the derivative of {name}{where} ({source}) disagrees with a five-point central "
                                 f"difference along a random direction: {an:.6g} vs {d5:.6g} (relative error {rel:.1e})"))
-
-
-@nb.njit(cache=True)
-def _spot_figures(vals, an, size, h, d5, rel):
-    """The figures of the spot check (:func:`spot_check`) from the values at the shifted points
-    ``vals`` (D, 4, L) (shifts _SHIFTS), the supplied derivatives ``an`` and their sizes ``size``
-    (D, L), in one pass: the five-point differences d5 and the relative errors rel (into d5, rel),
-    and (worst, j, ratio_j) -- the largest relative error beyond rounding (0 when one is NaN, as
-    max(0.0, nan) gives), the flat index of the largest ratio error / allowed (numpy's argmax: the
-    first NaN, else the first largest) and that ratio. numpy's elementwise formulas, in order."""
-    worst, nan_worst = 0.0, False
-    j, ratio_j = -1, 0.0
-    L = vals.shape[2]
-    for d in range(vals.shape[0]):
-        for i in range(L):
-            v1, m1, v2, m2 = vals[d, 0, i], vals[d, 1, i], vals[d, 2, i], vals[d, 3, i]
-            d_h = (v1 - m1) / (2.0 * h)
-            d_2h = (v2 - m2) / (4.0 * h)
-            x5 = (4.0 * d_h - d_2h) / 3.0
-            rounding = _EPS * (abs(v1) + abs(m1) + abs(v2) + abs(m2)) / h
-            big = _npmax(size[d, i], abs(x5))
-            allowed = CHECK_RTOL * big + 10.0 * (abs(d_h - d_2h) + rounding) + 1e-300
-            err = abs(x5 - an[d, i])
-            r = err / _npmax(big, 1e-300)
-            d5[d, i], rel[d, i] = x5, r
-            w = r if err > 10.0 * rounding else 0.0
-            if w != w:
-                nan_worst = True
-            elif w > worst:
-                worst = w
-            ratio = err / allowed
-            if j < 0 or (ratio_j == ratio_j and (ratio != ratio or ratio > ratio_j)):
-                j, ratio_j = d * L + i, ratio
-    return (0.0 if nan_worst else worst), j, ratio_j
 
 
 # ---------------------------------------------------------------------------- the verdict
