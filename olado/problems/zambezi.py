@@ -178,13 +178,13 @@ def _values_kernel(k, x, u, xN, inflow, evap, fa, fh, alpha, psi, uref, V_ref, p
         energy = u[i, 0] * (h[0] + hn[0]) + u[i, 1] * (h[1] + hn[1]) + u[i, 2] * (h[2] + hn[2])
         d0, d1, d2, d3 = u[i, 0] - uref[0], u[i, 4] - uref[1], u[i, 1] - uref[2], u[i, 2] - uref[3]
         cost[i] = -alpha * energy + psi * (d0 * d0 + d1 * d1 + d2 * d2 + d3 * d3)
-        finite = finite and math.isfinite(cost[i])
+        finite &= math.isfinite(cost[i])
         for j in range(6):
-            finite = finite and math.isfinite(f[i, j])
+            finite &= math.isfinite(f[i, j])
     F = 0.0
     if xN.shape[0]:
         F = _final_cost_kernel(xN, V_ref, phi, fe, nu_E)
-        finite = finite and math.isfinite(F)
+        finite &= math.isfinite(F)
     return F, finite
 
 
@@ -209,7 +209,7 @@ def _derivatives_kernel(k, x, u, xN, inflow, evap, fa, fh, alpha, psi, uref, V_r
                 fu[i, a, b] = LU[a, b]
         for j in range(4):
             fx[i, j, j] = dV[j]       # 1 - e (2 A V + B): the only entries that depend on the point
-            finite = finite and math.isfinite(dV[j])
+            finite &= math.isfinite(dV[j])
         _turbine_heads(x[i], Vn, fh, h, dh, hn, dhn, d2h)
         _stage_jacobian_rows(dV, LX, LU, J)
         # d/dw [Q (h(V) + h(V+))] = e_Q (h + h+) + Q h'(V) e_V + Q h'(V+) dV+/dw
@@ -230,11 +230,11 @@ def _derivatives_kernel(k, x, u, xN, inflow, evap, fa, fh, alpha, psi, uref, V_r
         for w in range(7):
             gu[i, w] = g[6 + w]
         for w in range(13):
-            finite = finite and math.isfinite(g[w])
+            finite &= math.isfinite(g[w])
     if xN.shape[0]:
         _final_gradient_kernel(xN, V_ref, phi, fe, nu_E, gN)
         for w in range(gN.shape[0]):
-            finite = finite and math.isfinite(gN[w])
+            finite &= math.isfinite(gN[w])
     return finite
 
 #: nonzero columns of dV+_r/dw (w = (x, u)) for the turbine reservoirs r = 1, 3, 4 (rows 0, 2, 3 of
@@ -251,7 +251,7 @@ def _stage_hessian_kernel(k, x, u, inflow, evap, fa, fh, alpha, psi, sig, p, LX,
                           hxx, hxu, huu):
     """The blocks (hxx, hxu, huu) of the Hessian of sig[i] f_0 + p[i].f at the stage rows i;
     returns True when every entry is finite."""
-    nonfinite = 0.0         # sum of entry * 0: NaN as soon as one entry is NaN or inf
+    finite = True           # and-ed without branches: no dependency chain of additions
     Vn, dV, d2V = np.empty(4), np.empty(4), np.empty(4)
     h, dh, hn, dhn, d2h = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     J = np.empty((4, 13))
@@ -306,13 +306,13 @@ def _stage_hessian_kernel(k, x, u, inflow, evap, fa, fh, alpha, psi, sig, p, LX,
             hxx[i, j, j] += p[i, j] * d2V[j]
         for w in range(6):
             for v in range(6):
-                nonfinite += hxx[i, w, v] * 0.0
+                finite &= math.isfinite(hxx[i, w, v])
             for v in range(7):
-                nonfinite += hxu[i, w, v] * 0.0
+                finite &= math.isfinite(hxu[i, w, v])
         for w in range(7):
             for v in range(7):
-                nonfinite += huu[i, w, v] * 0.0
-    return nonfinite == 0.0
+                finite &= math.isfinite(huu[i, w, v])
+    return finite
 
 
 @nb.njit(cache=True)
