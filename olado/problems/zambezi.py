@@ -159,7 +159,6 @@ def _final_hessian_kernel(sigma, phi, fe, nu_E, H):
         H[i, i] = sigma * (2.0 * phi[i] - nu_E * 2.0 * fe[0, i])
 
 
-
 @nb.njit(cache=True)
 def _values_kernel(k, x, u, xN, inflow, evap, fa, fh, alpha, psi, uref, V_ref, phi, fe, nu_E, f, cost):
     """The dynamics f (K, 6) of eq. (40) and the stage costs (K,) of eq. (44) in one pass over the
@@ -535,9 +534,11 @@ class Zambezi(DOCP):
 
     # ------------------------------------------------------------------ a point at once
     def _fused(self, kind):
-        """True when the functions of ``kind`` ("values", "derivatives": :data:`_FUSED`) are Zambezi's own (not replaced by a subclass -- a
-        class is checked once -- or on the instance): then :meth:`eval_values` / :meth:`eval_first_derivatives` may compute
-        them in one compiled pass instead of calling them one by one."""
+        """True when the functions of ``kind`` ("values", "derivatives", "hessian": :data:`_FUSED`)
+        are Zambezi's own (not replaced by a subclass -- a class is checked once -- or on the
+        instance): then :meth:`eval_values`, :meth:`eval_first_derivatives`,
+        :meth:`eval_stage_hessians` may compute them in one compiled pass instead of calling them
+        one by one."""
         cls = type(self)
         plain = _PLAIN.get((cls, kind))
         if plain is None:
