@@ -27,6 +27,7 @@ import os
 import types
 import weakref
 from collections import Counter
+from typing import NamedTuple
 
 import numpy as np
 
@@ -127,6 +128,33 @@ CALL_ARGUMENTS = {
     "initial_guess": (),
     "initial_state_guess": ("U",),
 }
+
+
+class PointValues(NamedTuple):
+    """The values of the DOCP at a point (X, U) (:meth:`DOCP.eval_values`): the objective J of
+    eq. (1), the dynamics f^k(x^k, u^k) (N, n) of eq. (2), the stage constraints g (N, r) and the
+    final constraints gN (rN,) of eq. (3)."""
+
+    J: float
+    f: np.ndarray
+    g: np.ndarray
+    gN: np.ndarray
+
+
+class FirstDerivatives(NamedTuple):
+    """The first derivatives of the DOCP at a point (X, U) (:meth:`DOCP.eval_first_derivatives`):
+    the stage cost gradients lx (N, n), lu (N, m), the final cost gradient lN (n,), the dynamics
+    Jacobians A (N, n, n), B (N, n, m), the stage constraint Jacobians Cx (N, r, n), Cu (N, r, m)
+    and the final constraint Jacobian CN (rN, n) -- the data of the QP (8)-(10) of paper 001."""
+
+    lx: np.ndarray
+    lu: np.ndarray
+    lN: np.ndarray
+    A: np.ndarray
+    B: np.ndarray
+    Cx: np.ndarray
+    Cu: np.ndarray
+    CN: np.ndarray
 
 
 def stage_floats(n, m, r=0):
@@ -616,6 +644,33 @@ class DOCP:
         """J of eq. (1) at a state/control trajectory pair."""
         X, U = self._split_xu(X, U)
         return float(np.sum(self.eval_stage_costs(X, U)) + self.eval_final_cost(X[-1]))
+
+    # ======================================================================== a point at once
+    def eval_values(self, X, U) -> PointValues:
+        """J, f, g, gN at (X, U) (:class:`PointValues`): what a solver evaluates at every trial
+        point. The default calls :meth:`objective`, :meth:`eval_dynamics`,
+        :meth:`eval_stage_constraints` and :meth:`eval_final_constraints` in that order, with their
+        validation and counters. A problem may override it with one compiled pass over the stages
+        (:class:`olado.problems.zambezi.Zambezi` does); an override returns the same numbers,
+        advances the same counters, and for a value the default would refuse raises the default's
+        error (simplest: it falls back to this method when its pass finds a NaN or inf)."""
+        X, U = self._split_xu(X, U)
+        J = self.objective(X, U)
+        return PointValues(J, self.eval_dynamics(X, U), self.eval_stage_constraints(X, U),
+                           self.eval_final_constraints(X[-1]))
+
+    def eval_first_derivatives(self, X, U) -> FirstDerivatives:
+        """The first derivatives at (X, U) (:class:`FirstDerivatives`). The default calls
+        :meth:`eval_stage_cost_gradients`, :meth:`eval_final_cost_gradient`,
+        :meth:`eval_dynamics_jacobians`, :meth:`eval_stage_constraint_jacobians` and
+        :meth:`eval_final_constraint_jacobian` in that order; an override follows the rules of
+        :meth:`eval_values`."""
+        X, U = self._split_xu(X, U)
+        lx, lu = self.eval_stage_cost_gradients(X, U)
+        lN = self.eval_final_cost_gradient(X[-1])
+        A, B = self.eval_dynamics_jacobians(X, U)
+        Cx, Cu = self.eval_stage_constraint_jacobians(X, U)
+        return FirstDerivatives(lx, lu, lN, A, B, Cx, Cu, self.eval_final_constraint_jacobian(X[-1]))
 
     def simulate(self, U):
         """States X (N+1, n) from x^0 and the state equation (2) under controls U (N, m)."""

@@ -39,13 +39,14 @@ balance equation", paper 001 sec. 5), so that f_0^k depends on (x^k, u^k) only.
 from __future__ import annotations
 
 import json
+import math
 import os
 
 import numba as nb
 import numpy as np
 
 from ..errors import ProblemDefinitionError
-from .docp import DOCP, check_problem_size
+from .docp import DOCP, FirstDerivatives, PointValues, _plain, check_problem_size
 
 DATA_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "zambezi.json")
 
@@ -109,31 +110,6 @@ def _volumes(kk, xi, ui, inflow, evap, fa, Vn, dV, d2V):
 
 
 @nb.njit(cache=True)
-def _dynamics_kernel(k, x, u, inflow, evap, fa, out):
-    Vn, dV, d2V = np.empty(4), np.empty(4), np.empty(4)
-    for i in range(x.shape[0]):
-        _volumes(k[i], x[i], u[i], inflow, evap, fa, Vn, dV, d2V)
-        for j in range(4):
-            out[i, j] = Vn[j]
-        out[i, 4] = u[i, 4]
-        out[i, 5] = x[i, 4]
-
-
-@nb.njit(cache=True)
-def _dynamics_jacobian_kernel(k, x, evap, fa, LX, LU, fx, fu):
-    for i in range(x.shape[0]):
-        kk = k[i]
-        for a in range(6):
-            for b in range(6):
-                fx[i, a, b] = LX[a, b]
-            for b in range(7):
-                fu[i, a, b] = LU[a, b]
-        for j in range(4):
-            V = x[i, j]
-            fx[i, j, j] = 1.0 - evap[kk, j] * (2.0 * fa[0, j] * V + fa[1, j])
-
-
-@nb.njit(cache=True)
 def _turbine_heads(xi, Vn, fh, h, dh, hn, dhn, d2h):
     """h(V_r), h(V+_r) and their derivatives for the turbine reservoirs r = 1, 3, 4 (0, 2, 3)."""
     for t in range(3):
@@ -148,18 +124,6 @@ def _turbine_heads(xi, Vn, fh, h, dh, hn, dhn, d2h):
 
 
 @nb.njit(cache=True)
-def _stage_cost_kernel(k, x, u, inflow, evap, fa, fh, alpha, psi, uref, out):
-    Vn, dV, d2V = np.empty(4), np.empty(4), np.empty(4)
-    h, dh, hn, dhn, d2h = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
-    for i in range(x.shape[0]):
-        _volumes(k[i], x[i], u[i], inflow, evap, fa, Vn, dV, d2V)
-        _turbine_heads(x[i], Vn, fh, h, dh, hn, dhn, d2h)
-        energy = u[i, 0] * (h[0] + hn[0]) + u[i, 1] * (h[1] + hn[1]) + u[i, 2] * (h[2] + hn[2])
-        d0, d1, d2, d3 = u[i, 0] - uref[0], u[i, 4] - uref[1], u[i, 1] - uref[2], u[i, 2] - uref[3]
-        out[i] = -alpha * energy + psi * (d0 * d0 + d1 * d1 + d2 * d2 + d3 * d3)
-
-
-@nb.njit(cache=True)
 def _stage_jacobian_rows(dV, LX, LU, J):
     """dV+/dw (4, 13), w = (x, u), at one stage."""
     for j in range(4):
@@ -168,36 +132,6 @@ def _stage_jacobian_rows(dV, LX, LU, J):
         for b in range(7):
             J[j, 6 + b] = LU[j, b]
         J[j, j] = dV[j]
-
-
-@nb.njit(cache=True)
-def _stage_cost_gradient_kernel(k, x, u, inflow, evap, fa, fh, alpha, psi, uref, LX, LU, gx, gu):
-    Vn, dV, d2V = np.empty(4), np.empty(4), np.empty(4)
-    h, dh, hn, dhn, d2h = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
-    J = np.empty((4, 13))
-    g = np.empty(13)
-    ref = (0, 4, 1, 2)
-    for i in range(x.shape[0]):
-        _volumes(k[i], x[i], u[i], inflow, evap, fa, Vn, dV, d2V)
-        _turbine_heads(x[i], Vn, fh, h, dh, hn, dhn, d2h)
-        _stage_jacobian_rows(dV, LX, LU, J)
-        # d/dw [Q (h(V) + h(V+))] = e_Q (h + h+) + Q h'(V) e_V + Q h'(V+) dV+/dw
-        c0, c1, c2 = u[i, 0] * dhn[0], u[i, 1] * dhn[1], u[i, 2] * dhn[2]
-        for w in range(13):
-            g[w] = c0 * J[0, w] + c1 * J[2, w] + c2 * J[3, w]
-        g[0] += u[i, 0] * dh[0]
-        g[2] += u[i, 1] * dh[1]
-        g[3] += u[i, 2] * dh[2]
-        for t in range(3):
-            g[6 + t] += h[t] + hn[t]
-        for w in range(13):
-            g[w] *= -alpha
-        for j in range(4):
-            g[6 + ref[j]] += 2.0 * psi * (u[i, ref[j]] - uref[j])
-        for w in range(6):
-            gx[i, w] = g[w]
-        for w in range(7):
-            gu[i, w] = g[6 + w]
 
 
 @nb.njit(cache=True)
@@ -225,6 +159,83 @@ def _final_hessian_kernel(sigma, phi, fe, nu_E, H):
         H[i, i] = sigma * (2.0 * phi[i] - nu_E * 2.0 * fe[0, i])
 
 
+@nb.njit(cache=True)
+def _values_kernel(k, x, u, xN, inflow, evap, fa, fh, alpha, psi, uref, V_ref, phi, fe, nu_E, f, cost):
+    """The dynamics f (K, 6) of eq. (40) and the stage costs (K,) of eq. (44) in one pass over the
+    stages, and the final cost F^N at xN when xN has 6 entries (0 otherwise); returns (F^N, every
+    value finite). The formulas of the reference Zambezi._next_volumes / Zambezi._quad."""
+    Vn, dV, d2V = np.empty(4), np.empty(4), np.empty(4)
+    h, dh, hn, dhn, d2h = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    finite = True
+    for i in range(x.shape[0]):
+        _volumes(k[i], x[i], u[i], inflow, evap, fa, Vn, dV, d2V)
+        for j in range(4):
+            f[i, j] = Vn[j]
+        f[i, 4] = u[i, 4]
+        f[i, 5] = x[i, 4]
+        _turbine_heads(x[i], Vn, fh, h, dh, hn, dhn, d2h)
+        energy = u[i, 0] * (h[0] + hn[0]) + u[i, 1] * (h[1] + hn[1]) + u[i, 2] * (h[2] + hn[2])
+        d0, d1, d2, d3 = u[i, 0] - uref[0], u[i, 4] - uref[1], u[i, 1] - uref[2], u[i, 2] - uref[3]
+        cost[i] = -alpha * energy + psi * (d0 * d0 + d1 * d1 + d2 * d2 + d3 * d3)
+        finite &= math.isfinite(cost[i])
+        for j in range(6):
+            finite &= math.isfinite(f[i, j])
+    F = 0.0
+    if xN.shape[0]:
+        F = _final_cost_kernel(xN, V_ref, phi, fe, nu_E)
+        finite &= math.isfinite(F)
+    return F, finite
+
+
+@nb.njit(cache=True)
+def _derivatives_kernel(k, x, u, xN, inflow, evap, fa, fh, alpha, psi, uref, V_ref, phi, fe, nu_E, LX, LU,
+                        gx, gu, fx, fu, gN):
+    """The stage cost gradients (gx (K, 6), gu (K, 7)) and the dynamics Jacobians (fx (K, 6, 6),
+    fu (K, 6, 7)) in one pass over the stages, and the final cost gradient gN (6,) at xN when
+    xN has 6 entries; returns True when every entry is finite."""
+    Vn, dV, d2V = np.empty(4), np.empty(4), np.empty(4)
+    h, dh, hn, dhn, d2h = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    J = np.empty((4, 13))
+    g = np.empty(13)
+    ref = (0, 4, 1, 2)
+    finite = True
+    for i in range(x.shape[0]):
+        _volumes(k[i], x[i], u[i], inflow, evap, fa, Vn, dV, d2V)
+        for a in range(6):
+            for b in range(6):
+                fx[i, a, b] = LX[a, b]
+            for b in range(7):
+                fu[i, a, b] = LU[a, b]
+        for j in range(4):
+            fx[i, j, j] = dV[j]       # 1 - e (2 A V + B): the only entries that depend on the point
+            finite &= math.isfinite(dV[j])
+        _turbine_heads(x[i], Vn, fh, h, dh, hn, dhn, d2h)
+        _stage_jacobian_rows(dV, LX, LU, J)
+        # d/dw [Q (h(V) + h(V+))] = e_Q (h + h+) + Q h'(V) e_V + Q h'(V+) dV+/dw
+        c0, c1, c2 = u[i, 0] * dhn[0], u[i, 1] * dhn[1], u[i, 2] * dhn[2]
+        for w in range(13):
+            g[w] = c0 * J[0, w] + c1 * J[2, w] + c2 * J[3, w]
+        g[0] += u[i, 0] * dh[0]
+        g[2] += u[i, 1] * dh[1]
+        g[3] += u[i, 2] * dh[2]
+        for t in range(3):
+            g[6 + t] += h[t] + hn[t]
+        for w in range(13):
+            g[w] *= -alpha
+        for j in range(4):
+            g[6 + ref[j]] += 2.0 * psi * (u[i, ref[j]] - uref[j])
+        for w in range(6):
+            gx[i, w] = g[w]
+        for w in range(7):
+            gu[i, w] = g[6 + w]
+        for w in range(13):
+            finite &= math.isfinite(g[w])
+    if xN.shape[0]:
+        _final_gradient_kernel(xN, V_ref, phi, fe, nu_E, gN)
+        for w in range(gN.shape[0]):
+            finite &= math.isfinite(gN[w])
+    return finite
+
 #: nonzero columns of dV+_r/dw (w = (x, u)) for the turbine reservoirs r = 1, 3, 4 (rows 0, 2, 3 of
 #: [_LX | _LU] plus the diagonal entry dV+_r/dV_r), padded with -1
 _JCOLS = np.full((3, 7), -1, dtype=np.int64)
@@ -237,6 +248,9 @@ del _t, _r, _nzc
 @nb.njit(cache=True)
 def _stage_hessian_kernel(k, x, u, inflow, evap, fa, fh, alpha, psi, sig, p, LX, LU, jcols,
                           hxx, hxu, huu):
+    """The blocks (hxx, hxu, huu) of the Hessian of sig[i] f_0 + p[i].f at the stage rows i;
+    returns True when every entry is finite."""
+    finite = True           # and-ed without branches: no dependency chain of additions
     Vn, dV, d2V = np.empty(4), np.empty(4), np.empty(4)
     h, dh, hn, dhn, d2h = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     J = np.empty((4, 13))
@@ -289,7 +303,46 @@ def _stage_hessian_kernel(k, x, u, inflow, evap, fa, fh, alpha, psi, sig, p, LX,
             huu[i, c, c] = s * (H[6 + c, 6 + c] * -alpha + 2.0 * psi)
         for j in range(4):
             hxx[i, j, j] += p[i, j] * d2V[j]
+        for w in range(6):
+            for v in range(6):
+                finite &= math.isfinite(hxx[i, w, v])
+            for v in range(7):
+                finite &= math.isfinite(hxu[i, w, v])
+        for w in range(7):
+            for v in range(7):
+                finite &= math.isfinite(huu[i, w, v])
+    return finite
 
+
+@nb.njit(cache=True)
+def _simulate_kernel(drive, evap, fa, u, X):
+    """The recursion of eq. (40) from X[0] (Zambezi.simulate): drive = Z + Lu u per stage."""
+    v1, v2, v3, v4, d1, d2 = X[0, 0], X[0, 1], X[0, 2], X[0, 3], X[0, 4], X[0, 5]
+    A0, A1, A2, A3 = fa[0, 0], fa[0, 1], fa[0, 2], fa[0, 3]
+    B0, B1, B2, B3 = fa[1, 0], fa[1, 1], fa[1, 2], fa[1, 3]
+    C0, C1, C2, C3 = fa[2, 0], fa[2, 1], fa[2, 2], fa[2, 3]
+    for k in range(drive.shape[0]):
+        n1 = v1 + drive[k, 0] - evap[k, 0] * ((A0 * v1 + B0) * v1 + C0)
+        n2 = v2 + drive[k, 1] - evap[k, 1] * ((A1 * v2 + B1) * v2 + C1)
+        n3 = v3 + d2 + drive[k, 2] - evap[k, 2] * ((A2 * v3 + B2) * v3 + C2)
+        n4 = v4 + drive[k, 3] - evap[k, 3] * ((A3 * v4 + B3) * v4 + C3)
+        v1, v2, v3, v4, d1, d2 = n1, n2, n3, n4, u[k, 4], d1
+        X[k + 1, 0], X[k + 1, 1], X[k + 1, 2], X[k + 1, 3], X[k + 1, 4], X[k + 1, 5] = v1, v2, v3, v4, d1, d2
+
+
+#: an empty array: no final point for the fused kernels (the stage functions alone)
+_NONE = np.empty(0)
+#: the functions the fused kernels compute or bypass (Zambezi.eval_values,
+#: Zambezi.eval_first_derivatives; stage_constraints, final_constraints (r = rN = 0) and their
+#: Jacobians are DOCP's); their (name, function) pairs are _FUSED (below the class)
+_VALUE_FUNCTIONS = frozenset(("dynamics", "stage_cost", "final_cost", "stage_constraints", "final_constraints",
+                              "objective", "eval_stage_costs", "eval_final_cost", "eval_dynamics",
+                              "eval_stage_constraints", "eval_final_constraints"))
+_DERIVATIVE_FUNCTIONS = frozenset(("dynamics_jacobian", "stage_cost_gradient", "final_cost_gradient",
+                                   "stage_constraints_jacobian", "final_constraints_jacobian",
+                                   "eval_stage_cost_gradients", "eval_final_cost_gradient",
+                                   "eval_dynamics_jacobians", "eval_stage_constraint_jacobians",
+                                   "eval_final_constraint_jacobian"))
 
 class Zambezi(DOCP):
     """Zambezi reservoir DOCP, paper 001 eqs. (40)-(44), vectorized with analytic first and
@@ -444,37 +497,94 @@ class Zambezi(DOCP):
         return self._stages(k, x.shape[0]), x, u
 
     # ------------------------------------------------------------------ DOCP functions
+    def _values_of_stages(self, k, x, u):
+        """(f (K, 6), stage costs (K,)) of the stage rows, one pass (:func:`_values_kernel`)."""
+        k, x, u = self._args(k, x, u)
+        K = x.shape[0]
+        f, cost = np.empty((K, 6)), np.empty(K)
+        _values_kernel(k, x, u, _NONE, self.inflow, self.evaporation, self.fa, self.fh, self.alpha,
+                       self.psi, self.u_ref, self.V_ref, self.phi, self.fe, self.nu_E, f, cost)
+        return f, cost
+
+    def _derivatives_of_stages(self, k, x, u):
+        """(l_x (K, 6), l_u (K, 7), f_x (K, 6, 6), f_u (K, 6, 7)), one pass (:func:`_derivatives_kernel`)."""
+        k, x, u = self._args(k, x, u)
+        K = x.shape[0]
+        gx, gu, fx, fu = np.empty((K, 6)), np.empty((K, 7)), np.empty((K, 6, 6)), np.empty((K, 6, 7))
+        _derivatives_kernel(k, x, u, _NONE, self.inflow, self.evaporation, self.fa, self.fh, self.alpha,
+                            self.psi, self.u_ref, self.V_ref, self.phi, self.fe, self.nu_E, _LX, _LU,
+                            gx, gu, fx, fu, _NONE)
+        return gx, gu, fx, fu
+
     def dynamics(self, k, x, u):
         """f^k(x, u) of eq. (40) plus the delay states, all stages at once, (K, 6)."""
-        k, x, u = self._args(k, x, u)
-        out = np.empty((x.shape[0], 6))
-        _dynamics_kernel(k, x, u, self.inflow, self.evaporation, self.fa, out)
-        return out
+        return self._values_of_stages(k, x, u)[0]
 
     def dynamics_jacobian(self, k, x, u):
         """(f_x (K, 6, 6), f_u (K, 6, 7)) of eq. (40)."""
-        k, x, u = self._args(k, x, u)
-        K = x.shape[0]
-        fx, fu = np.empty((K, 6, 6)), np.empty((K, 6, 7))
-        _dynamics_jacobian_kernel(k, x, self.evaporation, self.fa, _LX, _LU, fx, fu)
-        return fx, fu
+        return self._derivatives_of_stages(k, x, u)[2:]
 
     def stage_cost(self, k, x, u):
         """f_0^k of eq. (44) with V^{k+1} replaced by the balance equation, (K,)."""
-        k, x, u = self._args(k, x, u)
-        out = np.empty(x.shape[0])
-        _stage_cost_kernel(k, x, u, self.inflow, self.evaporation, self.fa, self.fh,
-                           self.alpha, self.psi, self.u_ref, out)
-        return out
+        return self._values_of_stages(k, x, u)[1]
 
     def stage_cost_gradient(self, k, x, u):
         """(l_x (K, 6), l_u (K, 7)) of the stage cost."""
-        k, x, u = self._args(k, x, u)
-        K = x.shape[0]
-        gx, gu = np.empty((K, 6)), np.empty((K, 7))
-        _stage_cost_gradient_kernel(k, x, u, self.inflow, self.evaporation, self.fa, self.fh,
-                                    self.alpha, self.psi, self.u_ref, _LX, _LU, gx, gu)
-        return gx, gu
+        return self._derivatives_of_stages(k, x, u)[:2]
+
+    # ------------------------------------------------------------------ a point at once
+    def _fused(self, kind):
+        """True when the functions of ``kind`` ("values", "derivatives", "hessian": :data:`_FUSED`)
+        are Zambezi's own (not replaced by a subclass -- a class is checked once -- or on the
+        instance): then :meth:`eval_values`, :meth:`eval_first_derivatives`,
+        :meth:`eval_stage_hessians` may compute them in one compiled pass instead of calling them
+        one by one."""
+        cls = type(self)
+        plain = _PLAIN.get((cls, kind))
+        if plain is None:
+            plain = _PLAIN[cls, kind] = all(getattr(cls, nm) is fn for nm, fn in _FUSED[kind])
+        return plain and not (self.__dict__.keys() & _NAMES[kind])
+
+    def eval_values(self, X, U):
+        """:meth:`DOCP.eval_values` in one compiled pass (:func:`_values_kernel`): the same numbers
+        and counters; a NaN or inf (or a replaced stage function) takes the default path, which
+        names the function, stage and array."""
+        if not self._fused("values"):
+            return super().eval_values(X, U)
+        X, U = self._split_xu(X, U)
+        x, u, xN = self._rows(X[:-1]), self._rows(U), self._rows(X[-1])
+        N = self.N
+        f, cost = np.empty((N, 6)), np.empty(N)
+        F, finite = _values_kernel(self._K, x, u, xN, self.inflow, self.evaporation, self.fa, self.fh,
+                                   self.alpha, self.psi, self.u_ref, self.V_ref, self.phi, self.fe,
+                                   self.nu_E, f, cost)
+        if not finite:
+            return super().eval_values(X, U)
+        c = self.counters
+        c["stage_cost"] += 1
+        c["final_cost"] += 1
+        c["dynamics"] += 1
+        return PointValues(float(cost.sum() + F), f, np.zeros((N, 0)), np.zeros(0))
+
+    def eval_first_derivatives(self, X, U):
+        """:meth:`DOCP.eval_first_derivatives` in one compiled pass (:func:`_derivatives_kernel`),
+        under the rules of :meth:`eval_values`."""
+        if self.derivatives != "auto" or not self._fused("derivatives"):
+            return super().eval_first_derivatives(X, U)
+        X, U = self._split_xu(X, U)
+        x, u, xN = self._rows(X[:-1]), self._rows(U), self._rows(X[-1])
+        N = self.N
+        gx, gu, fx, fu, gN = np.empty((N, 6)), np.empty((N, 7)), np.empty((N, 6, 6)), np.empty((N, 6, 7)), np.zeros(6)
+        finite = _derivatives_kernel(self._K, x, u, xN, self.inflow, self.evaporation, self.fa, self.fh,
+                                     self.alpha, self.psi, self.u_ref, self.V_ref, self.phi, self.fe,
+                                     self.nu_E, _LX, _LU, gx, gu, fx, fu, gN)
+        if not finite:
+            return super().eval_first_derivatives(X, U)
+        c = self.counters
+        c["stage_cost_gradient"] += 1
+        c["final_cost_gradient"] += 1
+        c["dynamics_jacobian"] += 1
+        return FirstDerivatives(gx, gu, gN, fx, fu, np.zeros((N, 0, 6)), np.zeros((N, 0, 7)), np.zeros((0, 6)))
 
     def stage_hessian(self, k, x, u, sigma, p, lam):
         """Blocks of the Hessian of sigma*f_0^k + p.f^k (no stage constraints), all stages."""
@@ -489,6 +599,38 @@ class Zambezi(DOCP):
         _stage_hessian_kernel(k, x, u, self.inflow, self.evaporation, self.fa, self.fh,
                               self.alpha, self.psi, sig, p, _LX, _LU, _JCOLS, hxx, hxu, huu)
         return hxx, hxu, huu
+
+    def eval_stage_hessians(self, X, U, sigma, P, L=None, source=None):
+        """:meth:`DOCP.eval_stage_hessians` with the analytic :meth:`stage_hessian` called
+        without its wrappers (one compiled pass, :func:`_stage_hessian_kernel`), under the rules of
+        :meth:`eval_values`: anything but plain arrays of the expected shapes and a float ``sigma``
+        -- or an entry that comes out NaN or inf -- takes the default path."""
+        N = self.N
+        if (source is not None or self.derivatives != "auto" or not self._fused("hessian")
+                or not isinstance(sigma, float) or not _plain(P, (N, 6)) or not P.flags.c_contiguous
+                or not (L is None or _plain(L, (N, 0)))):
+            return super().eval_stage_hessians(X, U, sigma, P, L, source)
+        X, U = self._split_xu(X, U)
+        hxx, hxu, huu = np.empty((N, 6, 6)), np.empty((N, 6, 7)), np.empty((N, 7, 7))
+        if not _stage_hessian_kernel(self._K, self._rows(X[:-1]), self._rows(U), self.inflow, self.evaporation,
+                                     self.fa, self.fh, self.alpha, self.psi, np.full(N, float(sigma)), P, _LX, _LU,
+                                     _JCOLS, hxx, hxu, huu):
+            return super().eval_stage_hessians(X, U, sigma, P, L, source)
+        self.counters["stage_hessian"] += 1
+        return hxx, hxu, huu
+
+    def eval_final_hessian(self, xN, sigma, lN=None, source=None):
+        """:meth:`DOCP.eval_final_hessian` without the wrappers, under the rules of
+        :meth:`eval_stage_hessians`."""
+        if (source is not None or self.derivatives != "auto" or not self._fused("hessian")
+                or not isinstance(sigma, float) or not (lN is None or _plain(lN, (0,)))):
+            return super().eval_final_hessian(xN, sigma, lN, source)
+        H = np.zeros((6, 6))
+        _final_hessian_kernel(float(sigma), self.phi, self.fe, self.nu_E, H)
+        if not math.isfinite(H[0, 0] + H[1, 1] + H[2, 2] + H[3, 3]):
+            return super().eval_final_hessian(xN, sigma, lN, source)
+        self.counters["final_hessian"] += 1
+        return H
 
     def final_cost(self, x):
         """F^N = sum_i phi_i (V_i - V_i,ref)^2 - nu_E sum_i fe_i(V_i), eq. (44)."""
@@ -515,23 +657,10 @@ class Zambezi(DOCP):
         self.counters["dynamics"] += 1
         N = self.N
         # everything that does not depend on the states, per stage: Z + Lu u, and e
-        drive = (self.inflow + U @ _LU[:4].T).tolist()
-        e = self.evaporation.tolist()
-        A, B, C = (row.tolist() for row in self.fa)
-        F2 = U[:, 4].tolist()
+        drive = np.ascontiguousarray(self.inflow + U @ _LU[:4].T)
         X = np.empty((N + 1, 6))
         X[0] = self.x0
-        v1, v2, v3, v4, d1, d2 = self.x0.tolist()
-        out = [None] * N
-        for k in range(N):
-            dk, ek = drive[k], e[k]
-            n1 = v1 + dk[0] - ek[0] * ((A[0] * v1 + B[0]) * v1 + C[0])
-            n2 = v2 + dk[1] - ek[1] * ((A[1] * v2 + B[1]) * v2 + C[1])
-            n3 = v3 + d2 + dk[2] - ek[2] * ((A[2] * v3 + B[2]) * v3 + C[2])
-            n4 = v4 + dk[3] - ek[3] * ((A[3] * v4 + B[3]) * v4 + C[3])
-            v1, v2, v3, v4, d1, d2 = n1, n2, n3, n4, F2[k], d1
-            out[k] = (v1, v2, v3, v4, d1, d2)
-        X[1:] = out
+        _simulate_kernel(drive, self.evaporation, self.fa, self._rows(U), X)
         return self._check_stacked(X, (N + 1, 6), "simulate", "x")
 
     # ------------------------------------------------------------------ start points
@@ -622,6 +751,15 @@ class Zambezi(DOCP):
                 f"N={self.N} months{' (cyclic inflow extension)' if self.N > self.max_N else ''}, "
                 f"start={self.start}")
 
+
+#: (name, function) of what the fused kernels replace, as Zambezi defines or inherits them
+_FUSED = {"values": tuple((nm, getattr(Zambezi, nm)) for nm in _VALUE_FUNCTIONS),
+          "derivatives": tuple((nm, getattr(Zambezi, nm)) for nm in _DERIVATIVE_FUNCTIONS)}
+_HESSIAN_FUNCTIONS = frozenset(("stage_hessian", "final_hessian"))
+_FUSED["hessian"] = tuple((nm, getattr(Zambezi, nm)) for nm in _HESSIAN_FUNCTIONS)
+_NAMES = {"values": _VALUE_FUNCTIONS, "derivatives": _DERIVATIVE_FUNCTIONS, "hessian": _HESSIAN_FUNCTIONS}
+#: (class, functions) -> the class keeps Zambezi's functions (checked once per class)
+_PLAIN = {}
 
 def zambezi_problem(family="zambezi12", N=24, start="balance", year=None, extend="cyclic", **options):
     """Build a Zambezi DOCP (paper 001 sec. 5). See :class:`Zambezi` for the arguments."""

@@ -67,6 +67,7 @@ stops and iterates on when the certificate fails (olado.solvers.sqp.phases).
 from __future__ import annotations
 
 import dataclasses
+import threading
 import time
 from typing import NamedTuple
 
@@ -124,18 +125,11 @@ class StagePoint:
 
     def __init__(self, p, X, U):
         self.X, self.U = X, U
-        self.f0 = p.eval_stage_costs(X, U)
-        self.F = p.eval_final_cost(X[-1])
-        self.J = float(np.sum(self.f0) + self.F)
-        self.f = p.eval_dynamics(X, U)
+        # two calls (olado.problems.docp.DOCP.eval_values, eval_first_derivatives): the stage and
+        # final costs, dynamics, constraints, then their derivatives, in that order
+        self.J, self.f, self.g, self.gN = p.eval_values(X, U)
         self.h = self.f - X[1:]
-        self.g = p.eval_stage_constraints(X, U)
-        self.gN = p.eval_final_constraints(X[-1])
-        self.lx, self.lu = p.eval_stage_cost_gradients(X, U)
-        self.lN = p.eval_final_cost_gradient(X[-1])
-        self.A, self.B = p.eval_dynamics_jacobians(X, U)
-        self.Cx, self.Cu = p.eval_stage_constraint_jacobians(X, U)
-        self.CN = p.eval_final_constraint_jacobian(X[-1])
+        self.lx, self.lu, self.lN, self.A, self.B, self.Cx, self.Cu, self.CN = p.eval_first_derivatives(X, U)
 
 
 class StageBounds(NamedTuple):
@@ -212,8 +206,10 @@ def _figures(p, pt, bounds, W, S, lam, Lg, LgN, kind):
     ineq, ineqN = ~p.stage_equality_mask, ~p.final_equality_mask
     Lg = np.array(Lg, dtype=float)
     LgN = np.array(LgN, dtype=float)
-    Lg[:, ineq] = np.minimum(Lg[:, ineq], 0.0)
-    LgN[ineqN] = np.minimum(LgN[ineqN], 0.0)
+    if p.r:
+        Lg[:, ineq] = np.minimum(Lg[:, ineq], 0.0)
+    if p.rN:
+        LgN[ineqN] = np.minimum(LgN[ineqN], 0.0)
     rx, ru = stage_gradient_terms(p, pt, lam, Lg, LgN)
     wx, wu = W
     sx, cx = _bound_choice(rx, pt.X, bounds.xl, bounds.xu, wx)
@@ -451,11 +447,15 @@ def _shifted_values(p, pt, directions, h):
     counters advance as :func:`_values` point by point would advance them. A stage function that
     fails raises here: the caller then evaluates point by point (:func:`_pointwise_values`), whose
     message names the stage."""
-    points = [(pt.X + s * h * Vx, pt.U + s * h * Vu) for Vx, Vu in directions for s in _SHIFTS]
-    P, N, n, r = len(points), p.N, p.n, p.r
+    # the points y + s h v, directions by shifts (D, S, ...): elementwise as (s h) v + y point by point
+    steps = (np.array(_SHIFTS, dtype=float) * h)[None, :, None, None]
+    Xp = pt.X + steps * np.array([Vx for Vx, _ in directions])[:, None]
+    Up = pt.U + steps * np.array([Vu for _, Vu in directions])[:, None]
+    P, N, n, r = Xp.shape[0] * Xp.shape[1], p.N, p.n, p.r
     K = np.tile(p._K, P)
-    Xs = np.concatenate([X[:-1] for X, _ in points])
-    Us = np.concatenate([U for _, U in points])
+    Xs = Xp[:, :, :-1].reshape(P * N, n)
+    Us = Up.reshape(P * N, p.m)
+    ends = Xp[:, :, -1].reshape(P, n)
     cost = p._stage_values("stage_cost", K, Xs, Us, (), "cost", count=False)
     dyn = p._stage_values("dynamics", K, Xs, Us, (n,), "x_next", count=False)
     g = p._stage_values("stage_constraints", K, Xs, Us, (r,), "g", count=False) if r else np.zeros((P * N, 0))
@@ -463,8 +463,8 @@ def _shifted_values(p, pt, directions, h):
     p.counters["dynamics"] += P
     if r:
         p.counters["stage_constraints"] += P
-    final = np.array([p.eval_final_cost(X[-1]) for X, _ in points])
-    gN = np.array([p.eval_final_constraints(X[-1]) for X, _ in points]).reshape(P, p.rN)
+    final = np.array([p.eval_final_cost(x) for x in ends])
+    gN = np.array([p.eval_final_constraints(x) for x in ends]).reshape(P, p.rN) if p.rN else np.zeros((P, 0))
     parts = (cost.reshape(P, N), final.reshape(P, 1), dyn.reshape(P, N * n), g.reshape(P, N * r), gN)
     return np.concatenate(parts, axis=1).reshape(len(directions), len(_SHIFTS), -1)
 
@@ -486,12 +486,17 @@ def _directional(pt, Vx, Vu):
     D = Vx.shape[0]
     ax, au = np.abs(Vx), np.abs(Vu)
     ein = lambda M, V: np.einsum("kij,dkj->dki", M, V).reshape(D, -1)  # noqa: E731
+    none = np.zeros((D, 0))                     # the parts of a problem without such constraints
+    stage = pt.Cx.shape[1] and pt.Cx.shape[0]
+    final = pt.CN.shape[0]
     an = (np.sum(pt.lx * Vx[:, :-1], axis=2) + np.sum(pt.lu * Vu, axis=2), (Vx[:, -1] @ pt.lN)[:, None],
-          ein(pt.A, Vx[:, :-1]) + ein(pt.B, Vu), ein(pt.Cx, Vx[:, :-1]) + ein(pt.Cu, Vu), Vx[:, -1] @ pt.CN.T)
+          ein(pt.A, Vx[:, :-1]) + ein(pt.B, Vu), ein(pt.Cx, Vx[:, :-1]) + ein(pt.Cu, Vu) if stage else none,
+          Vx[:, -1] @ pt.CN.T if final else none)
     size = (np.sum(np.abs(pt.lx) * ax[:, :-1], axis=2) + np.sum(np.abs(pt.lu) * au, axis=2),
             (ax[:, -1] @ np.abs(pt.lN))[:, None],
-            ein(np.abs(pt.A), ax[:, :-1]) + ein(np.abs(pt.B), au), ein(np.abs(pt.Cx), ax[:, :-1]) + ein(np.abs(pt.Cu), au),
-            ax[:, -1] @ np.abs(pt.CN).T)
+            ein(np.abs(pt.A), ax[:, :-1]) + ein(np.abs(pt.B), au),
+            ein(np.abs(pt.Cx), ax[:, :-1]) + ein(np.abs(pt.Cu), au) if stage else none,
+            ax[:, -1] @ np.abs(pt.CN).T if final else none)
     return np.concatenate(an, axis=1), np.concatenate(size, axis=1)
 
 
@@ -508,8 +513,9 @@ def _direction(rng, pt, bounds, W, h):
     Vu = rng.uniform(-1.0, 1.0, pt.U.shape) * wu
     Vx[0] = 0.0
     with np.errstate(invalid="ignore"):
-        Vx[(pt.X - 2 * h * np.abs(Vx) < bounds.xl) | (pt.X + 2 * h * np.abs(Vx) > bounds.xu)] = 0.0
-        Vu[(pt.U - 2 * h * np.abs(Vu) < bounds.ul) | (pt.U + 2 * h * np.abs(Vu) > bounds.uu)] = 0.0
+        ax, au = 2 * h * np.abs(Vx), 2 * h * np.abs(Vu)
+        Vx[(pt.X - ax < bounds.xl) | (pt.X + ax > bounds.xu)] = 0.0
+        Vu[(pt.U - au < bounds.ul) | (pt.U + au > bounds.uu)] = 0.0
     return Vx, Vu
 
 
@@ -524,15 +530,32 @@ def _entry_of(shapes, j):
     raise IndexError(j)
 
 
+_RNG = threading.local()
+
+
+def _generator(seed):
+    """``np.random.default_rng(seed)`` at its start: a generator of this thread, its state reset
+    to the seed's (the same draws, without hashing the seed at every certificate)."""
+    cache = getattr(_RNG, "cache", None)
+    if cache is None:
+        cache = _RNG.cache = {}
+    found = cache.get(seed)
+    if found is None:
+        rng = np.random.default_rng(seed)
+        found = cache[seed] = (rng, rng.bit_generator.state)
+    rng, state = found
+    rng.bit_generator.state = state
+    return rng
+
+
 def spot_check(p, pt, bounds, W, seed=CHECK_SEED) -> _Check:
     """Step 4 of the module docstring: five-point central differences of every stage function
     along CHECK_DIRECTIONS random directions against the derivatives the problem supplies (every
     function's entries, of every direction, in one array: the formulas are elementwise, and the
     first largest ratio over the concatenation is the one the functions and directions in turn
     would find)."""
-    rng = np.random.default_rng(seed)
+    rng = _generator(seed)
     h = CHECK_STEP
-    sources = p.derivative_sources()
     directions = [_direction(rng, pt, bounds, W, h) for _ in range(CHECK_DIRECTIONS)]
     saved = p.counters.copy()
     try:
@@ -563,7 +586,7 @@ def spot_check(p, pt, bounds, W, seed=CHECK_SEED) -> _Check:
     where = f" at stage {idx[0]}" if name in ("stage_cost", "dynamics", "stage_constraints") else ""
     if len(idx) == 2 or name == "final_constraints":
         where += f", component {idx[-1]}"
-    source = sources.get(_DERIVATIVE_NAMES[name], "")
+    source = p.derivative_sources().get(_DERIVATIVE_NAMES[name], "")
     return _Check(worst, True, (f"the derivative of {name}{where} ({source}) disagrees with a five-point central "
                                 f"difference along a random direction: {an:.6g} vs {d5:.6g} (relative error {rel:.1e})"))
 

@@ -41,6 +41,31 @@ class Clock:
             self.limits.check()
 
 
+def _values(p, X, U):
+    """(J, f, g, gN) at (X, U): one call of :meth:`olado.problems.docp.DOCP.eval_values` (a
+    problem may evaluate them in one compiled pass), or the four evaluations of a problem that
+    only has those (the interior-point method's elastic restoration problem,
+    olado.solvers.ipm.elastic), in the same order."""
+    batched = getattr(p, "eval_values", None)
+    if batched is not None:
+        return batched(X, U)
+    J = p.objective(X, U)
+    return J, p.eval_dynamics(X, U), p.eval_stage_constraints(X, U), p.eval_final_constraints(X[-1])
+
+
+def _first_derivatives(p, X, U):
+    """(lx, lu, lN, A, B, Cx, Cu, CN) at (X, U): :meth:`olado.problems.docp.DOCP.eval_first_derivatives`,
+    or its five evaluations in the same order (see :func:`_values`)."""
+    batched = getattr(p, "eval_first_derivatives", None)
+    if batched is not None:
+        return batched(X, U)
+    lx, lu = p.eval_stage_cost_gradients(X, U)
+    lN = p.eval_final_cost_gradient(X[-1])
+    A, B = p.eval_dynamics_jacobians(X, U)
+    Cx, Cu = p.eval_stage_constraint_jacobians(X, U)
+    return lx, lu, lN, A, B, Cx, Cu, p.eval_final_constraint_jacobian(X[-1])
+
+
 class Point:
     """Values (J, h, g, gN) and, on demand, first derivatives of the DOCP at (X, U)."""
 
@@ -49,10 +74,8 @@ class Point:
         self.clock = clock if clock is not None else Clock()
         t0 = time.perf_counter()
         self.X, self.U = X, U
-        self.J = p.objective(X, U)
-        self.h = p.eval_dynamics(X, U) - X[1:]
-        self.g = p.eval_stage_constraints(X, U)
-        self.gN = p.eval_final_constraints(X[-1])
+        self.J, f, self.g, self.gN = _values(p, X, U)
+        self.h = f - X[1:]
         self.clock.add(("objective", "constraints"), t0)
         self.derivs = False
         if derivatives:
@@ -63,12 +86,8 @@ class Point:
         if self.derivs:
             return
         t0 = time.perf_counter()
-        X, U = self.X, self.U
-        self.lx, self.lu = p.eval_stage_cost_gradients(X, U)
-        self.lN = p.eval_final_cost_gradient(X[-1])
-        self.A, self.B = p.eval_dynamics_jacobians(X, U)
-        self.Cx, self.Cu = p.eval_stage_constraint_jacobians(X, U)
-        self.CN = p.eval_final_constraint_jacobian(X[-1])
+        (self.lx, self.lu, self.lN, self.A, self.B, self.Cx, self.Cu,
+         self.CN) = _first_derivatives(p, self.X, self.U)
         self.derivs = True
         self.clock.add(("gradient", "jacobian"), t0)
 
