@@ -224,6 +224,15 @@ class RiccatiFactorization:
         res = self.solve_into(rhs, Solution(X, U, lam, nu))
         return LQSolution(X, U, lam, nu, res)
 
+    def fixed_solve_operands(self):
+        """The operands of the plain Riccati recursion of small blocks (size tags, dynamics,
+        interior-point terms, factors) in the order its compiled solve takes them, for a kernel that
+        calls that solve itself (the interior-point QP's fused Newton solve); None for the other
+        recursions (equality rows, blocks above the fixed-size limit)."""
+        if not self.unconstrained or self._size_tags is None:
+            return None
+        return self._size_tags, self._dyn, self._ipt, self._factors
+
     def solve_into(self, rhs: RHS, out: Solution) -> float:
         """:meth:`solve` without argument checks or result object, for callers whose arrays are
         already C-contiguous float64 of the right shapes (the interior-point QP's work arrays,

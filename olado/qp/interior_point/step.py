@@ -107,7 +107,7 @@ class _StepContext:
         # recover_step in turn); other back-ends take the three steps
         f = self.fact
         self._fused = (kernel_set(_FUSED_KERNELS, (P.n, P.m)).newton_solve
-                       if type(f) is RiccatiFactorization and f.unconstrained and f._size_tags is not None else None)
+                       if type(f) is RiccatiFactorization and f.fixed_solve_operands() is not None else None)
         reg = rungs[j]
         self.reg = reg
         # nonconvex = "shift": a factorization that needed more than the base regularization makes
@@ -168,8 +168,7 @@ class _StepContext:
         d = P.point(np.empty(P.point_layout.size)) if out is None else out
         fused = self._fused
         if fused is not None:
-            f = self.fact
-            ok, ap, ad = fused(f._size_tags, f._dyn, f._ipt, f._factors, res.kkt_rhs, d.solution, res.arrays, rho_l,
+            ok, ap, ad = fused(*self.fact.fixed_solve_operands(), res.kkt_rhs, d.solution, res.arrays, rho_l,
                                rho_u, it.slacks, self.inv_tl, self.inv_tu, self.Ds, P.Ct, P.CN, P.fl, P.fu, d.slacks,
                                P.work_w)
         else:
