@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...linalg.backend import Solution
 from ...linalg.codegen import fixed_size_tags, kernel_set
 from ..stageqp import StageQP
 from .kernels import (_all_finite, _axpy, _axpy_split, _combined_rhs, _complementarity_residual, _corrector_rhs,
@@ -47,7 +48,8 @@ class _Prepared:
         self.qp = qp
         self.limits = None      # the Limits of the solve (InteriorPointQP._solve), for the KKT back-end
         self.Q = qp.Q.copy(); self.S = qp.S.copy(); self.R = qp.R.copy()
-        self.q = qp.q.copy(); self.r = qp.r.copy(); self.A = qp.A; self.B = qp.B.copy()
+        # (own copies of every array the KKT back-end holds: refill writes the next QP's values into them)
+        self.q = qp.q.copy(); self.r = qp.r.copy(); self.A = qp.A.copy(); self.B = qp.B.copy()
         self.c = qp.c.copy(); self.x0 = qp.x0.copy()
         ne0, neN0 = qp.E.shape[1], qp.EN.shape[0]
         self.ne0, self.neN0 = ne0, neN0
@@ -55,7 +57,7 @@ class _Prepared:
         C = qp.C.copy(); clo = qp.c_lower.copy(); chi = qp.c_upper.copy()
         nc, ncN = C.shape[1], qp.CN.shape[0]
         self.nc, self.ncN = nc, ncN
-        self.CN = qp.CN; cNlo = qp.cN_lower; cNhi = qp.cN_upper
+        self.CN = qp.CN.copy(); cNlo = qp.cN_lower; cNhi = qp.cN_upper
 
         # ---- inconsistent boxes
         self.bad_box = None
@@ -125,6 +127,8 @@ class _Prepared:
         self.eN = np.concatenate([np.asarray(a, float) for a in eN])
         self.neN = self.EN.shape[0]
         self.E, self.F, self.e = E, F, e
+        # nothing eliminated or turned into rows: the next QP of the same shapes can be refilled
+        self.simple = not (self.ufix.any() or xfix.any() or cfix.any() or cNfix.any())
         self.eq_mask = np.arange(ne)[None, :] < self.n_eq[:, None]
         self.has_eq = bool(self.n_eq.any()) or self.neN > 0
         self.n_nu = max(ne, self.neN)
@@ -144,10 +148,9 @@ class _Prepared:
         self.sl_x, self.sl_u, self.sl_s, self.sl_sN = (slice(int(o[i]), int(o[i + 1])) for i in range(4))
         self.nw = int(o[-1])
         self.n_z = N * (n + m) + n
-        fin = lambda a: float(np.abs(a).max(initial=0.0))  # noqa: E731
-        self.p_data = max(fin(self.c), fin(self.x0), fin(self.e), fin(self.eN), fin(self.lo), fin(self.hi))
-        self.d_data = max(fin(self.q), fin(self.r))
-        self.h_scale = max(fin(self.Q), fin(self.R), fin(self.S))
+        self._scales()
+        # the flat boxes of every entry as given (x_0's included): refill's work arrays
+        self.box_lo, self.box_hi = np.empty(n + self.nw), np.empty(n + self.nw)
 
         # ---- stacked arrays of the compiled kernels and the per-iteration work arrays
         nz = n + m
@@ -207,6 +210,78 @@ class _Prepared:
         self._rungs = None
         self.work_Dx, self.work_Du = np.empty((N + 1, n)), np.empty((N, m))
         self._zero_point = None
+        self._start_sol = None
+        self.kkt_used = None   # (kkt, kkt_options) of the back-end in fact (InteriorPointQP._prepare)
+
+    def refill(self, qp: StageQP) -> bool:
+        """Make this prepared QP the preparation of ``qp`` -- the next QP of an SQP solve -- by
+        writing its numbers into the arrays already here (layouts, kernels' bundles, work arrays
+        and the KKT back-end's factor arrays stay: the back-end holds these arrays and is
+        refactored with the new values); the same values, entry for entry, as ``_Prepared(qp)``.
+        Only for the same shapes (N, n, m and the numbers of rows) and when neither this QP nor
+        ``qp`` eliminates anything (no fixed controls or states, no equal-bound rows: ``simple``)
+        and ``qp``'s boxes are consistent; else False and nothing is changed (the caller prepares
+        ``qp`` afresh). The finite sides of the boxes may differ. Per-solve state (Hessian shift,
+        regularization rung, iterate counters) starts again."""
+        N, n, m = self.N, self.n, self.m
+        if (not self.simple or qp.N != N or qp.n != n or qp.m != m or qp.E.shape[1] != self.ne0
+                or qp.EN.shape[0] != self.neN0 or qp.C.shape[1] != self.nc or qp.CN.shape[0] != self.ncN):
+            return False
+        # the boxes of every entry (x_0's included, for the consistency test), flat
+        blo, bhi, nw = self.box_lo, self.box_hi, self.nw
+        np.concatenate([qp.x_lower.ravel(), qp.u_lower.ravel(), qp.c_lower.ravel(), qp.cN_lower], out=blo)
+        np.concatenate([qp.x_upper.ravel(), qp.u_upper.ravel(), qp.c_upper.ravel(), qp.cN_upper], out=bhi)
+        with np.errstate(invalid="ignore"):
+            if np.any(blo - bhi > _FIX_RTOL * (1 + np.abs(blo))):
+                return False     # an inconsistent box: the constructor words the message
+        lo, hi = blo[n:], bhi[n:]
+        if _equal_bounds(lo, hi).any():
+            return False
+        self.qp, self.bad_box = qp, None
+        for name in ("Q", "S", "R", "q", "r", "A", "B", "c", "x0", "C", "CN"):
+            np.copyto(getattr(self, name), getattr(qp, name))
+        ne0 = self.ne0
+        self.E[:, :ne0] = qp.E; self.F[:, :ne0] = qp.F; self.e[:, :ne0] = qp.e
+        np.copyto(self.EN, qp.EN); np.copyto(self.eN, qp.eN)
+        fl, fu = self.fl, self.fu
+        np.isfinite(lo, out=fl); np.isfinite(hi, out=fu)
+        np.copyto(self.lo, lo); np.copyto(self.lo, 0.0, where=~fl)
+        np.copyto(self.hi, hi); np.copyto(self.hi, 0.0, where=~fu)
+        self.n_comp = int(fl.sum() + fu.sum())
+        self._scales()
+        _symmetric_stage_hessians(self.Q, self.S, self.R, self.H)
+        np.copyto(self.QN, 0.5 * (self.Q[N] + self.Q[N].T))
+        np.concatenate([self.A, self.B], axis=2, out=self.AB)
+        np.concatenate([self.E, self.F], axis=2, out=self.EF)
+        np.copyto(self.EFt, np.swapaxes(self.EF, -1, -2))
+        np.multiply(self.e, self.eqm, out=self.be)
+        np.copyto(self.Ct, np.swapaxes(self.C, -1, -2))
+        np.negative(self.lo, out=self.neg_lo)
+        np.concatenate([self.q.ravel(), self.r.ravel()], out=self.qr)
+        if self.ncN:
+            np.copyto(self.Q_final, self.Q)
+        self.res_turn = 0
+        self.shift = 0.0
+        self.reg_rung = 0
+        self._rungs = None
+        return True
+
+    def _scales(self):
+        """The sizes of the data: p_data (primal: c, x0, e, eN and the finite box sides), d_data
+        (q, r) and h_scale (max |Q, R, S|)."""
+        fin = lambda a: float(np.abs(a).max(initial=0.0))  # noqa: E731
+        self.p_data = max(fin(self.c), fin(self.x0), fin(self.e), fin(self.eN), fin(self.lo), fin(self.hi))
+        self.d_data = max(fin(self.q), fin(self.r))
+        self.h_scale = max(fin(self.Q), fin(self.R), fin(self.S))
+
+    def start_solution(self):
+        """The arrays the cold-start system is solved into (a backend.Solution: X, U, lam, nu), made on
+        first use."""
+        if self._start_sol is None:
+            N, n, m = self.N, self.n, self.m
+            self._start_sol = Solution(np.empty((N + 1, n)), np.empty((N, m)), np.empty((N + 1, n)),
+                                       np.empty((N + 1, self.n_nu)))
+        return self._start_sol
 
     def reg_rungs(self, options):
         """The regularizations a Newton-system factorization may use, in increasing order:

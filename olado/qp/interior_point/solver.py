@@ -53,6 +53,31 @@ class InteriorPointQP:
 
     def __init__(self, options=None, **overrides):
         self.options = make_options(self.Options, options, **overrides)
+        # the prepared QPs kept for the next QPs of the same shapes (_prepare), by shapes
+        self._prepared = {}
+
+    def _prepare(self, qp: StageQP) -> _Prepared:
+        """The prepared form of ``qp``: a kept one of the same shapes refilled with its numbers
+        (:meth:`_Prepared.refill`: the QPs of an SQP solve, whose solver lives for the solve, share
+        their layouts, work arrays and KKT back-end), else a new one, kept when it can be refilled
+        later (at most a few: the SQP's QPs come in few shapes -- the step QP, the elastic one,
+        the multiplier estimate's). A back-end other than the Riccati recursion is made afresh
+        for every QP (a sparse or iterative one is not assumed to give the same results when
+        refactored with other matrices)."""
+        key = (qp.N, qp.n, qp.m, qp.E.shape[1], qp.EN.shape[0], qp.C.shape[1], qp.CN.shape[0])
+        P = self._prepared.get(key)
+        opts = self.options
+        if P is not None and P.refill(qp):
+            if opts.kkt != "riccati" or P.kkt_used != (opts.kkt, opts.kkt_options):
+                P.fact = None
+        else:
+            P = _Prepared(qp)
+            if P.simple and P.bad_box is None:
+                if len(self._prepared) >= 4:
+                    self._prepared.clear()
+                self._prepared[key] = P
+        P.kkt_used = (opts.kkt, dict(opts.kkt_options))
+        return P
 
     # ------------------------------------------------------------------ public entry
     def solve(self, qp: StageQP, warm_start: QPResult | None = None, limits=None) -> QPResult:
@@ -96,8 +121,10 @@ class InteriorPointQP:
                initial_mu: float | None = None, limits=None) -> QPResult:
         t0 = time.perf_counter()
         opts = self.options
-        P = _Prepared(qp)
+        P = self._prepare(qp)
         P.limits = limits
+        if P.fact is not None:
+            P.fact.limits = limits
         history = []
         if P.bad_box is not None:
             return self._finish(P, None, Status.INFEASIBLE, f"{Status.INFEASIBLE.sentence} ({P.bad_box})", 0, history, t0)

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...linalg.backend import NotPositiveDefiniteError, make_kkt_solver
+from ...linalg.backend import RHS, NotPositiveDefiniteError, make_kkt_solver
 from ..stageqp import QPResult
 from .step import _check_rows
 
@@ -44,23 +44,28 @@ def start_weight(P, weight):
 
 
 def _start_solve(P, options, D):
-    """The equality-constrained least-distance system of the cold start with weight D."""
+    """The equality-constrained least-distance system of the cold start with weight D. With the
+    Riccati back-end the system is factored by the prepared QP's own back-end (:func:`_shared_solve`),
+    which its iterations then refactor; another back-end is made for it alone."""
     N, n, m, nc = P.N, P.n, P.m, P.nc
     two = P.fl & P.fu
     ref = np.where(two, 0.5 * (P.lo + P.hi),
                    np.clip(np.zeros(P.nw), np.where(P.fl, P.lo, -np.inf), np.where(P.fu, P.hi, np.inf)))
-    Dx = np.full((N + 1, n), D); Du = np.full((N, m), D)
     q = P.q.copy(); r = P.r.copy()
     q[1:] -= D * ref[P.sl_x].reshape(N, n)
     r -= D * ref[P.sl_u].reshape(N, m)
-    kw, rhs = dict(Dx=Dx, Du=Du), {}
+    ci = -D * ref[P.sl_s].reshape(N, nc) if nc else None
+    if P.ncN:
+        q[-1] -= D * (P.CN.T @ ref[P.sl_sN])
+    if options.kkt == "riccati":
+        return _shared_solve(P, options, D, q, r, ci), ref
+    kw, rhs = dict(Dx=np.full((N + 1, n), D), Du=np.full((N, m), D)), {}
     if nc:
         kw.update(Ci=P.C, sigma=np.full((N, nc), D))
-        rhs["ci"] = -D * ref[P.sl_s].reshape(N, nc)
+        rhs["ci"] = ci
     Q = P.Q
     if P.ncN:
         Q = P.Q.copy(); Q[-1] = Q[-1] + D * (P.CN.T @ P.CN)
-        q[-1] -= D * (P.CN.T @ ref[P.sl_sN])
     if P.has_eq:
         kw.update(E=P.E, F=P.F, n_eq=P.n_eq, EN=P.EN)
         rhs.update(e=P.e, eN=P.eN)
@@ -68,6 +73,35 @@ def _start_solve(P, options, D):
     sol = make_kkt_solver(options.kkt, Q, P.S, P.R, P.A, P.B, limits=P.limits, **kw).solve(q, r, P.c, P.x0, **rhs)
     _check_rows(P, float(sol.x0_residual), None, "starting point")
     return sol, ref
+
+
+def _shared_solve(P, options, D, q, r, ci):
+    """The cold-start system solved with the prepared QP's back-end: its diagonal work arrays
+    (Dx, Du, the stage-row weights; Q_N + D C_N^T C_N in Q_final) set to the start's terms and
+    the back-end made with them (the arguments of the iterations' factorizations, step.py) or
+    refactored; the same system and solution as a back-end made for the start alone. The
+    solution is written into the prepared QP's work arrays of the start (``start_solution``)."""
+    P.work_Dx.fill(D)
+    P.work_Du.fill(D)
+    if P.nc:
+        P.Ds.fill(D)
+    if P.ncN:
+        P.Q_final[-1] = P.Q[-1] + D * (P.CN.T @ P.CN)
+    if P.fact is None:
+        kw = {}
+        if P.nc:
+            kw.update(Ci=P.C, sigma=P.Ds)
+        if P.has_eq:
+            kw.update(E=P.E, F=P.F, n_eq=P.n_eq, EN=P.EN)
+        kw.update(options.kkt_options)
+        P.fact = make_kkt_solver(options.kkt, P.Q_final if P.ncN else P.Q, P.S, P.R, P.A, P.B,
+                                 Dx=P.work_Dx, Du=P.work_Du, limits=P.limits, **kw)
+    else:
+        P.fact.refactor(Dx=P.work_Dx, Du=P.work_Du, sigma=P.Ds if P.nc else None)
+    sol = P.start_solution()
+    defect = P.fact.solve_into(RHS(q=q, r=r, c=P.c, x0=P.x0, e=P.e, eN=P.eN, ci=P.work_ci if ci is None else ci), sol)
+    _check_rows(P, float(defect), None, "starting point")
+    return sol
 
 
 def _centred(P, options, sol, ref, mu0):

@@ -1,0 +1,79 @@
+"""Per-solve and per-QP process time of an SQP preset on Zambezi, for comparing two source trees
+(the interior-point QP's fixed cost per QP: preparation, starting point, result).
+
+    python benchmarks/bench_qpsetup.py --trees OLD NEW --cases zambezi12:24 zambezi12:120 zambezi:1200
+
+Each tree runs in its own process (PYTHONPATH=tree), alternately, ``--rounds`` times; a run
+warms up (compilation), then times ``--solves`` solves (time.process_time) and reports the best
+per-solve time, and the QP solver's time per QP and per QP iteration of the best solve (the
+time inside InteriorPointQP.solve). The figures are the best over the rounds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+
+_CHILD = r"""
+import json, sys, time
+from olado.config import load_config, make_solver
+from olado.problems.zambezi import zambezi_problem
+from olado.qp.interior_point.solver import InteriorPointQP
+name, N, cfg, solves = sys.argv[1], int(sys.argv[2]), sys.argv[3], int(sys.argv[4])
+acc = {"t": 0.0, "n": 0, "it": 0}
+orig = InteriorPointQP.solve
+def timed(self, qp, warm_start=None, limits=None):
+    t = time.process_time()
+    r = orig(self, qp, warm_start, limits)
+    acc["t"] += time.process_time() - t; acc["n"] += 1; acc["it"] += r.iterations
+    return r
+InteriorPointQP.solve = timed
+solver = make_solver(load_config(cfg))
+solver.solve(zambezi_problem(name, N=N, start="balance"))
+best = None
+for _ in range(solves):
+    acc.update(t=0.0, n=0, it=0)
+    t = time.process_time()
+    r = solver.solve(zambezi_problem(name, N=N, start="balance"))
+    t = time.process_time() - t
+    if best is None or t < best[0]:
+        best = (t, acc["t"], acc["n"], acc["it"], r.iterations, float(r.objective), str(r.status))
+print(json.dumps(best))
+"""
+
+
+def run(tree, case, cfg, solves):
+    name, N = case.split(":")
+    env = dict(os.environ, PYTHONPATH=tree)
+    out = subprocess.run([sys.executable, "-c", _CHILD, name, N, cfg, str(solves)], env=env, capture_output=True,
+                         text=True, check=True, cwd=tree)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--trees", nargs="+", required=True)
+    ap.add_argument("--cases", nargs="+", default=["zambezi12:24", "zambezi12:120", "zambezi:1200"])
+    ap.add_argument("--config", default="configs/sqp-ip.ini")
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--solves", type=int, default=10)
+    a = ap.parse_args()
+    for case in a.cases:
+        best = {}
+        for _ in range(a.rounds):
+            for tree in a.trees:
+                r = run(tree, case, a.config, a.solves)
+                if tree not in best or r[0] < best[tree][0]:
+                    best[tree] = r
+        for tree in a.trees:
+            t, tqp, nqp, qit, it, obj, status = best[tree]
+            print(f"{case:16s} {tree:28s} solve {1e3 * t:9.3f} ms  QP {1e3 * tqp / nqp:8.3f} ms/QP "
+                  f"{1e3 * tqp / max(qit, 1):7.4f} ms/QP-it  ({nqp} QPs, {qit} QP it, {it} SQP it, {status}, "
+                  f"objective {obj:.12g})", flush=True)
+
+
+if __name__ == "__main__":
+    main()
