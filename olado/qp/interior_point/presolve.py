@@ -148,6 +148,7 @@ class _Prepared:
         self.sl_x, self.sl_u, self.sl_s, self.sl_sN = (slice(int(o[i]), int(o[i + 1])) for i in range(4))
         self.nw = int(o[-1])
         self.n_z = N * (n + m) + n
+        self._scale_work = None
         self._scales()
         # the flat boxes of every entry as given (x_0's included): refill's work arrays
         self.box_lo, self.box_hi = np.empty(n + self.nw), np.empty(n + self.nw)
@@ -228,14 +229,23 @@ class _Prepared:
                 or qp.EN.shape[0] != self.neN0 or qp.C.shape[1] != self.nc or qp.CN.shape[0] != self.ncN):
             return False
         # the boxes of every entry (x_0's included, for the consistency test), flat
-        blo, bhi, nw = self.box_lo, self.box_hi, self.nw
+        blo, bhi = self.box_lo, self.box_hi
         np.concatenate([qp.x_lower.ravel(), qp.u_lower.ravel(), qp.c_lower.ravel(), qp.cN_lower], out=blo)
         np.concatenate([qp.x_upper.ravel(), qp.u_upper.ravel(), qp.c_upper.ravel(), qp.cN_upper], out=bhi)
-        with np.errstate(invalid="ignore"):
-            if np.any(blo - bhi > _FIX_RTOL * (1 + np.abs(blo))):
-                return False     # an inconsistent box: the constructor words the message
-        lo, hi = blo[n:], bhi[n:]
-        if _equal_bounds(lo, hi).any():
+        if np.greater(blo, bhi).any():      # (the constructor's test needs lo > hi)
+            with np.errstate(invalid="ignore"):
+                if np.any(blo - bhi > _FIX_RTOL * (1 + np.abs(blo))):
+                    return False     # an inconsistent box: the constructor words the message
+        # the finite sides, and the boxes with 0 on the infinite ones (the arrays of this QP: on
+        # False they stay partly written, which a later refill overwrites)
+        lo, hi, fl, fu = blo[n:], bhi[n:], self.fl, self.fu
+        np.isfinite(lo, out=fl); np.isfinite(hi, out=fu)
+        np.copyto(self.lo, lo); np.copyto(self.lo, 0.0, where=~fl)
+        np.copyto(self.hi, hi); np.copyto(self.hi, 0.0, where=~fu)
+        # equal bounds (_equal_bounds of lo, hi: finite sides only, where lo, hi are these)
+        work = self.work_w
+        np.subtract(self.hi, self.lo, out=work)
+        if (fl & fu & (work <= _FIX_RTOL * (1 + np.abs(self.lo)))).any():
             return False
         self.qp, self.bad_box = qp, None
         for name in ("Q", "S", "R", "q", "r", "A", "B", "c", "x0", "C", "CN"):
@@ -243,11 +253,8 @@ class _Prepared:
         ne0 = self.ne0
         self.E[:, :ne0] = qp.E; self.F[:, :ne0] = qp.F; self.e[:, :ne0] = qp.e
         np.copyto(self.EN, qp.EN); np.copyto(self.eN, qp.eN)
-        fl, fu = self.fl, self.fu
-        np.isfinite(lo, out=fl); np.isfinite(hi, out=fu)
-        np.copyto(self.lo, lo); np.copyto(self.lo, 0.0, where=~fl)
-        np.copyto(self.hi, hi); np.copyto(self.hi, 0.0, where=~fu)
-        self.n_comp = int(fl.sum() + fu.sum())
+        self.n_comp = np.count_nonzero(fl) + np.count_nonzero(fu)
+        np.concatenate([self.q.ravel(), self.r.ravel()], out=self.qr)
         self._scales()
         _symmetric_stage_hessians(self.Q, self.S, self.R, self.H)
         np.copyto(self.QN, 0.5 * (self.Q[N] + self.Q[N].T))
@@ -257,7 +264,6 @@ class _Prepared:
         np.multiply(self.e, self.eqm, out=self.be)
         np.copyto(self.Ct, np.swapaxes(self.C, -1, -2))
         np.negative(self.lo, out=self.neg_lo)
-        np.concatenate([self.q.ravel(), self.r.ravel()], out=self.qr)
         if self.ncN:
             np.copyto(self.Q_final, self.Q)
         self.res_turn = 0
@@ -268,11 +274,19 @@ class _Prepared:
 
     def _scales(self):
         """The sizes of the data: p_data (primal: c, x0, e, eN and the finite box sides), d_data
-        (q, r) and h_scale (max |Q, R, S|)."""
-        fin = lambda a: float(np.abs(a).max(initial=0.0))  # noqa: E731
-        self.p_data = max(fin(self.c), fin(self.x0), fin(self.e), fin(self.eN), fin(self.lo), fin(self.hi))
-        self.d_data = max(fin(self.q), fin(self.r))
-        self.h_scale = max(fin(self.Q), fin(self.R), fin(self.S))
+        (q, r) and h_scale (max |Q, R, S|): one reduction each over the parts put together in a
+        work array, unless one is NaN (then the maximum of the parts' maxima, NaN or not, as
+        Python's max of them gives it)."""
+        w = self._scale_work
+        if w is None:
+            parts = (self.c, self.x0, self.e, self.eN, self.lo, self.hi), (self.q, self.r), (self.Q, self.R, self.S)
+            w = self._scale_work = tuple((p, np.empty(sum(a.size for a in p))) for p in parts)
+        out = []
+        for parts, buf in w:
+            np.concatenate([a.ravel() for a in parts], out=buf)
+            v = float(np.maximum.reduce(np.abs(buf, out=buf), initial=0.0))
+            out.append(v if v == v else max(float(np.abs(a).max(initial=0.0)) for a in parts))
+        self.p_data, self.d_data, self.h_scale = out
 
     def start_solution(self):
         """The arrays the cold-start system is solved into (a backend.Solution: X, U, lam, nu), made on
