@@ -90,3 +90,40 @@ def test_a_refill_writes_what_a_fresh_preparation_computes():
     bad = random_qp(3, eq=True)
     bad.u_lower[2, 1], bad.u_upper[2, 1] = 1.0, 0.0
     assert not P.refill(bad)
+
+
+def test_the_cold_start_is_the_centred_point_of_the_start_system():
+    """initial_point (the start system solved by the prepared QP's own back-end, the point written
+    in place) against the formulas: the least-distance system solved by a back-end of its own,
+    t = max(w - lo, 1) resp. max(hi - w, 1) and z = mu0 / t on the finite sides, 0 elsewhere."""
+    from olado.linalg.backend import make_kkt_solver
+    from olado.qp.interior_point.presolve import _Prepared
+    from olado.qp.interior_point.start import initial_point
+
+    solver = MehrotraQP()
+    for seed in (1, 2):
+        qp = random_qp(seed, eq=True)
+        P = solver._prepare(qp)
+        it = initial_point(P, solver.options, mu0=3.0)
+        ref = _Prepared(qp)
+        D = 1.0
+        two = ref.fl & ref.fu
+        wref = np.where(two, 0.5 * (ref.lo + ref.hi),
+                        np.clip(0.0, np.where(ref.fl, ref.lo, -np.inf), np.where(ref.fu, ref.hi, np.inf)))
+        N, n, m, nc = ref.N, ref.n, ref.m, ref.nc
+        q = ref.q.copy(); r = ref.r.copy()
+        q[1:] -= D * wref[ref.sl_x].reshape(N, n); r -= D * wref[ref.sl_u].reshape(N, m)
+        q[-1] -= D * (ref.CN.T @ wref[ref.sl_sN])
+        Q = ref.Q.copy(); Q[-1] = Q[-1] + D * (ref.CN.T @ ref.CN)
+        sol = make_kkt_solver("riccati", Q, ref.S, ref.R, ref.A, ref.B, Dx=np.full((N + 1, n), D),
+                              Du=np.full((N, m), D), Ci=ref.C, sigma=np.full((N, nc), D), E=ref.E, F=ref.F,
+                              n_eq=ref.n_eq, EN=ref.EN).solve(q, r, ref.c, ref.x0, e=ref.e, eN=ref.eN,
+                                                              ci=-D * wref[ref.sl_s].reshape(N, nc))
+        w = ref.w_of(sol.X, sol.U)
+        tl = np.where(ref.fl, np.maximum(w - ref.lo, 1.0), 0.0)
+        tu = np.where(ref.fu, np.maximum(ref.hi - w, 1.0), 0.0)
+        expected = dict(X=sol.X, U=sol.U, lam=sol.lam, nu=sol.nu, tl=tl, tu=tu,
+                        zl=np.where(ref.fl, 3.0 / np.where(ref.fl, tl, 1.0), 0.0),
+                        zu=np.where(ref.fu, 3.0 / np.where(ref.fu, tu, 1.0), 0.0))
+        for name, value in expected.items():
+            assert np.array_equal(getattr(it, name), value), name

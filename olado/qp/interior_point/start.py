@@ -105,20 +105,28 @@ def _shared_solve(P, options, D, q, r, ci):
 
 
 def _centred(P, options, sol, ref, mu0):
-    """The centred starting point from the solution ``sol`` of the cold-start system."""
-    N = P.N
-    X, U = np.array(sol.X, dtype=float), np.array(sol.U, dtype=float)
-    w = P.w_of(X, U)
-    tl = np.where(P.fl, np.maximum(w - P.lo, 1.0), 0.0)
-    tu = np.where(P.fu, np.maximum(P.hi - w, 1.0), 0.0)
-    nu = np.zeros((N + 1, P.n_nu))
-    if P.n_nu:
+    """The centred starting point from the solution ``sol`` of the cold-start system, written into
+    a new point: (X, U, lam, nu) of ``sol``, t = max(w - lo, 1), max(hi - w, 1) and z = mu0 / t on
+    the finite sides, 0 on the others."""
+    p = P.point(np.empty(P.point_layout.size))
+    np.copyto(p.X, sol.X); np.copyto(p.U, sol.U); np.copyto(p.lam, sol.lam)
+    if sol.nu.shape == p.nu.shape:
+        np.copyto(p.nu, sol.nu)
+    else:
+        p.nu.fill(0.0)
         k = min(P.n_nu, sol.nu.shape[1])
-        nu[:, :k] = sol.nu[:, :k]
+        p.nu[:, :k] = sol.nu[:, :k]
+    w = P.w_of(p.X, p.U)
     mu0 = options.initial_mu if mu0 is None else mu0
-    zl = np.where(P.fl, mu0 / np.where(P.fl, tl, 1.0), 0.0)
-    zu = np.where(P.fu, mu0 / np.where(P.fu, tu, 1.0), 0.0)
-    return P.point_from(X, U, np.array(sol.lam, dtype=float), nu, tl, tu, zl, zu)
+    for t, z, finite, a, b in ((p.tl, p.zl, P.fl, w, P.lo), (p.tu, p.zu, P.fu, P.hi, w)):
+        np.subtract(a, b, out=t)
+        np.maximum(t, 1.0, out=t)
+        infinite = ~finite
+        np.copyto(t, 0.0, where=infinite)
+        np.divide(mu0, t, out=z, where=finite)
+        np.copyto(z, 0.0, where=infinite)
+    return p
+
 
 def warm_point(P, options, ws: QPResult):
     """Warm start from a previous result: X, U, lam, nu and the box multipliers are taken over
