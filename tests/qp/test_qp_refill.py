@@ -127,3 +127,27 @@ def test_the_cold_start_is_the_centred_point_of_the_start_system():
                         zu=np.where(ref.fu, 3.0 / np.where(ref.fu, tu, 1.0), 0.0))
         for name, value in expected.items():
             assert np.array_equal(getattr(it, name), value), name
+
+
+def test_the_warm_start_is_the_pushed_point_of_the_result():
+    """warm_point (written in place) against the formulas: X, U, lam, nu of the result, the box
+    multipliers flat (NaN -> 0), theta = push (1 + max |z|), t = max(w - lo, theta) resp.
+    max(hi - w, theta) and z = max(z, theta) on the finite sides, 0 elsewhere."""
+    from olado.qp.interior_point.start import warm_point
+
+    solver = MehrotraQP(warm_start_push=1e-3)
+    ws = solver.solve(random_qp(1, eq=True))
+    ws.zu_lower[0, 0] = np.nan
+    qp = random_qp(2, eq=True)
+    P = solver._prepare(qp)
+    it = warm_point(P, solver.options, ws)
+    flat = lambda *a: np.concatenate([np.ravel(v) for v in a])  # noqa: E731
+    zl = np.nan_to_num(flat(ws.zx_lower[1:], ws.zu_lower, ws.yc_lower, ws.yN_lower))
+    zu = np.nan_to_num(flat(ws.zx_upper[1:], ws.zu_upper, ws.yc_upper, ws.yN_upper))
+    theta = 1e-3 * (1.0 + np.max(np.abs(np.concatenate([zl, zu]))))
+    w = P.w_of(ws.X, ws.U)
+    expected = dict(X=ws.X, U=ws.U, lam=ws.lam, nu=ws.nu, tl=np.where(P.fl, np.maximum(w - P.lo, theta), 0.0),
+                    tu=np.where(P.fu, np.maximum(P.hi - w, theta), 0.0), zl=np.where(P.fl, np.maximum(zl, theta), 0.0),
+                    zu=np.where(P.fu, np.maximum(zu, theta), 0.0))
+    for name, value in expected.items():
+        assert np.array_equal(getattr(it, name), value), name

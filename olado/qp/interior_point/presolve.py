@@ -71,6 +71,7 @@ class _Prepared:
 
         # ---- fixed controls: eliminated (their value moves into c, q, r, e and the row bounds)
         self.ufix = fix(qp.u_lower, qp.u_upper)
+        self.any_ufix = bool(self.ufix.any())
         self.uval = np.where(self.ufix, 0.5 * (np.where(self.ufix, qp.u_lower, 0.0) + np.where(self.ufix, qp.u_upper, 0.0)), 0.0)
         if self.ufix.any():
             v = self.uval

@@ -372,7 +372,8 @@ class InteriorPointQP:
             res.time_s = time.perf_counter() - t0
             return res
         X = it.X.copy(); U = it.U.copy()
-        U[P.ufix] = P.uval[P.ufix]
+        if P.any_ufix:
+            U[P.ufix] = P.uval[P.ufix]
         lam = it.lam.copy()
         nu = np.zeros((N + 1, ne_out))
         nu[:N, :P.ne0] = it.nu[:N, :P.ne0]
@@ -392,7 +393,7 @@ class InteriorPointQP:
                 zxu[N, i], zxl[N, i] = max(v, 0.0), max(-v, 0.0)
             else:
                 yNu[i], yNl[i] = max(v, 0.0), max(-v, 0.0)
-        if P.ufix.any():
+        if P.any_ufix:
             # multipliers of eliminated controls from the u-stationarity of the original Lagrangian
             g = (np.einsum("kji,kj->ki", qp.S, X[:-1]) + np.einsum("kij,kj->ki", qp.R, U) + qp.r
                  + np.einsum("kji,kj->ki", qp.B, lam[1:]))

@@ -135,11 +135,14 @@ def warm_point(P, options, ws: QPResult):
     t = max(w - lo, theta) and multipliers z = max(z_ws, theta) on finite sides with
     theta = ``warm_start_push`` * (1 + max |z_ws|)."""
     N, n, m = P.N, P.n, P.m
-    X = np.array(ws.X, dtype=float).reshape(N + 1, n).copy()
-    U = np.array(ws.U, dtype=float).reshape(N, m).copy()
-    U[P.ufix] = 0.0   # eliminated controls are 0 in the reduced problem
-    lam = np.array(ws.lam, dtype=float).reshape(N + 1, n).copy()
-    nu = np.zeros((N + 1, P.n_nu))
+    p = P.point(np.empty(P.point_layout.size))     # the start, written in place
+    np.copyto(p.X, np.asarray(ws.X, dtype=float).reshape(N + 1, n))
+    np.copyto(p.U, np.asarray(ws.U, dtype=float).reshape(N, m))
+    if P.any_ufix:
+        p.U[P.ufix] = 0.0   # eliminated controls are 0 in the reduced problem
+    np.copyto(p.lam, np.asarray(ws.lam, dtype=float).reshape(N + 1, n))
+    nu = p.nu
+    nu.fill(0.0)
     wnu = np.asarray(ws.nu, dtype=float)
     if wnu.ndim == 2 and wnu.shape[0] == N + 1:
         a, b = min(P.ne0, wnu.shape[1]), min(P.neN0, wnu.shape[1])
@@ -149,14 +152,17 @@ def warm_point(P, options, ws: QPResult):
         nu[k, row] = (ws.zx_upper[k, i] - ws.zx_lower[k, i]) if kind == "x" else (ws.yc_upper[k, i] - ws.yc_lower[k, i])
     for row, kind, i in P.eqN_map:
         nu[N, row] = (ws.zx_upper[N, i] - ws.zx_lower[N, i]) if kind == "x" else (ws.yN_upper[i] - ws.yN_lower[i])
-    flat = lambda *a: np.concatenate([np.asarray(v, dtype=float).ravel() for v in a])  # noqa: E731
-    zl = flat(np.asarray(ws.zx_lower)[1:], ws.zu_lower, ws.yc_lower, ws.yN_lower)
-    zu = flat(np.asarray(ws.zx_upper)[1:], ws.zu_upper, ws.yc_upper, ws.yN_upper)
-    zl, zu = np.nan_to_num(zl), np.nan_to_num(zu)
-    theta = options.warm_start_push * (1.0 + float(np.max(np.abs(np.concatenate([zl, zu])), initial=0.0)))
-    w = P.w_of(X, U)
-    tl = np.where(P.fl, np.maximum(w - P.lo, theta), 0.0)
-    tu = np.where(P.fu, np.maximum(P.hi - w, theta), 0.0)
-    zl = np.where(P.fl, np.maximum(zl, theta), 0.0)
-    zu = np.where(P.fu, np.maximum(zu, theta), 0.0)
-    return P.point_from(X, U, lam, nu, tl, tu, zl, zu)
+    flat = lambda out, *a: np.concatenate([np.asarray(v, dtype=float).ravel() for v in a], out=out)  # noqa: E731
+    zl = np.nan_to_num(flat(p.zl, np.asarray(ws.zx_lower)[1:], ws.zu_lower, ws.yc_lower, ws.yN_lower), copy=False)
+    zu = np.nan_to_num(flat(p.zu, np.asarray(ws.zx_upper)[1:], ws.zu_upper, ws.yc_upper, ws.yN_upper), copy=False)
+    big = max(float(np.max(np.abs(zl), initial=0.0)), float(np.max(np.abs(zu), initial=0.0)))
+    theta = options.warm_start_push * (1.0 + big)
+    w = P.w_of(p.X, p.U)
+    for t, z, finite, a, b in ((p.tl, zl, P.fl, w, P.lo), (p.tu, zu, P.fu, P.hi, w)):
+        infinite = ~finite
+        np.subtract(a, b, out=t)
+        np.maximum(t, theta, out=t)
+        np.copyto(t, 0.0, where=infinite)
+        np.maximum(z, theta, out=z)
+        np.copyto(z, 0.0, where=infinite)
+    return p
