@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...linalg.backend import Solution
 from ...linalg.codegen import fixed_size_tags, kernel_set
 from ..stageqp import StageQP
 from .kernels import (_all_finite, _axpy, _axpy_split, _combined_rhs, _complementarity_residual, _corrector_rhs,
@@ -212,7 +211,6 @@ class _Prepared:
         self._rungs = None
         self.work_Dx, self.work_Du = np.empty((N + 1, n)), np.empty((N, m))
         self._zero_point = None
-        self._start_sol = None
         self.kkt_used = None   # (kkt, kkt_options) of the back-end in fact (InteriorPointQP._prepare)
 
     def refill(self, qp: StageQP) -> bool:
@@ -249,24 +247,33 @@ class _Prepared:
         if (fl & fu & (work <= _FIX_RTOL * (1 + np.abs(self.lo)))).any():
             return False
         self.qp, self.bad_box = qp, None
-        for name in ("Q", "S", "R", "q", "r", "A", "B", "c", "x0", "C", "CN"):
-            np.copyto(getattr(self, name), getattr(qp, name))
+        Q = self.Q
+        np.copyto(Q, qp.Q); np.copyto(self.S, qp.S); np.copyto(self.R, qp.R)
+        np.copyto(self.q, qp.q); np.copyto(self.r, qp.r); np.copyto(self.c, qp.c); np.copyto(self.x0, qp.x0)
+        np.copyto(self.A, qp.A); np.copyto(self.B, qp.B)
+        np.concatenate([self.A, self.B], axis=2, out=self.AB)
         ne0 = self.ne0
-        self.E[:, :ne0] = qp.E; self.F[:, :ne0] = qp.F; self.e[:, :ne0] = qp.e
-        np.copyto(self.EN, qp.EN); np.copyto(self.eN, qp.eN)
+        if ne0:         # (rows absent: their arrays are empty)
+            self.E[:, :ne0] = qp.E; self.F[:, :ne0] = qp.F; self.e[:, :ne0] = qp.e
+            np.concatenate([self.E, self.F], axis=2, out=self.EF)
+            np.copyto(self.EFt, np.swapaxes(self.EF, -1, -2))
+            np.multiply(self.e, self.eqm, out=self.be)
+        if self.neN0:
+            np.copyto(self.EN, qp.EN); np.copyto(self.eN, qp.eN)
+        if self.nc:
+            np.copyto(self.C, qp.C)
+            np.copyto(self.Ct, np.swapaxes(self.C, -1, -2))
+        if self.ncN:
+            np.copyto(self.CN, qp.CN)
+            np.copyto(self.Q_final, Q)
         self.n_comp = np.count_nonzero(fl) + np.count_nonzero(fu)
         np.concatenate([self.q.ravel(), self.r.ravel()], out=self.qr)
         self._scales()
-        _symmetric_stage_hessians(self.Q, self.S, self.R, self.H)
-        np.copyto(self.QN, 0.5 * (self.Q[N] + self.Q[N].T))
-        np.concatenate([self.A, self.B], axis=2, out=self.AB)
-        np.concatenate([self.E, self.F], axis=2, out=self.EF)
-        np.copyto(self.EFt, np.swapaxes(self.EF, -1, -2))
-        np.multiply(self.e, self.eqm, out=self.be)
-        np.copyto(self.Ct, np.swapaxes(self.C, -1, -2))
+        _symmetric_stage_hessians(Q, self.S, self.R, self.H)
+        QN = self.QN                # 0.5 (Q_N + Q_N^T)
+        np.add(Q[N], Q[N].T, out=QN)
+        np.multiply(QN, 0.5, out=QN)
         np.negative(self.lo, out=self.neg_lo)
-        if self.ncN:
-            np.copyto(self.Q_final, self.Q)
         self.res_turn = 0
         self.shift = 0.0
         self.reg_rung = 0
@@ -288,15 +295,6 @@ class _Prepared:
             v = float(np.maximum.reduce(np.abs(buf, out=buf), initial=0.0))
             out.append(v if v == v else max(float(np.abs(a).max(initial=0.0)) for a in parts))
         self.p_data, self.d_data, self.h_scale = out
-
-    def start_solution(self):
-        """The arrays the cold-start system is solved into (a backend.Solution: X, U, lam, nu), made on
-        first use."""
-        if self._start_sol is None:
-            N, n, m = self.N, self.n, self.m
-            self._start_sol = Solution(np.empty((N + 1, n)), np.empty((N, m)), np.empty((N + 1, n)),
-                                       np.empty((N + 1, self.n_nu)))
-        return self._start_sol
 
     def reg_rungs(self, options):
         """The regularizations a Newton-system factorization may use, in increasing order:

@@ -9,6 +9,7 @@ import numpy as np
 
 from ...linalg.backend import RHS, NotPositiveDefiniteError, make_kkt_solver
 from ..stageqp import QPResult
+from .point import _Point
 from .step import _check_rows
 
 
@@ -80,7 +81,7 @@ def _shared_solve(P, options, D, q, r, ci):
     (Dx, Du, the stage-row weights; Q_N + D C_N^T C_N in Q_final) set to the start's terms and
     the back-end made with them (the arguments of the iterations' factorizations, step.py) or
     refactored; the same system and solution as a back-end made for the start alone. The
-    solution is written into the prepared QP's work arrays of the start (``start_solution``)."""
+    solution is written into a new point (its X, U, lam, nu), returned: the start is made in it."""
     P.work_Dx.fill(D)
     P.work_Du.fill(D)
     if P.nc:
@@ -98,21 +99,22 @@ def _shared_solve(P, options, D, q, r, ci):
                                  Dx=P.work_Dx, Du=P.work_Du, limits=P.limits, **kw)
     else:
         P.fact.refactor(Dx=P.work_Dx, Du=P.work_Du, sigma=P.Ds if P.nc else None)
-    sol = P.start_solution()
-    defect = P.fact.solve_into(RHS(q=q, r=r, c=P.c, x0=P.x0, e=P.e, eN=P.eN, ci=P.work_ci if ci is None else ci), sol)
+    point = P.point(np.empty(P.point_layout.size))
+    defect = P.fact.solve_into(RHS(q=q, r=r, c=P.c, x0=P.x0, e=P.e, eN=P.eN, ci=P.work_ci if ci is None else ci),
+                               point.solution)
     _check_rows(P, float(defect), None, "starting point")
-    return sol
+    return point
 
 
 def _centred(P, options, sol, ref, mu0):
-    """The centred starting point from the solution ``sol`` of the cold-start system, written into
-    a new point: (X, U, lam, nu) of ``sol``, t = max(w - lo, 1), max(hi - w, 1) and z = mu0 / t on
+    """The centred starting point from the solution ``sol`` of the cold-start system (an
+    LQSolution, or the point it was solved into), written into a new point (or that one): (X, U, lam, nu) of ``sol``, t = max(w - lo, 1), max(hi - w, 1) and z = mu0 / t on
     the finite sides, 0 on the others."""
-    p = P.point(np.empty(P.point_layout.size))
-    np.copyto(p.X, sol.X); np.copyto(p.U, sol.U); np.copyto(p.lam, sol.lam)
-    if sol.nu.shape == p.nu.shape:
-        np.copyto(p.nu, sol.nu)
+    if isinstance(sol, _Point):      # solved into the point (_shared_solve)
+        p = sol
     else:
+        p = P.point(np.empty(P.point_layout.size))
+        np.copyto(p.X, sol.X); np.copyto(p.U, sol.U); np.copyto(p.lam, sol.lam)
         p.nu.fill(0.0)
         k = min(P.n_nu, sol.nu.shape[1])
         p.nu[:, :k] = sol.nu[:, :k]
@@ -153,8 +155,11 @@ def warm_point(P, options, ws: QPResult):
     for row, kind, i in P.eqN_map:
         nu[N, row] = (ws.zx_upper[N, i] - ws.zx_lower[N, i]) if kind == "x" else (ws.yN_upper[i] - ws.yN_lower[i])
     flat = lambda out, *a: np.concatenate([np.asarray(v, dtype=float).ravel() for v in a], out=out)  # noqa: E731
-    zl = np.nan_to_num(flat(p.zl, np.asarray(ws.zx_lower)[1:], ws.zu_lower, ws.yc_lower, ws.yN_lower), copy=False)
-    zu = np.nan_to_num(flat(p.zu, np.asarray(ws.zx_upper)[1:], ws.zu_upper, ws.yc_upper, ws.yN_upper), copy=False)
+    zl = flat(p.zl, np.asarray(ws.zx_lower)[1:], ws.zu_lower, ws.yc_lower, ws.yN_lower)
+    zu = flat(p.zu, np.asarray(ws.zx_upper)[1:], ws.zu_upper, ws.yc_upper, ws.yN_upper)
+    for z in (zl, zu):
+        if not np.isfinite(z).all():
+            np.nan_to_num(z, copy=False)
     big = max(float(np.max(np.abs(zl), initial=0.0)), float(np.max(np.abs(zu), initial=0.0)))
     theta = options.warm_start_push * (1.0 + big)
     w = P.w_of(p.X, p.U)
