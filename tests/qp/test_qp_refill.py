@@ -151,3 +151,19 @@ def test_the_warm_start_is_the_pushed_point_of_the_result():
                     zu=np.where(P.fu, np.maximum(zu, theta), 0.0))
     for name, value in expected.items():
         assert np.array_equal(getattr(it, name), value), name
+
+
+@pytest.mark.parametrize("where", [None, "c", "r", "S"])
+def test_the_data_scales_are_the_maxima_of_the_parts(where):
+    """p_data, d_data, h_scale (one reduction per group) against Python's max of each part's
+    numpy max |.| -- with a NaN in one part, the NaN rule of that formula."""
+    from olado.qp.interior_point.presolve import _Prepared
+
+    qp = random_qp(3, eq=True)
+    if where is not None:
+        getattr(qp, where)[1, 0] = np.nan
+    P = _Prepared(qp)
+    fin = lambda a: float(np.abs(a).max(initial=0.0))  # noqa: E731
+    expected = (max(fin(P.c), fin(P.x0), fin(P.e), fin(P.eN), fin(P.lo), fin(P.hi)), max(fin(P.q), fin(P.r)),
+                max(fin(P.Q), fin(P.R), fin(P.S)))
+    assert np.array_equal([P.p_data, P.d_data, P.h_scale], expected, equal_nan=True)

@@ -282,18 +282,21 @@ class _Prepared:
 
     def _scales(self):
         """The sizes of the data: p_data (primal: c, x0, e, eN and the finite box sides), d_data
-        (q, r) and h_scale (max |Q, R, S|): one reduction each over the parts put together in a
-        work array, unless one is NaN (then the maximum of the parts' maxima, NaN or not, as
-        Python's max of them gives it)."""
+        (q, r) and h_scale (max |Q, R, S|): the three groups' absolute values put together in a
+        work array, one reduction per group (maxima: exact in any order); if one is NaN, the
+        maximum of its parts' maxima, NaN or not, as Python's max of them gives it."""
         w = self._scale_work
         if w is None:
-            parts = (self.c, self.x0, self.e, self.eN, self.lo, self.hi), (self.q, self.r), (self.Q, self.R, self.S)
-            w = self._scale_work = tuple((p, np.empty(sum(a.size for a in p))) for p in parts)
-        out = []
-        for parts, buf in w:
-            np.concatenate([a.ravel() for a in parts], out=buf)
-            v = float(np.maximum.reduce(np.abs(buf, out=buf), initial=0.0))
-            out.append(v if v == v else max(float(np.abs(a).max(initial=0.0)) for a in parts))
+            groups = ((self.c, self.x0, self.e, self.eN, self.lo, self.hi), (self.q, self.r), (self.Q, self.R, self.S))
+            sizes = [sum(a.size for a in g) for g in groups]
+            w = self._scale_work = (groups, [a for g in groups for a in g], np.empty(sum(sizes)),
+                                    np.array([0, sizes[0], sizes[0] + sizes[1]]))
+        groups, parts, buf, starts = w
+        np.concatenate([a.ravel() for a in parts], out=buf)
+        out = np.maximum.reduceat(np.abs(buf, out=buf), starts).tolist()   # (every group has entries: n >= 1)
+        for i, v in enumerate(out):
+            if v != v:
+                out[i] = max(float(np.abs(a).max(initial=0.0)) for a in groups[i])
         self.p_data, self.d_data, self.h_scale = out
 
     def reg_rungs(self, options):
