@@ -67,6 +67,7 @@ def test_the_prepared_qp_and_its_riccati_backend_are_reused():
     for seed in (2, 3):
         solver.solve(random_qp(seed, eq=True))
         assert list(solver._prepared.values()) == [P] and P.fact is fact
+        assert P.qp is None     # the QP itself is not kept between solves
     # a QP with fixed entries is prepared afresh and not kept
     solver.solve(random_qp(5, eq=True, fixed=True))
     assert list(solver._prepared.values()) == [P]

@@ -115,7 +115,16 @@ class InteriorPointQP:
             again.message = (f"{again.message} (restarted from initial_mu = {mu:g} after {res.iterations} "
                              f"iterations, {why})")
             res = again
+        self._release()
         return res
+
+    def _release(self):
+        """Drop the kept prepared QPs' references to the QP and the limits of the last solve (their
+        arrays stay for the next QP; the QP's data is not kept alive by them between solves)."""
+        for P in self._prepared.values():
+            P.qp = P.limits = None
+            if P.fact is not None:
+                P.fact.limits = None
 
     def _solve(self, qp: StageQP, warm_start: QPResult | None, max_iter: int, crawl_exit: bool = False,
                initial_mu: float | None = None, limits=None) -> QPResult:
