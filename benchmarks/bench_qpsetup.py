@@ -5,8 +5,9 @@
 
 Each tree runs in its own process (PYTHONPATH=tree), alternately, ``--rounds`` times; a run
 warms up (compilation), then times ``--solves`` solves (time.process_time) and reports the best
-per-solve time, and the QP solver's time per QP and per QP iteration of the best solve (the
-time inside InteriorPointQP.solve). The figures are the best over the rounds.
+per-solve time, the QP solver's time per QP and per QP iteration (the time inside
+InteriorPointQP.solve, least over the solves) and the least time outside it (solve minus QP).
+The figures are the best over the rounds.
 """
 
 from __future__ import annotations
@@ -33,14 +34,18 @@ def timed(self, qp, warm_start=None, limits=None):
 InteriorPointQP.solve = timed
 solver = make_solver(load_config(cfg))
 solver.solve(zambezi_problem(name, N=N, start="balance"))
-best = None
+runs = []
 for _ in range(solves):
     acc.update(t=0.0, n=0, it=0)
+    p = zambezi_problem(name, N=N, start="balance")
     t = time.process_time()
-    r = solver.solve(zambezi_problem(name, N=N, start="balance"))
+    r = solver.solve(p)
     t = time.process_time() - t
-    if best is None or t < best[0]:
-        best = (t, acc["t"], acc["n"], acc["it"], r.iterations, float(r.objective), str(r.status))
+    runs.append((t, acc["t"], acc["n"], acc["it"], r.iterations, float(r.objective), str(r.status)))
+# the best solve, and separately the least QP time and the least time outside the QP of any solve
+best = list(min(runs))
+best[1] = min(r[1] for r in runs)
+best.append(min(r[0] - r[1] for r in runs))
 print(json.dumps(best))
 """
 
@@ -66,13 +71,13 @@ def main():
         for _ in range(a.rounds):
             for tree in a.trees:
                 r = run(tree, case, a.config, a.solves)
-                if tree not in best or r[0] < best[tree][0]:
-                    best[tree] = r
+                old = best.get(tree)
+                best[tree] = r if old is None else [min(r[0], old[0]), min(r[1], old[1])] + r[2:7] + [min(r[7], old[7])]
         for tree in a.trees:
-            t, tqp, nqp, qit, it, obj, status = best[tree]
+            t, tqp, nqp, qit, it, obj, status, rest = best[tree]
             print(f"{case:16s} {tree:28s} solve {1e3 * t:9.3f} ms  QP {1e3 * tqp / nqp:8.3f} ms/QP "
-                  f"{1e3 * tqp / max(qit, 1):7.4f} ms/QP-it  ({nqp} QPs, {qit} QP it, {it} SQP it, {status}, "
-                  f"objective {obj:.12g})", flush=True)
+                  f"{1e3 * tqp / max(qit, 1):7.4f} ms/QP-it  outside the QP {1e3 * rest:8.3f} ms  ({nqp} QPs, {qit} "
+                  f"QP it, {it} SQP it, {status}, objective {obj:.12g})", flush=True)
 
 
 if __name__ == "__main__":
