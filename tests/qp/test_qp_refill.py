@@ -63,10 +63,11 @@ def test_the_prepared_qp_and_its_riccati_backend_are_reused():
     solver = MehrotraQP(tol=1e-9)
     solver.solve(random_qp(1, eq=True))
     (P,) = solver._prepared.values()
-    fact = P.fact
+    fact, pool = P.fact, P.iterate_pool
     for seed in (2, 3):
         solver.solve(random_qp(seed, eq=True))
         assert list(solver._prepared.values()) == [P] and P.fact is fact
+        assert P.iterate_pool is pool     # the start is written into one of the three iterate points
         assert P.qp is None     # the QP itself is not kept between solves
     # a QP with fixed entries is prepared afresh and not kept
     solver.solve(random_qp(5, eq=True, fixed=True))

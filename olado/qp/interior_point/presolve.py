@@ -332,6 +332,16 @@ class _Prepared:
                 return p
         raise AssertionError("no free iterate buffer")   # three points, at most two busy
 
+    def start_point(self):
+        """A point to write a starting point into: a new one, or after an earlier solve of this
+        prepared QP the first of its iterate points (none of them is in use before the iterations;
+        the starting point is then one of the three, as in the first solve)."""
+        if self.iterate_pool is None:
+            return _Point(self.point_form, np.empty(self.point_layout.size))
+        p = self.iterate_pool[0]
+        p.max_step = p.max_split = p._finite = None
+        return p
+
     def directions(self):
         """The reused direction objects (predictor, main, corrector, refinement), made on first use."""
         if self.dir_aff is None:

@@ -99,7 +99,7 @@ def _shared_solve(P, options, D, q, r, ci):
                                  Dx=P.work_Dx, Du=P.work_Du, limits=P.limits, **kw)
     else:
         P.fact.refactor(Dx=P.work_Dx, Du=P.work_Du, sigma=P.Ds if P.nc else None)
-    point = P.point(np.empty(P.point_layout.size))
+    point = P.start_point()
     defect = P.fact.solve_into(RHS(q=q, r=r, c=P.c, x0=P.x0, e=P.e, eN=P.eN, ci=P.work_ci if ci is None else ci),
                                point.solution)
     _check_rows(P, float(defect), None, "starting point")
@@ -113,7 +113,7 @@ def _centred(P, options, sol, ref, mu0):
     if isinstance(sol, _Point):      # solved into the point (_shared_solve)
         p = sol
     else:
-        p = P.point(np.empty(P.point_layout.size))
+        p = P.start_point()
         np.copyto(p.X, sol.X); np.copyto(p.U, sol.U); np.copyto(p.lam, sol.lam)
         p.nu.fill(0.0)
         k = min(P.n_nu, sol.nu.shape[1])
@@ -137,7 +137,7 @@ def warm_point(P, options, ws: QPResult):
     t = max(w - lo, theta) and multipliers z = max(z_ws, theta) on finite sides with
     theta = ``warm_start_push`` * (1 + max |z_ws|)."""
     N, n, m = P.N, P.n, P.m
-    p = P.point(np.empty(P.point_layout.size))     # the start, written in place
+    p = P.start_point()     # the start, written in place
     np.copyto(p.X, np.asarray(ws.X, dtype=float).reshape(N + 1, n))
     np.copyto(p.U, np.asarray(ws.U, dtype=float).reshape(N, m))
     if P.any_ufix:
