@@ -220,8 +220,8 @@ class _Prepared:
         refactored with the new values); the same values, entry for entry, as ``_Prepared(qp)``.
         Only for the same shapes (N, n, m and the numbers of rows) and when neither this QP nor
         ``qp`` eliminates anything (no fixed controls or states, no equal-bound rows: ``simple``)
-        and ``qp``'s boxes are consistent; else False and nothing is changed (the caller prepares
-        ``qp`` afresh). The finite sides of the boxes may differ. Per-solve state (Hessian shift,
+        and ``qp``'s boxes are consistent; else False (the caller prepares ``qp`` afresh; this one may
+        have its box arrays written, which the next refill writes again). The finite sides of the boxes may differ. Per-solve state (Hessian shift,
         regularization rung, iterate counters) starts again."""
         N, n, m = self.N, self.n, self.m
         if (not self.simple or qp.N != N or qp.n != n or qp.m != m or qp.E.shape[1] != self.ne0
