@@ -170,6 +170,7 @@ class FrankeQP(InteriorPointQP):
         try:
             res = self._solve(qp, warm_start, min(opts.max_warm_iter, opts.max_iter), limits=limits)
             if res.status is Status.SUCCESS:
+                self._release()
                 return res
             spent, why = res.iterations, f"ended {res.status.value}: {res.message}"
         except _HotStartFailed as exc:
@@ -178,6 +179,7 @@ class FrankeQP(InteriorPointQP):
         cold.iterations += spent
         cold.time_s = time.perf_counter() - t0
         cold.message = f"{cold.message} (cold start after {spent} iterations of a hot start that {why})"
+        self._release()
         return cold
 
     def _initial_point(self, P, mu0=None):

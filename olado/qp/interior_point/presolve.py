@@ -47,7 +47,8 @@ class _Prepared:
         self.qp = qp
         self.limits = None      # the Limits of the solve (InteriorPointQP._solve), for the KKT back-end
         self.Q = qp.Q.copy(); self.S = qp.S.copy(); self.R = qp.R.copy()
-        self.q = qp.q.copy(); self.r = qp.r.copy(); self.A = qp.A; self.B = qp.B.copy()
+        # (own copies of every array the KKT back-end holds: refill writes the next QP's values into them)
+        self.q = qp.q.copy(); self.r = qp.r.copy(); self.A = qp.A.copy(); self.B = qp.B.copy()
         self.c = qp.c.copy(); self.x0 = qp.x0.copy()
         ne0, neN0 = qp.E.shape[1], qp.EN.shape[0]
         self.ne0, self.neN0 = ne0, neN0
@@ -55,7 +56,7 @@ class _Prepared:
         C = qp.C.copy(); clo = qp.c_lower.copy(); chi = qp.c_upper.copy()
         nc, ncN = C.shape[1], qp.CN.shape[0]
         self.nc, self.ncN = nc, ncN
-        self.CN = qp.CN; cNlo = qp.cN_lower; cNhi = qp.cN_upper
+        self.CN = qp.CN.copy(); cNlo = qp.cN_lower; cNhi = qp.cN_upper
 
         # ---- inconsistent boxes
         self.bad_box = None
@@ -69,6 +70,7 @@ class _Prepared:
 
         # ---- fixed controls: eliminated (their value moves into c, q, r, e and the row bounds)
         self.ufix = fix(qp.u_lower, qp.u_upper)
+        self.any_ufix = bool(self.ufix.any())
         self.uval = np.where(self.ufix, 0.5 * (np.where(self.ufix, qp.u_lower, 0.0) + np.where(self.ufix, qp.u_upper, 0.0)), 0.0)
         if self.ufix.any():
             v = self.uval
@@ -125,6 +127,8 @@ class _Prepared:
         self.eN = np.concatenate([np.asarray(a, float) for a in eN])
         self.neN = self.EN.shape[0]
         self.E, self.F, self.e = E, F, e
+        # nothing eliminated or turned into rows: the next QP of the same shapes can be refilled
+        self.simple = not (self.ufix.any() or xfix.any() or cfix.any() or cNfix.any())
         self.eq_mask = np.arange(ne)[None, :] < self.n_eq[:, None]
         self.has_eq = bool(self.n_eq.any()) or self.neN > 0
         self.n_nu = max(ne, self.neN)
@@ -144,10 +148,10 @@ class _Prepared:
         self.sl_x, self.sl_u, self.sl_s, self.sl_sN = (slice(int(o[i]), int(o[i + 1])) for i in range(4))
         self.nw = int(o[-1])
         self.n_z = N * (n + m) + n
-        fin = lambda a: float(np.abs(a).max(initial=0.0))  # noqa: E731
-        self.p_data = max(fin(self.c), fin(self.x0), fin(self.e), fin(self.eN), fin(self.lo), fin(self.hi))
-        self.d_data = max(fin(self.q), fin(self.r))
-        self.h_scale = max(fin(self.Q), fin(self.R), fin(self.S))
+        self._scale_work = None
+        self._scales()
+        # the flat boxes of every entry as given (x_0's included): refill's work arrays
+        self.box_lo, self.box_hi = np.empty(n + self.nw), np.empty(n + self.nw)
 
         # ---- stacked arrays of the compiled kernels and the per-iteration work arrays
         nz = n + m
@@ -207,6 +211,93 @@ class _Prepared:
         self._rungs = None
         self.work_Dx, self.work_Du = np.empty((N + 1, n)), np.empty((N, m))
         self._zero_point = None
+        self.kkt_used = None   # (kkt, kkt_options) of the back-end in fact (InteriorPointQP._prepare)
+
+    def refill(self, qp: StageQP) -> bool:
+        """Make this prepared QP the preparation of ``qp`` -- the next QP of an SQP solve -- by
+        writing its numbers into the arrays already here (layouts, kernels' bundles, work arrays
+        and the KKT back-end's factor arrays stay: the back-end holds these arrays and is
+        refactored with the new values); the same values, entry for entry, as ``_Prepared(qp)``.
+        Only for the same shapes (N, n, m and the numbers of rows) and when neither this QP nor
+        ``qp`` eliminates anything (no fixed controls or states, no equal-bound rows: ``simple``)
+        and ``qp``'s boxes are consistent; else False (the caller prepares ``qp`` afresh; this one may
+        have its box arrays written, which the next refill writes again). The finite sides of the boxes may differ. Per-solve state (Hessian shift,
+        regularization rung, iterate counters) starts again."""
+        N, n, m = self.N, self.n, self.m
+        if (not self.simple or qp.N != N or qp.n != n or qp.m != m or qp.E.shape[1] != self.ne0
+                or qp.EN.shape[0] != self.neN0 or qp.C.shape[1] != self.nc or qp.CN.shape[0] != self.ncN):
+            return False
+        # the boxes of every entry (x_0's included, for the consistency test), flat
+        blo, bhi = self.box_lo, self.box_hi
+        np.concatenate([qp.x_lower.ravel(), qp.u_lower.ravel(), qp.c_lower.ravel(), qp.cN_lower], out=blo)
+        np.concatenate([qp.x_upper.ravel(), qp.u_upper.ravel(), qp.c_upper.ravel(), qp.cN_upper], out=bhi)
+        if np.greater(blo, bhi).any():      # (the constructor's test needs lo > hi)
+            with np.errstate(invalid="ignore"):
+                if np.any(blo - bhi > _FIX_RTOL * (1 + np.abs(blo))):
+                    return False     # an inconsistent box: the constructor words the message
+        # the finite sides, and the boxes with 0 on the infinite ones (the arrays of this QP: on
+        # False they stay partly written, which a later refill overwrites)
+        lo, hi, fl, fu = blo[n:], bhi[n:], self.fl, self.fu
+        np.isfinite(lo, out=fl); np.isfinite(hi, out=fu)
+        np.copyto(self.lo, lo); np.copyto(self.lo, 0.0, where=~fl)
+        np.copyto(self.hi, hi); np.copyto(self.hi, 0.0, where=~fu)
+        # equal bounds (_equal_bounds of lo, hi: finite sides only, where lo, hi are these)
+        work = self.work_w
+        np.subtract(self.hi, self.lo, out=work)
+        if (fl & fu & (work <= _FIX_RTOL * (1 + np.abs(self.lo)))).any():
+            return False
+        self.qp, self.bad_box = qp, None
+        Q = self.Q
+        np.copyto(Q, qp.Q); np.copyto(self.S, qp.S); np.copyto(self.R, qp.R)
+        np.copyto(self.q, qp.q); np.copyto(self.r, qp.r); np.copyto(self.c, qp.c); np.copyto(self.x0, qp.x0)
+        np.copyto(self.A, qp.A); np.copyto(self.B, qp.B)
+        np.concatenate([self.A, self.B], axis=2, out=self.AB)
+        ne0 = self.ne0
+        if ne0:         # (rows absent: their arrays are empty)
+            self.E[:, :ne0] = qp.E; self.F[:, :ne0] = qp.F; self.e[:, :ne0] = qp.e
+            np.concatenate([self.E, self.F], axis=2, out=self.EF)
+            np.copyto(self.EFt, np.swapaxes(self.EF, -1, -2))
+            np.multiply(self.e, self.eqm, out=self.be)
+        if self.neN0:
+            np.copyto(self.EN, qp.EN); np.copyto(self.eN, qp.eN)
+        if self.nc:
+            np.copyto(self.C, qp.C)
+            np.copyto(self.Ct, np.swapaxes(self.C, -1, -2))
+        if self.ncN:
+            np.copyto(self.CN, qp.CN)
+            np.copyto(self.Q_final, Q)
+        self.n_comp = np.count_nonzero(fl) + np.count_nonzero(fu)
+        np.concatenate([self.q.ravel(), self.r.ravel()], out=self.qr)
+        self._scales()
+        _symmetric_stage_hessians(Q, self.S, self.R, self.H)
+        QN = self.QN                # 0.5 (Q_N + Q_N^T)
+        np.add(Q[N], Q[N].T, out=QN)
+        np.multiply(QN, 0.5, out=QN)
+        np.negative(self.lo, out=self.neg_lo)
+        self.res_turn = 0
+        self.shift = 0.0
+        self.reg_rung = 0
+        self._rungs = None
+        return True
+
+    def _scales(self):
+        """The sizes of the data: p_data (primal: c, x0, e, eN and the finite box sides), d_data
+        (q, r) and h_scale (max |Q, R, S|): the three groups' absolute values put together in a
+        work array, one reduction per group (maxima: exact in any order); if one is NaN, the
+        maximum of its parts' maxima, NaN or not, as Python's max of them gives it."""
+        w = self._scale_work
+        if w is None:
+            groups = ((self.c, self.x0, self.e, self.eN, self.lo, self.hi), (self.q, self.r), (self.Q, self.R, self.S))
+            sizes = [sum(a.size for a in g) for g in groups]
+            w = self._scale_work = (groups, [a for g in groups for a in g], np.empty(sum(sizes)),
+                                    np.array([0, sizes[0], sizes[0] + sizes[1]]))
+        groups, parts, buf, starts = w
+        np.concatenate([a.ravel() for a in parts], out=buf)
+        out = np.maximum.reduceat(np.abs(buf, out=buf), starts).tolist()   # (every group has entries: n >= 1)
+        for i, v in enumerate(out):
+            if v != v:
+                out[i] = max(float(np.abs(a).max(initial=0.0)) for a in groups[i])
+        self.p_data, self.d_data, self.h_scale = out
 
     def reg_rungs(self, options):
         """The regularizations a Newton-system factorization may use, in increasing order:
@@ -240,6 +331,16 @@ class _Prepared:
             if p is not current and p is not best:
                 return p
         raise AssertionError("no free iterate buffer")   # three points, at most two busy
+
+    def start_point(self):
+        """A point to write a starting point into: a new one, or after an earlier solve of this
+        prepared QP the first of its iterate points (none of them is in use before the iterations;
+        the starting point is then one of the three, as in the first solve)."""
+        if self.iterate_pool is None:
+            return _Point(self.point_form, np.empty(self.point_layout.size))
+        p = self.iterate_pool[0]
+        p.max_step = p.max_split = p._finite = None
+        return p
 
     def directions(self):
         """The reused direction objects (predictor, main, corrector, refinement), made on first use."""

@@ -53,6 +53,31 @@ class InteriorPointQP:
 
     def __init__(self, options=None, **overrides):
         self.options = make_options(self.Options, options, **overrides)
+        # the prepared QPs kept for the next QPs of the same shapes (_prepare), by shapes
+        self._prepared = {}
+
+    def _prepare(self, qp: StageQP) -> _Prepared:
+        """The prepared form of ``qp``: a kept one of the same shapes refilled with its numbers
+        (:meth:`_Prepared.refill`: the QPs of an SQP solve, whose solver lives for the solve, share
+        their layouts, work arrays and KKT back-end), else a new one, kept when it can be refilled
+        later (at most a few: the SQP's QPs come in few shapes -- the step QP, the elastic one,
+        the multiplier estimate's). A back-end other than the Riccati recursion is made afresh
+        for every QP (a sparse or iterative one is not assumed to give the same results when
+        refactored with other matrices)."""
+        key = (qp.N, qp.n, qp.m, qp.E.shape[1], qp.EN.shape[0], qp.C.shape[1], qp.CN.shape[0])
+        P = self._prepared.get(key)
+        opts = self.options
+        if P is not None and P.refill(qp):
+            if opts.kkt != "riccati" or P.kkt_used != (opts.kkt, opts.kkt_options):
+                P.fact = None
+        else:
+            P = _Prepared(qp)
+            if P.simple and P.bad_box is None:
+                if len(self._prepared) >= 4:
+                    self._prepared.clear()
+                self._prepared[key] = P
+        P.kkt_used = (opts.kkt, dict(opts.kkt_options))
+        return P
 
     # ------------------------------------------------------------------ public entry
     def solve(self, qp: StageQP, warm_start: QPResult | None = None, limits=None) -> QPResult:
@@ -90,14 +115,25 @@ class InteriorPointQP:
             again.message = (f"{again.message} (restarted from initial_mu = {mu:g} after {res.iterations} "
                              f"iterations, {why})")
             res = again
+        self._release()
         return res
+
+    def _release(self):
+        """Drop the kept prepared QPs' references to the QP and the limits of the last solve (their
+        arrays stay for the next QP; the QP's data is not kept alive by them between solves)."""
+        for P in self._prepared.values():
+            P.qp = P.limits = None
+            if P.fact is not None:
+                P.fact.limits = None
 
     def _solve(self, qp: StageQP, warm_start: QPResult | None, max_iter: int, crawl_exit: bool = False,
                initial_mu: float | None = None, limits=None) -> QPResult:
         t0 = time.perf_counter()
         opts = self.options
-        P = _Prepared(qp)
+        P = self._prepare(qp)
         P.limits = limits
+        if P.fact is not None:
+            P.fact.limits = limits
         history = []
         if P.bad_box is not None:
             return self._finish(P, None, Status.INFEASIBLE, f"{Status.INFEASIBLE.sentence} ({P.bad_box})", 0, history, t0)
@@ -151,24 +187,32 @@ class InteriorPointQP:
         max_reg = 0.0
         huge = 1e10 * (1.0 + P.p_data + P.d_data)
         status, message = Status.MAX_ITERATIONS, Status.MAX_ITERATIONS.sentence
+        # (what the loop reads often, as locals; the residuals of _residuals written out in the loop)
+        tol, n_comp, kernels, stats = opts.tol, P.n_comp, P.kernels, P.stats
+        kkt_map, sizes, kkt_data, offsets, work_w = kernels.kkt_map, P.sizes, P.kkt_data, P.offsets, P.work_w
+        p_data, d_data = P.p_data, P.d_data
         while True:
-            res, pr, du, scales, obj, znorm, comp = self._residuals(P, it)
+            res = P.residual_buffer()
+            kkt_map(sizes, kkt_data, it.arrays, offsets, res.arrays, work_w, stats)
+            pr, du, znorm, hnorm, obj, comp = stats.tolist()
+            res._size = max(pr, du)
+            s_pr, s_du = 1.0 + max(p_data, znorm), 1.0 + max(d_data, hnorm)
             if pending is not None:
                 old, a_p, a_d, rhs_old, target_old = pending
-                e = P.kernels.implied_newton_residual(res.buf, old.buf, a_p, a_d, n_dual)
+                e = kernels.implied_newton_residual(res.buf, old.buf, a_p, a_d, n_dual)
                 rel_last, rel_age = (e / rhs_old, 0) if e <= target_old and rhs_old > 0 else (None, 0)
                 # all rows verified (common step) and within the target: the next direction is
                 # trusted as well and checked in the same way afterwards
                 verified = rel_last is not None and a_p == a_d
                 pending = None
-            mu = comp / P.n_comp if P.n_comp else 0.0
-            gap = mu * P.n_comp
-            if pr <= opts.tol * scales[0] and du <= opts.tol * scales[1] and gap <= opts.tol * (1.0 + abs(obj)):
+            mu = comp / n_comp if n_comp else 0.0
+            gap = mu * n_comp
+            if pr <= tol * s_pr and du <= tol * s_du and gap <= tol * (1.0 + abs(obj)):
                 status, message = Status.SUCCESS, Status.SUCCESS.sentence
                 break
             # the certificates are evaluated only when the iterates look suspicious: a primal or
             # dual residual above tolerance that the last two steps did not halve, or a huge iterate
-            slow = (pr > opts.tol * scales[0] and pr > 0.5 * pr_prev) or (du > opts.tol * scales[1] and du > 0.5 * du_prev)
+            slow = (pr > tol * s_pr and pr > 0.5 * pr_prev) or (du > tol * s_du and du > 0.5 * du_prev)
             n_slow = n_slow + 1 if slow else 0
             if n_slow >= 2 or znorm > huge:
                 cert = self._certificates(P, it, last_d)
@@ -176,7 +220,7 @@ class InteriorPointQP:
                     status, message = cert
                     break
             pr_prev, du_prev = pr, du
-            merit = max(pr / scales[0], du / scales[1], gap / (1.0 + abs(obj)))
+            merit = max(pr / s_pr, du / s_du, gap / (1.0 + abs(obj)))
             if merit < 0.99 * best:
                 best, stall = merit, 0
             else:
@@ -185,13 +229,13 @@ class InteriorPointQP:
                 best_merit, best_it, best_k = merit, it, k
             if stall >= 10 or n_tiny >= 3:
                 status, message = self._certificates(P, it, last_d, loose=True) or self._stall_status(
-                    pr / scales[0], du / scales[1], gap / (1.0 + abs(obj)))
+                    pr / s_pr, du / s_du, gap / (1.0 + abs(obj)))
                 break
             # crawling (see solve): only a convex QP whose Newton systems were never regularized
             if crawl_exit and P.shift == 0.0 and n_short >= _CRAWL_W and max_reg <= opts.regularization:
                 status = Status.NUMERICAL_ERROR
                 message = (f"{status.sentence} The iterates {_CRAWLED} ({_CRAWL_W} successive steps shorter than "
-                           f"{_CRAWL_A:g}; scaled primal {pr / scales[0]:.3g}, dual {du / scales[1]:.3g}, gap "
+                           f"{_CRAWL_A:g}; scaled primal {pr / s_pr:.3g}, dual {du / s_du:.3g}, gap "
                            f"{gap / (1.0 + abs(obj)):.3g}).")
                 break
             if k >= max_iter:
@@ -203,9 +247,9 @@ class InteriorPointQP:
                 # separate primal and dual step lengths only until the primal residual meets its
                 # tolerance: after that a dual step shorter than the primal one would put
                 # (alpha - alpha_dual) H dz back into the dual residual at every iteration
-                ctx.split = opts.step_rule == "primal-dual" and pr > opts.tol * scales[0]
+                ctx.split = opts.step_rule == "primal-dual" and pr > tol * s_pr
                 if ctx.shifted:
-                    res, pr, du, scales, obj, znorm, comp = self._residuals(P, it)
+                    res, pr, du, (s_pr, s_du), obj, znorm, comp = self._residuals(P, it)
                     ctx.res = res
                     best, stall, best_merit = math.inf, 0, math.inf   # a new QP: progress measures restart
                 if verified and ctx.reg == history[-1]["regularization"]:
@@ -238,13 +282,9 @@ class InteriorPointQP:
             it = it.step_into(alpha, alpha_dual, d, P.iterate_buffer(it, best_it))
             last_d = d
             k += 1
-            entry = {"iter": k, "mu": mu, "primal": pr, "dual": du, "gap": gap, "objective": obj, "alpha": alpha,
-                     "alpha_dual": alpha_dual}
-            entry.update(info)
-            entry["solves"] = ctx.n_solves
-            entry["refinements"] = ctx.n_refine
-            entry["regularization"] = ctx.reg
-            history.append(entry)
+            history.append({"iter": k, "mu": mu, "primal": pr, "dual": du, "gap": gap, "objective": obj,
+                            "alpha": alpha, "alpha_dual": alpha_dual, **info, "solves": ctx.n_solves,
+                            "refinements": ctx.n_refine, "regularization": ctx.reg})
             longer = max(alpha, alpha_dual)
             n_tiny = n_tiny + 1 if longer < 1e-8 else 0
             n_short = n_short + 1 if longer < _CRAWL_A else 0
@@ -341,7 +381,8 @@ class InteriorPointQP:
             res.time_s = time.perf_counter() - t0
             return res
         X = it.X.copy(); U = it.U.copy()
-        U[P.ufix] = P.uval[P.ufix]
+        if P.any_ufix:
+            U[P.ufix] = P.uval[P.ufix]
         lam = it.lam.copy()
         nu = np.zeros((N + 1, ne_out))
         nu[:N, :P.ne0] = it.nu[:N, :P.ne0]
@@ -361,7 +402,7 @@ class InteriorPointQP:
                 zxu[N, i], zxl[N, i] = max(v, 0.0), max(-v, 0.0)
             else:
                 yNu[i], yNl[i] = max(v, 0.0), max(-v, 0.0)
-        if P.ufix.any():
+        if P.any_ufix:
             # multipliers of eliminated controls from the u-stationarity of the original Lagrangian
             g = (np.einsum("kji,kj->ki", qp.S, X[:-1]) + np.einsum("kij,kj->ki", qp.R, U) + qp.r
                  + np.einsum("kji,kj->ki", qp.B, lam[1:]))
