@@ -169,3 +169,19 @@ def test_the_data_scales_are_the_maxima_of_the_parts(where):
     expected = (max(fin(P.c), fin(P.x0), fin(P.e), fin(P.eN), fin(P.lo), fin(P.hi)), max(fin(P.q), fin(P.r)),
                 max(fin(P.Q), fin(P.R), fin(P.S)))
     assert np.array_equal([P.p_data, P.d_data, P.h_scale], expected, equal_nan=True)
+
+
+def test_a_qp_ended_by_its_time_limit_releases_the_qp_and_the_limits():
+    """A QP stopped by the solve's limits (StopRequested through solve) still drops its kept
+    preparation's references to the QP and the limits."""
+    from olado.interrupts import Limits, StopRequested
+
+    solver = MehrotraQP(tol=1e-9)
+    solver.solve(random_qp(1, eq=True))
+    limits = Limits(max_time=0.0)
+    limits.armed = 1           # as inside a solver's catch block: check() raises
+    with pytest.raises(StopRequested):
+        solver.solve(random_qp(2, eq=True), limits=limits)
+    for P in solver._prepared.values():
+        assert P.qp is None and P.limits is None
+        assert P.fact is None or P.fact.limits is None

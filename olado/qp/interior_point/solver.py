@@ -96,27 +96,29 @@ class InteriorPointQP:
         iterations until the iterates stalled, from initial_mu = 10 it takes 19 iterations; at
         N = 1 200 the steps stay 0.01-0.03 for 300 iterations from 0.1 and 1, from 10 it takes
         159, from 1 000 30."""
-        opts = self.options
-        restartable = warm_start is None and opts.stall_restart_mu > 1.0
-        res = self._solve(qp, warm_start, opts.max_iter, crawl_exit=restartable, limits=limits)
-        mu = opts.initial_mu
-        for attempt in range(_MAX_RESTARTS):
-            if not (restartable and res.status is Status.NUMERICAL_ERROR and res.iterations < opts.max_iter
-                    and res.regularization <= opts.regularization
-                    and (_STALLED in res.message or _CRAWLED in res.message)):
-                break
-            mu *= opts.stall_restart_mu
-            why = "stalled" if _STALLED in res.message else "crawling"
-            again = self._solve(qp, None, opts.max_iter - res.iterations, crawl_exit=attempt + 1 < _MAX_RESTARTS,
-                                initial_mu=mu, limits=limits)
-            again.iterations += res.iterations
-            again.time_s += res.time_s
-            again.history = list(res.history) + list(again.history)
-            again.message = (f"{again.message} (restarted from initial_mu = {mu:g} after {res.iterations} "
-                             f"iterations, {why})")
-            res = again
-        self._release()
-        return res
+        try:
+            opts = self.options
+            restartable = warm_start is None and opts.stall_restart_mu > 1.0
+            res = self._solve(qp, warm_start, opts.max_iter, crawl_exit=restartable, limits=limits)
+            mu = opts.initial_mu
+            for attempt in range(_MAX_RESTARTS):
+                if not (restartable and res.status is Status.NUMERICAL_ERROR and res.iterations < opts.max_iter
+                        and res.regularization <= opts.regularization
+                        and (_STALLED in res.message or _CRAWLED in res.message)):
+                    break
+                mu *= opts.stall_restart_mu
+                why = "stalled" if _STALLED in res.message else "crawling"
+                again = self._solve(qp, None, opts.max_iter - res.iterations, crawl_exit=attempt + 1 < _MAX_RESTARTS,
+                                    initial_mu=mu, limits=limits)
+                again.iterations += res.iterations
+                again.time_s += res.time_s
+                again.history = list(res.history) + list(again.history)
+                again.message = (f"{again.message} (restarted from initial_mu = {mu:g} after {res.iterations} "
+                                 f"iterations, {why})")
+                res = again
+            return res
+        finally:
+            self._release()     # also when a time limit or an interrupt ends the QP (StopRequested)
 
     def _release(self):
         """Drop the kept prepared QPs' references to the QP and the limits of the last solve (their
