@@ -139,16 +139,23 @@ class RiccatiFactorization:
         self._factorize(self.N - 1 if from_stage is None else max(-1, min(int(from_stage), self.N - 1)))
         return self
 
+    def refactor_in_place(self):
+        """:meth:`refactor` after the caller wrote the new diagonal terms into ``data.Dx``,
+        ``data.Du`` in place (no stage-row weights, no regularization change: the same
+        factorization, without set_diagonal's checks)."""
+        self._factorize(self.N - 1)
+        return self
+
     def set_blocks(self, Q, S, R, A, B):
         """New cost and dynamics blocks of the same shapes -- the Newton matrix of an
         interior-point NLP's next iteration -- held by reference (copied only if not C-contiguous
         float64); the equality rows, the stage inequality rows and the factor arrays stay.
         Factor with :meth:`refactor` before the next solve."""
         d = self.data
-        d.Q, d.S, d.R = _f64(Q, d.Q.shape, "Q"), _f64(S, d.S.shape, "S"), _f64(R, d.R.shape, "R")
-        d.A, d.B = _f64(A, d.A.shape, "A"), _f64(B, d.B.shape, "B")
-        self._costs = tuple(Costs(Q=d.Q, S=d.S, R=d.R))
-        self._dyn = tuple(Dynamics(A=d.A, B=d.B))
+        d.Q, d.S, d.R = _held(Q, d.Q, "Q"), _held(S, d.S, "S"), _held(R, d.R, "R")
+        d.A, d.B = _held(A, d.A, "A"), _held(B, d.B, "B")
+        self._costs = (d.Q, d.S, d.R)       # tuple(Costs(...)): the kernels' plain tuples, in field order
+        self._dyn = (d.A, d.B)              # tuple(Dynamics(...))
         return self
 
     def _ip_terms(self):
@@ -298,6 +305,14 @@ class RiccatiFactorization:
         size, infeas = self._kernels.residual(self._costs, self._dyn, self._eq, self._ip_terms(),
                                               self.data.regularization, tuple(rhs), tuple(sol), tuple(resid))
         return resid, float(size), float(infeas)
+
+def _held(a, held, name):
+    """``a`` in place of the held array ``held``: ``a`` itself when it is a C-contiguous float64
+    ndarray of held's shape (what _f64 would return), else _f64's copy or error."""
+    if type(a) is np.ndarray and a.dtype == np.float64 and a.shape == held.shape and a.flags.c_contiguous:
+        return a
+    return _f64(a, held.shape, name)
+
 
 def solve_lq_docp(Q, S, R, q, r, A, B, c, x0, **kw) -> LQSolution:
     """Factorize and solve in one call (see :class:`RiccatiFactorization`)."""

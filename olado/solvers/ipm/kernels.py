@@ -270,13 +270,14 @@ def dual_infeasibility(s_obj, lx, lu, lN, EA, EB, lam, ECx, ECu, CNL, has_r, has
 
 
 @nb.njit(inline="always")
-def _barrier_grad(sl, su, has_lo, has_hi, mu, kd_mu, i):
-    """Entry i of ``barrier_gradient``."""
-    lo_f = 1.0 if has_lo[i] else 0.0
-    hi_f = 1.0 if has_hi[i] else 0.0
-    one_lo_f = 1.0 if has_lo[i] and not has_hi[i] else 0.0
-    one_hi_f = 1.0 if has_hi[i] and not has_lo[i] else 0.0
-    return mu * (hi_f / su[i] - lo_f / sl[i]) + kd_mu * (one_lo_f - one_hi_f)
+def _barrier_grad(sl_i, su_i, lo, hi, mu, kd_mu):
+    """An entry of ``barrier_gradient`` from that entry's slacks and masks (scalars: an inlined
+    helper that takes the arrays and an index ran ~6x slower than the plain loop)."""
+    lo_f = 1.0 if lo else 0.0
+    hi_f = 1.0 if hi else 0.0
+    one_lo_f = 1.0 if lo and not hi else 0.0
+    one_hi_f = 1.0 if hi and not lo else 0.0
+    return mu * (hi_f / su_i - lo_f / sl_i) + kd_mu * (one_lo_f - one_hi_f)
 
 
 @nb.njit(**_JIT)
@@ -288,7 +289,7 @@ def barrier_direction(s_obj, lx, lN, lu, sl, su, has_lo, has_hi, mu, kd_mu, q, r
     N, n = lx.shape
     m = lu.shape[1]
     for j in range(grad.size):      # the barrier gradient first (one inlined copy of its formula)
-        grad[j] = _barrier_grad(sl, su, has_lo, has_hi, mu, kd_mu, j)
+        grad[j] = _barrier_grad(sl[j], su[j], has_lo[j], has_hi[j], mu, kd_mu)
     for i in range(n):
         q[0, i] = s_obj * lx[0, i] + 0.0
     j = 0

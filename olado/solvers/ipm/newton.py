@@ -149,6 +149,11 @@ class KKTMatrix:
         if self.cons is None:
             self.cons = Constraints.none(N, n, m)
         self.QN = self.Q[N].copy()
+        c = self.cons
+        #: the dynamics alone (no equality, inequality or final rows) on the Riccati back-end: the
+        #: factorization's and the solve's short paths (:meth:`try_factor`, :meth:`_solve_dynamics_only`)
+        self.plain = self.backend == "riccati" and not (c.E.shape[1] or c.EN.shape[0] or c.Ci.shape[1] or
+                                                        c.CNi.shape[0])
 
     def _final_block(self, delta):
         """Q[N] = QN + CNi' (SsN + delta) CNi: the final inequality rows' slack weights."""
@@ -205,6 +210,14 @@ class KKTMatrix:
         try:
             if self.kkt is None and self.reuse is not None:
                 self.kkt = self._take_over()
+            if self.plain and self.kkt is not None:
+                # :meth:`_diagonals_into` and the back-end's refactor without rows: the shifted
+                # diagonals written into the back-end's Dx, Du (Q[N] is QN: no final rows), factored
+                d = self.kkt.data
+                _kernels().shifted_diagonals(self.Sx, self.Su, float(delta), d.Dx, d.Du)
+                self.kkt.refactor_in_place()
+                self.delta = delta
+                return True
             if self.kkt is not None and self.backend == "riccati":
                 d = self.kkt.data
                 self.kkt.refactor(Dx=d.Dx, Du=d.Du, sigma=self._diagonals_into(delta, d.Dx, d.Du))
@@ -243,10 +256,10 @@ class KKTMatrix:
         """Solve for the gradient rows q (N+1, n), r (N, m) of the barrier function in y, its
         gradient gs (N, ni), gsN (niN,) in the slacks, and the constraint residuals ``res``,
         with dx^0 = 0."""
+        if self.plain:
+            return self._solve_dynamics_only(q, r, res)
         c, d = self.cons, self.delta
         N, n, m = self.B.shape
-        if self.backend == "riccati" and not (c.E.shape[1] or c.EN.shape[0] or c.Ci.shape[1] or c.CNi.shape[0]):
-            return self._solve_dynamics_only(q, r, res)
         gs = np.zeros(c.Ss.shape) if gs is None else gs
         gsN = np.zeros(c.SsN.shape) if gsN is None else gsN
         ss, ssN = c.Ss + d, c.SsN + d
@@ -287,10 +300,37 @@ class KKTMatrix:
         on the right-hand side (q, r, h), the empty row parts of the Step as they would be."""
         N, n, m = self.B.shape
         X, U, lam = np.empty((N + 1, n)), np.empty((N, m)), np.empty((N + 1, n))
-        none, noneN = np.zeros((N, 0)), np.zeros(0)
-        self.kkt.solve_into((q.copy(), np.ascontiguousarray(r, dtype=float), np.ascontiguousarray(res.h, dtype=float),
-                             np.zeros(n), none, noneN, none), (X, U, lam, np.empty((N + 1, 0))))
+        none, noneN, x0, nu = _empty_parts(N, n)
+        # q as it is: the plain recursion's solve reads the right-hand side only
+        self.kkt.solve_into((np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(r, dtype=float),
+                             np.ascontiguousarray(res.h, dtype=float), x0, none, noneN, none), (X, U, lam, nu))
         return Step(X, U, none, noneN, lam, none, noneN, none, noneN)
+
+
+_EMPTY_PARTS = {}
+
+
+def _empty_parts(N, n):
+    """The row parts of a solve without constraint rows -- (N, 0), (0,) and the (N+1, 0) nu, empty
+    arrays nothing writes into -- and the zero initial step dx^0 (n,), which the solve only reads:
+    made once per (N, n), shared by every such solve."""
+    parts = _EMPTY_PARTS.get((N, n))
+    if parts is None:
+        parts = _EMPTY_PARTS[(N, n)] = (np.zeros((N, 0)), np.zeros(0), np.zeros(n), np.empty((N + 1, 0)))
+    return parts
+
+
+_KERNEL_MODULE = None
+
+
+def _kernels():
+    """olado.solvers.ipm.kernels, loaded on first use and kept (barrier._kernels)."""
+    global _KERNEL_MODULE
+    if _KERNEL_MODULE is None:
+        from .barrier import _kernels as kernels    # noqa: PLC0415 - numba loaded on first use
+
+        _KERNEL_MODULE = kernels()
+    return _KERNEL_MODULE
 
 
 def stage_blocks(Hxx, Hxu, Huu, HN):
