@@ -76,7 +76,7 @@ import numpy as np
 from ..errors import OladoError
 from ..result import Certificate, Status
 from .common import stage_gradient_terms
-from .diagnosis import largest_violation, violation_arrays
+from .diagnosis import largest_violation_of
 
 #: relative step of the derivative spot check (a variable moves by at most 2 CHECK_STEP max(1, |y_i|))
 CHECK_STEP = 1e-3
@@ -168,8 +168,9 @@ class KKTFigures(NamedTuple):
 # ---------------------------------------------------------------------------- feasibility [6]
 def _violation(p, pt):
     """Max-norm violation and where it occurs (a phrase), from the violations every olado
-    diagnosis shares (:func:`olado.solvers.diagnosis.violation_arrays`)."""
-    best, where = largest_violation(violation_arrays(p, pt))
+    diagnosis shares (:func:`olado.solvers.diagnosis.violation_arrays`; the largest only:
+    :func:`olado.solvers.diagnosis.largest_violation_of`)."""
+    best, where = largest_violation_of(p, pt)
     return best, ("" if where is None else where.where())
 
 
@@ -177,7 +178,8 @@ def _violation(p, pt):
 def _bound_choice(r, y, lo, hi, w):
     """Per variable, the bound multiplier that minimises max(|r - z| w, z slack) (module docstring,
     step 2): returns the remaining |r - z| and z * slack. Fixed variables (lo == hi) take any
-    multiplier: both are 0 there."""
+    multiplier: both are 0 there. (The reference form: :func:`_figures` computes the same numbers
+    with :class:`_BoundSides`.)"""
     with np.errstate(invalid="ignore", over="ignore"):
         slack = np.where(r > 0, y - lo, hi - y)            # the bound that can cancel r; inf: none
         slack = np.maximum(slack, 0.0)
@@ -190,33 +192,83 @@ def _bound_choice(r, y, lo, hi, w):
     return np.where(fixed, 0.0, stat), np.where(fixed, 0.0, comp)
 
 
+class _BoundSides(NamedTuple):
+    """What :func:`_bound_choice` reads of the point, its bounds and weights, for x and u
+    flattened into one vector (x first) and prepared once per point: per side the slack to the
+    lower bound (taken where r > 0) and to the upper bound, max(slack, 0) where it is finite and 0
+    elsewhere, and whether it is finite; the weights; the fixed variables."""
+
+    lower: np.ndarray
+    upper: np.ndarray
+    lower_finite: np.ndarray
+    upper_finite: np.ndarray
+    w: np.ndarray
+    fixed: np.ndarray
+
+    @classmethod
+    def of(cls, pt, bounds, W):
+        """Prepared for (pt, bounds, W), once: remembered on ``pt`` for these bounds and weights."""
+        memo = getattr(pt, "_bound_sides", None)
+        if memo is not None and memo[0] is bounds and memo[1] is W:
+            return memo[2]
+        cat = lambda x, u: np.concatenate((np.ravel(x), np.ravel(u)))  # noqa: E731
+        y, lo, hi = cat(pt.X, pt.U), cat(bounds.xl, bounds.ul), cat(bounds.xu, bounds.uu)
+        with np.errstate(invalid="ignore"):
+            gl, gu = np.maximum(y - lo, 0.0), np.maximum(hi - y, 0.0)
+        fl, fu = np.isfinite(gl), np.isfinite(gu)
+        sides = cls(np.where(fl, gl, 0.0), np.where(fu, gu, 0.0), fl, fu, cat(*W), lo == hi)
+        try:
+            pt._bound_sides = (bounds, W, sides)
+        except AttributeError:          # a point type without attributes of its own: not remembered
+            pass
+        return sides
+
+    def choice(self, r):
+        """:func:`_bound_choice` of the flattened residual r (the same numbers: each entry takes
+        the same operations on the same operands)."""
+        up = r > 0
+        bounded = np.where(up, self.lower_finite, self.upper_finite)
+        slack = np.where(up, self.lower, self.upper)                   # 0 where unbounded
+        a = np.abs(r)
+        with np.errstate(invalid="ignore", over="ignore"):
+            z = np.where(bounded, a * self.w / (self.w + slack), 0.0)
+        stat = a - z
+        comp = z * slack                # 0 * 0 where unbounded, as _bound_choice's 0
+        return np.where(self.fixed, 0.0, stat), np.where(self.fixed, 0.0, comp)
+
+
 def _largest(arrays):
     """The largest entry over named (K, k) arrays: (value, name, K index, k index)."""
     best = (-1.0, "", 0, 0)
     for name, a in arrays:
-        if a.size and float(np.max(a)) > best[0]:
-            k, i = np.unravel_index(int(np.argmax(a)), a.shape)
-            best = (float(a[k, i]), name, int(k), int(i))
+        if a.size and float(a.max()) > best[0]:
+            k, i = divmod(int(a.argmax()), a.shape[1])
+            best = (float(a[k, i]), name, k, i)
     return best
 
 
 def _figures(p, pt, bounds, W, S, lam, Lg, LgN, kind):
     """The residuals with the multipliers (lam, Lg, LgN), inequality multipliers projected on
-    their signs, bound multipliers chosen per variable (:func:`_bound_choice`)."""
-    ineq, ineqN = ~p.stage_equality_mask, ~p.final_equality_mask
+    their signs, bound multipliers chosen per variable (:func:`_bound_choice`, for x and u in one
+    pass: :class:`_BoundSides`)."""
     Lg = np.array(Lg, dtype=float)
     LgN = np.array(LgN, dtype=float)
     if p.r:
+        ineq = ~p.stage_equality_mask
         Lg[:, ineq] = np.minimum(Lg[:, ineq], 0.0)
     if p.rN:
+        ineqN = ~p.final_equality_mask
         LgN[ineqN] = np.minimum(LgN[ineqN], 0.0)
     rx, ru = stage_gradient_terms(p, pt, lam, Lg, LgN)
-    wx, wu = W
-    sx, cx = _bound_choice(rx, pt.X, bounds.xl, bounds.xu, wx)
-    su, cu = _bound_choice(ru, pt.U, bounds.ul, bounds.uu, wu)
+    sides = _BoundSides.of(pt, bounds, W)
+    nx = rx.size
+    st, cp = sides.choice(np.concatenate((rx.ravel(), ru.ravel())))
+    sx, su = st[:nx].reshape(rx.shape), st[nx:].reshape(ru.shape)
+    cx, cu = cp[:nx].reshape(rx.shape), cp[nx:].reshape(ru.shape)
     sx[0] = 0.0
     cx[0] = 0.0                                         # x^0 is fixed
-    stat_scaled, name, k, i = _largest((("x", sx * wx / S), ("u", su * wu / S)))
+    scaled = st * sides.w / S
+    stat_scaled, name, k, i = _largest((("x", scaled[:nx].reshape(rx.shape)), ("u", scaled[nx:].reshape(ru.shape))))
     residual = float((rx if name == "x" else ru)[k, i])
     comp_rows = [("x bounds", cx), ("u bounds", cu)]
     if p.r and ineq.any():
@@ -229,7 +281,7 @@ def _figures(p, pt, bounds, W, S, lam, Lg, LgN, kind):
         comp_rows.append(("final constraint", rows))
     comp, cname, ck, ci = _largest(comp_rows)
     comp_at = f"{cname} {ci}" if cname == "final constraint" else f"{cname}, stage {ck}, component {ci}"
-    stat = max(float(np.max(sx, initial=0.0)), float(np.max(su, initial=0.0)))
+    stat = max(float(sx.max(initial=0.0)), float(su.max(initial=0.0)))
     return KKTFigures(kind, stat, comp, stat_scaled, comp / S, f"{name}^{k}[{i}]", comp_at, residual)
 
 
@@ -456,14 +508,12 @@ def _shifted_values(p, pt, directions, h):
     Xs = Xp[:, :, :-1].reshape(P * N, n)
     Us = Up.reshape(P * N, p.m)
     ends = Xp[:, :, -1].reshape(P, n)
-    cost = p._stage_values("stage_cost", K, Xs, Us, (), "cost", count=False)
-    dyn = p._stage_values("dynamics", K, Xs, Us, (n,), "x_next", count=False)
-    g = p._stage_values("stage_constraints", K, Xs, Us, (r,), "g", count=False) if r else np.zeros((P * N, 0))
+    cost, dyn, g = p._stacked_stage_values(K, Xs, Us)
     p.counters["stage_cost"] += P
     p.counters["dynamics"] += P
     if r:
         p.counters["stage_constraints"] += P
-    final = np.array([p.eval_final_cost(x) for x in ends])
+    final = p._final_costs(ends)
     gN = np.array([p.eval_final_constraints(x) for x in ends]).reshape(P, p.rN) if p.rN else np.zeros((P, 0))
     parts = (cost.reshape(P, N), final.reshape(P, 1), dyn.reshape(P, N * n), g.reshape(P, N * r), gN)
     return np.concatenate(parts, axis=1).reshape(len(directions), len(_SHIFTS), -1)
@@ -519,6 +569,23 @@ def _direction(rng, pt, bounds, W, h):
     return Vx, Vu
 
 
+def _directions(rng, pt, bounds, W, h, count):
+    """``count`` directions of :func:`_direction` at once, stacked (Vx (count, N+1, n), Vu (count,
+    N, m)): one draw of the generator (its values in the order of the directions drawn one by one,
+    states before controls) and one masking pass -- the same numbers."""
+    wx, wu = W
+    nx = pt.X.size
+    draw = rng.uniform(-1.0, 1.0, (count, nx + pt.U.size))
+    Vx = draw[:, :nx].reshape((count,) + pt.X.shape) * wx
+    Vu = draw[:, nx:].reshape((count,) + pt.U.shape) * wu
+    Vx[:, 0] = 0.0
+    with np.errstate(invalid="ignore"):
+        ax, au = 2 * h * np.abs(Vx), 2 * h * np.abs(Vu)
+        Vx[(pt.X - ax < bounds.xl) | (pt.X + ax > bounds.xu)] = 0.0
+        Vu[(pt.U - au < bounds.ul) | (pt.U + au > bounds.uu)] = 0.0
+    return Vx, Vu
+
+
 def _entry_of(shapes, j):
     """(name, index in its array) of entry j of the concatenation of the functions _NAMES' values
     (``shapes``: their shapes)."""
@@ -554,9 +621,9 @@ def spot_check(p, pt, bounds, W, seed=CHECK_SEED) -> _Check:
     function's entries, of every direction, in one array: the formulas are elementwise, and the
     first largest ratio over the concatenation is the one the functions and directions in turn
     would find)."""
-    rng = _generator(seed)
     h = CHECK_STEP
-    directions = [_direction(rng, pt, bounds, W, h) for _ in range(CHECK_DIRECTIONS)]
+    Vx, Vu = _directions(_generator(seed), pt, bounds, W, h, CHECK_DIRECTIONS)
+    directions = list(zip(Vx, Vu))
     saved = p.counters.copy()
     try:
         vals = _shifted_values(p, pt, directions, h)
@@ -568,14 +635,16 @@ def spot_check(p, pt, bounds, W, seed=CHECK_SEED) -> _Check:
         except OladoError as exc:
             return _Check(None, False, f"spot check skipped: the problem cannot be evaluated near the point ({exc})")
     v1, m1, v2, m2 = (vals[:, i] for i in range(len(_SHIFTS)))
-    an, size = _directional(pt, np.array([v[0] for v in directions]), np.array([v[1] for v in directions]))
+    an, size = _directional(pt, Vx, Vu)
     d_h = (v1 - m1) / (2 * h)
     d_2h = (v2 - m2) / (4 * h)
     d5 = (4 * d_h - d_2h) / 3
-    rounding = _EPS * (np.abs(v1) + np.abs(m1) + np.abs(v2) + np.abs(m2)) / h
-    allowed = CHECK_RTOL * np.maximum(size, np.abs(d5)) + 10 * (np.abs(d_h - d_2h) + rounding) + 1e-300
+    av = np.abs(vals)
+    rounding = _EPS * (av[:, 0] + av[:, 1] + av[:, 2] + av[:, 3]) / h
+    scale = np.maximum(size, np.abs(d5))
+    allowed = CHECK_RTOL * scale + 10 * (np.abs(d_h - d_2h) + rounding) + 1e-300
     err = np.abs(d5 - an)
-    rel = err / np.maximum(np.maximum(size, np.abs(d5)), 1e-300)
+    rel = err / np.maximum(scale, 1e-300)
     worst = max(0.0, float(np.where(err > 10 * rounding, rel, 0.0).max()))
     ratio = (err / allowed).ravel()
     j = int(np.argmax(ratio))
