@@ -196,7 +196,8 @@ class _BoundSides(NamedTuple):
     """What :func:`_bound_choice` reads of the point, its bounds and weights, for x and u
     flattened into one vector (x first) and prepared once per point: per side the slack to the
     lower bound (taken where r > 0) and to the upper bound, max(slack, 0) where it is finite and 0
-    elsewhere, and whether it is finite; the weights; the fixed variables."""
+    elsewhere, and whether it is finite; the weights; the fixed variables; the point and its
+    bounds."""
 
     lower: np.ndarray
     upper: np.ndarray
@@ -204,6 +205,9 @@ class _BoundSides(NamedTuple):
     upper_finite: np.ndarray
     w: np.ndarray
     fixed: np.ndarray
+    y: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
 
     @classmethod
     def of(cls, pt, bounds, W):
@@ -216,7 +220,7 @@ class _BoundSides(NamedTuple):
         with np.errstate(invalid="ignore"):
             gl, gu = np.maximum(y - lo, 0.0), np.maximum(hi - y, 0.0)
         fl, fu = np.isfinite(gl), np.isfinite(gu)
-        sides = cls(np.where(fl, gl, 0.0), np.where(fu, gu, 0.0), fl, fu, cat(*W), lo == hi)
+        sides = cls(np.where(fl, gl, 0.0), np.where(fu, gu, 0.0), fl, fu, cat(*W), lo == hi, y, lo, hi)
         try:
             pt._bound_sides = (bounds, W, sides)
         except AttributeError:          # a point type without attributes of its own: not remembered
@@ -499,10 +503,16 @@ def _shifted_values(p, pt, directions, h):
     counters advance as :func:`_values` point by point would advance them. A stage function that
     fails raises here: the caller then evaluates point by point (:func:`_pointwise_values`), whose
     message names the stage."""
+    return _stacked_shifted_values(p, pt, np.array([Vx for Vx, _ in directions]),
+                                   np.array([Vu for _, Vu in directions]), h)
+
+
+def _stacked_shifted_values(p, pt, Vx, Vu, h):
+    """:func:`_shifted_values` of the directions stacked (Vx (D, N+1, n), Vu (D, N, m))."""
     # the points y + s h v, directions by shifts (D, S, ...): elementwise as (s h) v + y point by point
     steps = (np.array(_SHIFTS, dtype=float) * h)[None, :, None, None]
-    Xp = pt.X + steps * np.array([Vx for Vx, _ in directions])[:, None]
-    Up = pt.U + steps * np.array([Vu for _, Vu in directions])[:, None]
+    Xp = pt.X + steps * Vx[:, None]
+    Up = pt.U + steps * Vu[:, None]
     P, N, n, r = Xp.shape[0] * Xp.shape[1], p.N, p.n, p.r
     K = np.tile(p._K, P)
     Xs = Xp[:, :, :-1].reshape(P * N, n)
@@ -516,7 +526,7 @@ def _shifted_values(p, pt, directions, h):
     final = p._final_costs(ends)
     gN = np.array([p.eval_final_constraints(x) for x in ends]).reshape(P, p.rN) if p.rN else np.zeros((P, 0))
     parts = (cost.reshape(P, N), final.reshape(P, 1), dyn.reshape(P, N * n), g.reshape(P, N * r), gN)
-    return np.concatenate(parts, axis=1).reshape(len(directions), len(_SHIFTS), -1)
+    return np.concatenate(parts, axis=1).reshape(Vx.shape[0], len(_SHIFTS), -1)
 
 
 def _pointwise_values(p, pt, directions, h):
@@ -569,21 +579,20 @@ def _direction(rng, pt, bounds, W, h):
     return Vx, Vu
 
 
-def _directions(rng, pt, bounds, W, h, count):
-    """``count`` directions of :func:`_direction` at once, stacked (Vx (count, N+1, n), Vu (count,
-    N, m)): one draw of the generator (its values in the order of the directions drawn one by one,
-    states before controls) and one masking pass -- the same numbers."""
-    wx, wu = W
-    nx = pt.X.size
-    draw = rng.uniform(-1.0, 1.0, (count, nx + pt.U.size))
-    Vx = draw[:, :nx].reshape((count,) + pt.X.shape) * wx
-    Vu = draw[:, nx:].reshape((count,) + pt.U.shape) * wu
-    Vx[:, 0] = 0.0
+def _directions(draw, pt, bounds, W, h):
+    """The directions of :func:`_direction`, stacked (Vx (D, N+1, n), Vu (D, N, m)), from the
+    uniform draws (D, (N+1) n + N m) of :func:`_uniform_draws` -- the generator's values in the
+    order of the directions drawn one by one, states before controls -- in one pass over x and u
+    flattened (:class:`_BoundSides`): the same numbers."""
+    sides = _BoundSides.of(pt, bounds, W)
+    count, nx, n = draw.shape[0], pt.X.size, pt.X.shape[1]
+    V = draw * sides.w
+    V[:, :n] = 0.0                                  # x^0
     with np.errstate(invalid="ignore"):
-        ax, au = 2 * h * np.abs(Vx), 2 * h * np.abs(Vu)
-        Vx[(pt.X - ax < bounds.xl) | (pt.X + ax > bounds.xu)] = 0.0
-        Vu[(pt.U - au < bounds.ul) | (pt.U + au > bounds.uu)] = 0.0
-    return Vx, Vu
+        a = 2 * h * np.abs(V)
+        V = np.where((sides.y - a < sides.lo) | (sides.y + a > sides.hi), 0.0, V)
+    return (np.ascontiguousarray(V[:, :nx]).reshape((count,) + pt.X.shape),
+            np.ascontiguousarray(V[:, nx:]).reshape((count,) + pt.U.shape))
 
 
 def _entry_of(shapes, j):
@@ -615,6 +624,29 @@ def _generator(seed):
     return rng
 
 
+#: draws of :func:`_uniform_draws` remembered (read-only), at most this many ...
+_DRAWS_KEPT = 8
+#: ... and each of at most this many numbers (a larger draw is redrawn at every certificate)
+_DRAWS_SIZE = 1 << 18
+_DRAWS: dict = {}
+
+
+def _uniform_draws(seed, count, size):
+    """``np.random.default_rng(seed).uniform(-1, 1, (count, size))``: the spot check's draws,
+    which depend on the seed and the sizes only -- remembered for the sizes last seen (a problem
+    solved again and again draws nothing)."""
+    key = (seed, count, size)
+    draw = _DRAWS.get(key)
+    if draw is None:
+        draw = _generator(seed).uniform(-1.0, 1.0, (count, size))
+        if draw.size <= _DRAWS_SIZE:
+            draw.setflags(write=False)
+            if len(_DRAWS) >= _DRAWS_KEPT:
+                _DRAWS.pop(next(iter(_DRAWS)), None)
+            _DRAWS[key] = draw
+    return draw
+
+
 def spot_check(p, pt, bounds, W, seed=CHECK_SEED) -> _Check:
     """Step 4 of the module docstring: five-point central differences of every stage function
     along CHECK_DIRECTIONS random directions against the derivatives the problem supplies (every
@@ -622,16 +654,16 @@ def spot_check(p, pt, bounds, W, seed=CHECK_SEED) -> _Check:
     first largest ratio over the concatenation is the one the functions and directions in turn
     would find)."""
     h = CHECK_STEP
-    Vx, Vu = _directions(_generator(seed), pt, bounds, W, h, CHECK_DIRECTIONS)
-    directions = list(zip(Vx, Vu))
+    draw = _uniform_draws(seed, CHECK_DIRECTIONS, pt.X.size + pt.U.size)
+    Vx, Vu = _directions(draw, pt, bounds, W, h)
     saved = p.counters.copy()
     try:
-        vals = _shifted_values(p, pt, directions, h)
+        vals = _stacked_shifted_values(p, pt, Vx, Vu, h)
     except OladoError:
         p.counters.clear()
         p.counters.update(saved)
         try:
-            vals = _pointwise_values(p, pt, directions, h)
+            vals = _pointwise_values(p, pt, list(zip(Vx, Vu)), h)
         except OladoError as exc:
             return _Check(None, False, f"spot check skipped: the problem cannot be evaluated near the point ({exc})")
     v1, m1, v2, m2 = (vals[:, i] for i in range(len(_SHIFTS)))
