@@ -215,7 +215,7 @@ class _BoundSides(NamedTuple):
         memo = getattr(pt, "_bound_sides", None)
         if memo is not None and memo[0] is bounds and memo[1] is W:
             return memo[2]
-        cat = lambda x, u: np.concatenate((np.ravel(x), np.ravel(u)))  # noqa: E731
+        cat = lambda x, u: np.concatenate((x.ravel(), u.ravel()))  # noqa: E731
         y, lo, hi = cat(pt.X, pt.U), cat(bounds.xl, bounds.ul), cat(bounds.xu, bounds.uu)
         with np.errstate(invalid="ignore"):
             gl, gu = np.maximum(y - lo, 0.0), np.maximum(hi - y, 0.0)
@@ -311,7 +311,7 @@ def _solver_multipliers(p, multipliers):
         LgN = np.asarray(multipliers.get("final_constraints", np.zeros(p.rN)), dtype=float).reshape(p.rN)
     except (TypeError, ValueError):
         return None
-    if not all(np.all(np.isfinite(a)) for a in (lam, Lg, LgN)):
+    if not (np.isfinite(lam).all() and np.isfinite(Lg).all() and np.isfinite(LgN).all()):
         return None
     return lam, Lg, LgN
 
@@ -545,18 +545,18 @@ def _directional(pt, Vx, Vu):
     arrays (D, L) in the layout of :func:`_shifted_values`."""
     D = Vx.shape[0]
     ax, au = np.abs(Vx), np.abs(Vu)
+    vx, avx = Vx[:, :-1], ax[:, :-1]
     ein = lambda M, V: np.einsum("kij,dkj->dki", M, V).reshape(D, -1)  # noqa: E731
-    none = np.zeros((D, 0))                     # the parts of a problem without such constraints
-    stage = pt.Cx.shape[1] and pt.Cx.shape[0]
-    final = pt.CN.shape[0]
-    an = (np.sum(pt.lx * Vx[:, :-1], axis=2) + np.sum(pt.lu * Vu, axis=2), (Vx[:, -1] @ pt.lN)[:, None],
-          ein(pt.A, Vx[:, :-1]) + ein(pt.B, Vu), ein(pt.Cx, Vx[:, :-1]) + ein(pt.Cu, Vu) if stage else none,
-          Vx[:, -1] @ pt.CN.T if final else none)
-    size = (np.sum(np.abs(pt.lx) * ax[:, :-1], axis=2) + np.sum(np.abs(pt.lu) * au, axis=2),
-            (ax[:, -1] @ np.abs(pt.lN))[:, None],
-            ein(np.abs(pt.A), ax[:, :-1]) + ein(np.abs(pt.B), au),
-            ein(np.abs(pt.Cx), ax[:, :-1]) + ein(np.abs(pt.Cu), au) if stage else none,
-            ax[:, -1] @ np.abs(pt.CN).T if final else none)
+    an = [(pt.lx * vx).sum(axis=2) + (pt.lu * Vu).sum(axis=2), (Vx[:, -1] @ pt.lN)[:, None],
+          ein(pt.A, vx) + ein(pt.B, Vu)]
+    size = [(np.abs(pt.lx) * avx).sum(axis=2) + (np.abs(pt.lu) * au).sum(axis=2),
+            (ax[:, -1] @ np.abs(pt.lN))[:, None], ein(np.abs(pt.A), avx) + ein(np.abs(pt.B), au)]
+    if pt.Cx.shape[1] and pt.Cx.shape[0]:       # the parts of a problem with such constraints
+        an.append(ein(pt.Cx, vx) + ein(pt.Cu, Vu))
+        size.append(ein(np.abs(pt.Cx), avx) + ein(np.abs(pt.Cu), au))
+    if pt.CN.shape[0]:
+        an.append(Vx[:, -1] @ pt.CN.T)
+        size.append(ax[:, -1] @ np.abs(pt.CN).T)
     return np.concatenate(an, axis=1), np.concatenate(size, axis=1)
 
 
