@@ -525,8 +525,6 @@ class DOCP:
         construction)."""
         for name, args in CALL_ARGUMENTS.items():
             fn = getattr(self, name, None)
-            if callable(fn) and (not self._overrides(name) or _checked_before(fn, name)):
-                continue                # the common case: a method olado has seen (or DOCP's own)
             call = f"{name}({', '.join(args)})"
             if not callable(fn):
                 raise ProblemDefinitionError(f"must be a method called as {call}, got {_describe(fn)}",
@@ -599,22 +597,14 @@ class DOCP:
                 o[i] = self.check_array(v, s, fname, nm, stage=int(k))
         return outs
 
-    def _stacked_stage_values(self, K, X, U):
-        """(stage costs (K,), dynamics (K, n), stage constraints (K, r)) of the stage rows (K, X,
-        U) -- stages of several points stacked, as olado's spot check of the derivatives calls
-        them -- validated as :meth:`_stage_values` validates them, the counters not advanced (the
-        caller counts its points). A problem may compute them in one pass (Zambezi does), under
-        the rules of :meth:`eval_values`."""
+    def _stacked_values(self, K, X, U, XN):
+        """The spot check's values of several points (olado.solvers.certificate): stage costs, dynamics,
+        g of their stage rows stacked (checked as by :meth:`_stage_values`, uncounted) and the final
+        costs at the rows of XN (:meth:`eval_final_cost`, counted). Overridable as :meth:`eval_values`."""
         cost = self._stage_values("stage_cost", K, X, U, (), "cost", count=False)
         dyn = self._stage_values("dynamics", K, X, U, (self.n,), "x_next", count=False)
-        g = (self._stage_values("stage_constraints", K, X, U, (self.r,), "g", count=False) if self.r
-             else np.zeros((len(K), 0)))
-        return cost, dyn, g
-
-    def _final_costs(self, XN):
-        """The final cost at each row of XN (P, n), shape (P,): :meth:`eval_final_cost` row by row
-        (counted per row); a problem may override it under the rules of :meth:`eval_values`."""
-        return np.array([self.eval_final_cost(x) for x in XN])
+        g = self._stage_values("stage_constraints", K, X, U, (self.r,), "g", count=False) if self.r else None
+        return cost, dyn, np.zeros((len(K), 0)) if g is None else g, np.array([self.eval_final_cost(x) for x in XN])
 
     def _split_xu(self, X, U):
         if (type(X) is np.ndarray and type(U) is np.ndarray and X.dtype == np.float64

@@ -518,12 +518,11 @@ def _stacked_shifted_values(p, pt, Vx, Vu, h):
     Xs = Xp[:, :, :-1].reshape(P * N, n)
     Us = Up.reshape(P * N, p.m)
     ends = Xp[:, :, -1].reshape(P, n)
-    cost, dyn, g = p._stacked_stage_values(K, Xs, Us)
+    cost, dyn, g, final = p._stacked_values(K, Xs, Us, ends)
     p.counters["stage_cost"] += P
     p.counters["dynamics"] += P
     if r:
         p.counters["stage_constraints"] += P
-    final = p._final_costs(ends)
     gN = np.array([p.eval_final_constraints(x) for x in ends]).reshape(P, p.rN) if p.rN else np.zeros((P, 0))
     parts = (cost.reshape(P, N), final.reshape(P, 1), dyn.reshape(P, N * n), g.reshape(P, N * r), gN)
     return np.concatenate(parts, axis=1).reshape(Vx.shape[0], len(_SHIFTS), -1)
