@@ -628,6 +628,7 @@ _DRAWS_KEPT = 8
 #: ... and each of at most this many numbers (a larger draw is redrawn at every certificate)
 _DRAWS_SIZE = 1 << 18
 _DRAWS: dict = {}
+_DRAWS_LOCK = threading.Lock()
 
 
 def _uniform_draws(seed, count, size):
@@ -640,9 +641,10 @@ def _uniform_draws(seed, count, size):
         draw = _generator(seed).uniform(-1.0, 1.0, (count, size))
         if draw.size <= _DRAWS_SIZE:
             draw.setflags(write=False)
-            if len(_DRAWS) >= _DRAWS_KEPT:
-                _DRAWS.pop(next(iter(_DRAWS)), None)
-            _DRAWS[key] = draw
+            with _DRAWS_LOCK:                   # solves in threads: one insertion at a time
+                while len(_DRAWS) >= _DRAWS_KEPT:
+                    _DRAWS.pop(next(iter(_DRAWS)))
+                _DRAWS[key] = draw
     return draw
 
 
