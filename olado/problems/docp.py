@@ -597,6 +597,15 @@ class DOCP:
                 o[i] = self.check_array(v, s, fname, nm, stage=int(k))
         return outs
 
+    def _stacked_values(self, K, X, U, XN):
+        """The spot check's values of several points (olado.solvers.certificate): stage costs, dynamics,
+        g of their stage rows stacked (checked as by :meth:`_stage_values`, uncounted) and the final
+        costs at the rows of XN (:meth:`eval_final_cost`, counted). Overridable as :meth:`eval_values`."""
+        cost = self._stage_values("stage_cost", K, X, U, (), "cost", count=False)
+        dyn = self._stage_values("dynamics", K, X, U, (self.n,), "x_next", count=False)
+        g = self._stage_values("stage_constraints", K, X, U, (self.r,), "g", count=False) if self.r else None
+        return cost, dyn, np.zeros((len(K), 0)) if g is None else g, np.array([self.eval_final_cost(x) for x in XN])
+
     def _split_xu(self, X, U):
         if (type(X) is np.ndarray and type(U) is np.ndarray and X.dtype == np.float64
                 and U.dtype == np.float64 and X.shape == (self.N + 1, self.n) and U.shape == (self.N, self.m)):

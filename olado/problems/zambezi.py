@@ -566,6 +566,23 @@ class Zambezi(DOCP):
         c["dynamics"] += 1
         return PointValues(float(cost.sum() + F), f, np.zeros((N, 0)), np.zeros(0))
 
+    def _stacked_values(self, K, X, U, XN):
+        """:meth:`DOCP._stacked_values` in one compiled pass over the stage rows
+        (:func:`_values_kernel`) and :func:`_final_cost_kernel` per final row without the wrappers
+        (the numbers of :meth:`final_cost`), under the rules of :meth:`eval_values`."""
+        if not self._fused("values"):
+            return super()._stacked_values(K, X, U, XN)
+        k, x, u = self._args(K, X, U)
+        nK = x.shape[0]
+        f, cost = np.empty((nK, 6)), np.empty(nK)
+        _, finite = _values_kernel(k, x, u, _NONE, self.inflow, self.evaporation, self.fa, self.fh, self.alpha,
+                                   self.psi, self.u_ref, self.V_ref, self.phi, self.fe, self.nu_E, f, cost)
+        final = np.array([_final_cost_kernel(x, self.V_ref, self.phi, self.fe, self.nu_E) for x in self._rows(XN)])
+        if not (finite and np.isfinite(final).all()):
+            return super()._stacked_values(K, X, U, XN)
+        self.counters["final_cost"] += len(final)
+        return cost, f, np.zeros((nK, 0)), final
+
     def eval_first_derivatives(self, X, U):
         """:meth:`DOCP.eval_first_derivatives` in one compiled pass (:func:`_derivatives_kernel`),
         under the rules of :meth:`eval_values`."""

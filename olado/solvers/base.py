@@ -118,7 +118,7 @@ class Solver:
             result.problem = result.problem or getattr(problem, "name", type(problem).__name__)
             result.N = problem.N
             result.solver = result.solver or self.name
-            result.options = {k: v for k, v in self.options_dict().items()}
+            result.options = self.options_dict()
             note = getattr(problem, "derivative_note", "")
             if note:     # e.g. an AutoDiffDOCP without CasADi: finite-difference derivatives
                 result.info["derivatives"] = note
@@ -148,12 +148,13 @@ class Solver:
         return solve_scaled(self, problem, X0, U0)
 
     def options_dict(self) -> dict:
-        out = {}
-        for f in option_fields(self.Options):
-            if not f.metadata.get("ini", True):
-                continue
-            out[f.name] = getattr(self.options, f.name)
-        return out
+        """The options that an ini file can hold (those declared ``ini=True``), by name."""
+        names = _INI_NAMES.get(self.Options)
+        if names is None:
+            names = _INI_NAMES[self.Options] = tuple(f.name for f in option_fields(self.Options)
+                                                     if f.metadata.get("ini", True))
+        o = self.options
+        return {name: getattr(o, name) for name in names}
 
     @staticmethod
     def initial_point(problem, guess):
@@ -186,6 +187,10 @@ class Solver:
         if cb is None:
             return False
         return bool(cb(info))
+
+
+#: per options class, the names of its options an ini file can hold (Solver.options_dict)
+_INI_NAMES: dict = {}
 
 
 # ---------------------------------------------------------------------------- one solve per problem

@@ -76,7 +76,7 @@ import numpy as np
 from ..errors import OladoError
 from ..result import Certificate, Status
 from .common import stage_gradient_terms
-from .diagnosis import largest_violation, violation_arrays
+from .diagnosis import largest_violation_of
 
 #: relative step of the derivative spot check (a variable moves by at most 2 CHECK_STEP max(1, |y_i|))
 CHECK_STEP = 1e-3
@@ -168,8 +168,9 @@ class KKTFigures(NamedTuple):
 # ---------------------------------------------------------------------------- feasibility [6]
 def _violation(p, pt):
     """Max-norm violation and where it occurs (a phrase), from the violations every olado
-    diagnosis shares (:func:`olado.solvers.diagnosis.violation_arrays`)."""
-    best, where = largest_violation(violation_arrays(p, pt))
+    diagnosis shares (:func:`olado.solvers.diagnosis.violation_arrays`; the largest only:
+    :func:`olado.solvers.diagnosis.largest_violation_of`)."""
+    best, where = largest_violation_of(p, pt)
     return best, ("" if where is None else where.where())
 
 
@@ -177,7 +178,8 @@ def _violation(p, pt):
 def _bound_choice(r, y, lo, hi, w):
     """Per variable, the bound multiplier that minimises max(|r - z| w, z slack) (module docstring,
     step 2): returns the remaining |r - z| and z * slack. Fixed variables (lo == hi) take any
-    multiplier: both are 0 there."""
+    multiplier: both are 0 there. (The reference form: :func:`_figures` computes the same numbers
+    with :class:`_BoundSides`.)"""
     with np.errstate(invalid="ignore", over="ignore"):
         slack = np.where(r > 0, y - lo, hi - y)            # the bound that can cancel r; inf: none
         slack = np.maximum(slack, 0.0)
@@ -190,33 +192,87 @@ def _bound_choice(r, y, lo, hi, w):
     return np.where(fixed, 0.0, stat), np.where(fixed, 0.0, comp)
 
 
+class _BoundSides(NamedTuple):
+    """What :func:`_bound_choice` reads of the point, its bounds and weights, for x and u
+    flattened into one vector (x first) and prepared once per point: per side the slack to the
+    lower bound (taken where r > 0) and to the upper bound, max(slack, 0) where it is finite and 0
+    elsewhere, and whether it is finite; the weights; the fixed variables; the point and its
+    bounds."""
+
+    lower: np.ndarray
+    upper: np.ndarray
+    lower_finite: np.ndarray
+    upper_finite: np.ndarray
+    w: np.ndarray
+    fixed: np.ndarray
+    y: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+
+    @classmethod
+    def of(cls, pt, bounds, W):
+        """Prepared for (pt, bounds, W), once: remembered on ``pt`` for these bounds and weights."""
+        memo = getattr(pt, "_bound_sides", None)
+        if memo is not None and memo[0] is bounds and memo[1] is W:
+            return memo[2]
+        cat = lambda x, u: np.concatenate((x.ravel(), u.ravel()))  # noqa: E731
+        y, lo, hi = cat(pt.X, pt.U), cat(bounds.xl, bounds.ul), cat(bounds.xu, bounds.uu)
+        with np.errstate(invalid="ignore"):
+            gl, gu = np.maximum(y - lo, 0.0), np.maximum(hi - y, 0.0)
+        fl, fu = np.isfinite(gl), np.isfinite(gu)
+        sides = cls(np.where(fl, gl, 0.0), np.where(fu, gu, 0.0), fl, fu, cat(*W), lo == hi, y, lo, hi)
+        try:
+            pt._bound_sides = (bounds, W, sides)
+        except AttributeError:          # a point type without attributes of its own: not remembered
+            pass
+        return sides
+
+    def choice(self, r):
+        """:func:`_bound_choice` of the flattened residual r (the same numbers: each entry takes
+        the same operations on the same operands)."""
+        up = r > 0
+        bounded = np.where(up, self.lower_finite, self.upper_finite)
+        slack = np.where(up, self.lower, self.upper)                   # 0 where unbounded
+        a = np.abs(r)
+        with np.errstate(invalid="ignore", over="ignore"):
+            z = np.where(bounded, a * self.w / (self.w + slack), 0.0)
+        stat = a - z
+        comp = z * slack                # 0 * 0 where unbounded, as _bound_choice's 0
+        return np.where(self.fixed, 0.0, stat), np.where(self.fixed, 0.0, comp)
+
+
 def _largest(arrays):
     """The largest entry over named (K, k) arrays: (value, name, K index, k index)."""
     best = (-1.0, "", 0, 0)
     for name, a in arrays:
-        if a.size and float(np.max(a)) > best[0]:
-            k, i = np.unravel_index(int(np.argmax(a)), a.shape)
-            best = (float(a[k, i]), name, int(k), int(i))
+        if a.size and float(a.max()) > best[0]:
+            k, i = divmod(int(a.argmax()), a.shape[1])
+            best = (float(a[k, i]), name, k, i)
     return best
 
 
 def _figures(p, pt, bounds, W, S, lam, Lg, LgN, kind):
     """The residuals with the multipliers (lam, Lg, LgN), inequality multipliers projected on
-    their signs, bound multipliers chosen per variable (:func:`_bound_choice`)."""
-    ineq, ineqN = ~p.stage_equality_mask, ~p.final_equality_mask
+    their signs, bound multipliers chosen per variable (:func:`_bound_choice`, for x and u in one
+    pass: :class:`_BoundSides`)."""
     Lg = np.array(Lg, dtype=float)
     LgN = np.array(LgN, dtype=float)
     if p.r:
+        ineq = ~p.stage_equality_mask
         Lg[:, ineq] = np.minimum(Lg[:, ineq], 0.0)
     if p.rN:
+        ineqN = ~p.final_equality_mask
         LgN[ineqN] = np.minimum(LgN[ineqN], 0.0)
     rx, ru = stage_gradient_terms(p, pt, lam, Lg, LgN)
-    wx, wu = W
-    sx, cx = _bound_choice(rx, pt.X, bounds.xl, bounds.xu, wx)
-    su, cu = _bound_choice(ru, pt.U, bounds.ul, bounds.uu, wu)
+    sides = _BoundSides.of(pt, bounds, W)
+    nx = rx.size
+    st, cp = sides.choice(np.concatenate((rx.ravel(), ru.ravel())))
+    sx, su = st[:nx].reshape(rx.shape), st[nx:].reshape(ru.shape)
+    cx, cu = cp[:nx].reshape(rx.shape), cp[nx:].reshape(ru.shape)
     sx[0] = 0.0
     cx[0] = 0.0                                         # x^0 is fixed
-    stat_scaled, name, k, i = _largest((("x", sx * wx / S), ("u", su * wu / S)))
+    scaled = st * sides.w / S
+    stat_scaled, name, k, i = _largest((("x", scaled[:nx].reshape(rx.shape)), ("u", scaled[nx:].reshape(ru.shape))))
     residual = float((rx if name == "x" else ru)[k, i])
     comp_rows = [("x bounds", cx), ("u bounds", cu)]
     if p.r and ineq.any():
@@ -229,7 +285,7 @@ def _figures(p, pt, bounds, W, S, lam, Lg, LgN, kind):
         comp_rows.append(("final constraint", rows))
     comp, cname, ck, ci = _largest(comp_rows)
     comp_at = f"{cname} {ci}" if cname == "final constraint" else f"{cname}, stage {ck}, component {ci}"
-    stat = max(float(np.max(sx, initial=0.0)), float(np.max(su, initial=0.0)))
+    stat = max(float(sx.max(initial=0.0)), float(su.max(initial=0.0)))
     return KKTFigures(kind, stat, comp, stat_scaled, comp / S, f"{name}^{k}[{i}]", comp_at, residual)
 
 
@@ -255,7 +311,7 @@ def _solver_multipliers(p, multipliers):
         LgN = np.asarray(multipliers.get("final_constraints", np.zeros(p.rN)), dtype=float).reshape(p.rN)
     except (TypeError, ValueError):
         return None
-    if not all(np.all(np.isfinite(a)) for a in (lam, Lg, LgN)):
+    if not (np.isfinite(lam).all() and np.isfinite(Lg).all() and np.isfinite(LgN).all()):
         return None
     return lam, Lg, LgN
 
@@ -447,26 +503,29 @@ def _shifted_values(p, pt, directions, h):
     counters advance as :func:`_values` point by point would advance them. A stage function that
     fails raises here: the caller then evaluates point by point (:func:`_pointwise_values`), whose
     message names the stage."""
+    return _stacked_shifted_values(p, pt, np.array([Vx for Vx, _ in directions]),
+                                   np.array([Vu for _, Vu in directions]), h)
+
+
+def _stacked_shifted_values(p, pt, Vx, Vu, h):
+    """:func:`_shifted_values` of the directions stacked (Vx (D, N+1, n), Vu (D, N, m))."""
     # the points y + s h v, directions by shifts (D, S, ...): elementwise as (s h) v + y point by point
     steps = (np.array(_SHIFTS, dtype=float) * h)[None, :, None, None]
-    Xp = pt.X + steps * np.array([Vx for Vx, _ in directions])[:, None]
-    Up = pt.U + steps * np.array([Vu for _, Vu in directions])[:, None]
+    Xp = pt.X + steps * Vx[:, None]
+    Up = pt.U + steps * Vu[:, None]
     P, N, n, r = Xp.shape[0] * Xp.shape[1], p.N, p.n, p.r
     K = np.tile(p._K, P)
     Xs = Xp[:, :, :-1].reshape(P * N, n)
     Us = Up.reshape(P * N, p.m)
     ends = Xp[:, :, -1].reshape(P, n)
-    cost = p._stage_values("stage_cost", K, Xs, Us, (), "cost", count=False)
-    dyn = p._stage_values("dynamics", K, Xs, Us, (n,), "x_next", count=False)
-    g = p._stage_values("stage_constraints", K, Xs, Us, (r,), "g", count=False) if r else np.zeros((P * N, 0))
+    cost, dyn, g, final = p._stacked_values(K, Xs, Us, ends)
     p.counters["stage_cost"] += P
     p.counters["dynamics"] += P
     if r:
         p.counters["stage_constraints"] += P
-    final = np.array([p.eval_final_cost(x) for x in ends])
     gN = np.array([p.eval_final_constraints(x) for x in ends]).reshape(P, p.rN) if p.rN else np.zeros((P, 0))
     parts = (cost.reshape(P, N), final.reshape(P, 1), dyn.reshape(P, N * n), g.reshape(P, N * r), gN)
-    return np.concatenate(parts, axis=1).reshape(len(directions), len(_SHIFTS), -1)
+    return np.concatenate(parts, axis=1).reshape(Vx.shape[0], len(_SHIFTS), -1)
 
 
 def _pointwise_values(p, pt, directions, h):
@@ -485,18 +544,18 @@ def _directional(pt, Vx, Vu):
     arrays (D, L) in the layout of :func:`_shifted_values`."""
     D = Vx.shape[0]
     ax, au = np.abs(Vx), np.abs(Vu)
+    vx, avx = Vx[:, :-1], ax[:, :-1]
     ein = lambda M, V: np.einsum("kij,dkj->dki", M, V).reshape(D, -1)  # noqa: E731
-    none = np.zeros((D, 0))                     # the parts of a problem without such constraints
-    stage = pt.Cx.shape[1] and pt.Cx.shape[0]
-    final = pt.CN.shape[0]
-    an = (np.sum(pt.lx * Vx[:, :-1], axis=2) + np.sum(pt.lu * Vu, axis=2), (Vx[:, -1] @ pt.lN)[:, None],
-          ein(pt.A, Vx[:, :-1]) + ein(pt.B, Vu), ein(pt.Cx, Vx[:, :-1]) + ein(pt.Cu, Vu) if stage else none,
-          Vx[:, -1] @ pt.CN.T if final else none)
-    size = (np.sum(np.abs(pt.lx) * ax[:, :-1], axis=2) + np.sum(np.abs(pt.lu) * au, axis=2),
-            (ax[:, -1] @ np.abs(pt.lN))[:, None],
-            ein(np.abs(pt.A), ax[:, :-1]) + ein(np.abs(pt.B), au),
-            ein(np.abs(pt.Cx), ax[:, :-1]) + ein(np.abs(pt.Cu), au) if stage else none,
-            ax[:, -1] @ np.abs(pt.CN).T if final else none)
+    an = [(pt.lx * vx).sum(axis=2) + (pt.lu * Vu).sum(axis=2), (Vx[:, -1] @ pt.lN)[:, None],
+          ein(pt.A, vx) + ein(pt.B, Vu)]
+    size = [(np.abs(pt.lx) * avx).sum(axis=2) + (np.abs(pt.lu) * au).sum(axis=2),
+            (ax[:, -1] @ np.abs(pt.lN))[:, None], ein(np.abs(pt.A), avx) + ein(np.abs(pt.B), au)]
+    if pt.Cx.shape[1] and pt.Cx.shape[0]:       # the parts of a problem with such constraints
+        an.append(ein(pt.Cx, vx) + ein(pt.Cu, Vu))
+        size.append(ein(np.abs(pt.Cx), avx) + ein(np.abs(pt.Cu), au))
+    if pt.CN.shape[0]:
+        an.append(Vx[:, -1] @ pt.CN.T)
+        size.append(ax[:, -1] @ np.abs(pt.CN).T)
     return np.concatenate(an, axis=1), np.concatenate(size, axis=1)
 
 
@@ -517,6 +576,22 @@ def _direction(rng, pt, bounds, W, h):
         Vx[(pt.X - ax < bounds.xl) | (pt.X + ax > bounds.xu)] = 0.0
         Vu[(pt.U - au < bounds.ul) | (pt.U + au > bounds.uu)] = 0.0
     return Vx, Vu
+
+
+def _directions(draw, pt, bounds, W, h):
+    """The directions of :func:`_direction`, stacked (Vx (D, N+1, n), Vu (D, N, m)), from the
+    uniform draws (D, (N+1) n + N m) of :func:`_uniform_draws` -- the generator's values in the
+    order of the directions drawn one by one, states before controls -- in one pass over x and u
+    flattened (:class:`_BoundSides`): the same numbers."""
+    sides = _BoundSides.of(pt, bounds, W)
+    count, nx, n = draw.shape[0], pt.X.size, pt.X.shape[1]
+    V = draw * sides.w
+    V[:, :n] = 0.0                                  # x^0
+    with np.errstate(invalid="ignore"):
+        a = 2 * h * np.abs(V)
+        V = np.where((sides.y - a < sides.lo) | (sides.y + a > sides.hi), 0.0, V)
+    return (np.ascontiguousarray(V[:, :nx]).reshape((count,) + pt.X.shape),
+            np.ascontiguousarray(V[:, nx:]).reshape((count,) + pt.U.shape))
 
 
 def _entry_of(shapes, j):
@@ -548,34 +623,61 @@ def _generator(seed):
     return rng
 
 
+#: draws of :func:`_uniform_draws` remembered (read-only), at most this many ...
+_DRAWS_KEPT = 8
+#: ... and each of at most this many numbers (a larger draw is redrawn at every certificate)
+_DRAWS_SIZE = 1 << 18
+_DRAWS: dict = {}
+_DRAWS_LOCK = threading.Lock()
+
+
+def _uniform_draws(seed, count, size):
+    """``np.random.default_rng(seed).uniform(-1, 1, (count, size))``: the spot check's draws,
+    which depend on the seed and the sizes only -- remembered for the sizes last seen (a problem
+    solved again and again draws nothing)."""
+    key = (seed, count, size)
+    draw = _DRAWS.get(key)
+    if draw is None:
+        draw = _generator(seed).uniform(-1.0, 1.0, (count, size))
+        if draw.size <= _DRAWS_SIZE:
+            draw.setflags(write=False)
+            with _DRAWS_LOCK:                   # solves in threads: one insertion at a time
+                while len(_DRAWS) >= _DRAWS_KEPT:
+                    _DRAWS.pop(next(iter(_DRAWS)))
+                _DRAWS[key] = draw
+    return draw
+
+
 def spot_check(p, pt, bounds, W, seed=CHECK_SEED) -> _Check:
     """Step 4 of the module docstring: five-point central differences of every stage function
     along CHECK_DIRECTIONS random directions against the derivatives the problem supplies (every
     function's entries, of every direction, in one array: the formulas are elementwise, and the
     first largest ratio over the concatenation is the one the functions and directions in turn
     would find)."""
-    rng = _generator(seed)
     h = CHECK_STEP
-    directions = [_direction(rng, pt, bounds, W, h) for _ in range(CHECK_DIRECTIONS)]
+    draw = _uniform_draws(seed, CHECK_DIRECTIONS, pt.X.size + pt.U.size)
+    Vx, Vu = _directions(draw, pt, bounds, W, h)
     saved = p.counters.copy()
     try:
-        vals = _shifted_values(p, pt, directions, h)
+        vals = _stacked_shifted_values(p, pt, Vx, Vu, h)
     except OladoError:
         p.counters.clear()
         p.counters.update(saved)
         try:
-            vals = _pointwise_values(p, pt, directions, h)
+            vals = _pointwise_values(p, pt, list(zip(Vx, Vu)), h)
         except OladoError as exc:
             return _Check(None, False, f"spot check skipped: the problem cannot be evaluated near the point ({exc})")
     v1, m1, v2, m2 = (vals[:, i] for i in range(len(_SHIFTS)))
-    an, size = _directional(pt, np.array([v[0] for v in directions]), np.array([v[1] for v in directions]))
+    an, size = _directional(pt, Vx, Vu)
     d_h = (v1 - m1) / (2 * h)
     d_2h = (v2 - m2) / (4 * h)
     d5 = (4 * d_h - d_2h) / 3
-    rounding = _EPS * (np.abs(v1) + np.abs(m1) + np.abs(v2) + np.abs(m2)) / h
-    allowed = CHECK_RTOL * np.maximum(size, np.abs(d5)) + 10 * (np.abs(d_h - d_2h) + rounding) + 1e-300
+    av = np.abs(vals)
+    rounding = _EPS * (av[:, 0] + av[:, 1] + av[:, 2] + av[:, 3]) / h
+    scale = np.maximum(size, np.abs(d5))
+    allowed = CHECK_RTOL * scale + 10 * (np.abs(d_h - d_2h) + rounding) + 1e-300
     err = np.abs(d5 - an)
-    rel = err / np.maximum(np.maximum(size, np.abs(d5)), 1e-300)
+    rel = err / np.maximum(scale, 1e-300)
     worst = max(0.0, float(np.where(err > 10 * rounding, rel, 0.0).max()))
     ratio = (err / allowed).ravel()
     j = int(np.argmax(ratio))

@@ -111,6 +111,51 @@ def violation_arrays(problem, pt) -> list[ViolationArray]:
             for a in out]
 
 
+def _largest_values(problem, pt):
+    """The violation arrays of :func:`violation_arrays` without their kinds, as (name, values,
+    staged, kinds of an entry): what :func:`largest_violation_of` reads."""
+    p = problem
+    X, U = np.asarray(pt.X, dtype=float), np.asarray(pt.U, dtype=float)
+    equality = lambda k, i: EQUALITY                                            # noqa: E731
+    rows = lambda mask: lambda k, i: EQUALITY if mask[i] else INEQUALITY        # noqa: E731
+    out = [("dynamics", np.abs(pt.h), True, equality)]
+    if p.r:
+        mask = p.stage_equality_mask
+        out.append(("stage_constraints", _rows(pt.g, mask)[0], True, rows(mask)))
+    if p.rN:
+        mask = p.final_equality_mask
+        out.append(("final_constraints", _rows(np.reshape(pt.gN, (1, p.rN)), mask)[0], False, rows(mask)))
+    out.append(("x0", np.abs(X[0] - p.x0)[None, :], False, equality))
+    for name, y, lo, hi in (("x_bounds", X, p.x_lower, p.x_upper), ("u_bounds", U, p.u_lower, p.u_upper)):
+        with np.errstate(invalid="ignore"):
+            below, above = lo - y, y - hi
+            v = np.maximum(np.maximum(below, 0.0), np.maximum(above, 0.0))
+        if name == "x_bounds":
+            v[0] = 0.0                          # x^0 is fixed at x0 (the array x0)
+        out.append((name, v, True, lambda k, i, below=below, above=above: UPPER if above[k, i] > below[k, i] else LOWER))
+    return out
+
+
+def largest_violation_of(problem, pt) -> tuple[float, Violation | None]:
+    """``largest_violation(violation_arrays(problem, pt))`` -- the same value and Violation --
+    with the kind computed for the largest entry only (olado's certificate of a success asks for
+    nothing else)."""
+    best, where = 0.0, None
+    for name, values, staged, kind in _largest_values(problem, pt):
+        if not values.size:
+            continue
+        top = float(values.max())
+        if top != top:                          # NaN counts as an infinite violation
+            values = np.where(np.isnan(values), np.inf, values)
+            top = float(values.max())
+        if top > best:
+            k, i = divmod(int(values.argmax()), values.shape[1])
+            best = float(values[k, i])
+            where = Violation(array=name, stage=k if staged else None, component=i, value=best,
+                              kind=Violation.KINDS[int(kind(k, i))])
+    return best, where
+
+
 def violation_at(array: ViolationArray, flat_index) -> Violation:
     """The :class:`Violation` of ``array``'s entry at ``flat_index`` (of its values, flattened)."""
     k, i = np.unravel_index(int(flat_index), array.values.shape)
