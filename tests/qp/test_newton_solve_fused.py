@@ -110,3 +110,24 @@ def test_non_finite_newton_step_is_reported_by_both_paths():
         ctx._reduced_solve(res, rho_l, rho_u)
     with pytest.raises(FloatingPointError, match="non-finite Newton step"):
         _unfused(ctx, res, rho_l, rho_u)
+
+
+def _ratio(t, dt):
+    """min(-t / dt) over dt < 0, plainly in numpy (1e30 when no step is negative)."""
+    neg = dt < 0
+    return min(1e30, float((-t[neg] / dt[neg]).min())) if neg.any() else 1e30
+
+
+@pytest.mark.parametrize("case", CASES, ids=str)
+@pytest.mark.parametrize("fused", [True, False])
+def test_step_lengths_are_the_plain_ratio_tests(case, fused):
+    """The recovery's step lengths (kernels._slack_steps skips the divisions that cannot lower
+    the minimum) are the plain ratio tests over the direction's slacks and multipliers, bit for
+    bit, on both paths; also with steps made tiny so that most divisions count."""
+    P, it, res, ctx, rho_l, rho_u = _context(*case)
+    for scale in (1.0, 1e-12):
+        d = ctx._reduced_solve(res, scale * rho_l, scale * rho_u) if fused else \
+            _unfused(ctx, res, scale * rho_l, scale * rho_u)
+        ap = min(_ratio(it.tl, d.tl), _ratio(it.tu, d.tu))
+        ad = min(_ratio(it.zl, d.zl), _ratio(it.zu, d.zu))
+        assert d.max_split == (ap, ad)

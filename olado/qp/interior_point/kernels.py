@@ -83,37 +83,7 @@ def _newton_rhs(rx, ru, rl, rup, rho_l, rho_u, it, inv_tl, inv_tu, Ds, CN, q, r,
     """Eliminate (dtl, dtu, dzl, dzu): g = (rho_u - zu rup)/tu - (rho_l - zl rl)/tl enters the
     gradient (q, r; C_N^T g for final rows) and the stage-row constants ci = g / D."""
     it = as_bundle(it, Slacks)
-    zl, zu = it.zl, it.zu
-    N = ru.shape[0]
-    n = rx.shape[1]
-    m = ru.shape[1]
-    nc = Ds.shape[1]
-    ncN = CN.shape[0]
-    ou = N * n
-    os_ = ou + N * m
-    osN = os_ + N * nc
-    for i in range(n):
-        q[0, i] = rx[0, i]
-    for k in range(1, N + 1):
-        for i in range(n):
-            idx = (k - 1) * n + i
-            g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
-            q[k, i] = rx[k, i] + g
-    for k in range(N):
-        for i in range(m):
-            idx = ou + k * m + i
-            g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
-            r[k, i] = ru[k, i] + g
-        for l in range(nc):
-            idx = os_ + k * nc + l
-            g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
-            d = Ds[k, l]
-            ci[k, l] = g / d if d > 0 else 0.0
-    for l in range(ncN):
-        idx = osN + l
-        g = (rho_u[idx] - zu[idx] * rup[idx]) * inv_tu[idx] - (rho_l[idx] - zl[idx] * rl[idx]) * inv_tl[idx]
-        for i in range(n):
-            q[N, i] += CN[l, i] * g
+    _box_rhs(rx, ru, rl, rup, rho_l, rho_u, it.zl, it.zu, inv_tl, inv_tu, Ds, CN, q, r, ci)
 
 
 @nb.njit(cache=True)
@@ -123,68 +93,8 @@ def _recover_step(dX, dU, Ct, CN, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu,
     the largest primal (slacks) and dual (multipliers) step lengths along the direction (as
     _max_step_split, in the same pass; min(ap, ad) is _max_step's common one); it, d: the
     Slacks of the iterate and of the direction."""
-    it = as_bundle(it, Slacks)
-    tl, tu, zl, zu = it.tl, it.tu, it.zl, it.zu
-    d = as_bundle(d, Slacks)
-    dtl, dtu, dzl, dzu = d.tl, d.tu, d.zl, d.zu
-    N = dU.shape[0]
-    n = dX.shape[1]
-    m = dU.shape[1]
-    nc = Ct.shape[2]
-    ncN = CN.shape[0]
-    ou = N * n
-    os_ = ou + N * m
-    osN = os_ + N * nc
-    ap = 1e30
-    ad = 1e30
-    inf = np.inf
-    # dX, dU copied into w and checked for finiteness in the same pass (w is scratch: a
-    # non-finite step leaves it partly written)
-    for i in range(n):
-        if not np.isfinite(dX[0, i]):
-            return False, ap, ad
-    for k in range(1, N + 1):
-        for i in range(n):
-            t = dX[k, i]
-            if not np.isfinite(t):
-                return False, ap, ad
-            w[(k - 1) * n + i] = t
-    for k in range(N):
-        for i in range(m):
-            t = dU[k, i]
-            if not np.isfinite(t):
-                return False, ap, ad
-            w[ou + k * m + i] = t
-        o = os_ + k * nc
-        for l in range(nc):
-            w[o + l] = 0.0
-        for j in range(n):
-            t = dX[k, j]
-            for l in range(nc):
-                w[o + l] += Ct[k, j, l] * t
-        for j in range(m):
-            t = dU[k, j]
-            for l in range(nc):
-                w[o + l] += Ct[k, n + j, l] * t
-    for l in range(ncN):
-        s = 0.0
-        for j in range(n):
-            s += CN[l, j] * dX[N, j]
-        w[osN + l] = s
-    for i in range(w.shape[0]):
-        a = w[i] + rl[i] if fl[i] else 0.0
-        b = -w[i] + rup[i] if fu[i] else 0.0
-        c = (rho_l[i] - zl[i] * a) * inv_tl[i]
-        e = (rho_u[i] - zu[i] * b) * inv_tu[i]
-        dtl[i] = a
-        dtu[i] = b
-        dzl[i] = c
-        dzu[i] = e
-        ap = min(ap, -tl[i] / a if a < 0.0 else inf)
-        ap = min(ap, -tu[i] / b if b < 0.0 else inf)
-        ad = min(ad, -zl[i] / c if c < 0.0 else inf)
-        ad = min(ad, -zu[i] / e if e < 0.0 else inf)
-    return True, ap, ad
+    return _recover_all(dX, dU, Ct, CN, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, as_bundle(it, Slacks),
+                        as_bundle(d, Slacks), w)
 
 
 @nb.njit(cache=True, fastmath=REASSOC)
@@ -503,8 +413,9 @@ def _symmetric_stage_hessians(Q, S, R, H):
 
 @nb.njit(cache=True, fastmath=False)
 def _box_rhs(rx, ru, rl, rup, rho_l, rho_u, zl, zu, inv_tl, inv_tu, Ds, CN, q, r, ci):
-    """_newton_rhs (the same values) with unsigned indices: numba tests a signed index for
-    wraparound at every access, which made these loops 10-20 % slower."""
+    """The right-hand side of _newton_rhs (which calls it; the fused Newton solve too) with the
+    iterate's zl, zu as arrays, in unsigned indices: numba tests a signed index for wraparound at
+    every access, which made these loops 10-20 % slower."""
     N = ru.shape[0]
     n = rx.shape[1]
     m = ru.shape[1]
@@ -584,8 +495,9 @@ def _slack_steps(w, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d):
 
 @nb.njit(cache=True, fastmath=False)
 def _recover_all(X, U, Ct, CN, fl, fu, rl, rup, rho_l, rho_u, inv_tl, inv_tu, it, d, w):
-    """_recover_step (the same values; the step lengths' divisions partly skipped, see
-    _slack_steps); returns (ok, ap, ad) as _recover_step."""
+    """The recovery of _recover_step (which calls it; the fused Newton solve too), X, U the
+    solution's dX, dU: w = (dx_1..dx_N, du, C_k dz_k, C_N dx_N) checked for finiteness on the way,
+    then _slack_steps (the step lengths' divisions partly skipped); returns (ok, ap, ad)."""
     N = U.shape[0]
     n = X.shape[1]
     m = U.shape[1]
