@@ -158,6 +158,16 @@ class RiccatiFactorization:
         self._dyn = (d.A, d.B)              # tuple(Dynamics(...))
         return self
 
+    def release_blocks(self):
+        """Drop the references to the cost and dynamics blocks (placeholders of their shapes take
+        their place, for :meth:`set_blocks`' shape test): an interior-point NLP's previous Newton
+        matrix lets its iteration's blocks go before the next ones are evaluated. Neither
+        factor nor solve before the next :meth:`set_blocks`."""
+        d = self.data
+        d.Q, d.S, d.R, d.A, d.B = (_placeholder(a.shape) for a in (d.Q, d.S, d.R, d.A, d.B))
+        self._costs = self._dyn = None
+        return self
+
     def _ip_terms(self):
         """The kernels' IPTerms bundle of ``data`` (a plain tuple: codegen.as_bundle), rebuilt
         only when a refactor replaced one of its arrays; the other roles (Costs, Dynamics,
@@ -305,6 +315,11 @@ class RiccatiFactorization:
         size, infeas = self._kernels.residual(self._costs, self._dyn, self._eq, self._ip_terms(),
                                               self.data.regularization, tuple(rhs), tuple(sol), tuple(resid))
         return resid, float(size), float(infeas)
+
+def _placeholder(shape):
+    """A read-only zero array of ``shape`` on one float (zero strides)."""
+    return np.lib.stride_tricks.as_strided(np.zeros(1), shape, (0,) * len(shape), writeable=False)
+
 
 def _held(a, held, name):
     """``a`` in place of the held array ``held``: ``a`` itself when it is a C-contiguous float64

@@ -192,6 +192,18 @@ class KKTMatrix:
         old.kkt = None
         return kkt
 
+    def release_blocks(self):
+        """Let this matrix's blocks go (Q, S, R and the Jacobians A, B, here and in its Riccati
+        back-end) before the next iteration's Hessians are evaluated: the next matrix takes the
+        back-end over (:meth:`_take_over`, which needs only their shapes), so one generation of
+        blocks less is alive at the peak. This matrix can no longer factor or solve."""
+        from ...linalg.riccati import _placeholder  # noqa: PLC0415
+
+        if self.kkt is not None and self.backend == "riccati":
+            self.kkt.release_blocks()
+        self.Q, self.S, self.R, self.A, self.B = (_placeholder(a.shape)
+                                                  for a in (self.Q, self.S, self.R, self.A, self.B))
+
     def _diagonals_into(self, delta, Dx, Du):
         """:meth:`_diagonals` written into the back-end's arrays Dx, Du (the same values; no new
         arrays for the back-end to validate); returns the slack rows' weights (None without)."""

@@ -394,6 +394,14 @@ def newton_system(setup, st, gradient=False):
     one compiled pass (kernels.newton_terms)."""
     p, pt, L = setup.problem, st.pt, setup.layout
     Lg, LgN = full_multipliers(L, st)
+    # the previous iteration's back-end is taken over, unless the watchdog keeps that iteration's
+    # direction (its line search may solve with it again, line_search); a matrix taken over lets
+    # its blocks go before the new Hessians are evaluated (one generation less at the peak)
+    prev = setup.last_kkt
+    if st.watch is not None and st.watch.search.kkt is prev:
+        prev = None
+    elif prev is not None:
+        prev.release_blocks()
     t0 = time.perf_counter()
     Hxx, Hxu, Huu = p.eval_stage_hessians(pt.X, pt.U, st.s_obj, st.lam[1:], Lg)
     HN = p.eval_final_hessian(pt.X[-1], st.s_obj, LgN)
@@ -404,11 +412,6 @@ def newton_system(setup, st, gradient=False):
         Sx, Su, Ss, SsN, g = _newton_terms(setup, st)
     else:
         Sx, Su, Ss, SsN = setup.bounds.sigma_blocks(st.v, st.zl, st.zu, L)
-    # the previous iteration's back-end is taken over, unless the watchdog keeps that iteration's
-    # direction (its line search may solve with it again, line_search)
-    prev = setup.last_kkt
-    if st.watch is not None and st.watch.search.kkt is prev:
-        prev = None
     kkt = setup.last_kkt = KKTMatrix(Q, S, R, pt.A, pt.B, Sx, Su, constraint_blocks(setup, pt, Ss, SsN), reuse=prev)
     delta = kkt.factor(st.delta_last)
     st.factorizations += kkt.factorizations

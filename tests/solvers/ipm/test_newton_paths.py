@@ -105,3 +105,35 @@ def test_dot_is_einsums_product():
         a, b = rng.standard_normal(size), rng.standard_normal(size)
         assert dot(a, b) == float(np.einsum("i,i->", a, b))
         assert type(dot(a, b)) is float
+
+
+@pytest.mark.parametrize("plain", [True, False])
+def test_a_released_matrix_lets_its_blocks_go_and_is_taken_over_alike(plain):
+    """release_blocks (before the next iteration's Hessians are evaluated): while the previous
+    matrix is still alive, its blocks are no longer referenced by it or its back-end; the next
+    matrix's take-over gives the same steps as without the release."""
+    import gc
+    import weakref
+
+    def chain(release):
+        out, prev, refs = [], None, None
+        for seed in (1, 2, 3):
+            blocks, res, q, r = _system(seed)
+            blocks = tuple(a.copy() for a in blocks)
+            if prev is not None and release:
+                prev.release_blocks()
+                gc.collect()
+                assert all(ref() is None for ref in refs)      # prev alive, its blocks gone
+            kkt = KKTMatrix(*blocks, reuse=prev)
+            kkt.plain = plain
+            assert kkt.factor(0.0) is not None
+            out.append(kkt.solve(q, r, res))
+            refs = [weakref.ref(a) for a in blocks[:5]]
+            del blocks
+            prev = kkt
+        return out
+
+    steps = chain(True)
+    for s1, s2 in zip(steps, chain(False)):
+        for a, b in zip(s1, s2):
+            assert np.array_equal(a, b)
