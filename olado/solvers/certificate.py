@@ -175,25 +175,8 @@ def _violation(p, pt):
 
 
 # ---------------------------------------------------------------------------- stationarity [3]-[5]
-def _bound_choice(r, y, lo, hi, w):
-    """Per variable, the bound multiplier that minimises max(|r - z| w, z slack) (module docstring,
-    step 2): returns the remaining |r - z| and z * slack. Fixed variables (lo == hi) take any
-    multiplier: both are 0 there. (The reference form: :func:`_figures` computes the same numbers
-    with :class:`_BoundSides`.)"""
-    with np.errstate(invalid="ignore", over="ignore"):
-        slack = np.where(r > 0, y - lo, hi - y)            # the bound that can cancel r; inf: none
-        slack = np.maximum(slack, 0.0)
-        bounded = np.isfinite(slack)
-        a = np.abs(r)
-        z = np.where(bounded, a * w / (w + np.where(bounded, slack, 0.0)), 0.0)
-        stat = a - z
-        comp = np.where(bounded, z * np.where(bounded, slack, 0.0), 0.0)
-    fixed = lo == hi
-    return np.where(fixed, 0.0, stat), np.where(fixed, 0.0, comp)
-
-
 class _BoundSides(NamedTuple):
-    """What :func:`_bound_choice` reads of the point, its bounds and weights, for x and u
+    """What the bound choice (module docstring, step 2) reads of the point, its bounds and weights, for x and u
     flattened into one vector (x first) and prepared once per point: per side the slack to the
     lower bound (taken where r > 0) and to the upper bound, max(slack, 0) where it is finite and 0
     elsewhere, and whether it is finite; the weights; the fixed variables; the point and its
@@ -228,7 +211,7 @@ class _BoundSides(NamedTuple):
         return sides
 
     def choice(self, r):
-        """:func:`_bound_choice` of the flattened residual r (the same numbers: each entry takes
+        """The bound choice of the flattened residual r (module docstring, step 2: each entry takes
         the same operations on the same operands)."""
         up = r > 0
         bounded = np.where(up, self.lower_finite, self.upper_finite)
@@ -237,7 +220,7 @@ class _BoundSides(NamedTuple):
         with np.errstate(invalid="ignore", over="ignore"):
             z = np.where(bounded, a * self.w / (self.w + slack), 0.0)
         stat = a - z
-        comp = z * slack                # 0 * 0 where unbounded, as _bound_choice's 0
+        comp = z * slack                # 0 * 0 where unbounded: 0
         return np.where(self.fixed, 0.0, stat), np.where(self.fixed, 0.0, comp)
 
 
@@ -253,7 +236,7 @@ def _largest(arrays):
 
 def _figures(p, pt, bounds, W, S, lam, Lg, LgN, kind):
     """The residuals with the multipliers (lam, Lg, LgN), inequality multipliers projected on
-    their signs, bound multipliers chosen per variable (:func:`_bound_choice`, for x and u in one
+    their signs, bound multipliers chosen per variable (module docstring step 2, for x and u in one
     pass: :class:`_BoundSides`)."""
     Lg = np.array(Lg, dtype=float)
     LgN = np.array(LgN, dtype=float)

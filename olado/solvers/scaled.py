@@ -134,11 +134,11 @@ def unscale_result(result: Result, scaled: ScaledDOCP, report: dict) -> Result:
 
 def _violation(problem, X, U, fallback):
     """The max-norm constraint violation of the original problem at (X, U)."""
-    from .diagnosis import ConstraintValues, largest_violation, violation_arrays   # noqa: PLC0415
+    from .diagnosis import ConstraintValues, largest_violation_of   # noqa: PLC0415
 
     if not (np.all(np.isfinite(X)) and np.all(np.isfinite(U))):
         return fallback
     try:
-        return largest_violation(violation_arrays(problem, ConstraintValues.at(problem, X, U)))[0]
+        return largest_violation_of(problem, ConstraintValues.at(problem, X, U))[0]
     except OladoError:
         return fallback

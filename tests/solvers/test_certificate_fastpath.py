@@ -17,6 +17,23 @@ from olado.solvers.common import stage_gradient_terms
 from olado.solvers.diagnosis import largest_violation, largest_violation_of, violation_arrays
 
 
+def _bound_choice(r, y, lo, hi, w):
+    """Per variable, the bound multiplier that minimises max(|r - z| w, z slack) (the certificate's module docstring,
+    step 2): returns the remaining |r - z| and z * slack. Fixed variables (lo == hi) take any
+    multiplier: both are 0 there. (The certificate's reference form: its _figures computes the same
+    numbers with _BoundSides.)"""
+    with np.errstate(invalid="ignore", over="ignore"):
+        slack = np.where(r > 0, y - lo, hi - y)            # the bound that can cancel r; inf: none
+        slack = np.maximum(slack, 0.0)
+        bounded = np.isfinite(slack)
+        a = np.abs(r)
+        z = np.where(bounded, a * w / (w + np.where(bounded, slack, 0.0)), 0.0)
+        stat = a - z
+        comp = np.where(bounded, z * np.where(bounded, slack, 0.0), 0.0)
+    fixed = lo == hi
+    return np.where(fixed, 0.0, stat), np.where(fixed, 0.0, comp)
+
+
 class PendulumFinalInequality(Pendulum):
     """The pendulum with its final constraint x0 - 0.2 >= 0 (an inequality)."""
 
@@ -44,8 +61,8 @@ def _reference_figures(p, pt, bounds, W, S, lam, Lg, LgN, kind):
         LgN[ineqN] = np.minimum(LgN[ineqN], 0.0)
     rx, ru = stage_gradient_terms(p, pt, lam, Lg, LgN)
     wx, wu = W
-    sx, cx = C._bound_choice(rx, pt.X, bounds.xl, bounds.xu, wx)
-    su, cu = C._bound_choice(ru, pt.U, bounds.ul, bounds.uu, wu)
+    sx, cx = _bound_choice(rx, pt.X, bounds.xl, bounds.xu, wx)
+    su, cu = _bound_choice(ru, pt.U, bounds.ul, bounds.uu, wu)
     sx[0] = cx[0] = 0.0
 
     def largest(arrays):

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..diagnosis import largest_violation, violation_arrays
+from ..diagnosis import largest_violation_of
 
 
 class Merit:
@@ -63,7 +63,7 @@ class Merit:
         """The largest constraint violation at q, named as olado's infeasibility diagnosis names
         it (olado.solvers.diagnosis): (sentence, value), e.g. "final_constraints[component 0]
         (violation 7)" or "dynamics[stage 3, component 1] (violation 0.2)"."""
-        value, where = largest_violation(violation_arrays(self.problem, q))
+        value, where = largest_violation_of(self.problem, q)
         return (f"{where.where()} (violation {value:.3g})" if where is not None else "no constraint"), value
 
     def max_violation(self, q):
