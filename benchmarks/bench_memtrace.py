@@ -20,7 +20,8 @@ work; nothing here is a library change): see PATCHES.
 
     python benchmarks/bench_memtrace.py --N 1e5                     # phases by peak RSS
     python benchmarks/bench_memtrace.py --N 1e5 --trace --top 25    # + the arrays at the traced peak
-    python benchmarks/bench_memtrace.py --N 1e6 --patch lsq         # a proposed change, measured
+    python benchmarks/bench_memtrace.py --N 1e6 --patch step costs finish   # proposed changes, measured
+    python benchmarks/bench_memtrace.py --patch step costs finish --behaviour --suites builtin --configs ipm --out F
 """
 
 from __future__ import annotations
@@ -184,7 +185,40 @@ def patch_finish():
     solver.finish = finish_released
 
 
-PATCHES = {"step": patch_step, "costs": patch_costs, "finish": patch_finish}
+def patch_sigma():
+    """KKTMatrix.release_blocks also lets the barrier diagonals Sx, Su go (the next matrix takes the
+    back-end over with its own; the old ones are alive through the next factorization otherwise:
+    newton_system's ``prev``)."""
+    from olado.solvers.ipm import newton
+
+    release = newton.KKTMatrix.release_blocks
+
+    def release_sigma(self):
+        release(self)
+        self.Sx, self.Su = _released((self.Sx, self.Su))
+
+    newton.KKTMatrix.release_blocks = release_sigma
+
+
+def patch_slacks():
+    """After take_step, Bounds' per-point cache keeps the new iterate's entry only (the previous
+    iterate's slacks served the dual step; a later request -- the watchdog going back -- computes
+    them again, the same numbers)."""
+    from olado.solvers.ipm import solver
+
+    take_step = solver.take_step
+
+    def take_step_slacks(setup, st, accepted):
+        out = take_step(setup, st, accepted)
+        b = setup.bounds
+        b._points = [e for e in b._points if e.v is st.v]
+        return out
+
+    solver.take_step = take_step_slacks
+
+
+PATCHES = {"step": patch_step, "costs": patch_costs, "finish": patch_finish, "sigma": patch_sigma,
+           "slacks": patch_slacks}
 
 
 # ---------------------------------------------------------------------------- the worker
@@ -295,8 +329,17 @@ def main(argv=None):
     ap.add_argument("--snap", nargs="*", default=[], help="with --trace: phases (path suffixes, e.g. finish "
                     "line_search) whose own traced maximum is listed by allocating line")
     ap.add_argument("--json", help="also write the worker's record here")
+    ap.add_argument("--behaviour", nargs=argparse.REMAINDER, help="instead of a solve: check_behaviour.py with these "
+                    "arguments in this process, after the --patch changes (their iterates against main's fingerprints)")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.behaviour is not None:
+        import check_behaviour
+
+        for p in args.patch:
+            PATCHES[p]()
+        check_behaviour.main(args.behaviour)
+        return
     N = years(args.N)
     if args.worker:
         worker(args.config, N, args.interval, args.trace, args.top, args.patch, args.snap)
