@@ -217,8 +217,79 @@ def patch_slacks():
     solver.take_step = take_step_slacks
 
 
+def patch_spotcheck():
+    """certificate.spot_check with the directions evaluated one at a time (the stacked shifted
+    points, their values and the difference quotients of one direction alive at once instead of
+    CHECK_DIRECTIONS'): every formula is elementwise, the largest ratio taken in the same order
+    (directions in turn, the first largest kept), so the check's figures are the same numbers."""
+    import numpy as np
+
+    from olado.errors import OladoError
+    from olado.solvers import certificate as c
+
+    def ratios(p, pt, Vx, Vu, h):
+        """The original's arithmetic for the directions (Vx, Vu) stacked: (worst, ratio, d5, an, rel,
+        vals.shape[2]) or the _Check when the problem cannot be evaluated."""
+        saved = p.counters.copy()
+        try:
+            vals = c._stacked_shifted_values(p, pt, Vx, Vu, h)
+        except OladoError:
+            p.counters.clear()
+            p.counters.update(saved)
+            try:
+                vals = c._pointwise_values(p, pt, list(zip(Vx, Vu)), h)
+            except OladoError as exc:
+                return c._Check(None, False, "spot check skipped: the problem cannot be evaluated near the point "
+                                f"({exc})")
+        v1, m1, v2, m2 = (vals[:, i] for i in range(len(c._SHIFTS)))
+        an, size = c._directional(pt, Vx, Vu)
+        d_h = (v1 - m1) / (2 * h)
+        d_2h = (v2 - m2) / (4 * h)
+        d5 = (4 * d_h - d_2h) / 3
+        av = np.abs(vals)
+        rounding = c._EPS * (av[:, 0] + av[:, 1] + av[:, 2] + av[:, 3]) / h
+        scale = np.maximum(size, np.abs(d5))
+        allowed = c.CHECK_RTOL * scale + 10 * (np.abs(d_h - d_2h) + rounding) + 1e-300
+        err = np.abs(d5 - an)
+        rel = err / np.maximum(scale, 1e-300)
+        worst = float(np.where(err > 10 * rounding, rel, 0.0).max())     # NaN kept (the original's max)
+        ratio = (err / allowed).ravel()
+        j = int(np.argmax(ratio))
+        return worst, float(ratio[j]), j, (float(d5.ravel()[j]), float(an.ravel()[j]), float(rel.ravel()[j])), \
+            vals.shape[2]
+
+    def spot_check(p, pt, bounds, W, seed=c.CHECK_SEED):
+        h = c.CHECK_STEP
+        draw = c._uniform_draws(seed, c.CHECK_DIRECTIONS, pt.X.size + pt.U.size)
+        Vx, Vu = c._directions(draw, pt, bounds, W, h)
+        raw, best = -np.inf, None
+        for d in range(Vx.shape[0]):
+            out = ratios(p, pt, Vx[d:d + 1], Vu[d:d + 1], h)
+            if isinstance(out, c._Check):
+                return out
+            w, r, j, figs, L = out
+            raw = raw if raw != raw else (w if w != w else max(raw, w))    # np.max over all: NaN wins
+            # np.argmax over all: the first largest, a NaN counting as the largest
+            if best is None or (best[0] == best[0] and (r != r or r > best[0])):
+                best = (r, j + d * L, figs, L)
+        worst = max(0.0, raw)
+        r, j, (d5, an, rel), L = best
+        if not r > 1.0:
+            return c._Check(worst, False, "")
+        name, idx = c._entry_of(c._shapes(p), j % L)
+        where = f" at stage {idx[0]}" if name in ("stage_cost", "dynamics", "stage_constraints") else ""
+        if len(idx) == 2 or name == "final_constraints":
+            where += f", component {idx[-1]}"
+        source = p.derivative_sources().get(c._DERIVATIVE_NAMES[name], "")
+        return c._Check(worst, True, (f"the derivative of {name}{where} ({source}) disagrees with a five-point "
+                                      f"central difference along a random direction: {an:.6g} vs {d5:.6g} "
+                                      f"(relative error {rel:.1e})"))
+
+    c.spot_check = spot_check
+
+
 PATCHES = {"step": patch_step, "costs": patch_costs, "finish": patch_finish, "sigma": patch_sigma,
-           "slacks": patch_slacks}
+           "slacks": patch_slacks, "spotcheck": patch_spotcheck}
 
 
 # ---------------------------------------------------------------------------- the worker
