@@ -115,12 +115,14 @@ def mark_phases():
 
     for name in ("initial_state", "iterate", "finish", "update_barrier", "newton_system", "line_search",
                  "take_step", "least_squares_multipliers", "restore", "restore_l1", "converged"):
-        setattr(solver, name, marked(name, getattr(solver, name)))
+        if hasattr(solver, name):           # (older commits lack some)
+            setattr(solver, name, marked(name, getattr(solver, name)))
     for name in ("factor", "solve"):
         setattr(newton.KKTMatrix, name, marked(f"kkt.{name}", getattr(newton.KKTMatrix, name)))
     for name in ("certify_result", "least_squares_multipliers", "spot_check"):
-        setattr(certificate, name, marked(f"cert.{name}" if name != "certify_result" else name,
-                                          getattr(certificate, name)))
+        if hasattr(certificate, name):
+            setattr(certificate, name, marked(f"cert.{name}" if name != "certify_result" else name,
+                                              getattr(certificate, name)))
 
 
 # ---------------------------------------------------------------------------- proposed changes
@@ -362,6 +364,26 @@ def worker(config, N, interval, trace, top, patches, snap=()):
     print(json.dumps(out), flush=True)
 
 
+def robustness(groups, config, patches, path, time_limit=120.0):
+    """The robustness entries of ``groups`` solved in this process (_robustness.solve_entry) after
+    the patches; prints and (``path``) writes {entry: (status, iterations, objective)}."""
+    from _robustness import solve_entry
+
+    from olado.problems.suites import load_suite
+
+    for p in patches:
+        PATCHES[p]()
+    out = {}
+    for e in load_suite("robustness"):
+        if e.group in groups:
+            rec = solve_entry(e.name, config, time_limit)
+            out[e.name] = (rec.get("status"), rec.get("iterations"), rec.get("objective"))
+            print(e.name, *out[e.name], f"{rec.get('wall_s', 0):.1f} s", flush=True)
+    if path:
+        with open(path, "w") as f:
+            json.dump(out, f)
+
+
 def report(r, timeline):
     print(f"{r['config']} N = {r['N']} patches {r['patches'] or '-'}: {r['status']}, {r['iterations']} iterations, "
           f"J = {r['objective']:.10g}, {r['solve_s']:.1f} s; peak RSS {r['peak_mb']:.0f} MiB "
@@ -402,8 +424,14 @@ def main(argv=None):
     ap.add_argument("--json", help="also write the worker's record here")
     ap.add_argument("--behaviour", nargs=argparse.REMAINDER, help="instead of a solve: check_behaviour.py with these "
                     "arguments in this process, after the --patch changes (their iterates against main's fingerprints)")
+    ap.add_argument("--robustness", nargs="+", metavar="GROUP", help="instead of a solve: the robustness set's "
+                    "entries of these groups solved by --config in this process after the --patch changes (status, "
+                    "iterations, objective per entry; compare two --json files of runs with and without patches)")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.robustness:
+        robustness(args.robustness, args.config, args.patch, args.json)
+        return
     if args.behaviour is not None:
         import check_behaviour
 
