@@ -11,7 +11,7 @@ largest value and the time it was seen; the report lists the phases by their lar
 (bytes per stage above the RSS after the warm-up at N = 12).
 
 ``--trace`` also runs tracemalloc (25 frames): the thread keeps the snapshot at the largest traced
-size (``--grow``: a new snapshot once the traced size grew by that factor) and the report gives the
+size (a new snapshot once the traced size grew by 1 %) and the report gives the
 phase of that snapshot and its allocations grouped by their innermost olado line. tracemalloc
 slows the solve about 2-3x; use it at N <= 10^5.
 
@@ -302,7 +302,7 @@ def top_lines(snapshot, N, top):
 
     groups = {}
     for stat in snapshot.statistics("traceback"):
-        frames = list(stat.traceback)      # most recent call first? tracemalloc: oldest first
+        frames = list(stat.traceback)      # oldest frame first (Python >= 3.7)
         olado = [fr for fr in frames if "olado" + os.sep in fr.filename]
         fr = olado[-1] if olado else frames[-1]
         key = f"{fr.filename.split('olado' + os.sep, 1)[-1]}:{fr.lineno}"
@@ -406,7 +406,8 @@ def report(r, timeline):
         for k, rows in r.get("phase_top", {}).items():
             print(f"at the traced maximum of {k} ({r['phase_traced'][k]:.0f} B / stage):")
             for row in rows:
-                print(f"  {row['bytes_per_stage']:7.0f}  {row['line']:38s} {row['text'][:70]}  <- {', '.join(row['callers'])}")
+                print(f"  {row['bytes_per_stage']:7.0f}  {row['line']:38s} {row['text'][:70]}  "
+                      f"<- {', '.join(row['callers'])}")
 
 
 def main(argv=None):
