@@ -197,10 +197,13 @@ class KKTMatrix:
         back-end) before the next iteration's Hessians are evaluated: the next matrix takes the
         back-end over (:meth:`_take_over`, which needs only their shapes), so one generation of
         blocks less is alive at the peak. This matrix can no longer factor or solve."""
+        if self.kkt is not None and self.backend == "riccati":
+            d = self.kkt.release_blocks().data
+            if d.Q.shape == self.Q.shape:   # the back-end held these blocks: its placeholders are theirs
+                self.Q, self.S, self.R, self.A, self.B = d.Q, d.S, d.R, d.A, d.B
+                return
         from ...linalg.riccati import _placeholder  # noqa: PLC0415
 
-        if self.kkt is not None and self.backend == "riccati":
-            self.kkt.release_blocks()
         self.Q, self.S, self.R, self.A, self.B = (_placeholder(a.shape)
                                                   for a in (self.Q, self.S, self.R, self.A, self.B))
 

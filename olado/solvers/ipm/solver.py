@@ -258,7 +258,7 @@ def iterate_errors(setup, st, mu=None):
     (kernels.error_pass: the stage products A^T lam, B^T lam where :func:`_plain_products` says
     einsum's order is the plain one, the dual infeasibility, kernels.dual_infeasibility, and the
     complementarity, Bounds.complementarities); the products with the constraint rows by numpy."""
-    p, pt, b = setup.problem, st.pt, setup.bounds
+    pt, b = st.pt, setup.bounds
     lam = st.lam[1:]
     products = _plain_products(pt.A, pt.B, lam)
     if products:
@@ -266,6 +266,25 @@ def iterate_errors(setup, st, mu=None):
         EA, EB = np.empty((N, n)), np.empty((N, m))
     else:
         EA, EB = np.einsum("kij,ki->kj", pt.A, lam), np.einsum("kij,ki->kj", pt.B, lam)
+    ECx, ECu, CNL = _row_products(setup, st, EA, EB)
+    sl, su = b.slacks(st.v)
+    p = setup.problem
+    mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1 = _kernels().error_pass(
+        float(st.s_obj), pt.lx, pt.lu, pt.lN, pt.A, pt.B, EA, EB, products, lam, ECx, ECu, CNL, bool(p.r), bool(p.rN),
+        st.yd, st.ydN, st.zl, st.zu, st.nu, st.nuN, sl, su, b.has_lo, b.has_hi, 0.0, float(st.mu if mu is None else mu))
+    return _error_figures(mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1)
+
+
+def _error_figures(mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1):
+    """:func:`iterate_errors`' result from kernels.error_pass's nine figures."""
+    return ((float(mx), float(zsum), float(ysum)),
+            (_sides_max(n_lo, m_lo, n_hi, m_hi), _sides_max(n_lo, m_lo1, n_hi, m_hi1)))
+
+
+def _row_products(setup, st, EA, EB):
+    """(Cx^T Lg, Cu^T Lg, CN^T LgN) at the iterate by numpy for the error pass; EA, EB, lN (not
+    read) without stage or final constraints."""
+    p, pt = setup.problem, st.pt
     ECx, ECu, CNL = EA, EB, pt.lN       # placeholders without stage or final constraints
     if p.r or p.rN:
         Lg, LgN = full_multipliers(setup.layout, st)
@@ -273,12 +292,23 @@ def iterate_errors(setup, st, mu=None):
             ECx, ECu = np.einsum("kij,ki->kj", pt.Cx, Lg), np.einsum("kij,ki->kj", pt.Cu, Lg)
         if p.rN:
             CNL = pt.CN.T @ LgN
-    sl, su = b.slacks(st.v)
-    mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1 = _kernels().error_pass(
-        float(st.s_obj), pt.lx, pt.lu, pt.lN, pt.A, pt.B, EA, EB, products, lam, ECx, ECu, CNL, bool(p.r), bool(p.rN),
-        st.yd, st.ydN, st.zl, st.zu, st.nu, st.nuN, sl, su, b.has_lo, b.has_hi, 0.0, float(st.mu if mu is None else mu))
-    return ((float(mx), float(zsum), float(ysum)),
-            (_sides_max(n_lo, m_lo, n_hi, m_hi), _sides_max(n_lo, m_lo1, n_hi, m_hi1)))
+    return ECx, ECu, CNL
+
+
+def error_inputs(setup, st):
+    """The inputs of the optimality error's pass (kernels.error_pass) at the iterate st is
+    becoming in :func:`take_step` -- its point (with derivatives) and constraint multipliers
+    already set, lam and the bound multipliers still to be stepped -- for the step's own compiled
+    pass (Bounds.step_multipliers); None where the stage products are einsum's (:func:`_plain_products`:
+    the new lam is C-contiguous float64) or lam is empty: :func:`error_terms` computes them then."""
+    pt, p = st.pt, setup.problem
+    if not st.lam.size or not _plain_products(pt.A, pt.B, st.lam):
+        return None
+    N, n, m = pt.B.shape
+    EA, EB = np.empty((N, n)), np.empty((N, m))
+    ECx, ECu, CNL = _row_products(setup, st, EA, EB)
+    return (float(st.s_obj), pt.lx, pt.lu, pt.lN, pt.A, pt.B, EA, EB, ECx, ECu, CNL, bool(p.r), bool(p.rN), st.yd,
+            st.ydN, st.nu, st.nuN)
 
 
 def _plain_products(A, B, lam):
@@ -304,9 +334,15 @@ def error_terms(setup, st) -> ErrorTerms:
         if (k[0] is st.v and k[1] is st.pt and k[2] is st.lam and k[3] is st.nu and k[4] is st.nuN and k[5] is st.yd
                 and k[6] is st.ydN and k[7] is st.zl and k[8] is st.zu):
             return cached[2]
+    return store_errors(setup, st, iterate_errors(setup, st))
+
+
+def store_errors(setup, st, figures):
+    """The :class:`ErrorTerms` of the iterate from :func:`iterate_errors`' figures (computed at the
+    iterate's mu), kept for :func:`error_terms` and :func:`complementarity`."""
     key = (st.v, st.pt, st.lam, st.nu, st.nuN, st.yd, st.ydN, st.zl, st.zu)
     b = setup.bounds
-    (inf_du, zsum, ysum), (c0, c1) = iterate_errors(setup, st)
+    (inf_du, zsum, ysum), (c0, c1) = figures
     # the complementarities of the same pass (complementarity's cache)
     st.compl_cache = (b.slacks(st.v), st.zl, st.zu, {0.0: c0, st.mu: c1})
     inf_pr = residual_norms(setup, st.pt, st.v)[1]
@@ -729,10 +765,13 @@ def take_step(setup, st, accepted):
     # lam + alpha (lam^+ - lam), dz and the step of both sides (dz = 0 off the bounds:
     # Bounds.dual_step_length), the bounds moved (Bounds.move_tiny) and the safeguard
     # (Bounds.safeguard_step) in one compiled pass
-    st.zl, st.zu, alpha_z, lam = b.step_multipliers(slacks, v_new, dv, st.zl, st.zu, st.mu, st.tau, st.lam, step.lam,
-                                                    alpha)
+    # (with the optimality error's pass at the new iterate: the next stopping test's, error_terms)
+    st.zl, st.zu, alpha_z, lam, figures = b.step_multipliers(slacks, v_new, dv, st.zl, st.zu, st.mu, st.tau, st.lam,
+                                                             step.lam, alpha, errors=error_inputs(setup, st))
     if lam.size:                # an empty one stays
         st.lam = lam
+    if figures is not None:
+        store_errors(setup, st, _error_figures(*figures))
     return alpha, alpha_z, soc
 
 
