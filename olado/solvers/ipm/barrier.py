@@ -267,12 +267,14 @@ class Bounds:
         a_lo, a_hi = _kernels().max_step(sl, su, dv, self.has_lo, self.has_hi, -tau, tau)
         return min(1.0, float(a_lo), float(a_hi))
 
-    def step_terms(self, v, step, tau):
+    def step_terms(self, v, step, tau, dv=None):
         """(dv, alpha_max, tiny) of a Newton step (newton.Step) at v in one compiled pass
-        (kernels.step_terms): dv = Layout.pack(step.dX, step.dU, step.ds, step.dsN), alpha_max
-        = :meth:`max_step` (v, dv, tau), tiny = max |dv| / (1 + |v|) (IPOPT's tiny step test)."""
+        (kernels.step_terms): dv = Layout.pack(step.dX, step.dU, step.ds, step.dsN) (into ``dv`` if
+        given), alpha_max = :meth:`max_step` (v, dv, tau), tiny = max |dv| / (1 + |v|) (IPOPT's tiny
+        step test)."""
         sl, su = self.slacks(v)
-        dv = np.empty_like(v)
+        if dv is None:
+            dv = np.empty_like(v)
         alpha_max, tiny = _kernels().step_terms(step.dX, step.dU, step.ds, step.dsN, v, sl, su, self.has_lo,
                                                 self.has_hi, -tau, tau, dv)
         return dv, alpha_max, tiny

@@ -505,8 +505,18 @@ def step_bound_multipliers(sl, su, v_new, dv, lo, hi, has_lo, has_hi, zl, zu, mu
 
 
 @nb.njit(**_JIT)
-def newton_terms(s_obj, lx, lN, lu, sl, su, zl, zu, has_lo, has_hi, mu, kd_mu, Sx, Su, Ss, SsN, q, r, gs, gsN, grad):
-    """``sigma_blocks`` and ``barrier_direction`` at an iterate in one call (solver.newton_system
-    with the gradient: the Newton matrix's Sigma and the right-hand side)."""
+def newton_terms(Hxx, HN, Q, s_obj, lx, lN, lu, sl, su, zl, zu, has_lo, has_hi, mu, kd_mu, Sx, Su, Ss, SsN, q, r, gs,
+                 gsN, grad):
+    """The Newton matrix's blocks and terms at an iterate in one call (solver.newton_system with the
+    gradient): Q[:N] = Hxx, Q[N] = HN (newton.stage_blocks' copies), ``sigma_blocks`` (the matrix's
+    Sigma) and ``barrier_direction`` (the right-hand side)."""
+    N = Hxx.shape[0]
+    for k in range(N):
+        for i in range(Hxx.shape[1]):
+            for j in range(Hxx.shape[2]):
+                Q[k, i, j] = Hxx[k, i, j]
+    for i in range(HN.shape[0]):
+        for j in range(HN.shape[1]):
+            Q[N, i, j] = HN[i, j]
     sigma_blocks(sl, su, zl, zu, Sx, Su, Ss, SsN)
     barrier_direction(s_obj, lx, lN, lu, sl, su, has_lo, has_hi, mu, kd_mu, q, r, gs, gsN, grad)

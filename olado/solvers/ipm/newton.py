@@ -267,12 +267,13 @@ class KKTMatrix:
             delta *= const.kappa_plus_first if delta_last == 0.0 else const.kappa_plus
         return None
 
-    def solve(self, q, r, res: Residuals, gs=None, gsN=None) -> Step:
+    def solve(self, q, r, res: Residuals, gs=None, gsN=None, out=None) -> Step:
         """Solve for the gradient rows q (N+1, n), r (N, m) of the barrier function in y, its
         gradient gs (N, ni), gsN (niN,) in the slacks, and the constraint residuals ``res``,
-        with dx^0 = 0."""
+        with dx^0 = 0. ``out``: C-contiguous float64 arrays (dX (N+1, n), dU (N, m), lam (N+1, n))
+        the step is written into (Riccati back-end; new arrays otherwise)."""
         if self.plain:
-            return self._solve_dynamics_only(q, r, res)
+            return self._solve_dynamics_only(q, r, res, out)
         c, d = self.cons, self.delta
         N, n, m = self.B.shape
         gs = np.zeros(c.Ss.shape) if gs is None else gs
@@ -294,7 +295,7 @@ class KKTMatrix:
                    np.ascontiguousarray(kw["e"], dtype=float) if "e" in kw else np.zeros((N, data.ne_max)),
                    np.ascontiguousarray(kw["eN"], dtype=float) if "eN" in kw else np.zeros(data.neN),
                    np.ascontiguousarray(kw["ci"], dtype=float) if "ci" in kw else np.zeros(data.sig.shape))
-            X, U, lam = np.empty((N + 1, n)), np.empty((N, m)), np.empty((N + 1, n))
+            X, U, lam = (np.empty((N + 1, n)), np.empty((N, m)), np.empty((N + 1, n))) if out is None else out
             nu = np.empty((N + 1, max(data.ne_max, data.neN)))
             self.kkt.solve_into(rhs, (X, U, lam, nu))
         else:
@@ -310,11 +311,11 @@ class KKTMatrix:
         return Step(X, U, ds, dsN, lam, nu[:N, :ne].copy(), nu[N, :neN].copy(), ss * ds + gs, ssN * dsN + gsN)
 
 
-    def _solve_dynamics_only(self, q, r, res):
+    def _solve_dynamics_only(self, q, r, res, out=None):
         """:meth:`solve` without constraint rows (the dynamics alone): the back-end's solve_into
         on the right-hand side (q, r, h), the empty row parts of the Step as they would be."""
         N, n, m = self.B.shape
-        X, U, lam = np.empty((N + 1, n)), np.empty((N, m)), np.empty((N + 1, n))
+        X, U, lam = (np.empty((N + 1, n)), np.empty((N, m)), np.empty((N + 1, n))) if out is None else out
         none, noneN, x0, nu = _empty_parts(N, n)
         # q as it is: the plain recursion's solve reads the right-hand side only
         self.kkt.solve_into((np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(r, dtype=float),
@@ -348,10 +349,11 @@ def _kernels():
     return _KERNEL_MODULE
 
 
-def stage_blocks(Hxx, Hxu, Huu, HN):
-    """Q (N+1, n, n) with the final block, S, R from the stage Hessian blocks."""
+def stage_blocks(Hxx, Hxu, Huu, HN, Q=None):
+    """Q (N+1, n, n) with the final block (into ``Q`` if given), S, R from the stage Hessian blocks."""
     N, n = Hxx.shape[0], Hxx.shape[1]
-    Q = np.empty((N + 1, n, n))
+    if Q is None:
+        Q = np.empty((N + 1, n, n))
     Q[:N] = Hxx
     Q[N] = HN
     return Q, np.ascontiguousarray(Hxu), np.ascontiguousarray(Huu)

@@ -157,6 +157,51 @@ class Setup:
         self.on_mu_change = None
         #: the last Newton matrix (newton_system): the next one takes its back-end over
         self.last_kkt = None
+        #: the arrays the common iteration writes, allocated once
+        self.ws = Workspace(self.layout)
+
+
+class Workspace:
+    """The arrays an iteration writes and nothing keeps past it, allocated once per solve and
+    reused: the Newton matrix's Sigma blocks and the barrier gradient (:func:`newton_system`), the
+    Newton step and dv of the direction (:func:`direction`), the stage products of the error pass
+    (:func:`iterate_errors`, :func:`error_inputs`) and the Hessian blocks Q, which the previous
+    Newton matrix held until it let them go (KKTMatrix.release_blocks). The watchdog keeps an
+    iteration's search past it: :meth:`detach` then leaves those arrays to it, and the next
+    iteration allocates its own."""
+
+    def __init__(self, layout):
+        L = self.layout = layout
+        self.EA, self.EB = np.empty((L.N, L.n)), np.empty((L.N, L.m))
+        self.detach()
+
+    def detach(self):
+        """Forget the Newton and step arrays and Q (their holder keeps them); new ones on next use."""
+        self._newton = self._step = self.Q = self.Q_owner = None
+
+    def newton(self):
+        """(Sx (N+1, n), Su (N, m), Ss (N, ni), SsN (niN,), q (N+1, n), r (N, m), gs (N, ni), gsN (niN,), grad)."""
+        if self._newton is None:
+            L = self.layout
+            self._newton = (np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N, L.ni)), np.empty(L.niN),
+                            np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N, L.ni)), np.empty(L.niN),
+                            np.empty(L.size))
+        return self._newton
+
+    def step(self):
+        """((dX (N+1, n), dU (N, m), lam (N+1, n)), dv): the Newton step's output arrays and dv."""
+        if self._step is None:
+            L = self.layout
+            self._step = (np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N + 1, L.n))), np.empty(L.size)
+        return self._step
+
+    def hessian_blocks(self, prev, shape):
+        """Q of the shape for the next Newton matrix: the one ``prev`` (the previous matrix, released)
+        held, or a new one."""
+        Q = self.Q
+        if Q is None or prev is None or self.Q_owner is not prev or Q.shape != shape:
+            Q = self.Q = np.empty(shape)
+        return Q
 
 
 # ---------------------------------------------------------------------------- evaluations
@@ -262,8 +307,7 @@ def iterate_errors(setup, st, mu=None):
     lam = st.lam[1:]
     products = _plain_products(pt.A, pt.B, lam)
     if products:
-        N, n, m = pt.B.shape
-        EA, EB = np.empty((N, n)), np.empty((N, m))
+        EA, EB = setup.ws.EA, setup.ws.EB       # scratch of the compiled pass
     else:
         EA, EB = np.einsum("kij,ki->kj", pt.A, lam), np.einsum("kij,ki->kj", pt.B, lam)
     ECx, ECu, CNL = _row_products(setup, st, EA, EB)
@@ -304,8 +348,7 @@ def error_inputs(setup, st):
     pt, p = st.pt, setup.problem
     if not st.lam.size or not _plain_products(pt.A, pt.B, st.lam):
         return None
-    N, n, m = pt.B.shape
-    EA, EB = np.empty((N, n)), np.empty((N, m))
+    EA, EB = setup.ws.EA, setup.ws.EB           # scratch of the compiled pass
     ECx, ECu, CNL = _row_products(setup, st, EA, EB)
     return (float(st.s_obj), pt.lx, pt.lu, pt.lN, pt.A, pt.B, EA, EB, ECx, ECu, CNL, bool(p.r), bool(p.rN), st.yd,
             st.ydN, st.nu, st.nuN)
@@ -442,13 +485,17 @@ def newton_system(setup, st, gradient=False):
     Hxx, Hxu, Huu = p.eval_stage_hessians(pt.X, pt.U, st.s_obj, st.lam[1:], Lg)
     HN = p.eval_final_hessian(pt.X[-1], st.s_obj, LgN)
     st.clock.add(("hessian",), t0)
-    Q, S, R = stage_blocks(Hxx, Hxu, Huu, HN)
-    del Hxx                     # copied into Q: not kept through the factorization
-    if gradient:
-        Sx, Su, Ss, SsN, g = _newton_terms(setup, st)
+    ws = setup.ws
+    Q = ws.hessian_blocks(prev, (L.N + 1, L.n, L.n))
+    if gradient:     # Q's copies in the same compiled pass
+        Sx, Su, Ss, SsN, g = _newton_terms(setup, st, Hxx, HN, Q)
+        S, R = np.ascontiguousarray(Hxu), np.ascontiguousarray(Huu)
     else:
+        Q, S, R = stage_blocks(Hxx, Hxu, Huu, HN, Q)
         Sx, Su, Ss, SsN = setup.bounds.sigma_blocks(st.v, st.zl, st.zu, L)
-    kkt = setup.last_kkt = KKTMatrix(Q, S, R, pt.A, pt.B, Sx, Su, constraint_blocks(setup, pt, Ss, SsN), reuse=prev)
+    del Hxx                     # copied into Q: not kept through the factorization
+    kkt = setup.last_kkt = ws.Q_owner = KKTMatrix(Q, S, R, pt.A, pt.B, Sx, Su, constraint_blocks(setup, pt, Ss, SsN),
+                                                  reuse=prev)
     delta = kkt.factor(st.delta_last)
     st.factorizations += kkt.factorizations
     if delta is None:
@@ -459,17 +506,16 @@ def newton_system(setup, st, gradient=False):
     return (kkt, g) if gradient else kkt
 
 
-def _newton_terms(setup, st):
-    """(Sx, Su, Ss, SsN) of Bounds.sigma_blocks and :func:`barrier_gradient` at the iterate, in one
-    compiled pass (kernels.newton_terms: the two kernels in turn)."""
-    L, b, pt, mu = setup.layout, setup.bounds, st.pt, st.mu
+def _newton_terms(setup, st, Hxx, HN, Q):
+    """(Sx, Su, Ss, SsN) of Bounds.sigma_blocks and :func:`barrier_gradient` at the iterate, with
+    Q[:N] = Hxx, Q[N] = HN (newton.stage_blocks' copies), in one compiled pass (kernels.newton_terms:
+    the copies and the two kernels in turn), into the workspace's arrays."""
+    b, pt, mu = setup.bounds, st.pt, st.mu
     sl, su = b.slacks(st.v)
-    sig = np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N, L.ni)), np.empty(L.niN)
-    q, r = np.empty((L.N + 1, L.n)), np.empty((L.N, L.m))
-    gs, gsN, grad = np.empty((L.N, L.ni)), np.empty(L.niN), np.empty(L.size)
-    _kernels().newton_terms(float(st.s_obj), pt.lx, pt.lN, pt.lu, sl, su, st.zl, st.zu, b.has_lo, b.has_hi, mu,
-                            KAPPA_D * mu, *sig, q, r, gs, gsN, grad)
-    return (*sig, Direction(q, r, gs, gsN, grad))
+    Sx, Su, Ss, SsN, q, r, gs, gsN, grad = setup.ws.newton()
+    _kernels().newton_terms(Hxx, HN, Q, float(st.s_obj), pt.lx, pt.lN, pt.lu, sl, su, st.zl, st.zu, b.has_lo,
+                            b.has_hi, mu, KAPPA_D * mu, Sx, Su, Ss, SsN, q, r, gs, gsN, grad)
+    return Sx, Su, Ss, SsN, Direction(q, r, gs, gsN, grad)
 
 
 def update_barrier(setup, st):
@@ -634,9 +680,10 @@ WATCHED = ("v", "pt", "lam", "nu", "nuN", "yd", "ydN", "zl", "zu", "mu", "tau")
 def direction(setup, st, kkt, g) -> Search:
     """The Newton direction at the iterate and its line-search quantities."""
     res = residuals(setup, st.pt, st.v)
-    step = kkt.solve(g.q, g.r, res, g.gs, g.gsN)
+    out, dv = setup.ws.step()
+    step = kkt.solve(g.q, g.r, res, g.gs, g.gsN, out=out)
     # step_vector, Bounds.max_step and the tiny-step measure in one compiled pass
-    dv, alpha_max, tiny = setup.bounds.step_terms(st.v, step, st.tau)
+    dv, alpha_max, tiny = setup.bounds.step_terms(st.v, step, st.tau, dv)
     phi = barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0]
     return Search(kkt, g, res, step, dv, dot(g.grad, dv), theta(setup, st.pt, st.v), phi, alpha_max, tiny)
 
@@ -653,6 +700,7 @@ def line_search(setup, st, kkt, g):
             return v_t, pt_t, d.dv, d.step, d.alpha_max, 0
     if st.watch is None and o.watchdog_shortened_iter_trigger and st.shortened >= o.watchdog_shortened_iter_trigger:
         st.watch = Watchdog({k: getattr(st, k) for k in WATCHED}, d)
+        setup.ws.detach()           # the watchdog keeps the search's arrays
         st.shortened = 0
         step = _watchdog_step(setup, st, d)
         if step is not None:
@@ -813,6 +861,7 @@ def iterate(setup, st):
                else "the filter line search reached alpha_min")
         st.filt.add(theta(setup, st.pt, st.v), barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0])
         st.restorations += 1
+        setup.ws.detach()           # nothing of the iteration's arrays is reused across the phase
         fns = Restoration(evaluate, theta, barrier_value, residuals, lagrangian_gradient)
         # the entry of the phase's start (IPOPT's "r" line: the point where it starts); the l1
         # phase appends one entry per iteration of the restoration problem after it

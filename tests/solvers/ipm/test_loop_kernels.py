@@ -180,7 +180,7 @@ def _reference_trial(setup, st, dv, alpha):
 
 
 @np.errstate(all="ignore")
-def _reference_step_terms(self, v, step, tau):
+def _reference_step_terms(self, v, step, tau, dv=None):
     dv = np.concatenate([step.dX[1:].ravel(), step.dU.ravel(), np.asarray(step.ds, float).ravel(),
                          np.asarray(step.dsN, float).ravel()])
     return dv, ref_max_step(self, v, dv, tau), float(np.max(np.abs(dv) / (1 + np.abs(v)), initial=0.0))
@@ -221,7 +221,8 @@ def _reference_iterate_errors(setup, st, mu=None):
     return (float(mx), float(zsum), float(ysum)), compl
 
 
-def _reference_newton_terms(setup, st):
+def _reference_newton_terms(setup, st, Hxx, HN, Q):
+    Q[:-1], Q[-1] = Hxx, HN     # newton.stage_blocks' copies
     return (*setup.bounds.sigma_blocks(st.v, st.zl, st.zu, setup.layout), S.barrier_gradient(setup, st))
 
 
