@@ -22,12 +22,6 @@ NO_RESIDUALS = (np.zeros((0, 0)), np.zeros((0, 0)), np.zeros(0), np.zeros((0, 0)
 NO_POINT = (np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0, dtype=bool), np.zeros(0, dtype=bool), np.zeros(0),
             np.zeros(0), np.zeros(0))
 
-#: the error pass's inputs (s_obj, lx, lu, lN, A, B, EA, EB, ECx, ECu, CNL, has_r, has_rN, yd, ydN, nu, nuN) of a
-#: multiplier step without it (Bounds.step_multipliers): arrays of their dimensions, not read
-NO_ERRORS = (0.0, np.zeros((0, 0)), np.zeros((0, 0)), np.zeros(0), np.zeros((0, 0, 0)), np.zeros((0, 0, 0)),
-             np.zeros((0, 0)), np.zeros((0, 0)), np.zeros((0, 0)), np.zeros((0, 0)), np.zeros(0), False, False,
-             np.zeros((0, 0)), np.zeros(0), np.zeros((0, 0)), np.zeros(0))
-
 
 def dot(a, b):
     """a.b of two long flat vectors without BLAS: numpy's threaded ddot spins its threads on a
@@ -279,27 +273,25 @@ class Bounds:
                                                 self.has_hi, -tau, tau, dv)
         return dv, alpha_max, tiny
 
-    def step_multipliers(self, slacks, v_new, dv, zl, zu, mu, tau, lam, lam_step, alpha, kappa_sigma=1e10, errors=None):
+    def step_multipliers(self, slacks, v_new, dv, zl, zu, mu, tau, lam, lam_step, alpha, kappa_sigma=1e10):
         """The multipliers after a step from the point of ``slacks`` (its :meth:`slacks`) to v_new
         along dv: the bound multipliers by :meth:`dual_step_length`, :meth:`move_tiny` at v_new,
         then :meth:`safeguard_step` there, and lam + alpha (lam_step - lam) (the dynamics
-        multipliers' step), in one compiled pass (kernels.step_bound_multipliers). ``errors``: the
-        inputs of the optimality error's pass at the new iterate (solver.ErrorInputs), taken in the
-        same call. Returns (z_L, z_U, alpha_z, the new lam, the error pass's figures or None); the
-        slacks at v_new are cached with it."""
+        multipliers' step), in one compiled pass (kernels.step_bound_multipliers). Returns (z_L,
+        z_U, alpha_z, the new lam); the slacks at v_new are cached with it."""
         sl, su = slacks
         sl_new, su_new, zl_new, zu_new = (np.empty_like(v_new) for _ in range(4))
         lam_new = np.empty(lam.shape)
-        out = _kernels().step_bound_multipliers(sl, su, v_new, dv, self.lo, self.hi, self.has_lo, self.has_hi, zl, zu,
-                                                mu, -tau, EPS, EPS ** 0.75, kappa_sigma, kappa_sigma * mu, sl_new,
-                                                su_new, zl_new, zu_new, lam, lam_step, alpha, lam_new,
-                                                errors is not None, *(NO_ERRORS if errors is None else errors))
-        if out[1]:
+        alpha_z, moved = _kernels().step_bound_multipliers(sl, su, v_new, dv, self.lo, self.hi, self.has_lo,
+                                                           self.has_hi, zl, zu, mu, -tau, EPS, EPS ** 0.75,
+                                                           kappa_sigma, kappa_sigma * mu, sl_new, su_new, zl_new,
+                                                           zu_new, lam, lam_step, alpha, lam_new)
+        if moved:
             self._points = []          # the slacks changed with the bounds
         e = self.at(v_new)
         if e.slacks is None:
             e.slacks = sl_new, su_new
-        return zl_new, zu_new, out[0], lam_new, None if errors is None else out[2:]
+        return zl_new, zu_new, alpha_z, lam_new
 
     def dual_step_length(self, v, dv, zl, zu, mu, tau):
         """(dz_L, dz_U, alpha_z): :meth:`dual_step` and the smaller of the two sides'

@@ -425,6 +425,27 @@ def step_terms(dX, dU, ds, dsN, v, sl, su, has_lo, has_hi, neg_tau, tau, dv):
 
 
 @nb.njit(**_JIT)
+def step_bound_multipliers(sl, su, v_new, dv, lo, hi, has_lo, has_hi, zl, zu, mu, neg_tau, eps, move, kappa_sigma,
+                           ks_mu, sl_new, su_new, zl_new, zu_new, lam, lam_step, alpha, lam_new):
+    """The bound side of solver.take_step in one call: ``dual_step_lengths`` at the old slacks
+    (sl, su; the steps dz held in zl_new, zu_new), alpha_z = min(min(1, r_l), min(1, r_u)) (Python's
+    min, as barrier.Bounds.dual_step_length), ``move_tiny`` at v_new (lo, hi in place), the slacks
+    at v_new (after the move) into sl_new, su_new and ``safeguard_step`` of z + alpha_z dz there
+    into zl_new, zu_new; and the dynamics multipliers' step lam_new = lam + alpha (lam_step - lam)
+    (the numpy expression's operations). Returns (alpha_z, the number of bound sides moved)."""
+    lf, sf, nf = lam.ravel(), lam_step.ravel(), lam_new.ravel()
+    for i in range(nf.size):
+        nf[i] = lf[i] + alpha * (sf[i] - lf[i])
+    r_l, r_u = dual_step_lengths(sl, su, zl, zu, dv, has_lo, has_hi, mu, neg_tau, zl_new, zu_new)
+    alpha_z = _py_min(_py_min(1.0, r_l), _py_min(1.0, r_u))
+    moved = move_tiny(v_new, lo, hi, has_lo, has_hi, eps, move)
+    slacks(v_new, lo, hi, has_lo, has_hi, sl_new, su_new)
+    safeguard_step(sl_new, su_new, zl, zu, zl_new, zu_new, alpha_z, has_lo, has_hi, mu, kappa_sigma, ks_mu,
+                   zl_new, zu_new)
+    return alpha_z, moved
+
+
+@nb.njit(**_JIT)
 def shifted_diagonals(Sx, Su, delta, Dx, Du):
     """The diagonals of newton.KKTMatrix with the shift delta: Dx = Sx + delta with Dx[0] = 0,
     Du = Su + delta (np.add's sums)."""
@@ -475,48 +496,8 @@ def error_pass(s_obj, lx, lu, lN, A, B, EA, EB, products, lam, ECx, ECu, CNL, ha
 
 
 @nb.njit(**_JIT)
-def step_bound_multipliers(sl, su, v_new, dv, lo, hi, has_lo, has_hi, zl, zu, mu, neg_tau, eps, move, kappa_sigma,
-                           ks_mu, sl_new, su_new, zl_new, zu_new, lam, lam_step, alpha, lam_new, errors, s_obj, lx, lu,
-                           lN, A, B, EA, EB, ECx, ECu, CNL, has_r, has_rN, yd, ydN, nu, nuN):
-    """The bound side of solver.take_step in one call: ``dual_step_lengths`` at the old slacks
-    (sl, su; the steps dz held in zl_new, zu_new), alpha_z = min(min(1, r_l), min(1, r_u)) (Python's
-    min, as barrier.Bounds.dual_step_length), ``move_tiny`` at v_new (lo, hi in place), the slacks
-    at v_new (after the move) into sl_new, su_new and ``safeguard_step`` of z + alpha_z dz there
-    into zl_new, zu_new; and the dynamics multipliers' step lam_new = lam + alpha (lam_step - lam)
-    (the numpy expression's operations). With ``errors``: then ``error_pass`` at the new iterate
-    (products of lam_new[1:], its complementarity at mu = 0 and mu), the optimality error's pass the
-    next iteration's stopping test asks for (solver.iterate_errors with the same arrays). Returns
-    (alpha_z, the number of bound sides moved, and error_pass's nine figures, zeros without)."""
-    lf, sf, nf = lam.ravel(), lam_step.ravel(), lam_new.ravel()
-    for i in range(nf.size):
-        nf[i] = lf[i] + alpha * (sf[i] - lf[i])
-    r_l, r_u = dual_step_lengths(sl, su, zl, zu, dv, has_lo, has_hi, mu, neg_tau, zl_new, zu_new)
-    alpha_z = _py_min(_py_min(1.0, r_l), _py_min(1.0, r_u))
-    moved = move_tiny(v_new, lo, hi, has_lo, has_hi, eps, move)
-    slacks(v_new, lo, hi, has_lo, has_hi, sl_new, su_new)
-    safeguard_step(sl_new, su_new, zl, zu, zl_new, zu_new, alpha_z, has_lo, has_hi, mu, kappa_sigma, ks_mu,
-                   zl_new, zu_new)
-    if not errors:
-        return alpha_z, moved, 0.0, 0.0, 0.0, 0, 0.0, 0.0, 0, 0.0, 0.0
-    mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1 = error_pass(
-        s_obj, lx, lu, lN, A, B, EA, EB, True, lam_new[1:], ECx, ECu, CNL, has_r, has_rN, yd, ydN, zl_new, zu_new, nu,
-        nuN, sl_new, su_new, has_lo, has_hi, 0.0, mu)
-    return alpha_z, moved, mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1
-
-
-@nb.njit(**_JIT)
-def newton_terms(Hxx, HN, Q, s_obj, lx, lN, lu, sl, su, zl, zu, has_lo, has_hi, mu, kd_mu, Sx, Su, Ss, SsN, q, r, gs,
-                 gsN, grad):
-    """The Newton matrix's blocks and terms at an iterate in one call (solver.newton_system with the
-    gradient): Q[:N] = Hxx, Q[N] = HN (newton.stage_blocks' copies), ``sigma_blocks`` (the matrix's
-    Sigma) and ``barrier_direction`` (the right-hand side)."""
-    N = Hxx.shape[0]
-    for k in range(N):
-        for i in range(Hxx.shape[1]):
-            for j in range(Hxx.shape[2]):
-                Q[k, i, j] = Hxx[k, i, j]
-    for i in range(HN.shape[0]):
-        for j in range(HN.shape[1]):
-            Q[N, i, j] = HN[i, j]
+def newton_terms(s_obj, lx, lN, lu, sl, su, zl, zu, has_lo, has_hi, mu, kd_mu, Sx, Su, Ss, SsN, q, r, gs, gsN, grad):
+    """``sigma_blocks`` and ``barrier_direction`` at an iterate in one call (solver.newton_system
+    with the gradient: the Newton matrix's Sigma and the right-hand side)."""
     sigma_blocks(sl, su, zl, zu, Sx, Su, Ss, SsN)
     barrier_direction(s_obj, lx, lN, lu, sl, su, has_lo, has_hi, mu, kd_mu, q, r, gs, gsN, grad)

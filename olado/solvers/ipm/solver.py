@@ -165,7 +165,7 @@ class Workspace:
     """The arrays an iteration writes and nothing keeps past it, allocated once per solve and
     reused: the Newton matrix's Sigma blocks and the barrier gradient (:func:`newton_system`), the
     Newton step and dv of the direction (:func:`direction`), the stage products of the error pass
-    (:func:`iterate_errors`, :func:`error_inputs`) and the Hessian blocks Q, which the previous
+    (:func:`iterate_errors`) and the Hessian blocks Q, which the previous
     Newton matrix held until it let them go (KKTMatrix.release_blocks). The watchdog keeps an
     iteration's search past it: :meth:`detach` then leaves those arrays to it, and the next
     iteration allocates its own."""
@@ -316,11 +316,6 @@ def iterate_errors(setup, st, mu=None):
     mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1 = _kernels().error_pass(
         float(st.s_obj), pt.lx, pt.lu, pt.lN, pt.A, pt.B, EA, EB, products, lam, ECx, ECu, CNL, bool(p.r), bool(p.rN),
         st.yd, st.ydN, st.zl, st.zu, st.nu, st.nuN, sl, su, b.has_lo, b.has_hi, 0.0, float(st.mu if mu is None else mu))
-    return _error_figures(mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1)
-
-
-def _error_figures(mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1):
-    """:func:`iterate_errors`' result from kernels.error_pass's nine figures."""
     return ((float(mx), float(zsum), float(ysum)),
             (_sides_max(n_lo, m_lo, n_hi, m_hi), _sides_max(n_lo, m_lo1, n_hi, m_hi1)))
 
@@ -337,21 +332,6 @@ def _row_products(setup, st, EA, EB):
         if p.rN:
             CNL = pt.CN.T @ LgN
     return ECx, ECu, CNL
-
-
-def error_inputs(setup, st):
-    """The inputs of the optimality error's pass (kernels.error_pass) at the iterate st is
-    becoming in :func:`take_step` -- its point (with derivatives) and constraint multipliers
-    already set, lam and the bound multipliers still to be stepped -- for the step's own compiled
-    pass (Bounds.step_multipliers); None where the stage products are einsum's (:func:`_plain_products`:
-    the new lam is C-contiguous float64) or lam is empty: :func:`error_terms` computes them then."""
-    pt, p = st.pt, setup.problem
-    if not st.lam.size or not _plain_products(pt.A, pt.B, st.lam):
-        return None
-    EA, EB = setup.ws.EA, setup.ws.EB           # scratch of the compiled pass
-    ECx, ECu, CNL = _row_products(setup, st, EA, EB)
-    return (float(st.s_obj), pt.lx, pt.lu, pt.lN, pt.A, pt.B, EA, EB, ECx, ECu, CNL, bool(p.r), bool(p.rN), st.yd,
-            st.ydN, st.nu, st.nuN)
 
 
 def _plain_products(A, B, lam):
@@ -487,11 +467,10 @@ def newton_system(setup, st, gradient=False):
     st.clock.add(("hessian",), t0)
     ws = setup.ws
     Q = ws.hessian_blocks(prev, (L.N + 1, L.n, L.n))
-    if gradient:     # Q's copies in the same compiled pass
-        Sx, Su, Ss, SsN, g = _newton_terms(setup, st, Hxx, HN, Q)
-        S, R = np.ascontiguousarray(Hxu), np.ascontiguousarray(Huu)
+    Q, S, R = stage_blocks(Hxx, Hxu, Huu, HN, Q)
+    if gradient:
+        Sx, Su, Ss, SsN, g = _newton_terms(setup, st)
     else:
-        Q, S, R = stage_blocks(Hxx, Hxu, Huu, HN, Q)
         Sx, Su, Ss, SsN = setup.bounds.sigma_blocks(st.v, st.zl, st.zu, L)
     del Hxx                     # copied into Q: not kept through the factorization
     kkt = setup.last_kkt = ws.Q_owner = KKTMatrix(Q, S, R, pt.A, pt.B, Sx, Su, constraint_blocks(setup, pt, Ss, SsN),
@@ -506,14 +485,13 @@ def newton_system(setup, st, gradient=False):
     return (kkt, g) if gradient else kkt
 
 
-def _newton_terms(setup, st, Hxx, HN, Q):
-    """(Sx, Su, Ss, SsN) of Bounds.sigma_blocks and :func:`barrier_gradient` at the iterate, with
-    Q[:N] = Hxx, Q[N] = HN (newton.stage_blocks' copies), in one compiled pass (kernels.newton_terms:
-    the copies and the two kernels in turn), into the workspace's arrays."""
+def _newton_terms(setup, st):
+    """(Sx, Su, Ss, SsN) of Bounds.sigma_blocks and :func:`barrier_gradient` at the iterate, in one
+    compiled pass (kernels.newton_terms: the two kernels in turn), into the workspace's arrays."""
     b, pt, mu = setup.bounds, st.pt, st.mu
     sl, su = b.slacks(st.v)
     Sx, Su, Ss, SsN, q, r, gs, gsN, grad = setup.ws.newton()
-    _kernels().newton_terms(Hxx, HN, Q, float(st.s_obj), pt.lx, pt.lN, pt.lu, sl, su, st.zl, st.zu, b.has_lo,
+    _kernels().newton_terms(float(st.s_obj), pt.lx, pt.lN, pt.lu, sl, su, st.zl, st.zu, b.has_lo,
                             b.has_hi, mu, KAPPA_D * mu, Sx, Su, Ss, SsN, q, r, gs, gsN, grad)
     return Sx, Su, Ss, SsN, Direction(q, r, gs, gsN, grad)
 
@@ -813,13 +791,13 @@ def take_step(setup, st, accepted):
     # lam + alpha (lam^+ - lam), dz and the step of both sides (dz = 0 off the bounds:
     # Bounds.dual_step_length), the bounds moved (Bounds.move_tiny) and the safeguard
     # (Bounds.safeguard_step) in one compiled pass
-    # (with the optimality error's pass at the new iterate: the next stopping test's, error_terms)
-    st.zl, st.zu, alpha_z, lam, figures = b.step_multipliers(slacks, v_new, dv, st.zl, st.zu, st.mu, st.tau, st.lam,
-                                                             step.lam, alpha, errors=error_inputs(setup, st))
+    st.zl, st.zu, alpha_z, lam = b.step_multipliers(slacks, v_new, dv, st.zl, st.zu, st.mu, st.tau, st.lam, step.lam,
+                                                    alpha)
     if lam.size:                # an empty one stays
         st.lam = lam
-    if figures is not None:
-        store_errors(setup, st, _error_figures(*figures))
+    # the optimality error's pass at the new iterate now (the next stopping test's: error_terms
+    # finds it), while its arrays are in cache
+    store_errors(setup, st, iterate_errors(setup, st))
     return alpha, alpha_z, soc
 
 
@@ -874,11 +852,12 @@ def iterate(setup, st):
         alpha, alpha_z, soc = take_step(setup, st, accepted)
         entry.update(alpha=alpha, alpha_z=alpha_z, soc=soc, restoration=False, objective=float(st.pt.J))
         st.history.append(entry)
-    if setup.options.verbose >= 2:
+    if o.verbose >= 2:
         print(f"{st.it:4d} {st.pt.J: .10e} {st.errors[2]:.2e} {st.errors[1]:.2e} mu={st.mu:.1e} "
               f"dw={st.delta:.1e} a={entry['alpha']:.2e}{' soc' if entry['soc'] else ''}"
               f"{' resto' if entry['restoration'] else ''}")
-    if setup.callback(dict(entry)):
+    # (without a callback option the solver's callback says False: no copy of the entry for it)
+    if o.callback is not None and setup.callback(dict(entry)):
         return st.stop(Status.USER_STOP, f"stopped by the callback after {st.it} iterations")
     return False
 

@@ -154,9 +154,8 @@ def test_step_bound_multipliers_are_the_separate_steps(shape, seed):
             for x, y in zip(want, ref_safeguard(ref, v_new, zl + alpha_z * rl, zu + alpha_z * ru, mu)):
                 assert _same(x, y)
             lam, lam_step = rng.normal(size=(L.N + 1, L.n)), _special_nd(rng, rng.normal(size=(L.N + 1, L.n)))
-            got_l, got_u, got_a, got_lam, figures = b.step_multipliers(b.slacks(v), v_new, dv, zl, zu, mu, tau, lam,
-                                                                       lam_step, 0.3)
-            assert figures is None
+            got_l, got_u, got_a, got_lam = b.step_multipliers(b.slacks(v), v_new, dv, zl, zu, mu, tau, lam, lam_step,
+                                                              0.3)
             assert _same(got_lam, lam + 0.3 * (lam_step - lam))
         assert _same_float(got_a, alpha_z)
         assert _same(got_l, want[0]) and _same(got_u, want[1])
@@ -187,15 +186,14 @@ def _reference_step_terms(self, v, step, tau, dv=None):
 
 
 @np.errstate(all="ignore")
-def _reference_step_multipliers(self, slacks, v_new, dv, zl, zu, mu, tau, lam, lam_step, alpha, kappa_sigma=1e10,
-                                errors=None):
+def _reference_step_multipliers(self, slacks, v_new, dv, zl, zu, mu, tau, lam, lam_step, alpha, kappa_sigma=1e10):
     sl, su = slacks
     rl = np.where(self.has_lo, mu / sl - zl - zl / sl * dv, 0.0)
     ru = np.where(self.has_hi, mu / su - zu + zu / su * dv, 0.0)
     alpha_z = min(ref_max_dual_step(zl, rl, tau), ref_max_dual_step(zu, ru, tau))
     self.move_tiny(v_new)
     out = ref_safeguard(self, v_new, zl + alpha_z * rl, zu + alpha_z * ru, mu, kappa_sigma)
-    return out[0], out[1], alpha_z, lam + alpha * (lam_step - lam), None   # the error pass: error_terms's own
+    return out[0], out[1], alpha_z, lam + alpha * (lam_step - lam)
 
 
 def _reference_iterate_errors(setup, st, mu=None):
@@ -221,8 +219,7 @@ def _reference_iterate_errors(setup, st, mu=None):
     return (float(mx), float(zsum), float(ysum)), compl
 
 
-def _reference_newton_terms(setup, st, Hxx, HN, Q):
-    Q[:-1], Q[-1] = Hxx, HN     # newton.stage_blocks' copies
+def _reference_newton_terms(setup, st):
     return (*setup.bounds.sigma_blocks(st.v, st.zl, st.zu, setup.layout), S.barrier_gradient(setup, st))
 
 
