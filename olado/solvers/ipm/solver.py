@@ -177,7 +177,7 @@ class Workspace:
 
     def detach(self):
         """Forget the Newton and step arrays and Q (their holder keeps them); new ones on next use."""
-        self._newton = self._step = self.Q = self.Q_owner = None
+        self._newton = self._step = self.Q = self.Q_owner = self.no_rows = None
 
     def newton(self):
         """(Sx (N+1, n), Su (N, m), Ss (N, ni), SsN (niN,), q (N+1, n), r (N, m), gs (N, ni), gsN (niN,), grad)."""
@@ -439,8 +439,11 @@ def initial_state(setup, X0, U0, clock):
 def constraint_blocks(setup, pt, Ss, SsN):
     """The iteration's :class:`Constraints` from the constraint Jacobians at pt."""
     L = setup.layout
-    if not L.rows:
-        return Constraints(*L.no_constraint_rows, Ss, SsN)
+    if not L.rows:      # the same object while Sigma's slack blocks are the workspace's
+        cons = setup.ws.no_rows
+        if cons is None or cons.Ss is not Ss or cons.SsN is not SsN:
+            cons = setup.ws.no_rows = Constraints(*L.no_constraint_rows, Ss, SsN)
+        return cons
     Ci = np.ascontiguousarray(np.concatenate([pt.Cx[:, L.ineq], pt.Cu[:, L.ineq]], axis=2))
     return Constraints(np.ascontiguousarray(pt.Cx[:, L.eq]), np.ascontiguousarray(pt.Cu[:, L.eq]),
                        np.ascontiguousarray(pt.CN[L.eqN]), Ci, np.ascontiguousarray(pt.CN[L.ineqN]), Ss, SsN)
