@@ -163,6 +163,9 @@ class Bounds:
     def slacks(self, v):
         """(s_L, s_U), 1 where a side is infinite (they carry no multiplier). Cached per point:
         read them, never write into them."""
+        points = self._points
+        if points and points[0].v is v and points[0].slacks is not None:    # at()'s first entry, inline
+            return points[0].slacks
         e = self.at(v)
         if e.slacks is None:
             e.slacks = np.empty_like(v), np.empty_like(v)
