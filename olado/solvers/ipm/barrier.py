@@ -160,6 +160,10 @@ class Bounds:
             self._points = []          # the slacks changed with the bounds
         return moved
 
+    def forget(self, v):
+        """Drop what was computed at ``v`` (its array is about to hold another point)."""
+        self._points = [e for e in self._points if e.v is not v]
+
     def slacks(self, v):
         """(s_L, s_U), 1 where a side is infinite (they carry no multiplier). Cached per point:
         read them, never write into them."""
@@ -276,15 +280,19 @@ class Bounds:
                                                 self.has_hi, -tau, tau, dv)
         return dv, alpha_max, tiny
 
-    def step_multipliers(self, slacks, v_new, dv, zl, zu, mu, tau, lam, lam_step, alpha, kappa_sigma=1e10):
+    def step_multipliers(self, slacks, v_new, dv, zl, zu, mu, tau, lam, lam_step, alpha, kappa_sigma=1e10, out=None):
         """The multipliers after a step from the point of ``slacks`` (its :meth:`slacks`) to v_new
         along dv: the bound multipliers by :meth:`dual_step_length`, :meth:`move_tiny` at v_new,
         then :meth:`safeguard_step` there, and lam + alpha (lam_step - lam) (the dynamics
         multipliers' step), in one compiled pass (kernels.step_bound_multipliers). Returns (z_L,
-        z_U, alpha_z, the new lam); the slacks at v_new are cached with it."""
+        z_U, alpha_z, the new lam); the slacks at v_new are cached with it. ``out``: the arrays
+        (s_L, s_U, z_L, z_U, lam) to write into (none of them an input), else new ones."""
         sl, su = slacks
-        sl_new, su_new, zl_new, zu_new = (np.empty_like(v_new) for _ in range(4))
-        lam_new = np.empty(lam.shape)
+        if out is None:
+            sl_new, su_new, zl_new, zu_new = (np.empty_like(v_new) for _ in range(4))
+            lam_new = np.empty(lam.shape)
+        else:
+            sl_new, su_new, zl_new, zu_new, lam_new = out
         alpha_z, moved = _kernels().step_bound_multipliers(sl, su, v_new, dv, self.lo, self.hi, self.has_lo,
                                                            self.has_hi, zl, zu, mu, -tau, EPS, EPS ** 0.75,
                                                            kappa_sigma, kappa_sigma * mu, sl_new, su_new, zl_new,
@@ -292,8 +300,8 @@ class Bounds:
         if moved:
             self._points = []          # the slacks changed with the bounds
         e = self.at(v_new)
-        if e.slacks is None:
-            e.slacks = sl_new, su_new
+        if e.slacks is None:        # (the caller's arrays are its own: copies are kept)
+            e.slacks = (sl_new, su_new) if out is None else (sl_new.copy(), su_new.copy())
         return zl_new, zu_new, alpha_z, lam_new
 
     def dual_step_length(self, v, dv, zl, zu, mu, tau):

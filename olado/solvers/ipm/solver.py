@@ -176,8 +176,34 @@ class Workspace:
         self.detach()
 
     def detach(self):
-        """Forget the Newton and step arrays and Q (their holder keeps them); new ones on next use."""
+        """Forget the Newton and step arrays, Q, the trial points' and the multipliers' arrays
+        (their holder keeps them); new ones on next use."""
         self._newton = self._step = self.Q = self.Q_owner = self.no_rows = None
+        self._trials, self._multipliers = [], []
+
+    def trial_arrays(self, v):
+        """(v_t, X (N+1, n), U (N, m)) for a trial point of the iterate v: of two sets, the one
+        that is not the iterate's (the other: the last accepted trial's, now the iterate). The
+        caller forgets what Bounds cached at v_t (barrier.Bounds.forget) before writing it."""
+        for t in self._trials:
+            if t[0] is not v:
+                return t
+        L = self.layout
+        t = (np.empty(L.size), np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)))
+        self._trials.append(t)
+        return t
+
+    def multiplier_arrays(self, st):
+        """(s_L, s_U, z_L, z_U, lam) for the multiplier step of take_step: of two sets, one whose
+        z_L, z_U, lam are not the iterate's (the step's inputs), else new ones."""
+        for m in self._multipliers:
+            if m[2] is not st.zl and m[3] is not st.zu and m[4] is not st.lam:
+                return m
+        L = self.layout
+        m = (np.empty(L.size), np.empty(L.size), np.empty(L.size), np.empty(L.size), np.empty(st.lam.shape))
+        if len(self._multipliers) < 2:
+            self._multipliers.append(m)
+        return m
 
     def newton(self):
         """(Sx (N+1, n), Su (N, m), Ss (N, ni), SsN (niN,), q (N+1, n), r (N, m), gs (N, ni), gsN (niN,), grad)."""
@@ -587,7 +613,8 @@ def _trial(setup, st, dv, alpha):
     (kernels.trial_point), the point evaluated as :func:`evaluate` does, its theta, max-norm
     (cached with its residuals) and phi in another (barrier.Bounds.point_terms)."""
     L = setup.layout
-    v_t, X, U = np.empty_like(st.v), np.empty((L.N + 1, L.n)), np.empty((L.N, L.m))
+    v_t, X, U = setup.ws.trial_arrays(st.v)
+    setup.bounds.forget(v_t)
     _kernels().trial_point(st.v, dv, alpha, L.x0, v_t, X, U)
     try:
         pt = Point(setup.problem, X, U, derivatives=False, clock=st.clock)
@@ -795,7 +822,7 @@ def take_step(setup, st, accepted):
     # Bounds.dual_step_length), the bounds moved (Bounds.move_tiny) and the safeguard
     # (Bounds.safeguard_step) in one compiled pass
     st.zl, st.zu, alpha_z, lam = b.step_multipliers(slacks, v_new, dv, st.zl, st.zu, st.mu, st.tau, st.lam, step.lam,
-                                                    alpha)
+                                                    alpha, out=setup.ws.multiplier_arrays(st))
     if lam.size:                # an empty one stays
         st.lam = lam
     # the optimality error's pass at the new iterate now (the next stopping test's: error_terms

@@ -186,7 +186,8 @@ def _reference_step_terms(self, v, step, tau, dv=None):
 
 
 @np.errstate(all="ignore")
-def _reference_step_multipliers(self, slacks, v_new, dv, zl, zu, mu, tau, lam, lam_step, alpha, kappa_sigma=1e10):
+def _reference_step_multipliers(self, slacks, v_new, dv, zl, zu, mu, tau, lam, lam_step, alpha, kappa_sigma=1e10,
+                                out=None):     # new arrays, not ``out``'s
     sl, su = slacks
     rl = np.where(self.has_lo, mu / sl - zl - zl / sl * dv, 0.0)
     ru = np.where(self.has_hi, mu / su - zu + zu / su * dv, 0.0)

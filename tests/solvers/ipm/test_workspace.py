@@ -30,6 +30,14 @@ class FreshWorkspace(S.Workspace):
         self.Q = None
         return super().hessian_blocks(prev, shape)
 
+    def trial_arrays(self, v):
+        self._trials = []
+        return super().trial_arrays(v)
+
+    def multiplier_arrays(self, st):
+        self._multipliers = []
+        return super().multiplier_arrays(st)
+
 
 def _history(result):
     keys = ("alpha", "alpha_z", "soc", "objective", "inf_pr", "inf_du", "mu", "delta_w", "restoration", "watchdog")
@@ -68,26 +76,37 @@ def test_the_common_iteration_reuses_the_workspace_arrays(monkeypatch):
     and Q are the same arrays; a watchdog start detaches them (the next ones are new)."""
     from olado.config import load_config, make_solver
 
-    seen = []
-    direction = S.direction
+    seen, iterates = [], []
+    direction, take_step = S.direction, S.take_step
 
     def spy(setup, st, kkt, g):
         d = direction(setup, st, kkt, g)
         seen.append((id(g.q), id(d.step.dX), id(d.dv), id(kkt.Q)))
         return d
 
+    def spy_step(setup, st, accepted):
+        out = take_step(setup, st, accepted)
+        iterates.append((id(st.v), id(st.pt.X), id(st.zl), id(st.lam)))
+        return out
+
     monkeypatch.setattr(S, "direction", spy)
+    monkeypatch.setattr(S, "take_step", spy_step)
     solver = make_solver(load_config("configs/ipm.ini"))
     result = solver.solve(zambezi_problem("zambezi12", N=24, start="balance"))
-    assert result.iterations == len(seen) > 5
+    assert result.iterations == len(seen) == len(iterates) > 5
     assert len({s[:3] for s in seen}) == 1                 # q, the step, dv: one set of arrays
     assert len({s[3] for s in seen[1:]}) == 1              # Q: the first matrix's from the second on
+    # the iterate's v, X, z_L, lam: two sets of arrays in turn
+    assert len(set(iterates)) == 2 and all(a != b for a, b in zip(iterates, iterates[1:]))
 
     ws = S.Workspace(S.Layout(zambezi_problem("zambezi12", N=24, start="balance")))
     q, step = ws.newton()[4], ws.step()
     assert ws.newton()[4] is q and ws.step() is step
+    v = np.zeros(ws.layout.size)
+    t = ws.trial_arrays(v)
+    assert ws.trial_arrays(v) is t and ws.trial_arrays(t[0]) is not t      # never the iterate's own
     ws.detach()
-    assert ws.newton()[4] is not q and ws.step()[1] is not step[1]
+    assert ws.newton()[4] is not q and ws.step()[1] is not step[1] and ws.trial_arrays(v) is not t
 
 
 def test_stage_blocks_into_a_given_q_are_the_new_arrays():
