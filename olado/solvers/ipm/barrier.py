@@ -207,13 +207,16 @@ class Bounds:
             damped = dot(self.one_lo_f, sl) + dot(self.one_hi_f, su) if self.one_sided else 0.0
             e.terms = (logs, damped)
 
-    def point_terms(self, v, res, mu):
+    def point_terms(self, v, res, mu, slacks=None):
         """(l1, max) of the residual arrays ``res`` (newton.Residuals) and :meth:`barrier_value`
         at v (the barrier terms cached with the point, as :meth:`barrier_terms`), in one compiled
-        pass (kernels.point_terms) for a new point -- the line search's trial point."""
+        pass (kernels.point_terms) for a new point -- the line search's trial point. ``slacks``:
+        the arrays (s_L, s_U) the point's slacks are written into and kept in (else new ones)."""
         e = self.at(v)
         if e.terms is not None:
             return (*res.norms(), self.barrier_value(v, mu))
+        if e.slacks is None and slacks is not None:
+            e.slacks = slacks
         self._prepare(e, v)
         l1, mx, inside, logs = _kernels().point_terms(v, self.lo, self.hi, self.has_lo, self.has_hi, *e.slacks,
                                                       self._work, *res)

@@ -148,8 +148,9 @@ class KKTMatrix:
         N, n, m = self.B.shape
         if self.cons is None:
             self.cons = Constraints.none(N, n, m)
-        self.QN = self.Q[N].copy()
         c = self.cons
+        #: Q[N] without the final rows' slack weights (:meth:`_final_block`; without final rows Q[N] stays)
+        self.QN = self.Q[N].copy() if c.CNi.shape[0] else None
         #: the dynamics alone (no equality, inequality or final rows) on the Riccati back-end: the
         #: factorization's and the solve's short paths (:meth:`try_factor`, :meth:`_solve_dynamics_only`)
         self.plain = self.backend == "riccati" and not (c.E.shape[1] or c.EN.shape[0] or c.Ci.shape[1] or
@@ -161,8 +162,6 @@ class KKTMatrix:
         N = self.B.shape[0]
         if c.CNi.shape[0]:
             self.Q[N] = self.QN + c.CNi.T @ ((c.SsN + delta)[:, None] * c.CNi)
-        else:
-            self.Q[N] = self.QN
 
     def _diagonals(self, delta):
         Dx = self.Sx + delta

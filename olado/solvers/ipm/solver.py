@@ -182,14 +182,14 @@ class Workspace:
         self._trials, self._multipliers = [], []
 
     def trial_arrays(self, v):
-        """(v_t, X (N+1, n), U (N, m)) for a trial point of the iterate v: of two sets, the one
+        """(v_t, X (N+1, n), U (N, m), its slacks (s_L, s_U)) for a trial point of the iterate v: of two sets, the one
         that is not the iterate's (the other: the last accepted trial's, now the iterate). The
         caller forgets what Bounds cached at v_t (barrier.Bounds.forget) before writing it."""
         for t in self._trials:
             if t[0] is not v:
                 return t
         L = self.layout
-        t = (np.empty(L.size), np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)))
+        t = (np.empty(L.size), np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), (np.empty(L.size), np.empty(L.size)))
         self._trials.append(t)
         return t
 
@@ -613,7 +613,7 @@ def _trial(setup, st, dv, alpha):
     (kernels.trial_point), the point evaluated as :func:`evaluate` does, its theta, max-norm
     (cached with its residuals) and phi in another (barrier.Bounds.point_terms)."""
     L = setup.layout
-    v_t, X, U = setup.ws.trial_arrays(st.v)
+    v_t, X, U, slacks = setup.ws.trial_arrays(st.v)
     setup.bounds.forget(v_t)
     _kernels().trial_point(st.v, dv, alpha, L.x0, v_t, X, U)
     try:
@@ -621,7 +621,7 @@ def _trial(setup, st, dv, alpha):
     except NonFiniteEvaluationError:
         return v_t, None, math.inf, math.inf
     entry = _residual_entry(setup, pt, v_t)
-    l1, mx, barrier = setup.bounds.point_terms(v_t, entry[2], st.mu)
+    l1, mx, barrier = setup.bounds.point_terms(v_t, entry[2], st.mu, slacks)
     entry[3] = (l1, mx)
     return v_t, pt, l1, st.s_obj * pt.J + barrier
 
