@@ -162,7 +162,9 @@ class Bounds:
 
     def forget(self, v):
         """Drop what was computed at ``v`` (its array is about to hold another point)."""
-        self._points = [e for e in self._points if e.v is not v]
+        points = self._points
+        if any(e.v is v for e in points):
+            self._points = [e for e in points if e.v is not v]
 
     def slacks(self, v):
         """(s_L, s_U), 1 where a side is infinite (they carry no multiplier). Cached per point:
