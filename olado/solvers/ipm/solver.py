@@ -56,6 +56,10 @@ from .restoration import Restoration, least_squares_multipliers, restore, restor
 TINY_STEP = 10 * np.finfo(float).eps
 #: s_max of eq. (5): the scaling of the optimality error by the multipliers' size
 S_MAX = 100.0
+#: the largest flat iterate (entries) whose iterations reuse their arrays (Workspace): at small N
+#: allocating them is a tenth of an iteration's time; at large N the arrays kept between
+#: iterations (~1 kB per stage of zambezi) would count at the peak of memory
+REUSE_MAX = 1 << 15
 
 
 @dataclasses.dataclass
@@ -157,22 +161,27 @@ class Setup:
         self.on_mu_change = None
         #: the last Newton matrix (newton_system): the next one takes its back-end over
         self.last_kkt = None
-        #: the arrays the common iteration writes, allocated once
+        #: the arrays the common iteration writes, allocated once (at small N)
         self.ws = Workspace(self.layout)
 
 
 class Workspace:
-    """The arrays an iteration writes and nothing keeps past it, allocated once per solve and
-    reused: the Newton matrix's Sigma blocks and the barrier gradient (:func:`newton_system`), the
-    Newton step and dv of the direction (:func:`direction`), the stage products of the error pass
-    (:func:`iterate_errors`) and the Hessian blocks Q, which the previous
-    Newton matrix held until it let them go (KKTMatrix.release_blocks). The watchdog keeps an
-    iteration's search past it: :meth:`detach` then leaves those arrays to it, and the next
-    iteration allocates its own."""
+    """The arrays an iteration writes, allocated once per solve and reused (at small N their
+    allocation and release are a tenth of an iteration's time): the Newton matrix's Sigma blocks
+    and the barrier gradient (:func:`newton_system`), the Newton step and dv of the direction
+    (:func:`direction`), the stage products of the error pass (:func:`iterate_errors`), the
+    Hessian blocks Q, which the previous Newton matrix held until it let them go
+    (KKTMatrix.release_blocks), and two sets each for the trial points (v, X, U and the slacks)
+    and for the multiplier step's results (the iterate's and a spare one, in turn). The watchdog
+    keeps an iteration's search and iterate past it: :meth:`detach` then leaves those arrays to
+    it, and new ones are allocated. Above REUSE_MAX entries every request gets new arrays (the
+    arrays kept between iterations would count at the peak of memory)."""
 
     def __init__(self, layout):
-        L = self.layout = layout
-        self.EA, self.EB = np.empty((L.N, L.n)), np.empty((L.N, L.m))
+        self.layout = layout
+        #: whether the arrays are reused (REUSE_MAX)
+        self.reuse = layout.size <= REUSE_MAX
+        self._products = None
         self.detach()
 
     def detach(self):
@@ -181,21 +190,67 @@ class Workspace:
         self._newton = self._step = self.Q = self.Q_owner = self.no_rows = None
         self._trials, self._multipliers = [], []
 
+    def products(self):
+        """(EA (N, n), EB (N, m)): the error pass's scratch."""
+        if self._products is None:
+            L = self.layout
+            self._products = np.empty((L.N, L.n)), np.empty((L.N, L.m))
+            if not self.reuse:
+                products, self._products = self._products, None
+                return products
+        return self._products
+
+    def newton(self):
+        """(Sx (N+1, n), Su (N, m), Ss (N, ni), SsN (niN,), q (N+1, n), r (N, m), gs (N, ni), gsN (niN,), grad)."""
+        if self._newton is None:
+            L = self.layout
+            arrays = (np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N, L.ni)), np.empty(L.niN),
+                      np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N, L.ni)), np.empty(L.niN),
+                      np.empty(L.size))
+            if not self.reuse:
+                return arrays
+            self._newton = arrays
+        return self._newton
+
+    def step(self):
+        """((dX (N+1, n), dU (N, m), lam (N+1, n)), dv): the Newton step's output arrays and dv."""
+        if self._step is None:
+            L = self.layout
+            arrays = (np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N + 1, L.n))), np.empty(L.size)
+            if not self.reuse:
+                return arrays
+            self._step = arrays
+        return self._step
+
+    def hessian_blocks(self, prev, shape):
+        """Q of the shape for the next Newton matrix: the one ``prev`` (the previous matrix, released)
+        held, or a new one."""
+        Q = self.Q
+        if not self.reuse or Q is None or prev is None or self.Q_owner is not prev or Q.shape != shape:
+            Q = np.empty(shape)
+            self.Q = Q if self.reuse else None
+        return Q
+
     def trial_arrays(self, v):
-        """(v_t, X (N+1, n), U (N, m), its slacks (s_L, s_U)) for a trial point of the iterate v: of two sets, the one
-        that is not the iterate's (the other: the last accepted trial's, now the iterate). The
-        caller forgets what Bounds cached at v_t (barrier.Bounds.forget) before writing it."""
+        """(v_t, X (N+1, n), U (N, m), its slacks (s_L, s_U)) for a trial point of the iterate v:
+        of two sets, the one that is not the iterate's (the other: the last accepted trial's, now
+        the iterate). The caller forgets what Bounds cached at v_t (barrier.Bounds.forget) before
+        writing it."""
         for t in self._trials:
             if t[0] is not v:
                 return t
         L = self.layout
         t = (np.empty(L.size), np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), (np.empty(L.size), np.empty(L.size)))
-        self._trials.append(t)
+        if self.reuse:
+            self._trials.append(t)
         return t
 
     def multiplier_arrays(self, st):
         """(s_L, s_U, z_L, z_U, lam) for the multiplier step of take_step: of two sets, one whose
-        z_L, z_U, lam are not the iterate's (the step's inputs), else new ones."""
+        z_L, z_U, lam are not the iterate's (the step's inputs), else new ones; None without
+        reuse (Bounds.step_multipliers allocates them)."""
+        if not self.reuse:
+            return None
         for m in self._multipliers:
             if m[2] is not st.zl and m[3] is not st.zu and m[4] is not st.lam:
                 return m
@@ -204,30 +259,6 @@ class Workspace:
         if len(self._multipliers) < 2:
             self._multipliers.append(m)
         return m
-
-    def newton(self):
-        """(Sx (N+1, n), Su (N, m), Ss (N, ni), SsN (niN,), q (N+1, n), r (N, m), gs (N, ni), gsN (niN,), grad)."""
-        if self._newton is None:
-            L = self.layout
-            self._newton = (np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N, L.ni)), np.empty(L.niN),
-                            np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N, L.ni)), np.empty(L.niN),
-                            np.empty(L.size))
-        return self._newton
-
-    def step(self):
-        """((dX (N+1, n), dU (N, m), lam (N+1, n)), dv): the Newton step's output arrays and dv."""
-        if self._step is None:
-            L = self.layout
-            self._step = (np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N + 1, L.n))), np.empty(L.size)
-        return self._step
-
-    def hessian_blocks(self, prev, shape):
-        """Q of the shape for the next Newton matrix: the one ``prev`` (the previous matrix, released)
-        held, or a new one."""
-        Q = self.Q
-        if Q is None or prev is None or self.Q_owner is not prev or Q.shape != shape:
-            Q = self.Q = np.empty(shape)
-        return Q
 
 
 # ---------------------------------------------------------------------------- evaluations
@@ -333,7 +364,7 @@ def iterate_errors(setup, st, mu=None):
     lam = st.lam[1:]
     products = _plain_products(pt.A, pt.B, lam)
     if products:
-        EA, EB = setup.ws.EA, setup.ws.EB       # scratch of the compiled pass
+        EA, EB = setup.ws.products()            # scratch of the compiled pass
     else:
         EA, EB = np.einsum("kij,ki->kj", pt.A, lam), np.einsum("kij,ki->kj", pt.B, lam)
     ECx, ECu, CNL = _row_products(setup, st, EA, EB)

@@ -118,3 +118,20 @@ def test_stage_blocks_into_a_given_q_are_the_new_arrays():
     Q = np.full((N + 1, n, n), np.nan)
     Q1, S1, R1 = stage_blocks(Hxx, Hxu, Huu, HN, Q)
     assert Q1 is Q and np.array_equal(Q1, Q0) and np.array_equal(S1, S0) and np.array_equal(R1, R0)
+
+
+def test_above_the_rotation_size_the_same_iterates_with_new_arrays(monkeypatch):
+    """Above REUSE_MAX (large N: the memory of the arrays kept between iterations) every
+    request takes new arrays; the iterates are the same."""
+    from olado.config import load_config, make_solver
+
+    solver = make_solver(load_config("configs/ipm.ini"))
+    make = lambda: zambezi_problem("zambezi12", N=24, start="balance")     # noqa: E731
+    fast = solver.solve(make())
+    with monkeypatch.context() as mp:
+        mp.setattr(S, "REUSE_MAX", 0)
+        assert not S.Workspace(S.Layout(make())).reuse
+        ref = solver.solve(make())
+    assert S.Workspace(S.Layout(make())).reuse
+    assert _history(fast) == _history(ref) and fast.iterations == ref.iterations
+    assert np.array_equal(fast.x, ref.x) and np.array_equal(fast.u, ref.u)
