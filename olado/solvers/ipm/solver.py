@@ -360,27 +360,13 @@ def iterate_errors(setup, st, mu=None):
     (kernels.error_pass: the stage products A^T lam, B^T lam where :func:`_plain_products` says
     einsum's order is the plain one, the dual infeasibility, kernels.dual_infeasibility, and the
     complementarity, Bounds.complementarities); the products with the constraint rows by numpy."""
-    pt, b = st.pt, setup.bounds
+    p, pt, b = setup.problem, st.pt, setup.bounds
     lam = st.lam[1:]
     products = _plain_products(pt.A, pt.B, lam)
     if products:
         EA, EB = setup.ws.products()            # scratch of the compiled pass
     else:
         EA, EB = np.einsum("kij,ki->kj", pt.A, lam), np.einsum("kij,ki->kj", pt.B, lam)
-    ECx, ECu, CNL = _row_products(setup, st, EA, EB)
-    sl, su = b.slacks(st.v)
-    p = setup.problem
-    mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1 = _kernels().error_pass(
-        float(st.s_obj), pt.lx, pt.lu, pt.lN, pt.A, pt.B, EA, EB, products, lam, ECx, ECu, CNL, bool(p.r), bool(p.rN),
-        st.yd, st.ydN, st.zl, st.zu, st.nu, st.nuN, sl, su, b.has_lo, b.has_hi, 0.0, float(st.mu if mu is None else mu))
-    return ((float(mx), float(zsum), float(ysum)),
-            (_sides_max(n_lo, m_lo, n_hi, m_hi), _sides_max(n_lo, m_lo1, n_hi, m_hi1)))
-
-
-def _row_products(setup, st, EA, EB):
-    """(Cx^T Lg, Cu^T Lg, CN^T LgN) at the iterate by numpy for the error pass; EA, EB, lN (not
-    read) without stage or final constraints."""
-    p, pt = setup.problem, st.pt
     ECx, ECu, CNL = EA, EB, pt.lN       # placeholders without stage or final constraints
     if p.r or p.rN:
         Lg, LgN = full_multipliers(setup.layout, st)
@@ -388,7 +374,12 @@ def _row_products(setup, st, EA, EB):
             ECx, ECu = np.einsum("kij,ki->kj", pt.Cx, Lg), np.einsum("kij,ki->kj", pt.Cu, Lg)
         if p.rN:
             CNL = pt.CN.T @ LgN
-    return ECx, ECu, CNL
+    sl, su = b.slacks(st.v)
+    mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1 = _kernels().error_pass(
+        float(st.s_obj), pt.lx, pt.lu, pt.lN, pt.A, pt.B, EA, EB, products, lam, ECx, ECu, CNL, bool(p.r), bool(p.rN),
+        st.yd, st.ydN, st.zl, st.zu, st.nu, st.nuN, sl, su, b.has_lo, b.has_hi, 0.0, float(st.mu if mu is None else mu))
+    return ((float(mx), float(zsum), float(ysum)),
+            (_sides_max(n_lo, m_lo, n_hi, m_hi), _sides_max(n_lo, m_lo1, n_hi, m_hi1)))
 
 
 def _plain_products(A, B, lam):
@@ -640,9 +631,9 @@ def converged(setup, st):
 
 def _trial(setup, st, dv, alpha):
     """The trial point v + alpha dv of the iterate: (v_t, point, theta, phi); (v_t, None, inf, inf)
-    when a function is not finite there. v_t and its (X, U) are made in one compiled pass
-    (kernels.trial_point), the point evaluated as :func:`evaluate` does, its theta, max-norm
-    (cached with its residuals) and phi in another (barrier.Bounds.point_terms)."""
+    when a function is not finite there. v_t and its (X, U) (the workspace's trial arrays) are
+    made in one compiled pass (kernels.trial_point), the point evaluated as :func:`evaluate` does,
+    its theta, max-norm (cached with its residuals) and phi in another (barrier.Bounds.point_terms)."""
     L = setup.layout
     v_t, X, U, slacks = setup.ws.trial_arrays(st.v)
     setup.bounds.forget(v_t)
