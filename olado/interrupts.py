@@ -202,10 +202,10 @@ class Limits:
     def check(self):
         """Inside a :meth:`catch` block: raise :class:`StopRequested` when :meth:`reason` says
         so. Cheap (a flag, a clock read): called per evaluation, QP iteration, line-search trial."""
-        if self.armed:
-            reason = self.reason()
-            if reason is not None:
-                raise StopRequested(reason)
+        # reason()'s tests inline (called several times per interior-point iteration)
+        if self.armed and (_FLAG.source is not None or self.keyboard or
+                           (self._timed and time.perf_counter() - self.t0 >= self.max_time)):
+            raise StopRequested(self.reason())
 
     def source(self) -> str:
         """What interrupted this solve ("SIGINT", "SIGTERM", "KeyboardInterrupt"), "" if nothing."""

@@ -75,6 +75,7 @@ class RiccatiFactorization:
     the block sizes when they are small."""
 
     limits = None       # KKTBackend.limits: not read (a factorization and a solve are O(N) sweeps)
+    _released = None    # the placeholders release_blocks puts in the blocks' place (one tuple per object)
 
     def __init__(self, Q, S, R, A, B, *, E=None, F=None, n_eq=None, EN=None, Dx=None, Du=None,
                  Ci=None, sigma=None, n_ineq=None, regularization=0.0, rank_tol=1e-10, pivot_tol=PIVOT_TOL):
@@ -164,7 +165,12 @@ class RiccatiFactorization:
         matrix lets its iteration's blocks go before the next ones are evaluated. Neither
         factor nor solve before the next :meth:`set_blocks`."""
         d = self.data
-        d.Q, d.S, d.R, d.A, d.B = (_placeholder(a.shape) for a in (d.Q, d.S, d.R, d.A, d.B))
+        held = self._released
+        if held is None or held[0].shape != d.Q.shape or held[3].shape != d.A.shape:
+            # the placeholders of this object's shapes, looked up once (the same object is
+            # released once per interior-point iteration)
+            held = self._released = tuple(_placeholder(a.shape) for a in (d.Q, d.S, d.R, d.A, d.B))
+        d.Q, d.S, d.R, d.A, d.B = held
         self._costs = self._dyn = None
         return self
 

@@ -160,9 +160,18 @@ class Bounds:
             self._points = []          # the slacks changed with the bounds
         return moved
 
+    def forget(self, v):
+        """Drop what was computed at ``v`` (its array is about to hold another point)."""
+        points = self._points
+        if any(e.v is v for e in points):
+            self._points = [e for e in points if e.v is not v]
+
     def slacks(self, v):
         """(s_L, s_U), 1 where a side is infinite (they carry no multiplier). Cached per point:
         read them, never write into them."""
+        points = self._points
+        if points and points[0].v is v and points[0].slacks is not None:    # at()'s first entry, inline
+            return points[0].slacks
         e = self.at(v)
         if e.slacks is None:
             e.slacks = np.empty_like(v), np.empty_like(v)
@@ -200,13 +209,16 @@ class Bounds:
             damped = dot(self.one_lo_f, sl) + dot(self.one_hi_f, su) if self.one_sided else 0.0
             e.terms = (logs, damped)
 
-    def point_terms(self, v, res, mu):
+    def point_terms(self, v, res, mu, slacks=None):
         """(l1, max) of the residual arrays ``res`` (newton.Residuals) and :meth:`barrier_value`
         at v (the barrier terms cached with the point, as :meth:`barrier_terms`), in one compiled
-        pass (kernels.point_terms) for a new point -- the line search's trial point."""
+        pass (kernels.point_terms) for a new point -- the line search's trial point. ``slacks``:
+        the arrays (s_L, s_U) the point's slacks are written into and kept in (else new ones)."""
         e = self.at(v)
         if e.terms is not None:
             return (*res.norms(), self.barrier_value(v, mu))
+        if e.slacks is None and slacks is not None:
+            e.slacks = slacks
         self._prepare(e, v)
         l1, mx, inside, logs = _kernels().point_terms(v, self.lo, self.hi, self.has_lo, self.has_hi, *e.slacks,
                                                       self._work, *res)
@@ -261,25 +273,31 @@ class Bounds:
         a_lo, a_hi = _kernels().max_step(sl, su, dv, self.has_lo, self.has_hi, -tau, tau)
         return min(1.0, float(a_lo), float(a_hi))
 
-    def step_terms(self, v, step, tau):
+    def step_terms(self, v, step, tau, dv=None):
         """(dv, alpha_max, tiny) of a Newton step (newton.Step) at v in one compiled pass
-        (kernels.step_terms): dv = Layout.pack(step.dX, step.dU, step.ds, step.dsN), alpha_max
-        = :meth:`max_step` (v, dv, tau), tiny = max |dv| / (1 + |v|) (IPOPT's tiny step test)."""
+        (kernels.step_terms): dv = Layout.pack(step.dX, step.dU, step.ds, step.dsN) (into ``dv`` if
+        given), alpha_max = :meth:`max_step` (v, dv, tau), tiny = max |dv| / (1 + |v|) (IPOPT's tiny
+        step test)."""
         sl, su = self.slacks(v)
-        dv = np.empty_like(v)
+        if dv is None:
+            dv = np.empty_like(v)
         alpha_max, tiny = _kernels().step_terms(step.dX, step.dU, step.ds, step.dsN, v, sl, su, self.has_lo,
                                                 self.has_hi, -tau, tau, dv)
         return dv, alpha_max, tiny
 
-    def step_multipliers(self, slacks, v_new, dv, zl, zu, mu, tau, lam, lam_step, alpha, kappa_sigma=1e10):
+    def step_multipliers(self, slacks, v_new, dv, zl, zu, mu, tau, lam, lam_step, alpha, kappa_sigma=1e10, out=None):
         """The multipliers after a step from the point of ``slacks`` (its :meth:`slacks`) to v_new
         along dv: the bound multipliers by :meth:`dual_step_length`, :meth:`move_tiny` at v_new,
         then :meth:`safeguard_step` there, and lam + alpha (lam_step - lam) (the dynamics
         multipliers' step), in one compiled pass (kernels.step_bound_multipliers). Returns (z_L,
-        z_U, alpha_z, the new lam); the slacks at v_new are cached with it."""
+        z_U, alpha_z, the new lam); the slacks at v_new are cached with it. ``out``: the arrays
+        (s_L, s_U, z_L, z_U, lam) to write into (none of them an input), else new ones."""
         sl, su = slacks
-        sl_new, su_new, zl_new, zu_new = (np.empty_like(v_new) for _ in range(4))
-        lam_new = np.empty(lam.shape)
+        if out is None:
+            sl_new, su_new, zl_new, zu_new = (np.empty_like(v_new) for _ in range(4))
+            lam_new = np.empty(lam.shape)
+        else:
+            sl_new, su_new, zl_new, zu_new, lam_new = out
         alpha_z, moved = _kernels().step_bound_multipliers(sl, su, v_new, dv, self.lo, self.hi, self.has_lo,
                                                            self.has_hi, zl, zu, mu, -tau, EPS, EPS ** 0.75,
                                                            kappa_sigma, kappa_sigma * mu, sl_new, su_new, zl_new,
@@ -287,8 +305,8 @@ class Bounds:
         if moved:
             self._points = []          # the slacks changed with the bounds
         e = self.at(v_new)
-        if e.slacks is None:
-            e.slacks = sl_new, su_new
+        if e.slacks is None:        # (the caller's arrays are its own: copies are kept)
+            e.slacks = (sl_new, su_new) if out is None else (sl_new.copy(), su_new.copy())
         return zl_new, zu_new, alpha_z, lam_new
 
     def dual_step_length(self, v, dv, zl, zu, mu, tau):

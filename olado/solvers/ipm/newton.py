@@ -148,8 +148,9 @@ class KKTMatrix:
         N, n, m = self.B.shape
         if self.cons is None:
             self.cons = Constraints.none(N, n, m)
-        self.QN = self.Q[N].copy()
         c = self.cons
+        #: Q[N] without the final rows' slack weights (:meth:`_final_block`; without final rows Q[N] stays)
+        self.QN = self.Q[N].copy() if c.CNi.shape[0] else None
         #: the dynamics alone (no equality, inequality or final rows) on the Riccati back-end: the
         #: factorization's and the solve's short paths (:meth:`try_factor`, :meth:`_solve_dynamics_only`)
         self.plain = self.backend == "riccati" and not (c.E.shape[1] or c.EN.shape[0] or c.Ci.shape[1] or
@@ -161,8 +162,6 @@ class KKTMatrix:
         N = self.B.shape[0]
         if c.CNi.shape[0]:
             self.Q[N] = self.QN + c.CNi.T @ ((c.SsN + delta)[:, None] * c.CNi)
-        else:
-            self.Q[N] = self.QN
 
     def _diagonals(self, delta):
         Dx = self.Sx + delta
@@ -197,10 +196,13 @@ class KKTMatrix:
         back-end) before the next iteration's Hessians are evaluated: the next matrix takes the
         back-end over (:meth:`_take_over`, which needs only their shapes), so one generation of
         blocks less is alive at the peak. This matrix can no longer factor or solve."""
+        if self.kkt is not None and self.backend == "riccati":
+            d = self.kkt.release_blocks().data
+            if d.Q.shape == self.Q.shape:   # the back-end held these blocks: its placeholders are theirs
+                self.Q, self.S, self.R, self.A, self.B = d.Q, d.S, d.R, d.A, d.B
+                return
         from ...linalg.riccati import _placeholder  # noqa: PLC0415
 
-        if self.kkt is not None and self.backend == "riccati":
-            self.kkt.release_blocks()
         self.Q, self.S, self.R, self.A, self.B = (_placeholder(a.shape)
                                                   for a in (self.Q, self.S, self.R, self.A, self.B))
 
@@ -264,12 +266,13 @@ class KKTMatrix:
             delta *= const.kappa_plus_first if delta_last == 0.0 else const.kappa_plus
         return None
 
-    def solve(self, q, r, res: Residuals, gs=None, gsN=None) -> Step:
+    def solve(self, q, r, res: Residuals, gs=None, gsN=None, out=None) -> Step:
         """Solve for the gradient rows q (N+1, n), r (N, m) of the barrier function in y, its
         gradient gs (N, ni), gsN (niN,) in the slacks, and the constraint residuals ``res``,
-        with dx^0 = 0."""
+        with dx^0 = 0. ``out``: C-contiguous float64 arrays (dX (N+1, n), dU (N, m), lam (N+1, n))
+        the step is written into (Riccati back-end; new arrays otherwise)."""
         if self.plain:
-            return self._solve_dynamics_only(q, r, res)
+            return self._solve_dynamics_only(q, r, res, out)
         c, d = self.cons, self.delta
         N, n, m = self.B.shape
         gs = np.zeros(c.Ss.shape) if gs is None else gs
@@ -291,7 +294,7 @@ class KKTMatrix:
                    np.ascontiguousarray(kw["e"], dtype=float) if "e" in kw else np.zeros((N, data.ne_max)),
                    np.ascontiguousarray(kw["eN"], dtype=float) if "eN" in kw else np.zeros(data.neN),
                    np.ascontiguousarray(kw["ci"], dtype=float) if "ci" in kw else np.zeros(data.sig.shape))
-            X, U, lam = np.empty((N + 1, n)), np.empty((N, m)), np.empty((N + 1, n))
+            X, U, lam = (np.empty((N + 1, n)), np.empty((N, m)), np.empty((N + 1, n))) if out is None else out
             nu = np.empty((N + 1, max(data.ne_max, data.neN)))
             self.kkt.solve_into(rhs, (X, U, lam, nu))
         else:
@@ -307,11 +310,11 @@ class KKTMatrix:
         return Step(X, U, ds, dsN, lam, nu[:N, :ne].copy(), nu[N, :neN].copy(), ss * ds + gs, ssN * dsN + gsN)
 
 
-    def _solve_dynamics_only(self, q, r, res):
+    def _solve_dynamics_only(self, q, r, res, out=None):
         """:meth:`solve` without constraint rows (the dynamics alone): the back-end's solve_into
         on the right-hand side (q, r, h), the empty row parts of the Step as they would be."""
         N, n, m = self.B.shape
-        X, U, lam = np.empty((N + 1, n)), np.empty((N, m)), np.empty((N + 1, n))
+        X, U, lam = (np.empty((N + 1, n)), np.empty((N, m)), np.empty((N + 1, n))) if out is None else out
         none, noneN, x0, nu = _empty_parts(N, n)
         # q as it is: the plain recursion's solve reads the right-hand side only
         self.kkt.solve_into((np.ascontiguousarray(q, dtype=float), np.ascontiguousarray(r, dtype=float),
@@ -345,10 +348,11 @@ def _kernels():
     return _KERNEL_MODULE
 
 
-def stage_blocks(Hxx, Hxu, Huu, HN):
-    """Q (N+1, n, n) with the final block, S, R from the stage Hessian blocks."""
+def stage_blocks(Hxx, Hxu, Huu, HN, Q=None):
+    """Q (N+1, n, n) with the final block (into ``Q`` if given), S, R from the stage Hessian blocks."""
     N, n = Hxx.shape[0], Hxx.shape[1]
-    Q = np.empty((N + 1, n, n))
+    if Q is None:
+        Q = np.empty((N + 1, n, n))
     Q[:N] = Hxx
     Q[N] = HN
     return Q, np.ascontiguousarray(Hxu), np.ascontiguousarray(Huu)

@@ -56,6 +56,10 @@ from .restoration import Restoration, least_squares_multipliers, restore, restor
 TINY_STEP = 10 * np.finfo(float).eps
 #: s_max of eq. (5): the scaling of the optimality error by the multipliers' size
 S_MAX = 100.0
+#: the largest flat iterate (entries) whose iterations reuse their arrays (Workspace): at small N
+#: allocating them is a tenth of an iteration's time; at large N the arrays kept between
+#: iterations (~1 kB per stage of zambezi) would count at the peak of memory
+REUSE_MAX = 1 << 15
 
 
 @dataclasses.dataclass
@@ -157,6 +161,104 @@ class Setup:
         self.on_mu_change = None
         #: the last Newton matrix (newton_system): the next one takes its back-end over
         self.last_kkt = None
+        #: the arrays the common iteration writes, allocated once (at small N)
+        self.ws = Workspace(self.layout)
+
+
+class Workspace:
+    """The arrays an iteration writes, allocated once per solve and reused (at small N their
+    allocation and release are a tenth of an iteration's time): the Newton matrix's Sigma blocks
+    and the barrier gradient (:func:`newton_system`), the Newton step and dv of the direction
+    (:func:`direction`), the stage products of the error pass (:func:`iterate_errors`), the
+    Hessian blocks Q, which the previous Newton matrix held until it let them go
+    (KKTMatrix.release_blocks), and two sets each for the trial points (v, X, U and the slacks)
+    and for the multiplier step's results (the iterate's and a spare one, in turn). The watchdog
+    keeps an iteration's search and iterate past it: :meth:`detach` then leaves those arrays to
+    it, and new ones are allocated. Above REUSE_MAX entries every request gets new arrays (the
+    arrays kept between iterations would count at the peak of memory)."""
+
+    def __init__(self, layout):
+        self.layout = layout
+        #: whether the arrays are reused (REUSE_MAX)
+        self.reuse = layout.size <= REUSE_MAX
+        self._products = None
+        self.detach()
+
+    def detach(self):
+        """Forget the Newton and step arrays, Q, the trial points' and the multipliers' arrays
+        (their holder keeps them); new ones on next use."""
+        self._newton = self._step = self.Q = self.Q_owner = self.no_rows = None
+        self._trials, self._multipliers = [], []
+
+    def products(self):
+        """(EA (N, n), EB (N, m)): the error pass's scratch."""
+        if self._products is None:
+            L = self.layout
+            self._products = np.empty((L.N, L.n)), np.empty((L.N, L.m))
+            if not self.reuse:
+                products, self._products = self._products, None
+                return products
+        return self._products
+
+    def newton(self):
+        """(Sx (N+1, n), Su (N, m), Ss (N, ni), SsN (niN,), q (N+1, n), r (N, m), gs (N, ni), gsN (niN,), grad)."""
+        if self._newton is None:
+            L = self.layout
+            arrays = (np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N, L.ni)), np.empty(L.niN),
+                      np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N, L.ni)), np.empty(L.niN),
+                      np.empty(L.size))
+            if not self.reuse:
+                return arrays
+            self._newton = arrays
+        return self._newton
+
+    def step(self):
+        """((dX (N+1, n), dU (N, m), lam (N+1, n)), dv): the Newton step's output arrays and dv."""
+        if self._step is None:
+            L = self.layout
+            arrays = (np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N + 1, L.n))), np.empty(L.size)
+            if not self.reuse:
+                return arrays
+            self._step = arrays
+        return self._step
+
+    def hessian_blocks(self, prev, shape):
+        """Q of the shape for the next Newton matrix: the one ``prev`` (the previous matrix, released)
+        held, or a new one."""
+        Q = self.Q
+        if not self.reuse or Q is None or prev is None or self.Q_owner is not prev or Q.shape != shape:
+            Q = np.empty(shape)
+            self.Q = Q if self.reuse else None
+        return Q
+
+    def trial_arrays(self, v):
+        """(v_t, X (N+1, n), U (N, m), its slacks (s_L, s_U)) for a trial point of the iterate v:
+        of two sets, the one that is not the iterate's (the other: the last accepted trial's, now
+        the iterate). The caller forgets what Bounds cached at v_t (barrier.Bounds.forget) before
+        writing it."""
+        for t in self._trials:
+            if t[0] is not v:
+                return t
+        L = self.layout
+        t = (np.empty(L.size), np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), (np.empty(L.size), np.empty(L.size)))
+        if self.reuse:
+            self._trials.append(t)
+        return t
+
+    def multiplier_arrays(self, st):
+        """(s_L, s_U, z_L, z_U, lam) for the multiplier step of take_step: of two sets, one whose
+        z_L, z_U, lam are not the iterate's (the step's inputs), else new ones; None without
+        reuse (Bounds.step_multipliers allocates them)."""
+        if not self.reuse:
+            return None
+        for m in self._multipliers:
+            if m[2] is not st.zl and m[3] is not st.zu and m[4] is not st.lam:
+                return m
+        L = self.layout
+        m = (np.empty(L.size), np.empty(L.size), np.empty(L.size), np.empty(L.size), np.empty(st.lam.shape))
+        if len(self._multipliers) < 2:
+            self._multipliers.append(m)
+        return m
 
 
 # ---------------------------------------------------------------------------- evaluations
@@ -262,8 +364,7 @@ def iterate_errors(setup, st, mu=None):
     lam = st.lam[1:]
     products = _plain_products(pt.A, pt.B, lam)
     if products:
-        N, n, m = pt.B.shape
-        EA, EB = np.empty((N, n)), np.empty((N, m))
+        EA, EB = setup.ws.products()            # scratch of the compiled pass
     else:
         EA, EB = np.einsum("kij,ki->kj", pt.A, lam), np.einsum("kij,ki->kj", pt.B, lam)
     ECx, ECu, CNL = EA, EB, pt.lN       # placeholders without stage or final constraints
@@ -304,9 +405,15 @@ def error_terms(setup, st) -> ErrorTerms:
         if (k[0] is st.v and k[1] is st.pt and k[2] is st.lam and k[3] is st.nu and k[4] is st.nuN and k[5] is st.yd
                 and k[6] is st.ydN and k[7] is st.zl and k[8] is st.zu):
             return cached[2]
+    return store_errors(setup, st, iterate_errors(setup, st))
+
+
+def store_errors(setup, st, figures):
+    """The :class:`ErrorTerms` of the iterate from :func:`iterate_errors`' figures (computed at the
+    iterate's mu), kept for :func:`error_terms` and :func:`complementarity`."""
     key = (st.v, st.pt, st.lam, st.nu, st.nuN, st.yd, st.ydN, st.zl, st.zu)
     b = setup.bounds
-    (inf_du, zsum, ysum), (c0, c1) = iterate_errors(setup, st)
+    (inf_du, zsum, ysum), (c0, c1) = figures
     # the complementarities of the same pass (complementarity's cache)
     st.compl_cache = (b.slacks(st.v), st.zl, st.zu, {0.0: c0, st.mu: c1})
     inf_pr = residual_norms(setup, st.pt, st.v)[1]
@@ -380,8 +487,11 @@ def initial_state(setup, X0, U0, clock):
 def constraint_blocks(setup, pt, Ss, SsN):
     """The iteration's :class:`Constraints` from the constraint Jacobians at pt."""
     L = setup.layout
-    if not L.rows:
-        return Constraints(*L.no_constraint_rows, Ss, SsN)
+    if not L.rows:      # the same object while Sigma's slack blocks are the workspace's
+        cons = setup.ws.no_rows
+        if cons is None or cons.Ss is not Ss or cons.SsN is not SsN:
+            cons = setup.ws.no_rows = Constraints(*L.no_constraint_rows, Ss, SsN)
+        return cons
     Ci = np.ascontiguousarray(np.concatenate([pt.Cx[:, L.ineq], pt.Cu[:, L.ineq]], axis=2))
     return Constraints(np.ascontiguousarray(pt.Cx[:, L.eq]), np.ascontiguousarray(pt.Cu[:, L.eq]),
                        np.ascontiguousarray(pt.CN[L.eqN]), Ci, np.ascontiguousarray(pt.CN[L.ineqN]), Ss, SsN)
@@ -406,13 +516,16 @@ def newton_system(setup, st, gradient=False):
     Hxx, Hxu, Huu = p.eval_stage_hessians(pt.X, pt.U, st.s_obj, st.lam[1:], Lg)
     HN = p.eval_final_hessian(pt.X[-1], st.s_obj, LgN)
     st.clock.add(("hessian",), t0)
-    Q, S, R = stage_blocks(Hxx, Hxu, Huu, HN)
-    del Hxx                     # copied into Q: not kept through the factorization
+    ws = setup.ws
+    Q = ws.hessian_blocks(prev, (L.N + 1, L.n, L.n))
+    Q, S, R = stage_blocks(Hxx, Hxu, Huu, HN, Q)
     if gradient:
         Sx, Su, Ss, SsN, g = _newton_terms(setup, st)
     else:
         Sx, Su, Ss, SsN = setup.bounds.sigma_blocks(st.v, st.zl, st.zu, L)
-    kkt = setup.last_kkt = KKTMatrix(Q, S, R, pt.A, pt.B, Sx, Su, constraint_blocks(setup, pt, Ss, SsN), reuse=prev)
+    del Hxx                     # copied into Q: not kept through the factorization
+    kkt = setup.last_kkt = ws.Q_owner = KKTMatrix(Q, S, R, pt.A, pt.B, Sx, Su, constraint_blocks(setup, pt, Ss, SsN),
+                                                  reuse=prev)
     delta = kkt.factor(st.delta_last)
     st.factorizations += kkt.factorizations
     if delta is None:
@@ -425,15 +538,13 @@ def newton_system(setup, st, gradient=False):
 
 def _newton_terms(setup, st):
     """(Sx, Su, Ss, SsN) of Bounds.sigma_blocks and :func:`barrier_gradient` at the iterate, in one
-    compiled pass (kernels.newton_terms: the two kernels in turn)."""
-    L, b, pt, mu = setup.layout, setup.bounds, st.pt, st.mu
+    compiled pass (kernels.newton_terms: the two kernels in turn), into the workspace's arrays."""
+    b, pt, mu = setup.bounds, st.pt, st.mu
     sl, su = b.slacks(st.v)
-    sig = np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N, L.ni)), np.empty(L.niN)
-    q, r = np.empty((L.N + 1, L.n)), np.empty((L.N, L.m))
-    gs, gsN, grad = np.empty((L.N, L.ni)), np.empty(L.niN), np.empty(L.size)
-    _kernels().newton_terms(float(st.s_obj), pt.lx, pt.lN, pt.lu, sl, su, st.zl, st.zu, b.has_lo, b.has_hi, mu,
-                            KAPPA_D * mu, *sig, q, r, gs, gsN, grad)
-    return (*sig, Direction(q, r, gs, gsN, grad))
+    Sx, Su, Ss, SsN, q, r, gs, gsN, grad = setup.ws.newton()
+    _kernels().newton_terms(float(st.s_obj), pt.lx, pt.lN, pt.lu, sl, su, st.zl, st.zu, b.has_lo,
+                            b.has_hi, mu, KAPPA_D * mu, Sx, Su, Ss, SsN, q, r, gs, gsN, grad)
+    return Sx, Su, Ss, SsN, Direction(q, r, gs, gsN, grad)
 
 
 def update_barrier(setup, st):
@@ -520,18 +631,19 @@ def converged(setup, st):
 
 def _trial(setup, st, dv, alpha):
     """The trial point v + alpha dv of the iterate: (v_t, point, theta, phi); (v_t, None, inf, inf)
-    when a function is not finite there. v_t and its (X, U) are made in one compiled pass
-    (kernels.trial_point), the point evaluated as :func:`evaluate` does, its theta, max-norm
-    (cached with its residuals) and phi in another (barrier.Bounds.point_terms)."""
+    when a function is not finite there. v_t and its (X, U) (the workspace's trial arrays) are
+    made in one compiled pass (kernels.trial_point), the point evaluated as :func:`evaluate` does,
+    its theta, max-norm (cached with its residuals) and phi in another (barrier.Bounds.point_terms)."""
     L = setup.layout
-    v_t, X, U = np.empty_like(st.v), np.empty((L.N + 1, L.n)), np.empty((L.N, L.m))
+    v_t, X, U, slacks = setup.ws.trial_arrays(st.v)
+    setup.bounds.forget(v_t)
     _kernels().trial_point(st.v, dv, alpha, L.x0, v_t, X, U)
     try:
         pt = Point(setup.problem, X, U, derivatives=False, clock=st.clock)
     except NonFiniteEvaluationError:
         return v_t, None, math.inf, math.inf
     entry = _residual_entry(setup, pt, v_t)
-    l1, mx, barrier = setup.bounds.point_terms(v_t, entry[2], st.mu)
+    l1, mx, barrier = setup.bounds.point_terms(v_t, entry[2], st.mu, slacks)
     entry[3] = (l1, mx)
     return v_t, pt, l1, st.s_obj * pt.J + barrier
 
@@ -598,9 +710,10 @@ WATCHED = ("v", "pt", "lam", "nu", "nuN", "yd", "ydN", "zl", "zu", "mu", "tau")
 def direction(setup, st, kkt, g) -> Search:
     """The Newton direction at the iterate and its line-search quantities."""
     res = residuals(setup, st.pt, st.v)
-    step = kkt.solve(g.q, g.r, res, g.gs, g.gsN)
+    out, dv = setup.ws.step()
+    step = kkt.solve(g.q, g.r, res, g.gs, g.gsN, out=out)
     # step_vector, Bounds.max_step and the tiny-step measure in one compiled pass
-    dv, alpha_max, tiny = setup.bounds.step_terms(st.v, step, st.tau)
+    dv, alpha_max, tiny = setup.bounds.step_terms(st.v, step, st.tau, dv)
     phi = barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0]
     return Search(kkt, g, res, step, dv, dot(g.grad, dv), theta(setup, st.pt, st.v), phi, alpha_max, tiny)
 
@@ -617,6 +730,7 @@ def line_search(setup, st, kkt, g):
             return v_t, pt_t, d.dv, d.step, d.alpha_max, 0
     if st.watch is None and o.watchdog_shortened_iter_trigger and st.shortened >= o.watchdog_shortened_iter_trigger:
         st.watch = Watchdog({k: getattr(st, k) for k in WATCHED}, d)
+        setup.ws.detach()           # the watchdog keeps the search's arrays
         st.shortened = 0
         step = _watchdog_step(setup, st, d)
         if step is not None:
@@ -730,9 +844,12 @@ def take_step(setup, st, accepted):
     # Bounds.dual_step_length), the bounds moved (Bounds.move_tiny) and the safeguard
     # (Bounds.safeguard_step) in one compiled pass
     st.zl, st.zu, alpha_z, lam = b.step_multipliers(slacks, v_new, dv, st.zl, st.zu, st.mu, st.tau, st.lam, step.lam,
-                                                    alpha)
+                                                    alpha, out=setup.ws.multiplier_arrays(st))
     if lam.size:                # an empty one stays
         st.lam = lam
+    # the optimality error's pass at the new iterate now (the next stopping test's: error_terms
+    # finds it), while its arrays are in cache
+    store_errors(setup, st, iterate_errors(setup, st))
     return alpha, alpha_z, soc
 
 
@@ -774,6 +891,7 @@ def iterate(setup, st):
                else "the filter line search reached alpha_min")
         st.filt.add(theta(setup, st.pt, st.v), barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0])
         st.restorations += 1
+        setup.ws.detach()           # nothing of the iteration's arrays is reused across the phase
         fns = Restoration(evaluate, theta, barrier_value, residuals, lagrangian_gradient)
         # the entry of the phase's start (IPOPT's "r" line: the point where it starts); the l1
         # phase appends one entry per iteration of the restoration problem after it
@@ -786,11 +904,12 @@ def iterate(setup, st):
         alpha, alpha_z, soc = take_step(setup, st, accepted)
         entry.update(alpha=alpha, alpha_z=alpha_z, soc=soc, restoration=False, objective=float(st.pt.J))
         st.history.append(entry)
-    if setup.options.verbose >= 2:
+    if o.verbose >= 2:
         print(f"{st.it:4d} {st.pt.J: .10e} {st.errors[2]:.2e} {st.errors[1]:.2e} mu={st.mu:.1e} "
               f"dw={st.delta:.1e} a={entry['alpha']:.2e}{' soc' if entry['soc'] else ''}"
               f"{' resto' if entry['restoration'] else ''}")
-    if setup.callback(dict(entry)):
+    # (without a callback option the solver's callback says False: no copy of the entry for it)
+    if o.callback is not None and setup.callback(dict(entry)):
         return st.stop(Status.USER_STOP, f"stopped by the callback after {st.it} iterations")
     return False
 

@@ -179,14 +179,15 @@ def _reference_trial(setup, st, dv, alpha):
 
 
 @np.errstate(all="ignore")
-def _reference_step_terms(self, v, step, tau):
+def _reference_step_terms(self, v, step, tau, dv=None):
     dv = np.concatenate([step.dX[1:].ravel(), step.dU.ravel(), np.asarray(step.ds, float).ravel(),
                          np.asarray(step.dsN, float).ravel()])
     return dv, ref_max_step(self, v, dv, tau), float(np.max(np.abs(dv) / (1 + np.abs(v)), initial=0.0))
 
 
 @np.errstate(all="ignore")
-def _reference_step_multipliers(self, slacks, v_new, dv, zl, zu, mu, tau, lam, lam_step, alpha, kappa_sigma=1e10):
+def _reference_step_multipliers(self, slacks, v_new, dv, zl, zu, mu, tau, lam, lam_step, alpha, kappa_sigma=1e10,
+                                out=None):     # new arrays, not ``out``'s
     sl, su = slacks
     rl = np.where(self.has_lo, mu / sl - zl - zl / sl * dv, 0.0)
     ru = np.where(self.has_hi, mu / su - zu + zu / su * dv, 0.0)
