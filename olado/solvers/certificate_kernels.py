@@ -298,3 +298,87 @@ def spot_verdict(vals, an, size, h, eps, rtol, out):
     out[3] = d5
     out[4] = an[jbest // L, jbest % L]
     out[5] = rel
+
+
+# ---------------------------------------------------------------------------- the Result's KKT quantities
+@nb.njit(inline="always")
+def _pymax(a, b):
+    """Python's max(a, b) of two floats: b only when b > a."""
+    return b if b > a else a
+
+
+@nb.njit(inline="always")
+def _fill(r, lo, hi, zl, zu):
+    """olado.solvers.sqp.residuals._fill_fixed of one variable: a fixed one (lo == hi) takes
+    z_L = max(r, 0), z_U = max(-r, 0)."""
+    if lo == hi:
+        return _maximum(r, 0.0), _maximum(-r, 0.0)
+    return zl, zu
+
+
+@nb.njit(inline="always")
+def _row_max(c, shift, res, nan):
+    """Running numpy max of np.maximum(c - shift, 0.0) (NaN propagated: ``nan``)."""
+    v = _maximum(c - shift, 0.0)
+    if v != v:
+        return res, True
+    return (v if v > res else res), nan
+
+
+@nb.njit(**_JIT)
+def stage_kkt(rx, ru, X, U, xl, xu, ul, uu, zl_x, zu_x, zl_u, zu_u, h, g, eq, gN, eqN, fx_l, fx_u, fu_l, fu_u, out):
+    """olado.solvers.sqp.residuals.stage_kkt_reference's stationarity and violation in one pass:
+    the bound multipliers with the fixed variables filled in (fx_l, fx_u, fu_l, fu_u), out[0] =
+    the stationarity max(numpy max |r - z_L + z_U| of x, of u; initial 0), out[1] = the
+    violation: Python's max over the arrays h, g, gN (numpy max of max(0 - c, 0) and of
+    max(c - cu, 0), cu = 0 on h and the equality rows, inf elsewhere; an array with a NaN adds
+    nothing) and the bounds (lo - y, y - hi likewise, initial 0)."""
+    stat = 0.0
+    for part in range(2):
+        r, Y, lo, hi, zl, zu, ol, ou = ((rx, X, xl, xu, zl_x, zu_x, fx_l, fx_u) if part == 0
+                                        else (ru, U, ul, uu, zl_u, zu_u, fu_l, fu_u))
+        res = 0.0
+        for k in range(r.shape[0]):
+            for i in range(r.shape[1]):
+                a, b = _fill(r[k, i], lo[k, i], hi[k, i], zl[k, i], zu[k, i])
+                ol[k, i], ou[k, i] = a, b
+                v = abs(r[k, i] - a + b)
+                if res == res and (v != v or v > res):
+                    res = v
+        stat = res if part == 0 else _pymax(stat, res)
+    out[0] = stat
+    viol = 0.0
+    for arr in range(3):
+        lo_max, hi_max, lo_nan, hi_nan = -np.inf, -np.inf, False, False
+        size = h.size if arr == 0 else (g.size if arr == 1 else gN.size)
+        if arr == 0:
+            for k in range(h.shape[0]):
+                for i in range(h.shape[1]):
+                    lo_max, lo_nan = _row_max(0.0 - h[k, i], 0.0, lo_max, lo_nan)
+                    hi_max, hi_nan = _row_max(h[k, i], 0.0, hi_max, hi_nan)
+        elif arr == 1:
+            for k in range(g.shape[0]):
+                for i in range(g.shape[1]):
+                    lo_max, lo_nan = _row_max(0.0 - g[k, i], 0.0, lo_max, lo_nan)
+                    hi_max, hi_nan = _row_max(g[k, i], 0.0 if eq[i] else np.inf, hi_max, hi_nan)
+        else:
+            for i in range(gN.shape[0]):
+                lo_max, lo_nan = _row_max(0.0 - gN[i], 0.0, lo_max, lo_nan)
+                hi_max, hi_nan = _row_max(gN[i], 0.0 if eqN[i] else np.inf, hi_max, hi_nan)
+        if size:
+            if not lo_nan:
+                viol = _pymax(viol, lo_max)
+            if not hi_nan:
+                viol = _pymax(viol, hi_max)
+    for part in range(2):
+        Y, lo, hi = (X, xl, xu) if part == 0 else (U, ul, uu)
+        lo_max, hi_max, lo_nan, hi_nan = 0.0, 0.0, False, False
+        for k in range(Y.shape[0]):
+            for i in range(Y.shape[1]):
+                lo_max, lo_nan = _row_max(lo[k, i], Y[k, i], lo_max, lo_nan)
+                hi_max, hi_nan = _row_max(Y[k, i], hi[k, i], hi_max, hi_nan)
+        if not lo_nan:
+            viol = _pymax(viol, lo_max)
+        if not hi_nan:
+            viol = _pymax(viol, hi_max)
+    out[1] = viol

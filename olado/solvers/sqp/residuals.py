@@ -131,7 +131,28 @@ def stage_complementarity_reference(p, pt, mult, bounds):
 
 def stage_kkt(p, pt, mult, bounds) -> StageKKT:
     """The Result's KKT quantities at pt (values and derivatives evaluated) with the stage
-    multipliers ``mult`` and bound multipliers ``bounds`` (see the module docstring)."""
+    multipliers ``mult`` and bound multipliers ``bounds`` (see the module docstring): the
+    numbers of :func:`stage_kkt_reference`, the fixed variables' multipliers, the stationarity
+    and the violation in one compiled pass (olado.solvers.certificate_kernels.stage_kkt)."""
+    from ..certificate_kernels import stage_kkt as kernel   # noqa: PLC0415 - numba is loaded on the first solve
+
+    c = np.ascontiguousarray
+    xl, xu, ul, uu = (c(a, dtype=float) for a in _bounds(p))
+    rx, ru = _gradient_terms(p, pt, mult)
+    X, U, h, g, gN = (c(a, dtype=float) for a in (pt.X, pt.U, pt.h, pt.g, pt.gN))
+    z = tuple(c(a, dtype=float) for a in bounds)
+    if not (xl.shape == X.shape == z[0].shape == z[1].shape and ul.shape == U.shape == z[2].shape == z[3].shape
+            and g.ndim == 2 and gN.ndim == 1):
+        return stage_kkt_reference(p, pt, mult, bounds)
+    filled = BoundMultipliers(*(np.empty_like(a) for a in (X, X, U, U)))
+    out = np.empty(2)
+    kernel(c(rx), c(ru), X, U, xl, xu, ul, uu, *z, h, g,
+           c(p.stage_equality_mask, dtype=bool), gN, c(p.final_equality_mask, dtype=bool), *filled, out)
+    return StageKKT(float(out[0]), stage_complementarity(p, pt, mult, filled), float(out[1]), filled)
+
+
+def stage_kkt_reference(p, pt, mult, bounds) -> StageKKT:
+    """:func:`stage_kkt` in numpy (the reference of the compiled pass)."""
     xl, xu, ul, uu = _bounds(p)
     rx, ru = _gradient_terms(p, pt, mult)
     zl_x, zu_x = _fill_fixed(rx, xl, xu, bounds.zl_x, bounds.zu_x)
