@@ -130,6 +130,12 @@ CALL_ARGUMENTS = {
 }
 
 
+_CALL_NAMES = frozenset(CALL_ARGUMENTS)
+#: per DOCP class, its functions (in the order of CALL_ARGUMENTS, plain Python functions) that
+#: :meth:`DOCP.check_functions` accepted: an instance that replaces none of them is not checked again
+_CLASSES_CHECKED = weakref.WeakKeyDictionary()
+
+
 class PointValues(NamedTuple):
     """The values of the DOCP at a point (X, U) (:meth:`DOCP.eval_values`): the objective J of
     eq. (1), the dynamics f^k(x^k, u^k) (N, n) of eq. (2), the stage constraints g (N, r) and the
@@ -522,7 +528,14 @@ class DOCP:
         """Every user function and derivative method is callable with the arguments olado passes
         (:data:`CALL_ARGUMENTS`); ProblemDefinitionError naming the function otherwise. Run by
         the constructor and again at the public entry points (an attribute may be replaced after
-        construction)."""
+        construction). A class whose functions are plain Python functions of the class (none
+        replaced on the instance) is checked once for these functions (_CLASSES_CHECKED)."""
+        cls = type(self)
+        funcs = tuple(getattr(cls, name, None) for name in CALL_ARGUMENTS)
+        plain = (all(type(f) is types.FunctionType for f in funcs)
+                 and _CALL_NAMES.isdisjoint(getattr(self, "__dict__", _CALL_NAMES)))
+        if plain and _CLASSES_CHECKED.get(cls) == funcs:
+            return
         for name, args in CALL_ARGUMENTS.items():
             fn = getattr(self, name, None)
             call = f"{name}({', '.join(args)})"
@@ -541,6 +554,8 @@ class DOCP:
                 raise ProblemDefinitionError(f"olado calls it as {call}, but its signature is "
                                              f"{name}{signature}", function=name) from None
             _remember_checked(fn, name)
+        if plain:
+            _CLASSES_CHECKED[cls] = funcs
 
     def _overrides(self, name):
         return getattr(type(self), name, None) is not getattr(DOCP, name, None)

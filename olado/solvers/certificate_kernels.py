@@ -20,14 +20,17 @@ contracts no multiply-add without fastmath), so the certificate's figures are th
 
 tests/solvers/test_certificate_fastpath.py and tests/solvers/test_certificate_kernels.py keep
 the numpy forms as the reference, bit for bit. Imported with the certificate (on the first
-success), not with olado. The kernels call only kernels of this file (numba's cache is per
-source file, docs/architecture.md "Caches").
+success), not with olado. The kernels call only kernels of this file and numpy's pairwise
+summation (olado.linalg.numpy_sums, whose algorithm is fixed: numba's cache is per source file,
+docs/architecture.md "Caches", so a change there must clear this file's cache).
 """
 
 from __future__ import annotations
 
 import numba as nb
 import numpy as np
+
+from ..linalg.numpy_sums import pairwise_sum
 
 _JIT = {"cache": True, "error_model": "numpy"}   # x / 0 is inf or NaN, as in numpy
 
@@ -382,3 +385,25 @@ def stage_kkt(rx, ru, X, U, xl, xu, ul, uu, zl_x, zu_x, zl_u, zu_u, h, g, eq, gN
         if not hi_nan:
             viol = _pymax(viol, hi_max)
     out[1] = viol
+
+
+@nb.njit(**_JIT)
+def stage_cost_directional(lx, lu, Vx, Vu, an, size):
+    """The stage costs' part of the certificate's _directional: an[d, k] = (lx * vx).sum(axis=2) +
+    (lu * vu).sum(axis=2) and size[d, k] the same of the absolute values (vx = Vx[:, :-1]), each
+    sum numpy's pairwise summation of the products (olado.linalg.numpy_sums)."""
+    D = Vx.shape[0]
+    N, n = lx.shape
+    m = lu.shape[1]
+    tx, tu = np.empty(n), np.empty(m)
+    ax, au = np.empty(n), np.empty(m)
+    for d in range(D):
+        for k in range(N):
+            for j in range(n):
+                tx[j] = lx[k, j] * Vx[d, k, j]
+                ax[j] = abs(lx[k, j]) * abs(Vx[d, k, j])
+            for j in range(m):
+                tu[j] = lu[k, j] * Vu[d, k, j]
+                au[j] = abs(lu[k, j]) * abs(Vu[d, k, j])
+            an[d, k] = pairwise_sum(tx, 0, n, False) + pairwise_sum(tu, 0, m, False)
+            size[d, k] = pairwise_sum(ax, 0, n, False) + pairwise_sum(au, 0, m, False)
