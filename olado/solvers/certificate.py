@@ -201,13 +201,22 @@ def _figures(p, pt, bounds, W, S, lam, Lg, LgN, kind):
         ineqN = ~p.final_equality_mask
         LgN[ineqN] = np.minimum(LgN[ineqN], 0.0)
     rx, ru = stage_gradient_terms(p, pt, lam, Lg, LgN)
-    out, at = np.empty(3), np.empty(6, dtype=np.int64)
-    _kernels().bound_figures(np.ascontiguousarray(rx), np.ascontiguousarray(ru), pt.X, pt.U, bounds.xl, bounds.xu,
-                             bounds.ul, bounds.uu, W[0], W[1], float(S), out, at)
-    stat, stat_scaled = float(out[0]), float(out[1])
-    name, k, i = ("x", "u", "")[at[0]], int(at[1]), int(at[2])
+    res_x, res_u = np.empty(7), np.empty(7)
+    kernels, S = _kernels(), float(S)
+    kernels.bound_figures(np.ascontiguousarray(rx), pt.X, bounds.xl, bounds.xu, W[0], S, 1, res_x)   # x^0 fixed
+    kernels.bound_figures(np.ascontiguousarray(ru), pt.U, bounds.ul, bounds.uu, W[1], S, 0, res_u)
+    # per array [max stationarity, max scaled stationarity, its stage, component, max complementarity,
+    # its stage, component]: the largest as _largest finds them, x before u
+    stat = max(float(res_x[0]), float(res_u[0]))
+    best, comp_best = (-1.0, "", 0, 0), (-1.0, "", 0, 0)
+    for (name, cname), res in ((("x", "x bounds"), res_x), (("u", "u bounds"), res_u)):
+        if res[1] > best[0]:
+            best = (float(res[1]), name, int(res[2]), int(res[3]))
+        if res[4] > comp_best[0]:
+            comp_best = (float(res[4]), cname, int(res[5]), int(res[6]))
+    stat_scaled, name, k, i = best
     residual = float((rx if name == "x" else ru)[k, i])
-    best = (float(out[2]), ("x bounds", "u bounds", "")[at[3]], int(at[4]), int(at[5]))
+    best = comp_best
     comp_rows = []
     if p.r and ineq.any():
         rows = np.zeros_like(pt.g)
@@ -424,6 +433,7 @@ def _values(p, X, U):
 
 #: the shifts s of the five-point scheme: the spot check evaluates at y + s h v
 _SHIFTS = (1, -1, 2, -2)
+_STEPS = np.array(_SHIFTS, dtype=float)
 #: the functions the spot check differentiates, in the order of its flat vectors
 _NAMES = ("stage_cost", "final_cost", "dynamics", "stage_constraints", "final_constraints")
 
@@ -447,12 +457,17 @@ def _shifted_values(p, pt, directions, h):
                                    np.array([Vu for _, Vu in directions]), h)
 
 
-def _stacked_shifted_values(p, pt, Vx, Vu, h):
-    """:func:`_shifted_values` of the directions stacked (Vx (D, N+1, n), Vu (D, N, m))."""
-    # the points y + s h v, directions by shifts (D, S, ...): elementwise as (s h) v + y point by point
+def _stacked_shifted_values(p, pt, Vx, Vu, h, points=None):
+    """:func:`_shifted_values` of the directions stacked (Vx (D, N+1, n), Vu (D, N, m)); ``points``:
+    the shifted points (Xs, Us, ends) of :func:`_spot_points` when they are at hand."""
     P, N, n, r = Vx.shape[0] * len(_SHIFTS), p.N, p.n, p.r
-    Xs, Us, ends = np.empty((P * N, n)), np.empty((P * N, p.m)), np.empty((P, n))
-    _kernels().shifted_points(pt.X, pt.U, Vx, Vu, np.array(_SHIFTS, dtype=float) * h, Xs, Us, ends)
+    if points is None:
+        # the points y + s h v, directions by shifts (D, S, ...): elementwise as (s h) v + y point by point
+        steps = (_STEPS * h)[None, :, None, None]
+        Xp = pt.X + steps * Vx[:, None]
+        Up = pt.U + steps * Vu[:, None]
+        points = Xp[:, :, :-1].reshape(P * N, n), Up.reshape(P * N, p.m), Xp[:, :, -1].reshape(P, n)
+    Xs, Us, ends = points
     cost, dyn, g, final = p._stacked_values(np.tile(p._K, P), Xs, Us, ends)
     p.counters["stage_cost"] += P
     p.counters["dynamics"] += P
@@ -476,31 +491,22 @@ def _pointwise_values(p, pt, directions, h):
 def _directional(pt, Vx, Vu):
     """The derivatives the problem supplies along the directions v = (Vx (D, N+1, n), Vu (D, N,
     m)), and the sums of the absolute terms (the size against which an error is measured): two
-    arrays (D, L) in the layout of :func:`_shifted_values`. Per function: the stage costs
-    (lx . vx + lu . vu, a compiled pass: certificate_kernels.stage_cost_directional), the final
-    cost (lN . v^N), the dynamics (A vx + B vu), the stage constraints (Cx vx + Cu vu), the final
-    constraints (CN v^N); the sizes the same with |.| everywhere."""
-    D, N = Vx.shape[0], Vu.shape[1]
+    arrays (D, L) in the layout of :func:`_shifted_values`."""
+    D = Vx.shape[0]
     ax, au = np.abs(Vx), np.abs(Vu)
     vx, avx = Vx[:, :-1], ax[:, :-1]
     ein = lambda M, V: np.einsum("kij,dkj->dki", M, V).reshape(D, -1)  # noqa: E731
-    parts = [(ein(pt.A, vx) + ein(pt.B, Vu), ein(np.abs(pt.A), avx) + ein(np.abs(pt.B), au))]
+    an = [(pt.lx * vx).sum(axis=2) + (pt.lu * Vu).sum(axis=2), (Vx[:, -1] @ pt.lN)[:, None],
+          ein(pt.A, vx) + ein(pt.B, Vu)]
+    size = [(np.abs(pt.lx) * avx).sum(axis=2) + (np.abs(pt.lu) * au).sum(axis=2),
+            (ax[:, -1] @ np.abs(pt.lN))[:, None], ein(np.abs(pt.A), avx) + ein(np.abs(pt.B), au)]
     if pt.Cx.shape[1] and pt.Cx.shape[0]:       # the parts of a problem with such constraints
-        parts.append((ein(pt.Cx, vx) + ein(pt.Cu, Vu), ein(np.abs(pt.Cx), avx) + ein(np.abs(pt.Cu), au)))
+        an.append(ein(pt.Cx, vx) + ein(pt.Cu, Vu))
+        size.append(ein(np.abs(pt.Cx), avx) + ein(np.abs(pt.Cu), au))
     if pt.CN.shape[0]:
-        parts.append((Vx[:, -1] @ pt.CN.T, ax[:, -1] @ np.abs(pt.CN).T))
-    L = N + 1 + sum(a.shape[1] for a, _ in parts)
-    an, size = np.empty((D, L)), np.empty((D, L))
-    c = np.ascontiguousarray
-    _kernels().stage_cost_directional(c(pt.lx, dtype=float), c(pt.lu, dtype=float), Vx, Vu, an, size)
-    an[:, N] = Vx[:, -1] @ pt.lN
-    size[:, N] = ax[:, -1] @ np.abs(pt.lN)
-    at = N + 1
-    for a, b in parts:
-        an[:, at:at + a.shape[1]] = a
-        size[:, at:at + a.shape[1]] = b
-        at += a.shape[1]
-    return an, size
+        an.append(Vx[:, -1] @ pt.CN.T)
+        size.append(ax[:, -1] @ np.abs(pt.CN).T)
+    return np.concatenate(an, axis=1), np.concatenate(size, axis=1)
 
 
 _DERIVATIVE_NAMES = {"stage_cost": "stage_cost_gradient", "final_cost": "final_cost_gradient",
@@ -525,12 +531,20 @@ def _direction(rng, pt, bounds, W, h):
 def _directions(draw, pt, bounds, W, h):
     """The directions of :func:`_direction`, stacked (Vx (D, N+1, n), Vu (D, N, m)), from the
     uniform draws (D, (N+1) n + N m) of :func:`_uniform_draws` -- the generator's values in the
-    order of the directions drawn one by one, states before controls -- in one compiled pass
-    (certificate_kernels.directions): the same numbers."""
-    count = draw.shape[0]
-    Vx, Vu = np.empty((count,) + pt.X.shape), np.empty((count,) + pt.U.shape)
-    _kernels().directions(draw, pt.X, pt.U, bounds.xl, bounds.xu, bounds.ul, bounds.uu, W[0], W[1], float(h), Vx, Vu)
-    return Vx, Vu
+    order of the directions drawn one by one, states before controls: the same numbers."""
+    return _spot_points(draw, pt, bounds, W, h)[:2]
+
+
+def _spot_points(draw, pt, bounds, W, h):
+    """(Vx, Vu, (Xs, Us, ends)): the directions of :func:`_directions` and the shifted points of
+    :func:`_stacked_shifted_values` in one compiled pass (certificate_kernels.spot_points)."""
+    D, N, n = draw.shape[0], pt.U.shape[0], pt.X.shape[1]
+    P = D * len(_SHIFTS)
+    Vx, Vu = np.empty((D,) + pt.X.shape), np.empty((D,) + pt.U.shape)
+    points = np.empty((P * N, n)), np.empty((P * N, pt.U.shape[1])), np.empty((P, n))
+    _kernels().spot_points(draw, pt.X, pt.U, bounds.xl, bounds.xu, bounds.ul, bounds.uu, W[0], W[1], float(h),
+                           _STEPS * h, Vx, Vu, *points)
+    return Vx, Vu, points
 
 
 def _entry_of(shapes, j):
@@ -595,10 +609,10 @@ def spot_check(p, pt, bounds, W, seed=CHECK_SEED) -> _Check:
     would find)."""
     h = CHECK_STEP
     draw = _uniform_draws(seed, CHECK_DIRECTIONS, pt.X.size + pt.U.size)
-    Vx, Vu = _directions(draw, pt, bounds, W, h)
+    Vx, Vu, points = _spot_points(draw, pt, bounds, W, h)
     saved = p.counters.copy()
     try:
-        vals = _stacked_shifted_values(p, pt, Vx, Vu, h)
+        vals = _stacked_shifted_values(p, pt, Vx, Vu, h, points)
     except OladoError:
         p.counters.clear()
         p.counters.update(saved)

@@ -148,11 +148,12 @@ def _row_values(p, pt):
 
 def _largest_compiled(p, pt):
     """The candidates of :func:`largest_violation_of` in the arrays' order, (name, largest value
-    (NaN as inf), stage, component, staged, kind) for the dynamics, x0 and the bounds from one
-    compiled pass (certificate_kernels.largest_violations: the same maxima and first largest
-    entries), the rows' arrays as (name, values, staged, kind); None when the arrays do not have
-    the shapes of the problem (the numpy form then)."""
-    from .certificate_kernels import largest_violations   # noqa: PLC0415 - numba is loaded on the first solve
+    (NaN as inf), stage, component, staged, kind) for the dynamics, x0 and the bounds from
+    compiled passes (certificate_kernels.largest_violation: the same maxima and first largest
+    entries; |c| as max(max(0 - c, 0), max(c - 0, 0))), the rows' arrays as (name, values,
+    staged, kind); None when the arrays do not have the shapes of the problem (the numpy form
+    then)."""
+    from .certificate_kernels import largest_violation   # noqa: PLC0415 - numba is loaded on the first solve
 
     c = np.ascontiguousarray
     X, U, h = c(pt.X, dtype=float), c(pt.U, dtype=float), c(pt.h, dtype=float)
@@ -161,10 +162,14 @@ def _largest_compiled(p, pt):
     if not (xl.shape == xu.shape == X.shape and ul.shape == uu.shape == U.shape and h.ndim == 2 and x0.ndim == 1
             and x0.shape[0] == X.shape[1]):
         return None
-    out, at = np.empty(4), np.empty((4, 3), dtype=np.int64)
-    largest_violations(h, X, x0, xl, xu, U, ul, uu, out, at)
-    kind = lambda a: EQUALITY if a < 2 else (UPPER if at[a, 2] else LOWER)     # noqa: E731
-    found = [(name, float(out[a]), int(at[a, 0]), int(at[a, 1]), staged, kind(a))
+    out = np.empty((4, 4))
+    zeros, zeros0 = np.zeros(h.shape), np.zeros((1, X.shape[1]))
+    largest_violation(h, zeros, zeros, 0, out[0])
+    largest_violation((X[0] - x0)[None, :], zeros0, zeros0, 0, out[1])
+    largest_violation(X, xl, xu, 1, out[2])                 # x^0 is fixed at x0 (the array x0)
+    largest_violation(U, ul, uu, 0, out[3])
+    kind = lambda a: EQUALITY if a < 2 else (UPPER if out[a, 3] else LOWER)     # noqa: E731
+    found = [(name, float(out[a, 0]), int(out[a, 1]), int(out[a, 2]), staged, kind(a))
              for a, (name, staged) in enumerate((("dynamics", True), ("x0", False), ("x_bounds", True),
                                                  ("u_bounds", True)))]
     return found[:1] + _row_values(p, pt) + found[1:]

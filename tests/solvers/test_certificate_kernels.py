@@ -165,31 +165,24 @@ def test_spot_verdict_equals_the_numpy_formulas(share):
             assert repr(got) == repr(_spot_reference(vals, an, size, C.CHECK_STEP))
 
 
-def _directional_reference(pt, Vx, Vu):
-    """The certificate's _directional in numpy (before the compiled stage-cost part)."""
-    D = Vx.shape[0]
-    ax, au = np.abs(Vx), np.abs(Vu)
-    vx, avx = Vx[:, :-1], ax[:, :-1]
-    ein = lambda M, V: np.einsum("kij,dkj->dki", M, V).reshape(D, -1)  # noqa: E731
-    an = [(pt.lx * vx).sum(axis=2) + (pt.lu * Vu).sum(axis=2), (Vx[:, -1] @ pt.lN)[:, None],
-          ein(pt.A, vx) + ein(pt.B, Vu)]
-    size = [(np.abs(pt.lx) * avx).sum(axis=2) + (np.abs(pt.lu) * au).sum(axis=2),
-            (ax[:, -1] @ np.abs(pt.lN))[:, None], ein(np.abs(pt.A), avx) + ein(np.abs(pt.B), au)]
-    if pt.Cx.shape[1] and pt.Cx.shape[0]:
-        an.append(ein(pt.Cx, vx) + ein(pt.Cu, Vu))
-        size.append(ein(np.abs(pt.Cx), avx) + ein(np.abs(pt.Cu), au))
-    if pt.CN.shape[0]:
-        an.append(Vx[:, -1] @ pt.CN.T)
-        size.append(ax[:, -1] @ np.abs(pt.CN).T)
-    return np.concatenate(an, axis=1), np.concatenate(size, axis=1)
-
-
 @pytest.mark.parametrize("awkward", [False, True])
-@pytest.mark.parametrize("shape", SHAPES + [(3, 1, 1, 1, 1), (2, 8, 9, 0, 0), (2, 17, 33, 2, 0), (2, 150, 130, 0, 1)])
-def test_directional_equals_the_reference(shape, awkward):
+@pytest.mark.parametrize("shape", SHAPES + [(3, 1, 1, 1, 1), (2, 17, 33, 2, 0)])
+def test_spot_points_equal_the_directions_and_the_numpy_points(shape, awkward):
+    """The compiled directions and shifted points against the directions drawn one by one
+    (certificate._direction) and the points built in numpy (_stacked_shifted_values without
+    points)."""
     for seed in range(3):
-        p, pt, *_, rng = _case(seed, *shape, awkward=awkward)
-        for D in (1, 2):
-            Vx, Vu = _awkward(rng, (D, p.N + 1, p.n)), _awkward(rng, (D, p.N, p.m))
-            for a, b in zip(C._directional(pt, Vx, Vu), _directional_reference(pt, Vx, Vu), strict=True):
-                assert _same(a, b)
+        p, pt, *_ = _case(seed, *shape, awkward=awkward)
+        bounds = C.StageBounds.of(p)
+        W = (np.maximum(1.0, np.abs(pt.X)), np.maximum(1.0, np.abs(pt.U)))
+        h = C.CHECK_STEP
+        draw = C._uniform_draws(C.CHECK_SEED, C.CHECK_DIRECTIONS, pt.X.size + pt.U.size)
+        Vx, Vu, (Xs, Us, ends) = C._spot_points(draw, pt, bounds, W, h)
+        rng = np.random.default_rng(C.CHECK_SEED)
+        one_by_one = [C._direction(rng, pt, bounds, W, h) for _ in range(C.CHECK_DIRECTIONS)]
+        assert _same(Vx, np.array([v[0] for v in one_by_one])) and _same(Vu, np.array([v[1] for v in one_by_one]))
+        steps = (C._STEPS * h)[None, :, None, None]
+        Xp, Up = pt.X + steps * Vx[:, None], pt.U + steps * Vu[:, None]
+        P = Vx.shape[0] * len(C._SHIFTS)
+        assert _same(Xs, Xp[:, :, :-1].reshape(P * p.N, p.n)) and _same(Us, Up.reshape(P * p.N, p.m))
+        assert _same(ends, Xp[:, :, -1].reshape(P, p.n))
