@@ -21,17 +21,15 @@ of a line search it means "step too long").
 
 from __future__ import annotations
 
-import inspect
 import math
 import os
-import types
-import weakref
 from collections import Counter
 from typing import NamedTuple
 
 import numpy as np
 
 from ..errors import NonFiniteEvaluationError, ProblemDefinitionError
+from .signatures import check_signatures
 
 _EPS = np.finfo(float).eps
 
@@ -48,32 +46,6 @@ _DERIVATIVE_OF = {
 
 
 _all_finite_kernel = None
-
-#: the Python functions whose signature :meth:`DOCP.check_functions` accepted, per (method name,
-#: bound or not): a solve checks its problem at entry, and inspect.signature costs tens of
-#: microseconds a function (a small problem's solve takes milliseconds)
-_SIGNATURES_CHECKED = weakref.WeakKeyDictionary()
-
-
-def _signature_key(fn, name):
-    """(plain function, key) for a Python function or method, else None (not remembered)."""
-    if isinstance(fn, types.MethodType) and isinstance(fn.__func__, types.FunctionType):
-        return fn.__func__, (name, True)
-    if isinstance(fn, types.FunctionType):
-        return fn, (name, False)
-    return None
-
-
-def _checked_before(fn, name):
-    found = _signature_key(fn, name)
-    return found is not None and found[1] in _SIGNATURES_CHECKED.get(found[0], ())
-
-
-def _remember_checked(fn, name):
-    found = _signature_key(fn, name)
-    if found is not None:
-        _SIGNATURES_CHECKED.setdefault(found[0], set()).add(found[1])
-
 
 def _all_finite(arr):
     """True when every entry of the float64 array ``arr`` is finite (one compiled pass,
@@ -522,25 +494,8 @@ class DOCP:
         """Every user function and derivative method is callable with the arguments olado passes
         (:data:`CALL_ARGUMENTS`); ProblemDefinitionError naming the function otherwise. Run by
         the constructor and again at the public entry points (an attribute may be replaced after
-        construction)."""
-        for name, args in CALL_ARGUMENTS.items():
-            fn = getattr(self, name, None)
-            call = f"{name}({', '.join(args)})"
-            if not callable(fn):
-                raise ProblemDefinitionError(f"must be a method called as {call}, got {_describe(fn)}",
-                                             function=name)
-            if not self._overrides(name) or _checked_before(fn, name):
-                continue
-            try:
-                signature = inspect.signature(fn)
-            except (TypeError, ValueError):  # a builtin or compiled function: no signature to check
-                continue
-            try:
-                signature.bind(*args)
-            except TypeError:
-                raise ProblemDefinitionError(f"olado calls it as {call}, but its signature is "
-                                             f"{name}{signature}", function=name) from None
-            _remember_checked(fn, name)
+        construction); what was accepted is remembered (olado.problems.signatures)."""
+        check_signatures(self, CALL_ARGUMENTS, _describe)
 
     def _overrides(self, name):
         return getattr(type(self), name, None) is not getattr(DOCP, name, None)

@@ -57,6 +57,10 @@ CONTROL_NAMES = ("Q1", "Q3", "Q4", "F1", "F2", "F3", "F4")
 FAMILIES = ("zambezi", "zambezi8", "zambezi9", "zambezi10", "zambezi11", "zambezi12")
 
 _DATA_CACHE = {}
+#: (family, N, start year) -> the arrays of _stage_data for the packaged data (Zambezi copies them)
+_STAGE_DATA = {}
+#: (family, N, start year, start) -> the start controls of Zambezi's own start functions
+_START_U = {}
 
 
 def load_data(path=None):
@@ -344,6 +348,45 @@ _DERIVATIVE_FUNCTIONS = frozenset(("dynamics_jacobian", "stage_cost_gradient", "
                                    "eval_dynamics_jacobians", "eval_stage_constraint_jacobians",
                                    "eval_final_constraint_jacobian"))
 
+def _stage_data(d, fam, N, year):
+    """The arrays of a Zambezi problem that depend on the data, the family, N and the start year
+    only: phi, V_ref, u_ref, fa, fe, fh (the weights and the element curves), the record month
+    and calendar month of each stage, inflow Z (N, 4), evaporation e (N, 4), the state and control
+    bounds and x0."""
+    first, months = int(d["first_year"]), int(d["record_months"])
+    SC = fam["SC"]
+    phi = np.array([1.0, 1.0, fam["PHI3"], 1.0]) * fam["PHI"] * SC
+    V_ref = np.array([fam[f"V{i}REF"] for i in (1, 2, 3, 4)])
+    u_ref = np.array([fam["Q1REF"], fam["F2REF"], fam["Q3REF"], fam["Q4REF"]])  # _REF_U order
+    el = d["elements"]
+    abc = lambda kind, ids: np.array([[el[kind][str(i)][c] for c in "ABC"] for i in ids]).T  # noqa: E731
+    fa = abc("FA", (1, 2, 3, 4))        # (3, 4): rows A, B, C
+    fe = abc("FE", (1, 2, 3, 4))
+    fh = abc("FHQ", (1, 3, 4))          # (3, 3) for reservoirs 1, 3, 4
+
+    # stage data: record month j, calendar month, inflow Z (N, 4), evaporation e (N, 4)
+    k = np.arange(N)
+    record_index = ((year - first) * 12 + k) % months
+    month = k % 12
+    rec = d["record"]
+    inflow = np.column_stack([np.asarray(rec["IN1"])[record_index], np.asarray(rec["IN2"])[record_index],
+                              np.full(N, rec["IN3"]), np.asarray(rec["IN4"])[record_index]])
+    E1 = np.asarray(d["evaporation"]["E1"])[month]
+    E4 = np.asarray(d["evaporation"]["E4"])[month]
+    evaporation = np.column_stack([E1, E1, E1, E4])
+
+    b = d["bounds"]
+    lo = lambda nm: -np.inf if b[nm][0] is None else b[nm][0]  # noqa: E731
+    hi = lambda nm: np.inf if b[nm][1] is None else b[nm][1]   # noqa: E731
+    x_lo = np.array([lo(f"V{i}") for i in (1, 2, 3, 4)] + [-np.inf, -np.inf])
+    x_hi = np.array([hi(f"V{i}") for i in (1, 2, 3, 4)] + [np.inf, np.inf])
+    u_lo = np.tile([lo(nm) for nm in CONTROL_NAMES], (N, 1))
+    u_hi = np.tile([hi(nm) for nm in CONTROL_NAMES], (N, 1))
+    u_lo[:, 4] = np.asarray(b["F2_lower_by_month"])[month]
+    x0 = np.array([fam["V10"], fam["V20"], fam["V30"], fam["V40"], fam["F2REF"], fam["F2REF"]])
+    return (phi, V_ref, u_ref, fa, fe, fh, record_index, month, inflow, evaporation, x_lo, x_hi, u_lo, u_hi, x0)
+
+
 class Zambezi(DOCP):
     """Zambezi reservoir DOCP, paper 001 eqs. (40)-(44), vectorized with analytic first and
     second derivatives.
@@ -423,40 +466,26 @@ class Zambezi(DOCP):
         self.alpha = fam["ALFA"] * SC
         self.psi = fam["PSI"] * SC
         self.nu_E = fam["VE"] * SC
-        self.phi = np.array([1.0, 1.0, fam["PHI3"], 1.0]) * fam["PHI"] * SC
-        self.V_ref = np.array([fam[f"V{i}REF"] for i in (1, 2, 3, 4)])
-        self.u_ref = np.array([fam["Q1REF"], fam["F2REF"], fam["Q3REF"], fam["Q4REF"]])  # _REF_U order
-        el = d["elements"]
-        abc = lambda kind, ids: np.array([[el[kind][str(i)][c] for c in "ABC"] for i in ids]).T  # noqa: E731
-        self.fa = abc("FA", (1, 2, 3, 4))        # (3, 4): rows A, B, C
-        self.fe = abc("FE", (1, 2, 3, 4))
-        self.fh = abc("FHQ", (1, 3, 4))          # (3, 3) for reservoirs 1, 3, 4
-
-        # stage data: record month j, calendar month, inflow Z (N, 4), evaporation e (N, 4)
-        k = np.arange(N)
-        self.record_index = ((self.start_year - first) * 12 + k) % months
-        self.month = k % 12
-        rec = d["record"]
-        self.inflow = np.column_stack([np.asarray(rec["IN1"])[self.record_index],
-                                       np.asarray(rec["IN2"])[self.record_index],
-                                       np.full(N, rec["IN3"]),
-                                       np.asarray(rec["IN4"])[self.record_index]])
-        E1 = np.asarray(d["evaporation"]["E1"])[self.month]
-        E4 = np.asarray(d["evaporation"]["E4"])[self.month]
-        self.evaporation = np.column_stack([E1, E1, E1, E4])
-
-        b = d["bounds"]
-        lo = lambda nm: -np.inf if b[nm][0] is None else b[nm][0]  # noqa: E731
-        hi = lambda nm: np.inf if b[nm][1] is None else b[nm][1]   # noqa: E731
-        x_lo = np.array([lo(f"V{i}") for i in (1, 2, 3, 4)] + [-np.inf, -np.inf])
-        x_hi = np.array([hi(f"V{i}") for i in (1, 2, 3, 4)] + [np.inf, np.inf])
-        u_lo = np.tile([lo(nm) for nm in CONTROL_NAMES], (N, 1))
-        u_hi = np.tile([hi(nm) for nm in CONTROL_NAMES], (N, 1))
-        u_lo[:, 4] = np.asarray(b["F2_lower_by_month"])[self.month]
-        x0 = np.array([fam["V10"], fam["V20"], fam["V30"], fam["V40"], fam["F2REF"], fam["F2REF"]])
+        key = (family, N, self.start_year) if data is None else None
+        stage = _STAGE_DATA.get(key) if key is not None else None
+        if stage is None:
+            stage = _stage_data(d, fam, N, self.start_year)
+            if key is not None:
+                _STAGE_DATA[key] = stage
+        # each instance its own arrays (a user may change a problem's data in place)
+        (self.phi, self.V_ref, self.u_ref, self.fa, self.fe, self.fh, self.record_index, self.month, self.inflow,
+         self.evaporation, x_lo, x_hi, u_lo, u_hi, x0) = (a.copy(order="K") for a in stage)
         super().__init__(6, 7, N, x0, x_bounds=(x_lo, x_hi), u_bounds=(u_lo, u_hi), **docp_options)
         self.name = family
-        self._start_U = self.balance_start() if start == "balance" else self.sif_start()
+        # the start controls depend on the stage data and bounds only: remembered with them
+        # (for Zambezi's own start functions)
+        plain = key is not None and _START_FUNCTIONS == (type(self).balance_start, type(self).sif_start)
+        U = _START_U.get(key + (start,)) if plain else None
+        if U is None:
+            U = self.balance_start() if start == "balance" else self.sif_start()
+            if plain:
+                _START_U[key + (start,)] = U.copy()
+        self._start_U = U.copy()
 
     # ------------------------------------------------------------------ helpers
     @staticmethod
@@ -769,6 +798,8 @@ class Zambezi(DOCP):
                 f"start={self.start}")
 
 
+#: Zambezi's own start functions (their controls are remembered per family, N, year and start)
+_START_FUNCTIONS = (Zambezi.balance_start, Zambezi.sif_start)
 #: (name, function) of what the fused kernels replace, as Zambezi defines or inherits them
 _FUSED = {"values": tuple((nm, getattr(Zambezi, nm)) for nm in _VALUE_FUNCTIONS),
           "derivatives": tuple((nm, getattr(Zambezi, nm)) for nm in _DERIVATIVE_FUNCTIONS)}

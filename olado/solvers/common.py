@@ -214,6 +214,17 @@ def stage_gradient_terms(p, pt, lam, Lg, LgN, sigma=1.0):
     ``sigma`` scales the objective (IPOPT's objective scaling; 0: the gradient of the constraint
     terms alone, the objective's derivatives not read)."""
     rx = np.empty((p.N + 1, p.n))
+    if sigma == 1.0 and p.n > 1 and p.m > 1 and p.N:      # the einsums sum in order (certificate_kernels)
+        from .certificate_kernels import gradient_terms   # noqa: PLC0415 - numba is loaded on the first solve
+
+        ru = np.empty((p.N, p.m))
+        c = np.ascontiguousarray
+        gradient_terms(c(pt.lx, dtype=float), c(pt.lu, dtype=float), c(pt.lN, dtype=float), c(pt.A, dtype=float),
+                       c(pt.B, dtype=float), c(pt.Cx, dtype=float), c(pt.Cu, dtype=float), c(lam, dtype=float),
+                       c(Lg, dtype=float), rx, ru)
+        if p.rN:
+            rx[-1] += pt.CN.T @ LgN
+        return rx, ru
     lx, lu, lN = (sigma * pt.lx, sigma * pt.lu, sigma * pt.lN) if sigma else (0.0, 0.0, 0.0)
     rx[:-1] = lx + np.einsum("kij,ki->kj", pt.A, lam)
     rx[1:-1] -= lam[:-1]

@@ -116,16 +116,9 @@ def _largest_values(problem, pt):
     staged, kinds of an entry): what :func:`largest_violation_of` reads."""
     p = problem
     X, U = np.asarray(pt.X, dtype=float), np.asarray(pt.U, dtype=float)
-    equality = lambda k, i: EQUALITY                                            # noqa: E731
-    rows = lambda mask: lambda k, i: EQUALITY if mask[i] else INEQUALITY        # noqa: E731
-    out = [("dynamics", np.abs(pt.h), True, equality)]
-    if p.r:
-        mask = p.stage_equality_mask
-        out.append(("stage_constraints", _rows(pt.g, mask)[0], True, rows(mask)))
-    if p.rN:
-        mask = p.final_equality_mask
-        out.append(("final_constraints", _rows(np.reshape(pt.gN, (1, p.rN)), mask)[0], False, rows(mask)))
-    out.append(("x0", np.abs(X[0] - p.x0)[None, :], False, equality))
+    out = [("dynamics", np.abs(pt.h), True, _equality)]
+    out += _row_values(p, pt)
+    out.append(("x0", np.abs(X[0] - p.x0)[None, :], False, _equality))
     for name, y, lo, hi in (("x_bounds", X, p.x_lower, p.x_upper), ("u_bounds", U, p.u_lower, p.u_upper)):
         with np.errstate(invalid="ignore"):
             below, above = lo - y, y - hi
@@ -136,12 +129,67 @@ def _largest_values(problem, pt):
     return out
 
 
+def _equality(k, i):
+    return EQUALITY
+
+
+def _row_values(p, pt):
+    """The constraint rows' entries of :func:`_largest_values`."""
+    rows = lambda mask: lambda k, i: EQUALITY if mask[i] else INEQUALITY        # noqa: E731
+    out = []
+    if p.r:
+        mask = p.stage_equality_mask
+        out.append(("stage_constraints", _rows(pt.g, mask)[0], True, rows(mask)))
+    if p.rN:
+        mask = p.final_equality_mask
+        out.append(("final_constraints", _rows(np.reshape(pt.gN, (1, p.rN)), mask)[0], False, rows(mask)))
+    return out
+
+
+def _largest_compiled(p, pt):
+    """The candidates of :func:`largest_violation_of` in the arrays' order, (name, largest value
+    (NaN as inf), stage, component, staged, kind) for the dynamics, x0 and the bounds from
+    compiled passes (certificate_kernels.largest_violation: the same maxima and first largest
+    entries; |c| as max(max(0 - c, 0), max(c - 0, 0))), the rows' arrays as (name, values,
+    staged, kind); None when the arrays do not have the shapes of the problem (the numpy form
+    then)."""
+    from .certificate_kernels import largest_violation   # noqa: PLC0415 - numba is loaded on the first solve
+
+    c = np.ascontiguousarray
+    X, U, h = c(pt.X, dtype=float), c(pt.U, dtype=float), c(pt.h, dtype=float)
+    xl, xu, ul, uu = (c(a, dtype=float) for a in (p.x_lower, p.x_upper, p.u_lower, p.u_upper))
+    x0 = c(p.x0, dtype=float)
+    if not (xl.shape == xu.shape == X.shape and ul.shape == uu.shape == U.shape and h.ndim == 2 and x0.ndim == 1
+            and x0.shape[0] == X.shape[1]):
+        return None
+    out = np.empty((4, 4))
+    zeros, zeros0 = np.zeros(h.shape), np.zeros((1, X.shape[1]))
+    largest_violation(h, zeros, zeros, 0, out[0])
+    largest_violation((X[0] - x0)[None, :], zeros0, zeros0, 0, out[1])
+    largest_violation(X, xl, xu, 1, out[2])                 # x^0 is fixed at x0 (the array x0)
+    largest_violation(U, ul, uu, 0, out[3])
+    kind = lambda a: EQUALITY if a < 2 else (UPPER if out[a, 3] else LOWER)     # noqa: E731
+    found = [(name, float(out[a, 0]), int(out[a, 1]), int(out[a, 2]), staged, kind(a))
+             for a, (name, staged) in enumerate((("dynamics", True), ("x0", False), ("x_bounds", True),
+                                                 ("u_bounds", True)))]
+    return found[:1] + _row_values(p, pt) + found[1:]
+
+
 def largest_violation_of(problem, pt) -> tuple[float, Violation | None]:
     """``largest_violation(violation_arrays(problem, pt))`` -- the same value and Violation --
     with the kind computed for the largest entry only (olado's certificate of a success asks for
-    nothing else)."""
+    nothing else); the dynamics, x0 and the bounds in one compiled pass."""
     best, where = 0.0, None
-    for name, values, staged, kind in _largest_values(problem, pt):
+    candidates = _largest_compiled(problem, pt)
+    for entry in candidates if candidates is not None else _largest_values(problem, pt):
+        if len(entry) == 6:                     # from the compiled pass: the largest entry found
+            name, top, k, i, staged, kind = entry
+            if top > best:
+                best = top
+                where = Violation(array=name, stage=k if staged else None, component=i, value=best,
+                                  kind=Violation.KINDS[kind])
+            continue
+        name, values, staged, kind = entry
         if not values.size:
             continue
         top = float(values.max())

@@ -131,7 +131,40 @@ def stage_complementarity_reference(p, pt, mult, bounds):
 
 def stage_kkt(p, pt, mult, bounds) -> StageKKT:
     """The Result's KKT quantities at pt (values and derivatives evaluated) with the stage
-    multipliers ``mult`` and bound multipliers ``bounds`` (see the module docstring)."""
+    multipliers ``mult`` and bound multipliers ``bounds`` (see the module docstring): the
+    numbers of :func:`stage_kkt_reference`, the fixed variables' multipliers, the stationarity
+    and the violation in one compiled pass (olado.solvers.certificate_kernels.stage_kkt)."""
+    c = np.ascontiguousarray
+    xl, xu, ul, uu = (c(a, dtype=float) for a in _bounds(p))
+    rx, ru = _gradient_terms(p, pt, mult)
+    X, U, h, g, gN = (c(a, dtype=float) for a in (pt.X, pt.U, pt.h, pt.g, pt.gN))
+    z = tuple(c(a, dtype=float) for a in bounds)
+    if not (xl.shape == X.shape == z[0].shape == z[1].shape and ul.shape == U.shape == z[2].shape == z[3].shape
+            and h.ndim == 2 and g.ndim == 2 and gN.ndim == 1):
+        return stage_kkt_reference(p, pt, mult, bounds)
+    filled = BoundMultipliers(*(np.empty_like(a) for a in (X, X, U, U)))
+    out, rows = np.empty(5), np.empty(2)
+    kernels = _certificate_kernels()
+    kernels.stage_kkt(c(rx), c(ru), X, U, xl, xu, ul, uu, *z, *filled, out)
+    viol = 0.0                  # Python's max over the arrays' maxima (NaN ones add nothing), in _violation's order
+    for values, eq in ((h, None), (g, p.stage_equality_mask), (gN[None, :], p.final_equality_mask)):
+        if values.size:         # max(0 - c, 0) and max(c - cu, 0): cu = 0 (dynamics, equality rows) or inf
+            upper = np.zeros(values.shape) if eq is None else np.ascontiguousarray(
+                np.broadcast_to(np.where(eq, 0.0, np.inf), values.shape))
+            kernels.violation_maxima(np.zeros(values.shape), values, upper, rows)
+            viol = max(viol, float(rows[0]), float(rows[1]))
+    viol = max(viol, *(float(v) for v in out[1:]))
+    return StageKKT(float(out[0]), stage_complementarity(p, pt, mult, filled), viol, filled)
+
+
+def _certificate_kernels():
+    from .. import certificate_kernels   # noqa: PLC0415 - numba is loaded on the first solve
+
+    return certificate_kernels
+
+
+def stage_kkt_reference(p, pt, mult, bounds) -> StageKKT:
+    """:func:`stage_kkt` in numpy (the reference of the compiled pass)."""
     xl, xu, ul, uu = _bounds(p)
     rx, ru = _gradient_terms(p, pt, mult)
     zl_x, zu_x = _fill_fixed(rx, xl, xu, bounds.zl_x, bounds.zu_x)
