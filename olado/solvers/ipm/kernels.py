@@ -134,6 +134,32 @@ def complementarity(sl, su, zl, zu, has_lo, has_hi, mu, mu1):
 
 
 @nb.njit(inline="always")
+def _min_max(lo, hi, p):
+    """(min, max) of a running range with ``p`` added, np.minimum's and np.maximum's rule (a NaN
+    propagates to both)."""
+    if lo != lo or p != p:
+        return np.nan, np.nan
+    return (p if p < lo else lo), (p if p > hi else hi)
+
+
+@nb.njit(**_JIT)
+def product_ranges(sl, su, zl, zu, has_lo, has_hi):
+    """(count, min, max) of the products s_L z_L over has_lo, then the same of s_U z_U over
+    has_hi (min inf, max -inf when the count is 0; both NaN when a product is NaN): what the
+    complementarity max |s z - mu| of every mu needs (solver.products_complementarity: fl(p - mu)
+    is monotone in p, so the largest |fl(p - mu)| is at the smallest or the largest product)."""
+    n_lo, n_hi, lo_min, lo_max, hi_min, hi_max = 0, 0, np.inf, -np.inf, np.inf, -np.inf
+    for i in range(sl.size):
+        if has_lo[i]:
+            lo_min, lo_max = _min_max(lo_min, lo_max, sl[i] * zl[i])
+            n_lo += 1
+        if has_hi[i]:
+            hi_min, hi_max = _min_max(hi_min, hi_max, su[i] * zu[i])
+            n_hi += 1
+    return n_lo, lo_min, lo_max, n_hi, hi_min, hi_max
+
+
+@nb.njit(inline="always")
 def _floor1(a):
     """np.maximum(1, a) (a NaN propagates)."""
     return a if (a != a or a > 1.0) else 1.0
@@ -482,17 +508,17 @@ def stage_products(A, B, lam, EA, EB):
 
 @nb.njit(**_JIT)
 def error_pass(s_obj, lx, lu, lN, A, B, EA, EB, products, lam, ECx, ECu, CNL, has_r, has_rN, yd, ydN, zl, zu, nu, nuN,
-               sl, su, has_lo, has_hi, mu0, mu1):
+               sl, su, has_lo, has_hi):
     """The optimality error's passes at an iterate in one call (solver.error_terms): with
     ``products``, ``stage_products`` (A, B, lam) into EA, EB first; then ``dual_infeasibility``
-    and ``complementarity`` (sl, su, ..., mu0, mu1). Returns (max, z sum, y sum) and the
-    complementarity's (n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1)."""
+    and ``product_ranges`` (sl, su, ...: the complementarity of any mu). Returns (max, z sum,
+    y sum) and the ranges (n_lo, lo_min, lo_max, n_hi, hi_min, hi_max)."""
     if products:
         stage_products(A, B, lam, EA, EB)
     mx, zsum, ysum = dual_infeasibility(s_obj, lx, lu, lN, EA, EB, lam, ECx, ECu, CNL, has_r, has_rN, yd, ydN, zl, zu,
                                         nu, nuN)
-    n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1 = complementarity(sl, su, zl, zu, has_lo, has_hi, mu0, mu1)
-    return mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1
+    n_lo, lo_min, lo_max, n_hi, hi_min, hi_max = product_ranges(sl, su, zl, zu, has_lo, has_hi)
+    return mx, zsum, ysum, n_lo, lo_min, lo_max, n_hi, hi_min, hi_max
 
 
 @nb.njit(**_JIT)

@@ -57,10 +57,13 @@ def _diagonal_system(setup, pt, sig):
                      constraint_blocks(setup, pt, Ss, SsN))
 
 
-def least_squares_multipliers(setup, pt, zl, zu, s_obj):
+def least_squares_multipliers(setup, pt, zl, zu, s_obj, hand_over=False):
     """The constraint multipliers minimizing the 2-norm of the Lagrangian's gradient (eq. (36)):
     the LQ-DOCP with identity Hessian and zero constraint offsets, one Riccati recursion.
-    Returns (lam (N+1, n), nu, nuN, yd, ydN)."""
+    Returns (lam (N+1, n), nu, nuN, yd, ydN). With ``hand_over`` (the start of a solve) the
+    factored matrix becomes ``setup.last_kkt``: the first Newton matrix takes its back-end over
+    (newton.KKTMatrix's ``reuse``; it sets every block and factors afresh), as the later ones take
+    their predecessor's, instead of building one of its own."""
     p, L = setup.problem, setup.layout
     N, n = p.N, p.n
     kkt = _diagonal_system(setup, pt, np.ones(L.size))
@@ -70,6 +73,8 @@ def least_squares_multipliers(setup, pt, zl, zu, s_obj):
     q = np.empty((N + 1, n)); q[:-1] = pt.lx; q[-1] = pt.lN
     zero = Residuals(np.zeros((N, n)), np.zeros((N, L.ne)), np.zeros(L.neN), np.zeros((N, L.ni)), np.zeros(L.niN))
     step = kkt.solve(s_obj * q + bx, s_obj * pt.lu + bu, zero, vs, vsN)     # gs = -v_L: vs = zu - zl = -zl
+    if hand_over:
+        setup.last_kkt = kkt
     return step.lam, step.nu, step.nuN, step.yd, step.ydN
 
 

@@ -143,7 +143,7 @@ class IPMState(Stoppable):
     infeasibility_certificate: dict = None   # the converged l1 restoration's figures (restoration.restore_l1)
     adaptive: AdaptiveMu = None  # the adaptive mu update's memory (mu_strategy = adaptive)
     error_cache: tuple = None   # (inputs, s_obj, ErrorTerms) of the last error_terms call
-    compl_cache: tuple = None   # (slacks, zl, zu, {mu: complementarity}) of the iterate (complementarity)
+    compl_cache: tuple = None   # (slacks, zl, zu, product ranges) of the iterate (complementarity)
 
 
 class Setup:
@@ -355,11 +355,12 @@ def dual_terms(setup, st):
     return iterate_errors(setup, st)[0]
 
 
-def iterate_errors(setup, st, mu=None):
-    """(:func:`dual_terms`, (complementarity at mu = 0, at mu: the iterate's unless given)) in one compiled pass
-    (kernels.error_pass: the stage products A^T lam, B^T lam where :func:`_plain_products` says
-    einsum's order is the plain one, the dual infeasibility, kernels.dual_infeasibility, and the
-    complementarity, Bounds.complementarities); the products with the constraint rows by numpy."""
+def iterate_errors(setup, st):
+    """(:func:`dual_terms`, the ranges of the products s z (:func:`products_complementarity`: the
+    complementarity of every mu)) in one compiled pass (kernels.error_pass: the stage products
+    A^T lam, B^T lam where :func:`_plain_products` says einsum's order is the plain one, the dual
+    infeasibility, kernels.dual_infeasibility, and kernels.product_ranges); the products with
+    the constraint rows by numpy."""
     p, pt, b = setup.problem, st.pt, setup.bounds
     lam = st.lam[1:]
     products = _plain_products(pt.A, pt.B, lam)
@@ -375,11 +376,31 @@ def iterate_errors(setup, st, mu=None):
         if p.rN:
             CNL = pt.CN.T @ LgN
     sl, su = b.slacks(st.v)
-    mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1 = _kernels().error_pass(
+    mx, zsum, ysum, *ranges = _kernels().error_pass(
         float(st.s_obj), pt.lx, pt.lu, pt.lN, pt.A, pt.B, EA, EB, products, lam, ECx, ECu, CNL, bool(p.r), bool(p.rN),
-        st.yd, st.ydN, st.zl, st.zu, st.nu, st.nuN, sl, su, b.has_lo, b.has_hi, 0.0, float(st.mu if mu is None else mu))
-    return ((float(mx), float(zsum), float(ysum)),
-            (_sides_max(n_lo, m_lo, n_hi, m_hi), _sides_max(n_lo, m_lo1, n_hi, m_hi1)))
+        st.yd, st.ydN, st.zl, st.zu, st.nu, st.nuN, sl, su, b.has_lo, b.has_hi)
+    return (float(mx), float(zsum), float(ysum)), tuple(ranges)
+
+
+def products_complementarity(ranges, mu):
+    """max |s z - mu| over the finite sides (Bounds.complementarity, the same float) from the
+    ranges (n_lo, min, max, n_hi, min, max) of the products p = s z of each side
+    (kernels.product_ranges): fl(p - mu) is monotone in p and rounding is symmetric, so
+    max_p |fl(p - mu)| = max(fl(p_max - mu), fl(mu - p_min)) exactly (one of the two is >= 0;
+    abs makes a zero +0 as abs(p - mu) does); a NaN product makes its side NaN. The sides are
+    joined by :func:`barrier._sides_max` as the compiled pass's maxima are."""
+    n_lo, lo_min, lo_max, n_hi, hi_min, hi_max = ranges
+    return _sides_max(n_lo, _side_complementarity(lo_min, lo_max, mu), n_hi,
+                      _side_complementarity(hi_min, hi_max, mu))
+
+
+def _side_complementarity(p_min, p_max, mu):
+    """max |fl(p - mu)| over one side's products from their range (:func:`products_complementarity`;
+    unused when the side has none)."""
+    if p_max != p_max:
+        return math.nan
+    a, b = p_max - mu, mu - p_min
+    return abs(b if b > a else a)
 
 
 def _plain_products(A, B, lam):
@@ -409,13 +430,13 @@ def error_terms(setup, st) -> ErrorTerms:
 
 
 def store_errors(setup, st, figures):
-    """The :class:`ErrorTerms` of the iterate from :func:`iterate_errors`' figures (computed at the
-    iterate's mu), kept for :func:`error_terms` and :func:`complementarity`."""
+    """The :class:`ErrorTerms` of the iterate from :func:`iterate_errors`' figures, kept for
+    :func:`error_terms`, and the products' ranges for :func:`complementarity`."""
     key = (st.v, st.pt, st.lam, st.nu, st.nuN, st.yd, st.ydN, st.zl, st.zu)
     b = setup.bounds
-    (inf_du, zsum, ysum), (c0, c1) = figures
-    # the complementarities of the same pass (complementarity's cache)
-    st.compl_cache = (b.slacks(st.v), st.zl, st.zu, {0.0: c0, st.mu: c1})
+    (inf_du, zsum, ysum), ranges = figures
+    # the complementarity of every mu from the same pass (complementarity's cache)
+    st.compl_cache = (b.slacks(st.v), st.zl, st.zu, ranges)
     inf_pr = residual_norms(setup, st.pt, st.v)[1]
     nz = max(b.count, 1)
     ny = st.lam[1:].size + st.nu.size + st.nuN.size + st.yd.size + st.ydN.size
@@ -428,19 +449,16 @@ def store_errors(setup, st, figures):
 
 def complementarity(setup, st, mu):
     """max |s z - mu| over the finite sides at the iterate (Bounds.complementarity). The stopping
-    test (mu = 0) and the barrier update (the iterate's mu) ask at the same iterate: both are
-    computed in one pass (:func:`iterate_errors`, with the error terms) and kept until the slacks
-    (the point, or the bounds moved) or the bound multipliers change; another mu (the barrier
-    update lowered it) takes that pass again (no kernel of its own to compile)."""
-    b = setup.bounds
-    slacks = b.slacks(st.v)
+    test (mu = 0) and the barrier update (the iterate's mu, and each lower one it sets) ask at the
+    same iterate: every mu's is had from the ranges of the products s z
+    (:func:`products_complementarity`, exactly), which the error terms' pass finds
+    (:func:`iterate_errors`) and which are kept until the slacks (the point, or the bounds moved)
+    or the bound multipliers change (then that pass again)."""
+    slacks = setup.bounds.slacks(st.v)
     c = st.compl_cache
     if c is None or c[0] is not slacks or c[1] is not st.zl or c[2] is not st.zu:
-        c = st.compl_cache = (slacks, st.zl, st.zu, {})
-    values = c[3]
-    if mu not in values:
-        values[mu] = iterate_errors(setup, st, mu)[1][1]
-    return values[mu]
+        c = st.compl_cache = (slacks, st.zl, st.zu, iterate_errors(setup, st)[1])
+    return products_complementarity(c[3], mu)
 
 
 def optimality_errors(setup, st, mu):
@@ -472,7 +490,8 @@ def initial_state(setup, X0, U0, clock):
     s_obj = min(1.0, 100.0 / gmax) if o.obj_scaling == "gradient-based" and gmax > 0 else 1.0
     del pt0, q, r               # the user's point and its derivatives: not kept through the multipliers
     zl, zu = b.has_lo.astype(float), b.has_hi.astype(float)
-    mult = least_squares_multipliers(setup, pt, zl, zu, s_obj)
+    # the multipliers' factored matrix is handed to the first Newton matrix (newton_system)
+    mult = least_squares_multipliers(setup, pt, zl, zu, s_obj, hand_over=True)
     if max((float(np.abs(a).max(initial=0.0)) for a in mult), default=0.0) > o.constr_mult_init_max:
         mult = tuple(np.zeros_like(a) for a in mult)
     lam, nu, nuN, yd, ydN = mult
