@@ -122,8 +122,26 @@ def _handler(signum, frame):
 
 def _replaceable(signum, handler) -> bool:
     """Only Python's default behaviour is replaced: SIGINT's default_int_handler, SIG_DFL; a
-    handler the program installed itself, or an ignored signal, is left alone."""
-    return handler is signal.SIG_DFL or (signum == signal.SIGINT and handler is signal.default_int_handler)
+    handler the program installed itself, or an ignored signal, is left alone. ``handler`` as
+    ``signal.getsignal`` or the underlying ``_signal.getsignal`` gives it (SIG_DFL the
+    Handlers member or its int)."""
+    if handler is signal.default_int_handler:
+        return signum == signal.SIGINT
+    return type(handler) in _DEFAULT_TYPES and handler == signal.SIG_DFL
+
+
+#: the types of SIG_DFL as getsignal gives it: signal.Handlers' member, _signal's int
+_DEFAULT_TYPES = (type(signal.SIG_DFL), int)
+
+# signal.signal and signal.getsignal are _signal's with their arguments and results converted
+# between ints and the Signals / Handlers enums (~4 us per call in Enum's lookups of a function
+# that is no member): a guard, entered and left once per solve, calls the underlying functions
+# with what they take and give back -- the numbers, SIG_DFL and SIG_IGN as ints, handlers as they
+# are -- and stores and restores a handler as _signal gave it
+try:
+    from _signal import getsignal as _getsignal, signal as _setsignal
+except ImportError:     # pragma: no cover - an interpreter without CPython's module: the public functions
+    _getsignal, _setsignal = signal.getsignal, signal.signal
 
 
 class InterruptGuard:
@@ -148,9 +166,9 @@ class InterruptGuard:
             clear_interrupt()
         _FLAG.depth += 1
         for signum in self.signals:
-            current = signal.getsignal(signum)
+            current = _getsignal(signum)
             if current is not _handler and _replaceable(signum, current):
-                signal.signal(signum, _handler)
+                _setsignal(signum, _handler)
                 self.installed[signum] = current
         return self
 
@@ -163,7 +181,7 @@ class InterruptGuard:
             return False
         self._received = _FLAG.signum
         for signum, previous in self.installed.items():
-            signal.signal(signum, previous)
+            _setsignal(signum, previous)
         self.installed = {}
         _FLAG.depth -= 1
         if _FLAG.depth == 0:
