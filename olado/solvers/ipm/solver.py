@@ -485,21 +485,34 @@ def initial_state(setup, X0, U0, clock):
     if L.ni or L.niN:
         v = b.push(L.pack(pt.X, pt.U, pt.g[:, L.ineq], pt.gN[L.ineqN]), o.bound_push, o.bound_frac)
     # the scaling from the user's point, before the push into the bounds (IPOPT scales the NLP first)
-    q, r = objective_gradient(pt0 if o.obj_scaling != "none" else pt, 1.0)
-    gmax = max(float(np.abs(q[1:]).max(initial=0.0)), float(np.abs(r).max(initial=0.0)))
-    s_obj = min(1.0, 100.0 / gmax) if o.obj_scaling == "gradient-based" and gmax > 0 else 1.0
-    del pt0, q, r               # the user's point and its derivatives: not kept through the multipliers
+    s_obj = 1.0
+    if o.obj_scaling == "gradient-based":
+        q, r = objective_gradient(pt0, 1.0)
+        gmax = max(float(np.abs(q[1:]).max(initial=0.0)), float(np.abs(r).max(initial=0.0)))
+        s_obj = min(1.0, 100.0 / gmax) if gmax > 0 else 1.0
+        del q, r
+    del pt0                     # the user's point and its derivatives: not kept through the multipliers
     zl, zu = b.has_lo.astype(float), b.has_hi.astype(float)
     # the multipliers' factored matrix is handed to the first Newton matrix (newton_system)
     mult = least_squares_multipliers(setup, pt, zl, zu, s_obj, hand_over=True)
-    if max((float(np.abs(a).max(initial=0.0)) for a in mult), default=0.0) > o.constr_mult_init_max:
+    if _largest_abs(mult) > o.constr_mult_init_max:
         mult = tuple(np.zeros_like(a) for a in mult)
     lam, nu, nuN, yd, ydN = mult
     mu = o.mu_init
-    st = IPMState(v=v, pt=pt, lam=lam, zl=zl, zu=zu, mu=mu, tau=max(o.tau_min, 1.0 - mu),
-                  filt=Filter.start(0.0), s_obj=s_obj, clock=clock, nu=nu, nuN=nuN, yd=yd, ydN=ydN)
-    st.filt = Filter.start(theta(setup, pt, v))
-    return st
+    return IPMState(v=v, pt=pt, lam=lam, zl=zl, zu=zu, mu=mu, tau=max(o.tau_min, 1.0 - mu),
+                    filt=Filter.start(theta(setup, pt, v)), s_obj=s_obj, clock=clock, nu=nu, nuN=nuN, yd=yd, ydN=ydN)
+
+
+def _largest_abs(arrays):
+    """max((float(np.abs(a).max(initial=0.0)) for a in arrays), default=0.0) -- Python's max: the
+    first value, then each later one that is larger -- without the reductions' ``initial`` (an
+    empty array's value is 0.0; for another, the largest |a| is its max(initial=0.0), NaN too)."""
+    largest = 0.0
+    for i, a in enumerate(arrays):
+        x = float(np.abs(a).max()) if a.size else 0.0
+        if i == 0 or x > largest:
+            largest = x
+    return largest
 
 
 # ---------------------------------------------------------------------------- one iteration

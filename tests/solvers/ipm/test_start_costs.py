@@ -168,3 +168,16 @@ def test_barrier_updates_take_no_further_error_pass(monkeypatch):
     keys = ("alpha", "alpha_z", "objective", "inf_pr", "inf_du", "mu", "delta_w")
     assert [tuple(h[k] for k in keys) for h in fast.history] == [tuple(h[k] for k in keys) for h in ref.history]
     assert fast.objective == ref.objective and np.array_equal(fast.x, ref.x)
+
+
+def test_largest_abs_is_the_generator_form():
+    """initial_state's test of the multipliers' size (constr_mult_init_max): the same float as
+    max((float(np.abs(a).max(initial=0.0)) for a in arrays), default=0.0), empty arrays, NaN
+    (kept only where Python's max keeps it) and -0 included."""
+    rng = np.random.default_rng(11)
+    pool = [np.zeros((3, 0)), np.zeros(0), np.array([np.nan, 1.0]), np.array([-0.0]), np.array([2.0, -5.0]),
+            rng.normal(size=(4, 3)), np.array([np.inf]), np.array([[np.nan]])]
+    for _ in range(400):
+        arrays = [pool[i] for i in rng.integers(0, len(pool), size=int(rng.integers(0, 6)))]
+        want = max((float(np.abs(a).max(initial=0.0)) for a in arrays), default=0.0)
+        assert _same_float(S._largest_abs(arrays), want)
