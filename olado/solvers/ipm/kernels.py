@@ -508,17 +508,19 @@ def stage_products(A, B, lam, EA, EB):
 
 @nb.njit(**_JIT)
 def error_pass(s_obj, lx, lu, lN, A, B, EA, EB, products, lam, ECx, ECu, CNL, has_r, has_rN, yd, ydN, zl, zu, nu, nuN,
-               sl, su, has_lo, has_hi):
+               sl, su, has_lo, has_hi, mu0, mu1):
     """The optimality error's passes at an iterate in one call (solver.error_terms): with
-    ``products``, ``stage_products`` (A, B, lam) into EA, EB first; then ``dual_infeasibility``
-    and ``product_ranges`` (sl, su, ...: the complementarity of any mu). Returns (max, z sum,
-    y sum) and the ranges (n_lo, lo_min, lo_max, n_hi, hi_min, hi_max)."""
+    ``products``, ``stage_products`` (A, B, lam) into EA, EB first; then ``dual_infeasibility``,
+    ``complementarity`` (sl, su, ..., mu0, mu1) and ``product_ranges`` (the complementarity of
+    any other mu). Returns (max, z sum, y sum), the complementarity's (n_lo, m_lo, m_lo1, n_hi,
+    m_hi, m_hi1) and the ranges (lo_min, lo_max, hi_min, hi_max)."""
     if products:
         stage_products(A, B, lam, EA, EB)
     mx, zsum, ysum = dual_infeasibility(s_obj, lx, lu, lN, EA, EB, lam, ECx, ECu, CNL, has_r, has_rN, yd, ydN, zl, zu,
                                         nu, nuN)
-    n_lo, lo_min, lo_max, n_hi, hi_min, hi_max = product_ranges(sl, su, zl, zu, has_lo, has_hi)
-    return mx, zsum, ysum, n_lo, lo_min, lo_max, n_hi, hi_min, hi_max
+    n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1 = complementarity(sl, su, zl, zu, has_lo, has_hi, mu0, mu1)
+    _, lo_min, lo_max, _, hi_min, hi_max = product_ranges(sl, su, zl, zu, has_lo, has_hi)
+    return mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1, lo_min, lo_max, hi_min, hi_max
 
 
 @nb.njit(**_JIT)

@@ -143,7 +143,7 @@ class IPMState(Stoppable):
     infeasibility_certificate: dict = None   # the converged l1 restoration's figures (restoration.restore_l1)
     adaptive: AdaptiveMu = None  # the adaptive mu update's memory (mu_strategy = adaptive)
     error_cache: tuple = None   # (inputs, s_obj, ErrorTerms) of the last error_terms call
-    compl_cache: tuple = None   # (slacks, zl, zu, product ranges) of the iterate (complementarity)
+    compl_cache: tuple = None   # (slacks, zl, zu, product ranges, {mu: value}) of the iterate (complementarity)
 
 
 class Setup:
@@ -356,11 +356,12 @@ def dual_terms(setup, st):
 
 
 def iterate_errors(setup, st):
-    """(:func:`dual_terms`, the ranges of the products s z (:func:`products_complementarity`: the
-    complementarity of every mu)) in one compiled pass (kernels.error_pass: the stage products
-    A^T lam, B^T lam where :func:`_plain_products` says einsum's order is the plain one, the dual
-    infeasibility, kernels.dual_infeasibility, and kernels.product_ranges); the products with
-    the constraint rows by numpy."""
+    """(:func:`dual_terms`, (complementarity at mu = 0, at the iterate's mu), the ranges of the
+    products s z (:func:`products_complementarity`: the complementarity of any other mu)) in one
+    compiled pass (kernels.error_pass: the stage products A^T lam, B^T lam where
+    :func:`_plain_products` says einsum's order is the plain one, the dual infeasibility,
+    kernels.dual_infeasibility, the complementarity, Bounds.complementarities, and
+    kernels.product_ranges); the products with the constraint rows by numpy."""
     p, pt, b = setup.problem, st.pt, setup.bounds
     lam = st.lam[1:]
     products = _plain_products(pt.A, pt.B, lam)
@@ -376,10 +377,12 @@ def iterate_errors(setup, st):
         if p.rN:
             CNL = pt.CN.T @ LgN
     sl, su = b.slacks(st.v)
-    mx, zsum, ysum, *ranges = _kernels().error_pass(
+    mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1, lo_min, lo_max, hi_min, hi_max = _kernels().error_pass(
         float(st.s_obj), pt.lx, pt.lu, pt.lN, pt.A, pt.B, EA, EB, products, lam, ECx, ECu, CNL, bool(p.r), bool(p.rN),
-        st.yd, st.ydN, st.zl, st.zu, st.nu, st.nuN, sl, su, b.has_lo, b.has_hi)
-    return (float(mx), float(zsum), float(ysum)), tuple(ranges)
+        st.yd, st.ydN, st.zl, st.zu, st.nu, st.nuN, sl, su, b.has_lo, b.has_hi, 0.0, float(st.mu))
+    return ((float(mx), float(zsum), float(ysum)),
+            (_sides_max(n_lo, m_lo, n_hi, m_hi), _sides_max(n_lo, m_lo1, n_hi, m_hi1)),
+            (n_lo, lo_min, lo_max, n_hi, hi_min, hi_max))
 
 
 def products_complementarity(ranges, mu):
@@ -434,9 +437,9 @@ def store_errors(setup, st, figures):
     :func:`error_terms`, and the products' ranges for :func:`complementarity`."""
     key = (st.v, st.pt, st.lam, st.nu, st.nuN, st.yd, st.ydN, st.zl, st.zu)
     b = setup.bounds
-    (inf_du, zsum, ysum), ranges = figures
-    # the complementarity of every mu from the same pass (complementarity's cache)
-    st.compl_cache = (b.slacks(st.v), st.zl, st.zu, ranges)
+    (inf_du, zsum, ysum), (c0, c1), ranges = figures
+    # the complementarities of the same pass, and the products' ranges for another mu (complementarity's cache)
+    st.compl_cache = (b.slacks(st.v), st.zl, st.zu, ranges, {0.0: c0, st.mu: c1})
     inf_pr = residual_norms(setup, st.pt, st.v)[1]
     nz = max(b.count, 1)
     ny = st.lam[1:].size + st.nu.size + st.nuN.size + st.yd.size + st.ydN.size
@@ -449,16 +452,21 @@ def store_errors(setup, st, figures):
 
 def complementarity(setup, st, mu):
     """max |s z - mu| over the finite sides at the iterate (Bounds.complementarity). The stopping
-    test (mu = 0) and the barrier update (the iterate's mu, and each lower one it sets) ask at the
-    same iterate: every mu's is had from the ranges of the products s z
-    (:func:`products_complementarity`, exactly), which the error terms' pass finds
-    (:func:`iterate_errors`) and which are kept until the slacks (the point, or the bounds moved)
-    or the bound multipliers change (then that pass again)."""
+    test (mu = 0) and the barrier update (the iterate's mu) ask at the same iterate: both are
+    computed in one pass (:func:`iterate_errors`, with the error terms) and kept until the slacks
+    (the point, or the bounds moved) or the bound multipliers change; another mu (each lower one
+    the barrier update sets) is had from the same pass's ranges of the products s z
+    (:func:`products_complementarity`, exactly), not by another pass."""
     slacks = setup.bounds.slacks(st.v)
     c = st.compl_cache
     if c is None or c[0] is not slacks or c[1] is not st.zl or c[2] is not st.zu:
-        c = st.compl_cache = (slacks, st.zl, st.zu, iterate_errors(setup, st)[1])
-    return products_complementarity(c[3], mu)
+        figures = iterate_errors(setup, st)
+        c = st.compl_cache = (slacks, st.zl, st.zu, figures[2], dict(zip((0.0, st.mu), figures[1])))
+    values = c[4]
+    value = values.get(mu)
+    if value is None:
+        value = values[mu] = products_complementarity(c[3], mu)
+    return value
 
 
 def optimality_errors(setup, st, mu):

@@ -199,8 +199,10 @@ def _reference_step_multipliers(self, slacks, v_new, dv, zl, zu, mu, tau, lam, l
 
 def _reference_iterate_errors(setup, st):
     """solver.iterate_errors by its parts: einsum's products, the dual infeasibility's own pass
-    (kernels.dual_infeasibility, itself checked against numpy in test_barrier_kernels) and the
-    numpy ranges of the products s z (test_start_costs.ref_product_ranges)."""
+    (kernels.dual_infeasibility, itself checked against numpy in test_barrier_kernels), the
+    numpy complementarity at mu = 0 and at the iterate's mu, and the numpy ranges of the products
+    s z (test_start_costs.ref_product_ranges)."""
+    from test_barrier_kernels import ref_complementarity
     from test_start_costs import ref_product_ranges
 
     p, pt, b = setup.problem, st.pt, setup.bounds
@@ -215,7 +217,10 @@ def _reference_iterate_errors(setup, st):
             CNL = pt.CN.T @ LgN
     mx, zsum, ysum = kernels.dual_infeasibility(float(st.s_obj), pt.lx, pt.lu, pt.lN, EA, EB, lam, ECx, ECu, CNL,
                                                 bool(p.r), bool(p.rN), st.yd, st.ydN, st.zl, st.zu, st.nu, st.nuN)
-    return (float(mx), float(zsum), float(ysum)), ref_product_ranges(b, st.v, st.zl, st.zu)
+    with np.errstate(all="ignore"):
+        compl = tuple(ref_complementarity(b, st.v, st.zl, st.zu, m) for m in (0.0, st.mu))
+        ranges = ref_product_ranges(b, st.v, st.zl, st.zu)
+    return (float(mx), float(zsum), float(ysum)), compl, ranges
 
 
 def _reference_newton_terms(setup, st):
