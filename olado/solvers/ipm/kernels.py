@@ -117,19 +117,8 @@ def _max(r, a):
 def complementarity(sl, su, zl, zu, has_lo, has_hi, mu, mu1):
     """(count, max for mu, max for mu1) of |s_L z_L - mu| over has_lo, then the same of
     |s_U z_U - mu| over has_hi (a max is -inf when its count is 0): two barrier parameters in one
-    pass (the stopping test's mu = 0 and the barrier update's)."""
-    n_lo, n_hi, m_lo, m_hi, m_lo1, m_hi1 = 0, 0, -np.inf, -np.inf, -np.inf, -np.inf
-    for i in range(sl.size):
-        if has_lo[i]:
-            p = sl[i] * zl[i]
-            m_lo = _max(m_lo, abs(p - mu))
-            m_lo1 = _max(m_lo1, abs(p - mu1))
-            n_lo += 1
-        if has_hi[i]:
-            p = su[i] * zu[i]
-            m_hi = _max(m_hi, abs(p - mu))
-            m_hi1 = _max(m_hi1, abs(p - mu1))
-            n_hi += 1
+    pass (``complementarity_ranges`` without the ranges)."""
+    n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1, _, _, _, _ = complementarity_ranges(sl, su, zl, zu, has_lo, has_hi, mu, mu1)
     return n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1
 
 
@@ -143,20 +132,28 @@ def _min_max(lo, hi, p):
 
 
 @nb.njit(**_JIT)
-def product_ranges(sl, su, zl, zu, has_lo, has_hi):
-    """(count, min, max) of the products s_L z_L over has_lo, then the same of s_U z_U over
-    has_hi (min inf, max -inf when the count is 0; both NaN when a product is NaN): what the
-    complementarity max |s z - mu| of every mu needs (solver.products_complementarity: fl(p - mu)
-    is monotone in p, so the largest |fl(p - mu)| is at the smallest or the largest product)."""
-    n_lo, n_hi, lo_min, lo_max, hi_min, hi_max = 0, 0, np.inf, -np.inf, np.inf, -np.inf
+def complementarity_ranges(sl, su, zl, zu, has_lo, has_hi, mu, mu1):
+    """``complementarity``'s (n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1) -- the stopping test's mu = 0
+    and the barrier update's -- and the ranges (lo_min, lo_max, hi_min, hi_max) of the products
+    s_L z_L over has_lo and s_U z_U over has_hi (min inf, max -inf for an empty side; both NaN
+    when a product is NaN), from which solver.products_complementarity has max |s z - mu| of any
+    other mu (fl(p - mu) is monotone in p: the largest |fl(p - mu)| is at an end of the range)."""
+    n_lo, n_hi, m_lo, m_hi, m_lo1, m_hi1 = 0, 0, -np.inf, -np.inf, -np.inf, -np.inf
+    lo_min, lo_max, hi_min, hi_max = np.inf, -np.inf, np.inf, -np.inf
     for i in range(sl.size):
         if has_lo[i]:
-            lo_min, lo_max = _min_max(lo_min, lo_max, sl[i] * zl[i])
+            p = sl[i] * zl[i]
+            m_lo = _max(m_lo, abs(p - mu))
+            m_lo1 = _max(m_lo1, abs(p - mu1))
+            lo_min, lo_max = _min_max(lo_min, lo_max, p)
             n_lo += 1
         if has_hi[i]:
-            hi_min, hi_max = _min_max(hi_min, hi_max, su[i] * zu[i])
+            p = su[i] * zu[i]
+            m_hi = _max(m_hi, abs(p - mu))
+            m_hi1 = _max(m_hi1, abs(p - mu1))
+            hi_min, hi_max = _min_max(hi_min, hi_max, p)
             n_hi += 1
-    return n_lo, lo_min, lo_max, n_hi, hi_min, hi_max
+    return n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1, lo_min, lo_max, hi_min, hi_max
 
 
 @nb.njit(inline="always")
@@ -510,16 +507,16 @@ def stage_products(A, B, lam, EA, EB):
 def error_pass(s_obj, lx, lu, lN, A, B, EA, EB, products, lam, ECx, ECu, CNL, has_r, has_rN, yd, ydN, zl, zu, nu, nuN,
                sl, su, has_lo, has_hi, mu0, mu1):
     """The optimality error's passes at an iterate in one call (solver.error_terms): with
-    ``products``, ``stage_products`` (A, B, lam) into EA, EB first; then ``dual_infeasibility``,
-    ``complementarity`` (sl, su, ..., mu0, mu1) and ``product_ranges`` (the complementarity of
-    any other mu). Returns (max, z sum, y sum), the complementarity's (n_lo, m_lo, m_lo1, n_hi,
-    m_hi, m_hi1) and the ranges (lo_min, lo_max, hi_min, hi_max)."""
+    ``products``, ``stage_products`` (A, B, lam) into EA, EB first; then ``dual_infeasibility``
+    and ``complementarity_ranges`` (sl, su, ..., mu0, mu1). Returns (max, z sum, y sum), the
+    complementarity's (n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1) and the products' ranges (lo_min,
+    lo_max, hi_min, hi_max)."""
     if products:
         stage_products(A, B, lam, EA, EB)
     mx, zsum, ysum = dual_infeasibility(s_obj, lx, lu, lN, EA, EB, lam, ECx, ECu, CNL, has_r, has_rN, yd, ydN, zl, zu,
                                         nu, nuN)
-    n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1 = complementarity(sl, su, zl, zu, has_lo, has_hi, mu0, mu1)
-    _, lo_min, lo_max, _, hi_min, hi_max = product_ranges(sl, su, zl, zu, has_lo, has_hi)
+    n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1, lo_min, lo_max, hi_min, hi_max = complementarity_ranges(
+        sl, su, zl, zu, has_lo, has_hi, mu0, mu1)
     return mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1, lo_min, lo_max, hi_min, hi_max
 
 

@@ -360,8 +360,8 @@ def iterate_errors(setup, st):
     products s z (:func:`products_complementarity`: the complementarity of any other mu)) in one
     compiled pass (kernels.error_pass: the stage products A^T lam, B^T lam where
     :func:`_plain_products` says einsum's order is the plain one, the dual infeasibility,
-    kernels.dual_infeasibility, the complementarity, Bounds.complementarities, and
-    kernels.product_ranges); the products with the constraint rows by numpy."""
+    kernels.dual_infeasibility, the complementarity and the ranges, kernels.complementarity_ranges);
+    the products with the constraint rows by numpy."""
     p, pt, b = setup.problem, st.pt, setup.bounds
     lam = st.lam[1:]
     products = _plain_products(pt.A, pt.B, lam)
@@ -388,7 +388,7 @@ def iterate_errors(setup, st):
 def products_complementarity(ranges, mu):
     """max |s z - mu| over the finite sides (Bounds.complementarity, the same float) from the
     ranges (n_lo, min, max, n_hi, min, max) of the products p = s z of each side
-    (kernels.product_ranges): fl(p - mu) is monotone in p and rounding is symmetric, so
+    (kernels.complementarity_ranges): fl(p - mu) is monotone in p and rounding is symmetric, so
     max_p |fl(p - mu)| = max(fl(p_max - mu), fl(mu - p_min)) exactly (one of the two is >= 0;
     abs makes a zero +0 as abs(p - mu) does); a NaN product makes its side NaN. The sides are
     joined by :func:`barrier._sides_max` as the compiled pass's maxima are."""

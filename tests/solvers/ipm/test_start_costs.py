@@ -1,6 +1,6 @@
 """The cheaper start and error terms of the ipm solver give the same numbers as before, bit for bit:
 the complementarity max |s z - mu| of every mu from the ranges of the products s z
-(solver.products_complementarity, kernels.product_ranges) against the numpy form, on random data
+(solver.products_complementarity, kernels.complementarity_ranges) against the numpy form, on random data
 with special values and on products within rounding of mu; the least-squares multipliers' matrix
 handed to the first Newton matrix (restoration.least_squares_multipliers(hand_over=True)) against
 a first Newton matrix of its own; and a solve's barrier updates without further error passes."""
@@ -57,13 +57,20 @@ def _mus(rng, ranges):
 
 
 @pytest.mark.parametrize("seed", range(9))
-def test_product_ranges_are_numpys(seed):
+def test_complementarity_ranges_are_numpys(seed):
+    """kernels.complementarity_ranges: the complementarities at two mu and the products' ranges
+    as numpy has them (the counts, maxima and the ranges' ends, NaN and zero signs included)."""
     _, b, v, zl, zu = _case(seed)
     sl, su = b.slacks(v)
-    got = kernels.product_ranges(sl, su, zl, zu, b.has_lo, b.has_hi)
-    with np.errstate(all="ignore"):
-        want = ref_product_ranges(b, v, zl, zu)
-    assert len(got) == len(want) and all(_same_float(float(x), float(y)) for x, y in zip(got, want))
+    for mu, mu1 in ((0.0, 0.1), (1e-9, 1e-9), (0.5, 0.0)):
+        n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1, *ends = kernels.complementarity_ranges(sl, su, zl, zu, b.has_lo,
+                                                                                      b.has_hi, mu, mu1)
+        with np.errstate(all="ignore"):
+            want = ref_product_ranges(b, v, zl, zu)
+            got = (n_lo, ends[0], ends[1], n_hi, ends[2], ends[3])
+            assert all(_same_float(float(x), float(y)) for x, y in zip(got, want))
+            for m, (lo, hi) in ((mu, (m_lo, m_hi)), (mu1, (m_lo1, m_hi1))):
+                assert _same_float(S._sides_max(n_lo, lo, n_hi, hi), ref_complementarity(b, v, zl, zu, m))
 
 
 @pytest.mark.parametrize("seed", range(9))
