@@ -78,6 +78,18 @@ def least_squares_multipliers(setup, pt, zl, zu, s_obj, hand_over=False):
     return step.lam, step.nu, step.nuN, step.yd, step.ydN
 
 
+def largest_multiplier(mult):
+    """max((float(np.abs(a).max(initial=0.0)) for a in mult), default=0.0), the same float (the
+    test against constr_mult_init_max): Python's max (the first value, then each larger one), an
+    empty array's value 0.0 without a reduction (for another, max |a| is its max(initial=0.0))."""
+    largest = 0.0
+    for i, a in enumerate(mult):
+        x = float(np.abs(a).max()) if a.size else 0.0
+        if i == 0 or x > largest:
+            largest = x
+    return largest
+
+
 def restore(setup, st, fns: Restoration):
     """The restoration phase at the current iterate (the filter already augmented by it). On
     success the iterate and the multipliers are updated in ``st`` and None is returned; otherwise
@@ -121,7 +133,7 @@ def restore(setup, st, fns: Restoration):
             b.move_tiny(v)
             st.zl, st.zu = b.safeguard(v, st.zl, st.zu, st.mu)
             mult = least_squares_multipliers(setup, pt, st.zl, st.zu, st.s_obj)
-            if max(float(np.abs(a).max(initial=0.0)) for a in mult) > o.constr_mult_init_max:
+            if largest_multiplier(mult) > o.constr_mult_init_max:
                 mult = tuple(np.zeros_like(a) for a in mult)
             st.lam, st.nu, st.nuN, st.yd, st.ydN = mult
             return None

@@ -50,7 +50,7 @@ from .adaptive import (FILTER_MARGIN_FACT, FILTER_MAX_MARGIN, MONOTONE_INIT_FACT
 from .barrier import KAPPA_D, Bounds, Layout, _kernels, _sides_max, dot
 from .filter import Filter
 from .newton import Constraints, KKTMatrix, Residuals, stage_blocks
-from .restoration import Restoration, least_squares_multipliers, restore, restore_l1
+from .restoration import Restoration, largest_multiplier, least_squares_multipliers, restore, restore_l1
 
 #: IPOPT's tiny step: max |dv| / (1 + |v|) below this (10 eps) takes the step without a line search
 TINY_STEP = 10 * np.finfo(float).eps
@@ -386,24 +386,14 @@ def iterate_errors(setup, st):
 
 
 def products_complementarity(ranges, mu):
-    """max |s z - mu| over the finite sides (Bounds.complementarity, the same float) from the
-    ranges (n_lo, min, max, n_hi, min, max) of the products p = s z of each side
-    (kernels.complementarity_ranges): fl(p - mu) is monotone in p and rounding is symmetric, so
-    max_p |fl(p - mu)| = max(fl(p_max - mu), fl(mu - p_min)) exactly (one of the two is >= 0;
-    abs makes a zero +0 as abs(p - mu) does); a NaN product makes its side NaN. The sides are
-    joined by :func:`barrier._sides_max` as the compiled pass's maxima are."""
-    n_lo, lo_min, lo_max, n_hi, hi_min, hi_max = ranges
-    return _sides_max(n_lo, _side_complementarity(lo_min, lo_max, mu), n_hi,
-                      _side_complementarity(hi_min, hi_max, mu))
-
-
-def _side_complementarity(p_min, p_max, mu):
-    """max |fl(p - mu)| over one side's products from their range (:func:`products_complementarity`;
-    unused when the side has none)."""
-    if p_max != p_max:
-        return math.nan
-    a, b = p_max - mu, mu - p_min
-    return abs(b if b > a else a)
+    """max |s z - mu| over the finite sides (Bounds.complementarity, the same float) from the ranges
+    (n_lo, min, max, n_hi, min, max) of the products p = s z (kernels.complementarity_ranges):
+    fl(p - mu) is monotone in p and rounding symmetric, so a side's max |fl(p - mu)| is
+    max(fl(p_max - mu), fl(mu - p_min)) exactly (one of them >= 0; abs gives a zero as +0), NaN
+    with a NaN product; the sides joined by barrier._sides_max as the compiled pass's are."""
+    sides = [math.nan if p_max != p_max else abs(mu - p_min if mu - p_min > p_max - mu else p_max - mu)
+             for p_min, p_max in (ranges[1:3], ranges[4:6])]
+    return _sides_max(ranges[0], sides[0], ranges[3], sides[1])
 
 
 def _plain_products(A, B, lam):
@@ -493,34 +483,19 @@ def initial_state(setup, X0, U0, clock):
     if L.ni or L.niN:
         v = b.push(L.pack(pt.X, pt.U, pt.g[:, L.ineq], pt.gN[L.ineqN]), o.bound_push, o.bound_frac)
     # the scaling from the user's point, before the push into the bounds (IPOPT scales the NLP first)
-    s_obj = 1.0
-    if o.obj_scaling == "gradient-based":
-        q, r = objective_gradient(pt0, 1.0)
-        gmax = max(float(np.abs(q[1:]).max(initial=0.0)), float(np.abs(r).max(initial=0.0)))
-        s_obj = min(1.0, 100.0 / gmax) if gmax > 0 else 1.0
-        del q, r
-    del pt0                     # the user's point and its derivatives: not kept through the multipliers
+    q, r = objective_gradient(pt0 if o.obj_scaling != "none" else pt, 1.0)
+    gmax = max(float(np.abs(q[1:]).max(initial=0.0)), float(np.abs(r).max(initial=0.0)))
+    s_obj = min(1.0, 100.0 / gmax) if o.obj_scaling == "gradient-based" and gmax > 0 else 1.0
+    del pt0, q, r               # the user's point and its derivatives: not kept through the multipliers
     zl, zu = b.has_lo.astype(float), b.has_hi.astype(float)
     # the multipliers' factored matrix is handed to the first Newton matrix (newton_system)
     mult = least_squares_multipliers(setup, pt, zl, zu, s_obj, hand_over=True)
-    if _largest_abs(mult) > o.constr_mult_init_max:
+    if largest_multiplier(mult) > o.constr_mult_init_max:
         mult = tuple(np.zeros_like(a) for a in mult)
     lam, nu, nuN, yd, ydN = mult
     mu = o.mu_init
     return IPMState(v=v, pt=pt, lam=lam, zl=zl, zu=zu, mu=mu, tau=max(o.tau_min, 1.0 - mu),
                     filt=Filter.start(theta(setup, pt, v)), s_obj=s_obj, clock=clock, nu=nu, nuN=nuN, yd=yd, ydN=ydN)
-
-
-def _largest_abs(arrays):
-    """max((float(np.abs(a).max(initial=0.0)) for a in arrays), default=0.0) -- Python's max: the
-    first value, then each later one that is larger -- without the reductions' ``initial`` (an
-    empty array's value is 0.0; for another, the largest |a| is its max(initial=0.0), NaN too)."""
-    largest = 0.0
-    for i, a in enumerate(arrays):
-        x = float(np.abs(a).max()) if a.size else 0.0
-        if i == 0 or x > largest:
-            largest = x
-    return largest
 
 
 # ---------------------------------------------------------------------------- one iteration

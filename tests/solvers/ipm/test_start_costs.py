@@ -14,7 +14,7 @@ from olado.config import load_config, make_solver
 from olado.problems import PROBLEMS
 from olado.problems.zambezi import zambezi_problem
 from olado.solvers.ipm import kernels, solver as S
-from olado.solvers.ipm.restoration import least_squares_multipliers
+from olado.solvers.ipm.restoration import largest_multiplier, least_squares_multipliers
 from olado.solvers.sqp.state import Clock
 
 from test_barrier_kernels import _bounds, _inside, _special, ref_complementarity, ref_slacks
@@ -177,8 +177,8 @@ def test_barrier_updates_take_no_further_error_pass(monkeypatch):
     assert fast.objective == ref.objective and np.array_equal(fast.x, ref.x)
 
 
-def test_largest_abs_is_the_generator_form():
-    """initial_state's test of the multipliers' size (constr_mult_init_max): the same float as
+def test_largest_multiplier_is_the_generator_form():
+    """The multipliers' size tested against constr_mult_init_max: the same float as
     max((float(np.abs(a).max(initial=0.0)) for a in arrays), default=0.0), empty arrays, NaN
     (kept only where Python's max keeps it) and -0 included."""
     rng = np.random.default_rng(11)
@@ -187,4 +187,4 @@ def test_largest_abs_is_the_generator_form():
     for _ in range(400):
         arrays = [pool[i] for i in rng.integers(0, len(pool), size=int(rng.integers(0, 6)))]
         want = max((float(np.abs(a).max(initial=0.0)) for a in arrays), default=0.0)
-        assert _same_float(S._largest_abs(arrays), want)
+        assert _same_float(largest_multiplier(arrays), want)
