@@ -519,11 +519,11 @@ def newton_system(setup, st, gradient=False):
     ws = setup.ws
     Q = ws.hessian_blocks(prev, (L.N + 1, L.n, L.n))
     Q, S, R = stage_blocks(Hxx, Hxu, Huu, HN, Q)
+    del Hxx                     # copied into Q: gone before Sigma's arrays and the factorization
     if gradient:
         Sx, Su, Ss, SsN, g = _newton_terms(setup, st)
     else:
         Sx, Su, Ss, SsN = setup.bounds.sigma_blocks(st.v, st.zl, st.zu, L)
-    del Hxx                     # copied into Q: not kept through the factorization
     kkt = setup.last_kkt = ws.Q_owner = KKTMatrix(Q, S, R, pt.A, pt.B, Sx, Su, constraint_blocks(setup, pt, Ss, SsN),
                                                   reuse=prev)
     delta = kkt.factor(st.delta_last)
