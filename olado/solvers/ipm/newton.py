@@ -193,23 +193,26 @@ class KKTMatrix:
         old.kkt = None
         return kkt
 
-    def release_blocks(self):
-        """Let this matrix's blocks go (Q, S, R, the Jacobians A, B and the barrier diagonals Sx,
-        Su, here and in its Riccati back-end) once its iteration has taken its step, before the new
-        point's derivatives are evaluated: the next matrix takes the back-end over
-        (:meth:`_take_over`, which needs only their shapes), so one generation of blocks less is
-        alive at the peak. This matrix can no longer factor or solve. A second call does nothing."""
+    def release_blocks(self, sigma=True):
+        """Let this matrix's blocks go (Q, S, R and the Jacobians A, B, here and in its Riccati
+        back-end; with ``sigma`` the barrier diagonals Sx, Su too) once its iteration has taken its
+        step, before the new point's derivatives are evaluated: the next matrix takes the back-end
+        over (:meth:`_take_over`, which needs only their shapes), so one generation of blocks less
+        is alive at the peak. This matrix can no longer factor or solve. A second call does nothing."""
         if self.released:
             return
         self.released = True
-        from ...linalg.riccati import _placeholder  # noqa: PLC0415
+        if sigma:
+            from ...linalg.riccati import _placeholder  # noqa: PLC0415 - (an import costs microseconds)
 
-        self.Sx, self.Su = _placeholder(self.Sx.shape), _placeholder(self.Su.shape)
+            self.Sx, self.Su = _placeholder(self.Sx.shape), _placeholder(self.Su.shape)
         if self.kkt is not None and self.backend == "riccati":
             d = self.kkt.release_blocks().data
             if d.Q.shape == self.Q.shape:   # the back-end held these blocks: its placeholders are theirs
                 self.Q, self.S, self.R, self.A, self.B = d.Q, d.S, d.R, d.A, d.B
                 return
+        from ...linalg.riccati import _placeholder  # noqa: PLC0415
+
         self.Q, self.S, self.R, self.A, self.B = (_placeholder(a.shape)
                                                   for a in (self.Q, self.S, self.R, self.A, self.B))
 

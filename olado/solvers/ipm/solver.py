@@ -844,9 +844,10 @@ def take_step(setup, st, accepted):
     # before the new point's derivatives: the iteration's Newton matrix lets its blocks go (the
     # next one takes its back-end over) and the caches keyed by the old point are dropped (the
     # pass below makes the new point's), so the old point's derivatives go with them
-    kkt = setup.last_kkt
+    # (at small N the workspace keeps Sigma's arrays and the slacks' anyway: those stay)
+    kkt, large = setup.last_kkt, not setup.ws.reuse
     if kkt is not None and (st.watch is None or st.watch.search.kkt is not kkt):   # (newton_system's test)
-        kkt.release_blocks()
+        kkt.release_blocks(sigma=large)
     st.error_cache = st.compl_cache = None
     st.pt.add_derivatives(setup.problem)
     # lam + alpha (lam^+ - lam), dz and the step of both sides (dz = 0 off the bounds:
@@ -859,7 +860,8 @@ def take_step(setup, st, accepted):
     # the optimality error's pass at the new iterate now (the next stopping test's: error_terms
     # finds it), while its arrays are in cache
     store_errors(setup, st, iterate_errors(setup, st))
-    b.keep_only(v_new)          # the old point's slacks served the multiplier step
+    if large:
+        b.keep_only(v_new)      # the old point's slacks served the multiplier step
     return alpha, alpha_z, soc
 
 
