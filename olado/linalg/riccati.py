@@ -174,6 +174,19 @@ class RiccatiFactorization:
         self._costs = self._dyn = None
         return self
 
+    def release_costs(self):
+        """Drop the references to the cost blocks Q, S, R (placeholders of their shapes take their
+        place) when the solves of this factorization do not read them -- the plain recursion of
+        small blocks (:meth:`fixed_solve_operands`; its compiled solve takes the dynamics, the
+        interior-point terms and the factors only); False otherwise (nothing changed). Solves work
+        as before; no factorization before the next :meth:`set_blocks`."""
+        if self.fixed_solve_operands() is None:
+            return False
+        d = self.data
+        d.Q, d.S, d.R = _placeholder(d.Q.shape), _placeholder(d.S.shape), _placeholder(d.R.shape)
+        self._costs = None
+        return True
+
     def _ip_terms(self):
         """The kernels' IPTerms bundle of ``data`` (a plain tuple: codegen.as_bundle), rebuilt
         only when a refactor replaced one of its arrays; the other roles (Costs, Dynamics,

@@ -166,6 +166,14 @@ class Bounds:
         if any(e.v is v for e in points):
             self._points = [e for e in points if e.v is not v]
 
+    def keep_only(self, v):
+        """Keep what was computed at ``v`` only (the solver's new iterate after its step: the
+        previous iterate's entry served the multiplier step; asked again -- the watchdog going
+        back -- it is computed again, the same numbers)."""
+        points = self._points
+        if len(points) > 1 or (points and points[0].v is not v):
+            self._points = [e for e in points if e.v is v]
+
     def slacks(self, v):
         """(s_L, s_U), 1 where a side is infinite (they carry no multiplier). Cached per point:
         read them, never write into them."""

@@ -143,6 +143,8 @@ class KKTMatrix:
     #: the previous iteration's matrix, whose factorization (back-end object and work arrays)
     #: this one takes over instead of building its own (:meth:`_take_over`)
     reuse: "KKTMatrix" = None
+    #: whether :meth:`release_blocks` let the blocks go
+    released: bool = False
 
     def __post_init__(self):
         N, n, m = self.B.shape
@@ -191,11 +193,19 @@ class KKTMatrix:
         old.kkt = None
         return kkt
 
-    def release_blocks(self):
+    def release_blocks(self, sigma=True):
         """Let this matrix's blocks go (Q, S, R and the Jacobians A, B, here and in its Riccati
-        back-end) before the next iteration's Hessians are evaluated: the next matrix takes the
-        back-end over (:meth:`_take_over`, which needs only their shapes), so one generation of
-        blocks less is alive at the peak. This matrix can no longer factor or solve."""
+        back-end; with ``sigma`` the barrier diagonals Sx, Su too) once its iteration has taken its
+        step, before the new point's derivatives are evaluated: the next matrix takes the back-end
+        over (:meth:`_take_over`, which needs only their shapes), so one generation of blocks less
+        is alive at the peak. This matrix can no longer factor or solve. A second call does nothing."""
+        if self.released:
+            return
+        self.released = True
+        if sigma:
+            from ...linalg.riccati import _placeholder  # noqa: PLC0415 - (an import costs microseconds)
+
+            self.Sx, self.Su = _placeholder(self.Sx.shape), _placeholder(self.Su.shape)
         if self.kkt is not None and self.backend == "riccati":
             d = self.kkt.release_blocks().data
             if d.Q.shape == self.Q.shape:   # the back-end held these blocks: its placeholders are theirs
@@ -205,6 +215,18 @@ class KKTMatrix:
 
         self.Q, self.S, self.R, self.A, self.B = (_placeholder(a.shape)
                                                   for a in (self.Q, self.S, self.R, self.A, self.B))
+
+    def release_costs(self):
+        """After a successful factorization whose solves read no cost blocks -- the Riccati
+        back-end's plain recursion of small blocks (RiccatiFactorization.release_costs) -- let Q,
+        S, R go here and in the back-end (a third of the matrix's memory, not needed through the
+        line search); True when they went. The matrix solves as before; it factors again only
+        after :meth:`_take_over` gave its back-end new blocks."""
+        if not self.plain or self.kkt is None or not self.kkt.release_costs():
+            return False
+        d = self.kkt.data
+        self.Q, self.S, self.R = d.Q, d.S, d.R
+        return True
 
     def _diagonals_into(self, delta, Dx, Du):
         """:meth:`_diagonals` written into the back-end's arrays Dx, Du (the same values; no new

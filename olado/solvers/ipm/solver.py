@@ -520,8 +520,8 @@ def newton_system(setup, st, gradient=False):
     p, pt, L = setup.problem, st.pt, setup.layout
     Lg, LgN = full_multipliers(L, st)
     # the previous iteration's back-end is taken over, unless the watchdog keeps that iteration's
-    # direction (its line search may solve with it again, line_search); a matrix taken over lets
-    # its blocks go before the new Hessians are evaluated (one generation less at the peak)
+    # direction (its line search may solve with it again, line_search); a matrix taken over has
+    # let its blocks go (take_step; here after a restoration phase) before the new Hessians
     prev = setup.last_kkt
     if st.watch is not None and st.watch.search.kkt is prev:
         prev = None
@@ -534,17 +534,19 @@ def newton_system(setup, st, gradient=False):
     ws = setup.ws
     Q = ws.hessian_blocks(prev, (L.N + 1, L.n, L.n))
     Q, S, R = stage_blocks(Hxx, Hxu, Huu, HN, Q)
+    del Hxx                     # copied into Q: gone before Sigma's arrays and the factorization
     if gradient:
         Sx, Su, Ss, SsN, g = _newton_terms(setup, st)
     else:
         Sx, Su, Ss, SsN = setup.bounds.sigma_blocks(st.v, st.zl, st.zu, L)
-    del Hxx                     # copied into Q: not kept through the factorization
     kkt = setup.last_kkt = ws.Q_owner = KKTMatrix(Q, S, R, pt.A, pt.B, Sx, Su, constraint_blocks(setup, pt, Ss, SsN),
                                                   reuse=prev)
     delta = kkt.factor(st.delta_last)
     st.factorizations += kkt.factorizations
     if delta is None:
         return (None, g) if gradient else None
+    if not ws.reuse:            # (at small N the workspace keeps Q anyway)
+        kkt.release_costs()     # the plain fixed-size recursion's solves read no cost blocks
     st.delta = delta
     if delta > 0.0:       # delta_w^last of Algorithm IC: the last shift that was needed (IC-4)
         st.delta_last = delta
@@ -854,6 +856,14 @@ def take_step(setup, st, accepted):
             if old.size:            # an empty one (no such rows) stays
                 setattr(st, name, old + alpha * (getattr(step, name) - old))
     st.v, st.pt = v_new, pt_new
+    # before the new point's derivatives: the iteration's Newton matrix lets its blocks go (the
+    # next one takes its back-end over) and the caches keyed by the old point are dropped (the
+    # pass below makes the new point's), so the old point's derivatives go with them
+    # (at small N the workspace keeps Sigma's arrays and the slacks' anyway: those stay)
+    kkt, large = setup.last_kkt, not setup.ws.reuse
+    if kkt is not None and (st.watch is None or st.watch.search.kkt is not kkt):   # (newton_system's test)
+        kkt.release_blocks(sigma=large)
+    st.error_cache = st.compl_cache = None
     st.pt.add_derivatives(setup.problem)
     # lam + alpha (lam^+ - lam), dz and the step of both sides (dz = 0 off the bounds:
     # Bounds.dual_step_length), the bounds moved (Bounds.move_tiny) and the safeguard
@@ -865,6 +875,8 @@ def take_step(setup, st, accepted):
     # the optimality error's pass at the new iterate now (the next stopping test's: error_terms
     # finds it), while its arrays are in cache
     store_errors(setup, st, iterate_errors(setup, st))
+    if large:
+        b.keep_only(v_new)      # the old point's slacks served the multiplier step
     return alpha, alpha_z, soc
 
 
@@ -887,8 +899,8 @@ def iterate(setup, st):
         kkt, g = newton_system(setup, st, gradient=True)
     factored = kkt is not None
     accepted = None if kkt is None else line_search(setup, st, kkt, g)
-    # the factors and Hessian blocks (a third of the iteration's memory) go before the step
-    # evaluates the new point's derivatives (the watchdog keeps its own reference)
+    # (the matrix stays as setup.last_kkt for the next one to take its back-end over; take_step
+    # lets its blocks go before the new point's derivatives)
     del kkt
     st.it += 1
     # the objective after the iteration (IPOPT's log), the errors at its start
@@ -935,6 +947,7 @@ def finish(setup, st) -> Result:
     quantities stage by stage (olado.solvers.sqp.residuals.stage_kkt)."""
     p, pt, L = setup.problem, st.pt, setup.layout
     solve_time = time.perf_counter() - setup.t_start
+    setup.last_kkt = None       # the last matrix's factors and blocks go before stage_kkt's arrays
     pt.add_derivatives(p)
     zero_x = np.zeros(p.n)
     zl_x, zl_u, _, _ = L.split(st.zl / st.s_obj, zero_x)
