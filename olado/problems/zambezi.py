@@ -363,7 +363,8 @@ class _Fusion:
     constraint arrays (r = rN = 0) the entry points return, and the last weight vector of the
     stage Hessians (sigma on every stage)."""
 
-    __slots__ = ("values", "derivatives", "hessian", "X", "U", "no_g", "no_gN", "no_Cx", "no_Cu", "no_CN", "sigma")
+    __slots__ = ("values", "derivatives", "hessian", "X", "U", "P", "no_g", "no_gN", "no_Cx", "no_Cu", "no_CN",
+                 "sigma")
 
     def __init__(self, problem):
         cls, names = type(problem), problem.__dict__.keys()
@@ -380,6 +381,7 @@ class _Fusion:
         self.hessian = fused["hessian"] and analytic
         self.X = ((N + 1, 6), (48, 8))          # (shape, strides) of a C-ordered float64 array
         self.U = ((N, 7), (56, 8))
+        self.P = ((N, 6), (48, 8))              # the dynamics multipliers of the stage Hessians
         self.no_g, self.no_gN = np.zeros((N, 0)), np.zeros(0)
         self.no_Cx, self.no_Cu, self.no_CN = np.zeros((N, 0, 6)), np.zeros((N, 0, 7)), np.zeros((0, 6))
         self.sigma = (None, None)
@@ -389,6 +391,10 @@ class _Fusion:
         convert or check: :meth:`DOCP._split_xu` and :meth:`Zambezi._rows` would return them)."""
         return (type(X) is np.ndarray and type(U) is np.ndarray and X.dtype is _F8 and U.dtype is _F8
                 and (X.shape, X.strides) == self.X and (U.shape, U.strides) == self.U)
+
+    def multipliers(self, P):
+        """True when the stage Hessians' ``P`` is a C-ordered float64 array (N, 6)."""
+        return type(P) is np.ndarray and P.dtype is _F8 and (P.shape, P.strides) == self.P
 
     def weights(self, sigma, N):
         """sigma on each of the N stages (the stage Hessian kernel's weights), remembered for the
@@ -726,7 +732,7 @@ class Zambezi(DOCP):
         fusion = self._fusion or self._fuse()
         N = self.N
         if (source is not None or not fusion.hessian or not isinstance(sigma, float)
-                or not _plain(P, (N, 6)) or not P.flags.c_contiguous
+                or not fusion.multipliers(P)
                 or not (L is None or _plain(L, (N, 0)))):
             return super().eval_stage_hessians(X, U, sigma, P, L, source)
         X, U = self._point(fusion, X, U)
