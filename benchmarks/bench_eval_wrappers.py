@@ -9,7 +9,10 @@ bare kernel calls they wrap (the kernels' argument lists as the entry points pas
 ``--compare`` runs the worker once per round in each tree (PYTHONPATH=tree), OLD and NEW
 alternating, and keeps each figure's best: process time per call (time.process_time) over
 ``--reps`` calls, best of 7 repetitions, after a warm-up. On a shared machine the figures are
-orders of magnitude.
+orders of magnitude. At long horizons a fresh output array of several MB is page-faulted on
+every call until malloc's mmap threshold has risen (after the first large frees, as in a solve):
+the entry points then look several ms dearer than their kernels here, not inside a solve
+(bench_eval_point.py measures after a solve). Compare the trees at the same N.
 """
 
 from __future__ import annotations
