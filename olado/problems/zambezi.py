@@ -348,6 +348,65 @@ _DERIVATIVE_FUNCTIONS = frozenset(("dynamics_jacobian", "stage_cost_gradient", "
                                    "eval_dynamics_jacobians", "eval_stage_constraint_jacobians",
                                    "eval_final_constraint_jacobian"))
 
+_F8 = np.dtype(np.float64)
+#: builds a NamedTuple from a tuple without its Python-level __new__
+_new_tuple = tuple.__new__
+
+
+class _Fusion:
+    """What Zambezi's one-pass evaluations (:meth:`Zambezi.eval_values`,
+    :meth:`Zambezi.eval_first_derivatives`, :meth:`Zambezi.eval_stage_hessians`,
+    :meth:`Zambezi.eval_final_hessian`) may do for one instance, decided once per instance (and
+    again after any attribute of it is set or deleted, :meth:`Zambezi.__setattr__`) instead of
+    on every call: which kinds of :data:`_FUSED` are Zambezi's own functions, the shapes and
+    strides of a C-ordered point (X, U) that goes to the kernels as it is, the empty
+    constraint arrays (r = rN = 0) the entry points return, and the last weight vector of the
+    stage Hessians (sigma on every stage)."""
+
+    __slots__ = ("values", "derivatives", "hessian", "X", "U", "P", "no_g", "no_gN", "no_Cx", "no_Cu", "no_CN",
+                 "sigma")
+
+    def __init__(self, problem):
+        cls, names = type(problem), problem.__dict__.keys()
+        analytic = problem.derivatives == "auto"
+        fused = {}
+        for kind, functions in _FUSED.items():
+            plain = _PLAIN.get((cls, kind))
+            if plain is None:
+                plain = _PLAIN[cls, kind] = all(getattr(cls, nm) is fn for nm, fn in functions)
+            fused[kind] = plain and not (names & _NAMES[kind])
+        N = problem.N
+        self.values = fused["values"]
+        self.derivatives = fused["derivatives"] and analytic
+        self.hessian = fused["hessian"] and analytic
+        self.X = ((N + 1, 6), (48, 8))          # (shape, strides) of a C-ordered float64 array
+        self.U = ((N, 7), (56, 8))
+        self.P = ((N, 6), (48, 8))              # the dynamics multipliers of the stage Hessians
+        self.no_g, self.no_gN = np.zeros((N, 0)), np.zeros(0)
+        self.no_Cx, self.no_Cu, self.no_CN = np.zeros((N, 0, 6)), np.zeros((N, 0, 7)), np.zeros((0, 6))
+        self.sigma = (None, None)
+
+    def point(self, X, U):
+        """True when (X, U) are C-ordered float64 arrays of the problem's shapes (nothing to
+        convert or check: :meth:`DOCP._split_xu` and :meth:`Zambezi._rows` would return them)."""
+        return (type(X) is np.ndarray and type(U) is np.ndarray and X.dtype is _F8 and U.dtype is _F8
+                and (X.shape, X.strides) == self.X and (U.shape, U.strides) == self.U)
+
+    def multipliers(self, P):
+        """True when the stage Hessians' ``P`` is a C-ordered float64 array (N, 6)."""
+        return type(P) is np.ndarray and P.dtype is _F8 and (P.shape, P.strides) == self.P
+
+    def weights(self, sigma, N):
+        """sigma on each of the N stages (the stage Hessian kernel's weights), remembered for the
+        last sigma (a solve uses one objective scale); read only."""
+        last, sig = self.sigma
+        if sigma != last or sigma == 0.0:       # 0.0 and -0.0 compare equal: not remembered
+            sig = np.full(N, sigma)
+            sig.flags.writeable = False
+            self.sigma = (sigma, sig)
+        return sig
+
+
 def _stage_data(d, fam, N, year):
     """The arrays of a Zambezi problem that depend on the data, the family, N and the start year
     only: phi, V_ref, u_ref, fa, fe, fh (the weights and the element curves), the record month
@@ -562,29 +621,49 @@ class Zambezi(DOCP):
         return self._derivatives_of_stages(k, x, u)[:2]
 
     # ------------------------------------------------------------------ a point at once
+    _fusion = None          # the instance's _Fusion (made on first use)
+
+    def __setattr__(self, name, value):
+        """Set an attribute; the instance's :class:`_Fusion` is decided again on its next use
+        (a function replaced on the instance is then called, not bypassed)."""
+        super().__setattr__(name, value)
+        self.__dict__.pop("_fusion", None)
+
+    def __delattr__(self, name):
+        super().__delattr__(name)
+        self.__dict__.pop("_fusion", None)
+
+    def _fuse(self):
+        """The instance's :class:`_Fusion` (made once, kept in the instance's dict)."""
+        fusion = self.__dict__["_fusion"] = _Fusion(self)
+        return fusion
+
     def _fused(self, kind):
         """True when the functions of ``kind`` ("values", "derivatives", "hessian": :data:`_FUSED`)
         are Zambezi's own (not replaced by a subclass -- a class is checked once -- or on the
-        instance): then :meth:`eval_values`, :meth:`eval_first_derivatives`,
-        :meth:`eval_stage_hessians` may compute them in one compiled pass instead of calling them
-        one by one."""
-        cls = type(self)
-        plain = _PLAIN.get((cls, kind))
-        if plain is None:
-            plain = _PLAIN[cls, kind] = all(getattr(cls, nm) is fn for nm, fn in _FUSED[kind])
-        return plain and not (self.__dict__.keys() & _NAMES[kind])
+        instance) and, for derivatives and Hessians, the problem's analytic derivatives are in use:
+        then :meth:`eval_values`, :meth:`eval_first_derivatives`, :meth:`eval_stage_hessians`
+        compute them in one compiled pass instead of calling them one by one."""
+        return getattr(self._fusion or self._fuse(), kind)
+
+    def _point(self, fusion, X, U):
+        """(X, U) as the kernels take them (C-ordered float64; :meth:`DOCP._split_xu`'s checks)."""
+        if fusion.point(X, U):
+            return X, U
+        X, U = self._split_xu(X, U)
+        return self._rows(X), self._rows(U)
 
     def eval_values(self, X, U):
         """:meth:`DOCP.eval_values` in one compiled pass (:func:`_values_kernel`): the same numbers
         and counters; a NaN or inf (or a replaced stage function) takes the default path, which
         names the function, stage and array."""
-        if not self._fused("values"):
+        fusion = self._fusion or self._fuse()
+        if not fusion.values:
             return super().eval_values(X, U)
-        X, U = self._split_xu(X, U)
-        x, u, xN = self._rows(X[:-1]), self._rows(U), self._rows(X[-1])
+        X, U = self._point(fusion, X, U)
         N = self.N
         f, cost = np.empty((N, 6)), np.empty(N)
-        F, finite = _values_kernel(self._K, x, u, xN, self.inflow, self.evaporation, self.fa, self.fh,
+        F, finite = _values_kernel(self._K, X[:-1], U, X[-1], self.inflow, self.evaporation, self.fa, self.fh,
                                    self.alpha, self.psi, self.u_ref, self.V_ref, self.phi, self.fe,
                                    self.nu_E, f, cost)
         if not finite:
@@ -593,7 +672,7 @@ class Zambezi(DOCP):
         c["stage_cost"] += 1
         c["final_cost"] += 1
         c["dynamics"] += 1
-        return PointValues(float(cost.sum() + F), f, np.zeros((N, 0)), np.zeros(0))
+        return _new_tuple(PointValues, (float(cost.sum() + F), f, fusion.no_g, fusion.no_gN))
 
     def _stacked_values(self, K, X, U, XN):
         """:meth:`DOCP._stacked_values` in one compiled pass over the stage rows
@@ -615,22 +694,21 @@ class Zambezi(DOCP):
     def eval_first_derivatives(self, X, U):
         """:meth:`DOCP.eval_first_derivatives` in one compiled pass (:func:`_derivatives_kernel`),
         under the rules of :meth:`eval_values`."""
-        if self.derivatives != "auto" or not self._fused("derivatives"):
+        fusion = self._fusion or self._fuse()
+        if not fusion.derivatives:
             return super().eval_first_derivatives(X, U)
-        X, U = self._split_xu(X, U)
-        x, u, xN = self._rows(X[:-1]), self._rows(U), self._rows(X[-1])
+        X, U = self._point(fusion, X, U)
         N = self.N
         gx, gu, fx, fu, gN = np.empty((N, 6)), np.empty((N, 7)), np.empty((N, 6, 6)), np.empty((N, 6, 7)), np.zeros(6)
-        finite = _derivatives_kernel(self._K, x, u, xN, self.inflow, self.evaporation, self.fa, self.fh,
-                                     self.alpha, self.psi, self.u_ref, self.V_ref, self.phi, self.fe,
-                                     self.nu_E, _LX, _LU, gx, gu, fx, fu, gN)
-        if not finite:
+        if not _derivatives_kernel(self._K, X[:-1], U, X[-1], self.inflow, self.evaporation, self.fa, self.fh,
+                                   self.alpha, self.psi, self.u_ref, self.V_ref, self.phi, self.fe,
+                                   self.nu_E, _LX, _LU, gx, gu, fx, fu, gN):
             return super().eval_first_derivatives(X, U)
         c = self.counters
         c["stage_cost_gradient"] += 1
         c["final_cost_gradient"] += 1
         c["dynamics_jacobian"] += 1
-        return FirstDerivatives(gx, gu, gN, fx, fu, np.zeros((N, 0, 6)), np.zeros((N, 0, 7)), np.zeros((0, 6)))
+        return _new_tuple(FirstDerivatives, (gx, gu, gN, fx, fu, fusion.no_Cx, fusion.no_Cu, fusion.no_CN))
 
     def stage_hessian(self, k, x, u, sigma, p, lam):
         """Blocks of the Hessian of sigma*f_0^k + p.f^k (no stage constraints), all stages."""
@@ -651,15 +729,16 @@ class Zambezi(DOCP):
         without its wrappers (one compiled pass, :func:`_stage_hessian_kernel`), under the rules of
         :meth:`eval_values`: anything but plain arrays of the expected shapes and a float ``sigma``
         -- or an entry that comes out NaN or inf -- takes the default path."""
+        fusion = self._fusion or self._fuse()
         N = self.N
-        if (source is not None or self.derivatives != "auto" or not self._fused("hessian")
-                or not isinstance(sigma, float) or not _plain(P, (N, 6)) or not P.flags.c_contiguous
+        if (source is not None or not fusion.hessian or not isinstance(sigma, float)
+                or not fusion.multipliers(P)
                 or not (L is None or _plain(L, (N, 0)))):
             return super().eval_stage_hessians(X, U, sigma, P, L, source)
-        X, U = self._split_xu(X, U)
+        X, U = self._point(fusion, X, U)
         hxx, hxu, huu = np.empty((N, 6, 6)), np.empty((N, 6, 7)), np.empty((N, 7, 7))
-        if not _stage_hessian_kernel(self._K, self._rows(X[:-1]), self._rows(U), self.inflow, self.evaporation,
-                                     self.fa, self.fh, self.alpha, self.psi, np.full(N, float(sigma)), P, _LX, _LU,
+        if not _stage_hessian_kernel(self._K, X[:-1], U, self.inflow, self.evaporation, self.fa, self.fh,
+                                     self.alpha, self.psi, fusion.weights(float(sigma), N), P, _LX, _LU,
                                      _JCOLS, hxx, hxu, huu):
             return super().eval_stage_hessians(X, U, sigma, P, L, source)
         self.counters["stage_hessian"] += 1
@@ -668,8 +747,9 @@ class Zambezi(DOCP):
     def eval_final_hessian(self, xN, sigma, lN=None, source=None):
         """:meth:`DOCP.eval_final_hessian` without the wrappers, under the rules of
         :meth:`eval_stage_hessians`."""
-        if (source is not None or self.derivatives != "auto" or not self._fused("hessian")
-                or not isinstance(sigma, float) or not (lN is None or _plain(lN, (0,)))):
+        fusion = self._fusion or self._fuse()
+        if (source is not None or not fusion.hessian or not isinstance(sigma, float)
+                or not (lN is None or _plain(lN, (0,)))):
             return super().eval_final_hessian(xN, sigma, lN, source)
         H = np.zeros((6, 6))
         _final_hessian_kernel(float(sigma), self.phi, self.fe, self.nu_E, H)

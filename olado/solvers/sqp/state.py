@@ -21,6 +21,8 @@ from ...result import Status
 from ...interrupts import Limits
 from ..common import EVALUATION_KINDS, Stoppable
 
+_now = time.perf_counter
+
 
 class Clock:
     """Counts and times the problem evaluations of the SQP (the share of solve time spent in
@@ -34,11 +36,13 @@ class Clock:
         self.limits = limits
 
     def add(self, kinds, t0):
-        self.time_s += time.perf_counter() - t0
+        self.time_s += _now() - t0
+        counts = self.counts
         for k in kinds:
-            self.counts[k] += 1
-        if self.limits is not None:
-            self.limits.check()
+            counts[k] += 1
+        limits = self.limits
+        if limits is not None:
+            limits.check()
 
 
 def _values(p, X, U):
@@ -66,17 +70,24 @@ def _first_derivatives(p, X, U):
     return lx, lu, lN, A, B, Cx, Cu, p.eval_final_constraint_jacobian(X[-1])
 
 
+#: the evaluation kinds (EVALUATION_KINDS) a point's values and its first derivatives count
+_VALUE_KINDS = ("objective", "constraints")
+_DERIVATIVE_KINDS = ("gradient", "jacobian")
+
+
 class Point:
     """Values (J, h, g, gN) and, on demand, first derivatives of the DOCP at (X, U)."""
 
     def __init__(self, problem, X, U, derivatives=True, clock=None):
-        p = problem
-        self.clock = clock if clock is not None else Clock()
-        t0 = time.perf_counter()
-        self.X, self.U = X, U
-        self.J, f, self.g, self.gN = _values(p, X, U)
+        if clock is None:
+            clock = Clock()
+        self.clock = clock
+        t0 = _now()
+        self.X = X
+        self.U = U
+        self.J, f, self.g, self.gN = _values(problem, X, U)
         self.h = f - X[1:]
-        self.clock.add(("objective", "constraints"), t0)
+        clock.add(_VALUE_KINDS, t0)
         self.derivs = False
         if derivatives:
             self.add_derivatives(problem)
@@ -85,11 +96,11 @@ class Point:
         """Cost gradients lx, lu, lN and Jacobians A, B (dynamics), Cx, Cu (stage), CN (final)."""
         if self.derivs:
             return
-        t0 = time.perf_counter()
+        t0 = _now()
         (self.lx, self.lu, self.lN, self.A, self.B, self.Cx, self.Cu,
          self.CN) = _first_derivatives(p, self.X, self.U)
         self.derivs = True
-        self.clock.add(("gradient", "jacobian"), t0)
+        self.clock.add(_DERIVATIVE_KINDS, t0)
 
     def lagrangian_hessian(self, p, mult):
         """The exact Hessian blocks (12) of the Lagrangian at (X, U) with the multipliers ``mult``:
