@@ -10,7 +10,7 @@ import pytest
 
 from olado.problems import PROBLEMS
 from olado.problems.zambezi import zambezi_problem
-from olado.solvers.ipm import kernels, solver as S
+from olado.solvers.ipm import evaluation as E, kernels, solver as S
 from olado.solvers.ipm.barrier import Bounds, Layout
 from olado.solvers.ipm.newton import Residuals, Step
 
@@ -170,10 +170,10 @@ def _reference_trial(setup, st, dv, alpha):
     residual norms and the barrier value by their separate passes)."""
     v_t = st.v + alpha * dv
     try:
-        pt = S.evaluate(setup, v_t, st.clock)
+        pt = E.evaluate(setup, v_t, st.clock)
     except S.NonFiniteEvaluationError:
         return v_t, None, np.inf, np.inf
-    res = S.residuals(setup, pt, v_t)
+    res = E.residuals(setup, pt, v_t)
     l1, _ = ref_norms(res)
     return v_t, pt, l1, st.s_obj * pt.J + setup.bounds.barrier_value(v_t, st.mu)
 
@@ -198,7 +198,7 @@ def _reference_step_multipliers(self, slacks, v_new, dv, zl, zu, mu, tau, lam, l
 
 
 def _reference_iterate_errors(setup, st):
-    """solver.iterate_errors by its parts: einsum's products, the dual infeasibility's own pass
+    """evaluation.iterate_errors by its parts: einsum's products, the dual infeasibility's own pass
     (kernels.dual_infeasibility, itself checked against numpy in test_barrier_kernels), the
     numpy complementarity at mu = 0 and at the iterate's mu, and the numpy ranges of the products
     s z (test_start_costs.ref_product_ranges)."""
@@ -210,7 +210,7 @@ def _reference_iterate_errors(setup, st):
     EA, EB = np.einsum("kij,ki->kj", pt.A, lam), np.einsum("kij,ki->kj", pt.B, lam)
     ECx, ECu, CNL = EA, EB, pt.lN
     if p.r or p.rN:
-        Lg, LgN = S.full_multipliers(setup.layout, st)
+        Lg, LgN = E.full_multipliers(setup.layout, st)
         if p.r:
             ECx, ECu = np.einsum("kij,ki->kj", pt.Cx, Lg), np.einsum("kij,ki->kj", pt.Cu, Lg)
         if p.rN:
@@ -249,7 +249,8 @@ def test_a_solve_takes_the_reference_iterates(problem, monkeypatch):
         mp.setattr(S, "_trial", _reference_trial)
         mp.setattr(Bounds, "step_terms", _reference_step_terms)
         mp.setattr(Bounds, "step_multipliers", _reference_step_multipliers)
-        mp.setattr(S, "iterate_errors", _reference_iterate_errors)
+        mp.setattr(E, "iterate_errors", _reference_iterate_errors)     # error_terms, complementarity
+        mp.setattr(S, "iterate_errors", _reference_iterate_errors)     # take_step
         mp.setattr(S, "_newton_terms", _reference_newton_terms)
         ref = solver.solve(problem())
     assert fast.status == ref.status and fast.iterations == ref.iterations
@@ -293,7 +294,7 @@ def _sequential_products(A, lam):
 @pytest.mark.parametrize("seed", range(40))
 def test_stage_products_are_the_sequential_sums_and_einsums(seed):
     """kernels.stage_products equals the sequential sums (the reference) and, where the solver
-    uses it (solver._plain_products), numpy's einsum (whose order it follows there); one-entry
+    uses it (evaluation._plain_products), numpy's einsum (whose order it follows there); one-entry
     rows and non-contiguous operands go to einsum."""
     rng = np.random.default_rng(seed)
     N, n, m = int(rng.integers(1, 40)), int(rng.integers(1, 12)), int(rng.integers(1, 12))
@@ -304,7 +305,7 @@ def test_stage_products_are_the_sequential_sums_and_einsums(seed):
     lam = (rng.normal(size=(N + 1, n)) * 10.0 ** rng.integers(-8, 8, size=(N + 1, n)))[1:]
     if seed == 5:
         A = np.ascontiguousarray(A.transpose(0, 2, 1)).transpose(0, 2, 1)      # not C-contiguous: einsum
-    plain = S._plain_products(A, B, lam)
+    plain = E._plain_products(A, B, lam)
     assert plain == (n >= 2 and m >= 2 and seed != 5)
     EA, EB = np.full((N, n), np.nan), np.full((N, m), np.nan)
     kernels.stage_products(np.ascontiguousarray(A), B, lam, EA, EB)

@@ -1,6 +1,6 @@
 """The cheaper start and error terms of the ipm solver give the same numbers as before, bit for bit:
 the complementarity max |s z - mu| of every mu from the ranges of the products s z
-(solver.products_complementarity, kernels.complementarity_ranges) against the numpy form, on random data
+(evaluation.products_complementarity, kernels.complementarity_ranges) against the numpy form, on random data
 with special values and on products within rounding of mu; the least-squares multipliers' matrix
 handed to the first Newton matrix (restoration.least_squares_multipliers(hand_over=True)) against
 a first Newton matrix of its own; and a solve's barrier updates without further error passes."""
@@ -13,7 +13,8 @@ import pytest
 from olado.config import load_config, make_solver
 from olado.problems import PROBLEMS
 from olado.problems.zambezi import zambezi_problem
-from olado.solvers.ipm import kernels, solver as S
+from olado.solvers.ipm import evaluation as E, kernels, solver as S
+from olado.solvers.ipm.barrier import _sides_max
 from olado.solvers.ipm.restoration import largest_multiplier, least_squares_multipliers
 from olado.solvers.sqp.state import Clock
 
@@ -70,7 +71,7 @@ def test_complementarity_ranges_are_numpys(seed):
             got = (n_lo, ends[0], ends[1], n_hi, ends[2], ends[3])
             assert all(_same_float(float(x), float(y)) for x, y in zip(got, want))
             for m, (lo, hi) in ((mu, (m_lo, m_hi)), (mu1, (m_lo1, m_hi1))):
-                assert _same_float(S._sides_max(n_lo, lo, n_hi, hi), ref_complementarity(b, v, zl, zu, m))
+                assert _same_float(_sides_max(n_lo, lo, n_hi, hi), ref_complementarity(b, v, zl, zu, m))
 
 
 @pytest.mark.parametrize("seed", range(9))
@@ -79,7 +80,7 @@ def test_complementarity_from_the_ranges_is_the_numpy_form(seed):
     with np.errstate(all="ignore"):
         ranges = ref_product_ranges(b, v, zl, zu)
         for mu in _mus(rng, ranges):
-            assert _same_float(S.products_complementarity(ranges, mu), ref_complementarity(b, v, zl, zu, mu)), mu
+            assert _same_float(E.products_complementarity(ranges, mu), ref_complementarity(b, v, zl, zu, mu)), mu
 
 
 def test_complementarity_from_the_ranges_within_rounding_of_mu():
@@ -97,11 +98,11 @@ def test_complementarity_from_the_ranges_within_rounding_of_mu():
                   hi.size, hi.min(initial=math.inf), hi.max(initial=-math.inf))
         parts = [np.abs(lo - mu), np.abs(hi - mu)]
         want = max((float(q.max()) for q in parts if q.size), default=0.0)
-        assert _same_float(S.products_complementarity(ranges, mu), want)
+        assert _same_float(E.products_complementarity(ranges, mu), want)
 
 
 def test_complementarity_of_no_bounds_is_zero():
-    assert _same_float(S.products_complementarity((0, math.inf, -math.inf, 0, math.inf, -math.inf), 0.1), 0.0)
+    assert _same_float(E.products_complementarity((0, math.inf, -math.inf, 0, math.inf, -math.inf), 0.1), 0.0)
 
 
 def _start(problem):
@@ -152,14 +153,15 @@ def test_barrier_updates_take_no_further_error_pass(monkeypatch):
     problem = lambda: zambezi_problem("zambezi12", N=24, start="balance")  # noqa: E731
     solver = make_solver(load_config("configs/ipm.ini"))
     calls = [0]
-    passes = S.iterate_errors
+    passes = E.iterate_errors
 
     def counted(setup, st):
         calls[0] += 1
         return passes(setup, st)
 
     with monkeypatch.context() as mp:
-        mp.setattr(S, "iterate_errors", counted)
+        mp.setattr(E, "iterate_errors", counted)        # error_terms, complementarity
+        mp.setattr(S, "iterate_errors", counted)        # take_step
         fast = solver.solve(problem())
     mus = [h["mu"] for h in fast.history]
     assert len(set(mus)) >= 4                       # mu fell several times
@@ -170,7 +172,7 @@ def test_barrier_updates_take_no_further_error_pass(monkeypatch):
             return ref_complementarity(setup.bounds, st.v, st.zl, st.zu, mu)
 
     with monkeypatch.context() as mp:
-        mp.setattr(S, "complementarity", numpy_complementarity)
+        mp.setattr(E, "complementarity", numpy_complementarity)     # optimality_errors
         ref = solver.solve(problem())
     keys = ("alpha", "alpha_z", "objective", "inf_pr", "inf_du", "mu", "delta_w")
     assert [tuple(h[k] for k in keys) for h in fast.history] == [tuple(h[k] for k in keys) for h in ref.history]
