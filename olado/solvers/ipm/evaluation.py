@@ -65,7 +65,7 @@ def theta(setup, pt, v):
 
 def barrier_value(setup, pt, v, mu, s_obj):
     """(phi_mu at the point, None): the line search and the restoration phase compare values
-    only (element 0); the gradient is :func:`barrier_gradient`'s, at the iterate alone."""
+    only (element 0); the gradient is :func:`.solver.barrier_gradient`'s, at the iterate alone."""
     return s_obj * pt.J + setup.bounds.barrier_value(v, mu), None
 
 

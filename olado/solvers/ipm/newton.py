@@ -66,6 +66,16 @@ class Constraints:
                    np.zeros((0, n)), np.zeros((N, 0)), np.zeros(0))
 
 
+class Direction(NamedTuple):
+    """The Newton system's right-hand side in y (q, r) and s (gs, gsN), and grad phi flat."""
+
+    q: np.ndarray
+    r: np.ndarray
+    gs: np.ndarray
+    gsN: np.ndarray
+    grad: np.ndarray
+
+
 class Residuals(NamedTuple):
     """The constraint residuals of the Newton system's right-hand side: dynamics h (N, n),
     stage equalities e (N, ne), final equalities eN (neN,), and the inequality rows d - s

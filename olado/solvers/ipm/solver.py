@@ -25,8 +25,10 @@ passes over the flat vector compiled in ``kernels.py``),
 ``filter.py`` (the filter and IPOPT's acceptance safeguards), ``restoration.py`` (least-squares
 multipliers, the restoration phases), ``elastic.py`` (the l1 restoration problem as a DOCP),
 ``adaptive.py`` (the quality-function oracle of the adaptive mu update), ``evaluation.py`` (the
-point, residuals, theta, barrier value, gradients and the optimality error (5) at an iterate), this
-module (options, the per-solve state, the loop, the watchdog, the Result).
+point, residuals, theta, barrier value, gradients and the optimality error (5) at an iterate),
+``linesearch.py`` (the Newton direction, the filter line search with second-order corrections, the
+watchdog), this module (options, the per-solve state, the start, the barrier update, the Newton
+system, the step, the loop, the Result).
 """
 
 from __future__ import annotations
@@ -34,11 +36,9 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from typing import NamedTuple
 
 import numpy as np
 
-from ...errors import NonFiniteEvaluationError
 from ...interrupts import Limits
 from ...options import option
 from ...result import Result, Status
@@ -48,15 +48,14 @@ from ..sqp.residuals import stage_kkt
 from ..sqp.state import BoundMultipliers, Clock, Multipliers, Point
 from .adaptive import (FILTER_MARGIN_FACT, FILTER_MAX_MARGIN, MONOTONE_INIT_FACTOR, MU_MAX_FACT, MU_MIN, AdaptiveMu,
                        QualityFunction, average_complementarity, quality_function_sigma)
-from .barrier import KAPPA_D, Bounds, Layout, _kernels, dot
-from .evaluation import (_residual_entry, barrier_value, evaluate, full_multipliers, iterate_errors, lagrangian_gradient,
+from .barrier import KAPPA_D, Bounds, Layout, _kernels
+from .evaluation import (barrier_value, evaluate, full_multipliers, iterate_errors, lagrangian_gradient,
                          objective_gradient, optimality_errors, residuals, store_errors, theta)
 from .filter import Filter
-from .newton import Constraints, KKTMatrix, Residuals, stage_blocks
+from .linesearch import line_search, step_vector
+from .newton import Constraints, Direction, KKTMatrix, stage_blocks
 from .restoration import Restoration, largest_multiplier, least_squares_multipliers, restore, restore_l1
 
-#: IPOPT's tiny step: max |dv| / (1 + |v|) below this (10 eps) takes the step without a line search
-TINY_STEP = 10 * np.finfo(float).eps
 #: the largest flat iterate (entries) whose iterations reuse their arrays (Workspace): at small N
 #: allocating them is a tenth of an iteration's time; at large N the arrays kept between
 #: iterations (~1 kB per stage of zambezi) would count at the peak of memory
@@ -170,7 +169,8 @@ class Workspace:
     """The arrays an iteration writes, allocated once per solve and reused (at small N their
     allocation and release are a tenth of an iteration's time): the Newton matrix's Sigma blocks
     and the barrier gradient (:func:`newton_system`), the Newton step and dv of the direction
-    (:func:`direction`), the stage products of the error pass (:func:`iterate_errors`), the
+    (:func:`.linesearch.direction`), the stage products of the error pass
+    (:func:`.evaluation.iterate_errors`), the
     Hessian blocks Q, which the previous Newton matrix held until it let them go
     (KKTMatrix.release_blocks), and two sets each for the trial points (v, X, U and the slacks)
     and for the multiplier step's results (the iterate's and a spare one, in turn). The watchdog
@@ -441,35 +441,6 @@ def converged(setup, st):
     return False
 
 
-def _trial(setup, st, dv, alpha):
-    """The trial point v + alpha dv of the iterate: (v_t, point, theta, phi); (v_t, None, inf, inf)
-    when a function is not finite there. v_t and its (X, U) (the workspace's trial arrays) are
-    made in one compiled pass (kernels.trial_point), the point evaluated as :func:`evaluate` does,
-    its theta, max-norm (cached with its residuals) and phi in another (barrier.Bounds.point_terms)."""
-    L = setup.layout
-    v_t, X, U, slacks = setup.ws.trial_arrays(st.v)
-    setup.bounds.forget(v_t)
-    _kernels().trial_point(st.v, dv, alpha, L.x0, v_t, X, U)
-    try:
-        pt = Point(setup.problem, X, U, derivatives=False, clock=st.clock)
-    except NonFiniteEvaluationError:
-        return v_t, None, math.inf, math.inf
-    entry = _residual_entry(setup, pt, v_t)
-    l1, mx, barrier = setup.bounds.point_terms(v_t, entry[2], st.mu, slacks)
-    entry[3] = (l1, mx)
-    return v_t, pt, l1, st.s_obj * pt.J + barrier
-
-
-class Direction(NamedTuple):
-    """The Newton system's right-hand side in y (q, r) and s (gs, gsN), and grad phi flat."""
-
-    q: np.ndarray
-    r: np.ndarray
-    gs: np.ndarray
-    gsN: np.ndarray
-    grad: np.ndarray
-
-
 def barrier_gradient(setup, st, mu=None) -> Direction:
     """grad phi_mu at the iterate (mu: the iterate's unless given), split for the Newton system."""
     L, b, pt = setup.layout, setup.bounds, st.pt
@@ -483,159 +454,6 @@ def barrier_gradient(setup, st, mu=None) -> Direction:
     _kernels().barrier_direction(s_obj, pt.lx, pt.lN, pt.lu, sl, su, b.has_lo, b.has_hi, mu, KAPPA_D * mu,
                                  q, r, gs, gsN, grad)
     return Direction(q, r, gs, gsN, grad)
-
-
-def step_vector(setup, step):
-    return setup.layout.pack(step.dX, step.dU, step.ds, step.dsN)
-
-
-class Search(NamedTuple):
-    """A Newton direction at an iterate and the quantities its line search compares against:
-    the system and right-hand side (for second-order corrections), the residuals, the step, dv,
-    grad phi . dv, theta, phi and the largest step by the fraction-to-boundary rule."""
-
-    kkt: KKTMatrix
-    g: Direction
-    res: Residuals
-    step: object
-    dv: np.ndarray
-    gphi: float
-    theta: float
-    phi: float
-    alpha_max: float
-    tiny: float = math.inf
-
-
-@dataclasses.dataclass
-class Watchdog:
-    """IPOPT's watchdog (watchdog_shortened_iter_trigger, watchdog_trial_iter_max): the iterate
-    and search where it started and the trial steps taken since."""
-
-    state: dict
-    search: Search
-    trials: int = 1
-
-
-WATCHED = ("v", "pt", "lam", "nu", "nuN", "yd", "ydN", "zl", "zu", "mu", "tau")
-
-
-def direction(setup, st, kkt, g) -> Search:
-    """The Newton direction at the iterate and its line-search quantities."""
-    res = residuals(setup, st.pt, st.v)
-    out, dv = setup.ws.step()
-    step = kkt.solve(g.q, g.r, res, g.gs, g.gsN, out=out)
-    # step_vector, Bounds.max_step and the tiny-step measure in one compiled pass
-    dv, alpha_max, tiny = setup.bounds.step_terms(st.v, step, st.tau, dv)
-    phi = barrier_value(setup, st.pt, st.v, st.mu, st.s_obj)[0]
-    return Search(kkt, g, res, step, dv, dot(g.grad, dv), theta(setup, st.pt, st.v), phi, alpha_max, tiny)
-
-
-def line_search(setup, st, kkt, g):
-    """The filter line search with second-order corrections (sec. 2.3-2.4, Algorithm A steps
-    A-5 to A-8) and IPOPT's watchdog. Returns the accepted step (v_new, pt_new, dv, newton step,
-    alpha, soc) or None (alpha fell below alpha_min: restoration)."""
-    o = setup.options
-    d = direction(setup, st, kkt, g)
-    if d.tiny < TINY_STEP:     # IPOPT's tiny-step rule: no line search for a step below rounding
-        v_t, pt_t, _, _ = _trial(setup, st, d.dv, d.alpha_max)
-        if pt_t is not None:
-            return v_t, pt_t, d.dv, d.step, d.alpha_max, 0
-    if st.watch is None and o.watchdog_shortened_iter_trigger and st.shortened >= o.watchdog_shortened_iter_trigger:
-        st.watch = Watchdog({k: getattr(st, k) for k in WATCHED}, d)
-        setup.ws.detach()           # the watchdog keeps the search's arrays
-        st.shortened = 0
-        step = _watchdog_step(setup, st, d)
-        if step is not None:
-            return step
-        st.watch = None
-    elif st.watch is not None:
-        step = _watched_trial(setup, st, d)
-        if step is not None:
-            return step
-        d = st.watch.search           # the watchdog gives up: back to where it started
-        for k, val in st.watch.state.items():
-            setattr(st, k, val)
-        st.watch = None
-    return backtrack(setup, st, d)
-
-
-def _watchdog_step(setup, st, d):
-    """A full step taken without the acceptance test (IPOPT's "w" iteration); None when the
-    functions are not finite there."""
-    v_t, pt_t, _, _ = _trial(setup, st, d.dv, d.alpha_max)
-    return None if pt_t is None else (v_t, pt_t, d.dv, d.step, d.alpha_max, 0)
-
-
-def _watched_trial(setup, st, d):
-    """In the watchdog: the full step, accepted (and the watchdog ended) when the filter accepts it
-    against the watchdog's starting point; else another "w" step while watchdog_trial_iter_max
-    allows; None: the watchdog fails and the line search starts again from its starting point."""
-    ref = st.watch.search
-    v_t, pt_t, th_t, phi_t = _trial(setup, st, d.dv, d.alpha_max)
-    # the tests use the watched point's values and step to the boundary (IPOPT's watchdog_alpha_primal_test)
-    ok, f_type = st.filt.accept(ref.alpha_max, ref.theta, ref.phi, ref.gphi, th_t, phi_t)
-    if ok:
-        if not f_type:
-            st.filt.add(ref.theta, ref.phi)
-        st.watch = None
-        return v_t, pt_t, d.dv, d.step, d.alpha_max, 0
-    if pt_t is not None and st.watch.trials < setup.options.watchdog_trial_iter_max:
-        st.watch.trials += 1
-        return v_t, pt_t, d.dv, d.step, d.alpha_max, 0
-    return None
-
-
-def backtrack(setup, st, d: Search):
-    """Backtracking from alpha_max by halves to alpha_min (23), with second-order corrections
-    after a rejected first trial that increased theta."""
-    o = setup.options
-    th, phi, gphi = d.theta, d.phi, d.gphi
-    alpha_min = st.filt.alpha_min(th, gphi)
-    alpha, trials = d.alpha_max, 0
-    while alpha > alpha_min or trials == 0:     # the first trial always (IPOPT)
-        setup.limits.check()
-        trials += 1
-        v_t, pt_t, th_t, phi_t = _trial(setup, st, d.dv, alpha)
-        ok, f_type = st.filt.accept(alpha, th, phi, gphi, th_t, phi_t)
-        if ok:
-            if not f_type:
-                st.filt.add(th, phi)
-            st.shortened = st.shortened + 1 if trials > 1 else 0
-            return v_t, pt_t, d.dv, d.step, alpha, 0
-        if trials == 1 and pt_t is not None and th_t >= th and o.max_soc:
-            soc = second_order_correction(setup, st, d.kkt, d.g, d.res, alpha, (th, phi, gphi), pt_t, v_t, th_t)
-            if soc is not None:
-                st.shortened = 0
-                return soc
-        alpha *= 0.5
-    return None
-
-
-def second_order_correction(setup, st, kkt, g, res, alpha_max, current, pt_t, v_t, th_t):
-    """Second-order corrections (sec. 2.4): the system solved again with the constraint offsets
-    c_soc = alpha c(y) + c(y_trial) (accumulated, eq. (27)), at most max_soc times while each
-    reduces theta by kappa_soc."""
-    o, b = setup.options, setup.bounds
-    th, phi, gphi = current
-    c_soc = res.combine(alpha_max, residuals(setup, pt_t, v_t))
-    th_old = th_t
-    for k in range(o.max_soc):
-        step = kkt.solve(g.q, g.r, c_soc, g.gs, g.gsN)
-        dv = step_vector(setup, step)
-        a_soc = b.max_step(st.v, dv, st.tau)
-        v_s, pt_s, th_s, phi_s = _trial(setup, st, dv, a_soc)
-        if pt_s is None:
-            return None
-        ok, f_type = st.filt.accept(alpha_max, th, phi, gphi, th_s, phi_s)
-        if ok:
-            if not f_type:
-                st.filt.add(th, phi)
-            return v_s, pt_s, dv, step, a_soc, k + 1
-        if th_s > o.kappa_soc * th_old:
-            return None
-        th_old = th_s
-        c_soc = c_soc.combine(a_soc, residuals(setup, pt_s, v_s))
-    return None
 
 
 def take_step(setup, st, accepted):

@@ -10,7 +10,8 @@ import pytest
 
 from olado.problems import PROBLEMS
 from olado.problems.zambezi import zambezi_problem
-from olado.solvers.ipm import evaluation as E, kernels, solver as S
+from olado.errors import NonFiniteEvaluationError
+from olado.solvers.ipm import evaluation as E, kernels, linesearch, solver as S
 from olado.solvers.ipm.barrier import Bounds, Layout
 from olado.solvers.ipm.newton import Residuals, Step
 
@@ -166,12 +167,12 @@ def test_step_bound_multipliers_are_the_separate_steps(shape, seed):
 
 # ---------------------------------------------------------------------------- the same iterates
 def _reference_trial(setup, st, dv, alpha):
-    """solver._trial by the numpy forms it replaces (v + alpha dv, Layout.states_controls, the
+    """linesearch._trial by the numpy forms it replaces (v + alpha dv, Layout.states_controls, the
     residual norms and the barrier value by their separate passes)."""
     v_t = st.v + alpha * dv
     try:
         pt = E.evaluate(setup, v_t, st.clock)
-    except S.NonFiniteEvaluationError:
+    except NonFiniteEvaluationError:
         return v_t, None, np.inf, np.inf
     res = E.residuals(setup, pt, v_t)
     l1, _ = ref_norms(res)
@@ -246,7 +247,7 @@ def test_a_solve_takes_the_reference_iterates(problem, monkeypatch):
     solver = make_solver(load_config("configs/ipm.ini"))
     fast = solver.solve(problem())
     with monkeypatch.context() as mp:
-        mp.setattr(S, "_trial", _reference_trial)
+        mp.setattr(linesearch, "_trial", _reference_trial)
         mp.setattr(Bounds, "step_terms", _reference_step_terms)
         mp.setattr(Bounds, "step_multipliers", _reference_step_multipliers)
         mp.setattr(E, "iterate_errors", _reference_iterate_errors)     # error_terms, complementarity

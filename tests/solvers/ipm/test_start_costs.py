@@ -13,7 +13,7 @@ import pytest
 from olado.config import load_config, make_solver
 from olado.problems import PROBLEMS
 from olado.problems.zambezi import zambezi_problem
-from olado.solvers.ipm import evaluation as E, kernels, solver as S
+from olado.solvers.ipm import evaluation as E, kernels, linesearch, solver as S
 from olado.solvers.ipm.barrier import _sides_max
 from olado.solvers.ipm.restoration import largest_multiplier, least_squares_multipliers
 from olado.solvers.sqp.state import Clock
@@ -127,14 +127,14 @@ def test_the_first_newton_matrix_takes_the_multipliers_matrix_over(make):
     backend = lsq.kkt
     kkt, g = S.newton_system(setup, st, gradient=True)
     assert kkt.kkt is backend and lsq.kkt is None
-    step = S.direction(setup, st, kkt, g).step
+    step = linesearch.direction(setup, st, kkt, g).step
     taken = [np.array(a, copy=True) for a in step]
 
     setup2, st2 = _start(make())
     setup2.last_kkt = None          # a first Newton matrix with a back-end of its own
     kkt2, g2 = S.newton_system(setup2, st2, gradient=True)
     assert kkt2.kkt is not backend and kkt2.delta == kkt.delta
-    own = S.direction(setup2, st2, kkt2, g2).step
+    own = linesearch.direction(setup2, st2, kkt2, g2).step
     assert all(np.array_equal(a, b) for a, b in zip(taken, own))
 
 

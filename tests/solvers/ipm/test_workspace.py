@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+import olado.solvers.ipm.linesearch as linesearch
 import olado.solvers.ipm.solver as S
 from olado.problems import PROBLEMS
 from olado.problems.zambezi import zambezi_problem
@@ -77,7 +78,7 @@ def test_the_common_iteration_reuses_the_workspace_arrays(monkeypatch):
     from olado.config import load_config, make_solver
 
     seen, iterates = [], []
-    direction, take_step = S.direction, S.take_step
+    direction, take_step = linesearch.direction, S.take_step
 
     def spy(setup, st, kkt, g):
         d = direction(setup, st, kkt, g)
@@ -89,7 +90,7 @@ def test_the_common_iteration_reuses_the_workspace_arrays(monkeypatch):
         iterates.append((id(st.v), id(st.pt.X), id(st.zl), id(st.lam)))
         return out
 
-    monkeypatch.setattr(S, "direction", spy)
+    monkeypatch.setattr(linesearch, "direction", spy)      # line_search
     monkeypatch.setattr(S, "take_step", spy_step)
     solver = make_solver(load_config("configs/ipm.ini"))
     result = solver.solve(zambezi_problem("zambezi12", N=24, start="balance"))
