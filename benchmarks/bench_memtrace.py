@@ -195,8 +195,10 @@ def patch_sigma():
 
     release = newton.KKTMatrix.release_blocks
 
-    def release_sigma(self):
-        release(self)
+    def release_sigma(self, sigma=True):
+        # the library's release_blocks takes ``sigma`` since h-mem3 made this change (above
+        # REUSE_MAX); the patch applies it at every size
+        release(self, sigma=sigma)
         self.Sx, self.Su = _released((self.Sx, self.Su))
 
     newton.KKTMatrix.release_blocks = release_sigma
