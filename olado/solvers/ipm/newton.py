@@ -30,6 +30,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ...linalg.backend import NotPositiveDefiniteError, make_kkt_solver
+from .barrier import NO_POINT, _kernels
 
 
 @dataclasses.dataclass(frozen=True)
@@ -102,8 +103,6 @@ class Residuals(NamedTuple):
     def norms(self):
         """(l1, max) in one compiled pass (kernels.residual_norms in kernels.point_terms, here
         without a point)."""
-        from .barrier import NO_POINT, _kernels    # noqa: PLC0415 - numba loaded on first use
-
         l1, mx, _, _ = _kernels().point_terms(*NO_POINT, *self)
         return float(l1), float(mx)
 
@@ -213,8 +212,8 @@ class KKTMatrix:
             return
         self.released = True
         if sigma:
-            from ...linalg.riccati import _placeholder  # noqa: PLC0415 - (an import costs microseconds)
-
+            from ...linalg.riccati import _placeholder  # noqa: PLC0415 - only where one is made (not per
+                                                        # iteration at small N: the back-end's are reused)
             self.Sx, self.Su = _placeholder(self.Sx.shape), _placeholder(self.Su.shape)
         if self.kkt is not None and self.backend == "riccati":
             d = self.kkt.release_blocks().data
@@ -241,8 +240,6 @@ class KKTMatrix:
     def _diagonals_into(self, delta, Dx, Du):
         """:meth:`_diagonals` written into the back-end's arrays Dx, Du (the same values; no new
         arrays for the back-end to validate); returns the slack rows' weights (None without)."""
-        from .barrier import _kernels    # noqa: PLC0415 - numba loaded on first use
-
         _kernels().shifted_diagonals(self.Sx, self.Su, float(delta), Dx, Du)   # np.add's sums, Dx[0] = 0
         self._final_block(delta)
         c = self.cons
@@ -365,19 +362,6 @@ def _empty_parts(N, n):
     if parts is None:
         parts = _EMPTY_PARTS[(N, n)] = (np.zeros((N, 0)), np.zeros(0), np.zeros(n), np.empty((N + 1, 0)))
     return parts
-
-
-_KERNEL_MODULE = None
-
-
-def _kernels():
-    """olado.solvers.ipm.kernels, loaded on first use and kept (barrier._kernels)."""
-    global _KERNEL_MODULE
-    if _KERNEL_MODULE is None:
-        from .barrier import _kernels as kernels    # noqa: PLC0415 - numba loaded on first use
-
-        _KERNEL_MODULE = kernels()
-    return _KERNEL_MODULE
 
 
 def stage_blocks(Hxx, Hxu, Huu, HN, Q=None):

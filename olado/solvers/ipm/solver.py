@@ -191,37 +191,33 @@ class Workspace:
         self._newton = self._step = self.Q = self.Q_owner = self.no_rows = None
         self._trials, self._multipliers = [], []
 
+    def _kept(self, name, make):
+        """The arrays kept as ``name``, made by ``make()`` on first use (kept only with reuse:
+        without it every request gets new ones)."""
+        arrays = getattr(self, name)
+        if arrays is None:
+            arrays = make()
+            if self.reuse:
+                setattr(self, name, arrays)
+        return arrays
+
     def products(self):
         """(EA (N, n), EB (N, m)): the error pass's scratch."""
-        if self._products is None:
-            L = self.layout
-            self._products = np.empty((L.N, L.n)), np.empty((L.N, L.m))
-            if not self.reuse:
-                products, self._products = self._products, None
-                return products
-        return self._products
+        L = self.layout
+        return self._kept("_products", lambda: (np.empty((L.N, L.n)), np.empty((L.N, L.m))))
 
     def newton(self):
         """(Sx (N+1, n), Su (N, m), Ss (N, ni), SsN (niN,), q (N+1, n), r (N, m), gs (N, ni), gsN (niN,), grad)."""
-        if self._newton is None:
-            L = self.layout
-            arrays = (np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N, L.ni)), np.empty(L.niN),
-                      np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N, L.ni)), np.empty(L.niN),
-                      np.empty(L.size))
-            if not self.reuse:
-                return arrays
-            self._newton = arrays
-        return self._newton
+        L = self.layout
+        return self._kept("_newton", lambda: (
+            np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N, L.ni)), np.empty(L.niN),
+            np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N, L.ni)), np.empty(L.niN), np.empty(L.size)))
 
     def step(self):
         """((dX (N+1, n), dU (N, m), lam (N+1, n)), dv): the Newton step's output arrays and dv."""
-        if self._step is None:
-            L = self.layout
-            arrays = (np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N + 1, L.n))), np.empty(L.size)
-            if not self.reuse:
-                return arrays
-            self._step = arrays
-        return self._step
+        L = self.layout
+        return self._kept("_step", lambda: (
+            (np.empty((L.N + 1, L.n)), np.empty((L.N, L.m)), np.empty((L.N + 1, L.n))), np.empty(L.size)))
 
     def hessian_blocks(self, prev, shape):
         """Q of the shape for the next Newton matrix: the one ``prev`` (the previous matrix, released)
