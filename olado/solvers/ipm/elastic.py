@@ -97,6 +97,19 @@ class ElasticDOCP:
         return float(ph.sum() + nh.sum() + pg.sum() + ng.sum() + self.split_states(X)[1][-1].sum())
 
     # -- the evaluations the solver calls
+    def eval_values(self, X, U):
+        """(J, f, g, gN): DOCP.eval_values' default (the solvers' Point calls this one entry)."""
+        return self.objective(X, U), self.eval_dynamics(X, U), self.eval_stage_constraints(X, U), \
+            self.eval_final_constraints(X[-1])
+
+    def eval_first_derivatives(self, X, U):
+        """(lx, lu, lN, A, B, Cx, Cu, CN): DOCP.eval_first_derivatives' default, in its order."""
+        lx, lu = self.eval_stage_cost_gradients(X, U)
+        lN = self.eval_final_cost_gradient(X[-1])
+        A, B = self.eval_dynamics_jacobians(X, U)
+        Cx, Cu = self.eval_stage_constraint_jacobians(X, U)
+        return lx, lu, lN, A, B, Cx, Cu, self.eval_final_constraint_jacobian(X[-1])
+
     def objective(self, X, U):
         u, ph, nh, pg, ng, w = self.split(U)
         x = self.split_states(X)[0]

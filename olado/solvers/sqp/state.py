@@ -45,31 +45,6 @@ class Clock:
             limits.check()
 
 
-def _values(p, X, U):
-    """(J, f, g, gN) at (X, U): one call of :meth:`olado.problems.docp.DOCP.eval_values` (a
-    problem may evaluate them in one compiled pass), or the four evaluations of a problem that
-    only has those (the interior-point method's elastic restoration problem,
-    olado.solvers.ipm.elastic), in the same order."""
-    batched = getattr(p, "eval_values", None)
-    if batched is not None:
-        return batched(X, U)
-    J = p.objective(X, U)
-    return J, p.eval_dynamics(X, U), p.eval_stage_constraints(X, U), p.eval_final_constraints(X[-1])
-
-
-def _first_derivatives(p, X, U):
-    """(lx, lu, lN, A, B, Cx, Cu, CN) at (X, U): :meth:`olado.problems.docp.DOCP.eval_first_derivatives`,
-    or its five evaluations in the same order (see :func:`_values`)."""
-    batched = getattr(p, "eval_first_derivatives", None)
-    if batched is not None:
-        return batched(X, U)
-    lx, lu = p.eval_stage_cost_gradients(X, U)
-    lN = p.eval_final_cost_gradient(X[-1])
-    A, B = p.eval_dynamics_jacobians(X, U)
-    Cx, Cu = p.eval_stage_constraint_jacobians(X, U)
-    return lx, lu, lN, A, B, Cx, Cu, p.eval_final_constraint_jacobian(X[-1])
-
-
 #: the evaluation kinds (EVALUATION_KINDS) a point's values and its first derivatives count
 _VALUE_KINDS = ("objective", "constraints")
 _DERIVATIVE_KINDS = ("gradient", "jacobian")
@@ -85,7 +60,7 @@ class Point:
         t0 = _now()
         self.X = X
         self.U = U
-        self.J, f, self.g, self.gN = _values(problem, X, U)
+        self.J, f, self.g, self.gN = problem.eval_values(X, U)
         self.h = f - X[1:]
         clock.add(_VALUE_KINDS, t0)
         self.derivs = False
@@ -98,7 +73,7 @@ class Point:
             return
         t0 = _now()
         (self.lx, self.lu, self.lN, self.A, self.B, self.Cx, self.Cu,
-         self.CN) = _first_derivatives(p, self.X, self.U)
+         self.CN) = p.eval_first_derivatives(self.X, self.U)
         self.derivs = True
         self.clock.add(_DERIVATIVE_KINDS, t0)
 
