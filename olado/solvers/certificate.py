@@ -558,24 +558,6 @@ def _entry_of(shapes, j):
     raise IndexError(j)
 
 
-_RNG = threading.local()
-
-
-def _generator(seed):
-    """``np.random.default_rng(seed)`` at its start: a generator of this thread, its state reset
-    to the seed's (the same draws, without hashing the seed at every certificate)."""
-    cache = getattr(_RNG, "cache", None)
-    if cache is None:
-        cache = _RNG.cache = {}
-    found = cache.get(seed)
-    if found is None:
-        rng = np.random.default_rng(seed)
-        found = cache[seed] = (rng, rng.bit_generator.state)
-    rng, state = found
-    rng.bit_generator.state = state
-    return rng
-
-
 #: draws of :func:`_uniform_draws` remembered (read-only), at most this many ...
 _DRAWS_KEPT = 8
 #: ... and each of at most this many numbers (a larger draw is redrawn at every certificate)
@@ -591,7 +573,7 @@ def _uniform_draws(seed, count, size):
     key = (seed, count, size)
     draw = _DRAWS.get(key)
     if draw is None:
-        draw = _generator(seed).uniform(-1.0, 1.0, (count, size))
+        draw = np.random.default_rng(seed).uniform(-1.0, 1.0, (count, size))
         draw.setflags(write=False)
         if draw.size <= _DRAWS_SIZE:
             with _DRAWS_LOCK:                   # solves in threads: one insertion at a time

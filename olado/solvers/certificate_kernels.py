@@ -15,7 +15,7 @@ contracts no multiply-add without fastmath), so the certificate's figures are th
 * ``a.max()`` propagates a NaN, ``a.argmax()`` returns the first NaN, else the first largest entry;
   Python's ``max(x, y)`` returns y only when y > x;
 * ``np.einsum("kij,ki->kj", M, v)`` sums each output entry over i from 0 in order when every
-  output dimension j is larger than 1 (olado.solvers.sqp.kernels.einsum_sequential); the
+  output dimension j is larger than 1 (olado.solvers.common.einsum_sequential); the
   callers take the numpy form otherwise.
 
 tests/solvers/test_certificate_fastpath.py and tests/solvers/test_certificate_kernels.py keep

@@ -205,6 +205,13 @@ def complementarity_residual(nlp, y, c, lam, zl, zu) -> float:
     return max(parts)
 
 
+def einsum_sequential(*sizes):
+    """True when ``np.einsum("kij,ki->kj", ...)`` with these output dimensions j sums in the
+    sequential order of the compiled contractions (olado.solvers.sqp.kernels._contract,
+    olado.solvers.certificate_kernels): every output dimension > 1."""
+    return all(s > 1 for s in sizes)
+
+
 def stage_gradient_terms(p, pt, lam, Lg, LgN, sigma=1.0):
     """sigma grad J + Jc^T lam stage by stage, without bound multipliers: (rx (N+1, n), ru (N, m)).
 
@@ -213,11 +220,10 @@ def stage_gradient_terms(p, pt, lam, Lg, LgN, sigma=1.0):
     dynamics row h^k = f^k - x^{k+1}, ``Lg`` (N, r) and ``LgN`` (rN,) those of g and g^N;
     ``sigma`` scales the objective (IPOPT's objective scaling; 0: the gradient of the constraint
     terms alone, the objective's derivatives not read)."""
-    rx = np.empty((p.N + 1, p.n))
-    if sigma == 1.0 and p.n > 1 and p.m > 1 and p.N:      # the einsums sum in order (certificate_kernels)
+    if sigma == 1.0 and einsum_sequential(p.n, p.m) and p.N:      # the einsums sum in order (certificate_kernels)
         from .certificate_kernels import gradient_terms   # noqa: PLC0415 - numba is loaded on the first solve
 
-        ru = np.empty((p.N, p.m))
+        rx, ru = np.empty((p.N + 1, p.n)), np.empty((p.N, p.m))
         c = np.ascontiguousarray
         gradient_terms(c(pt.lx, dtype=float), c(pt.lu, dtype=float), c(pt.lN, dtype=float), c(pt.A, dtype=float),
                        c(pt.B, dtype=float), c(pt.Cx, dtype=float), c(pt.Cu, dtype=float), c(lam, dtype=float),
@@ -225,6 +231,13 @@ def stage_gradient_terms(p, pt, lam, Lg, LgN, sigma=1.0):
         if p.rN:
             rx[-1] += pt.CN.T @ LgN
         return rx, ru
+    return stage_gradient_terms_reference(p, pt, lam, Lg, LgN, sigma)
+
+
+def stage_gradient_terms_reference(p, pt, lam, Lg, LgN, sigma=1.0):
+    """:func:`stage_gradient_terms` in numpy (its form where the einsums' order is not the
+    compiled pass's, and the reference its compiled pass is tested against)."""
+    rx = np.empty((p.N + 1, p.n))
     lx, lu, lN = (sigma * pt.lx, sigma * pt.lu, sigma * pt.lN) if sigma else (0.0, 0.0, 0.0)
     rx[:-1] = lx + np.einsum("kij,ki->kj", pt.A, lam)
     rx[1:-1] -= lam[:-1]

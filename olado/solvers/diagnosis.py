@@ -111,30 +111,8 @@ def violation_arrays(problem, pt) -> list[ViolationArray]:
             for a in out]
 
 
-def _largest_values(problem, pt):
-    """The violation arrays of :func:`violation_arrays` without their kinds, as (name, values,
-    staged, kinds of an entry): what :func:`largest_violation_of` reads."""
-    p = problem
-    X, U = np.asarray(pt.X, dtype=float), np.asarray(pt.U, dtype=float)
-    out = [("dynamics", np.abs(pt.h), True, _equality)]
-    out += _row_values(p, pt)
-    out.append(("x0", np.abs(X[0] - p.x0)[None, :], False, _equality))
-    for name, y, lo, hi in (("x_bounds", X, p.x_lower, p.x_upper), ("u_bounds", U, p.u_lower, p.u_upper)):
-        with np.errstate(invalid="ignore"):
-            below, above = lo - y, y - hi
-            v = np.maximum(np.maximum(below, 0.0), np.maximum(above, 0.0))
-        if name == "x_bounds":
-            v[0] = 0.0                          # x^0 is fixed at x0 (the array x0)
-        out.append((name, v, True, lambda k, i, below=below, above=above: UPPER if above[k, i] > below[k, i] else LOWER))
-    return out
-
-
-def _equality(k, i):
-    return EQUALITY
-
-
 def _row_values(p, pt):
-    """The constraint rows' entries of :func:`_largest_values`."""
+    """The constraint rows' candidates of :func:`largest_violation_of`: (name, values, staged, kind of an entry)."""
     rows = lambda mask: lambda k, i: EQUALITY if mask[i] else INEQUALITY        # noqa: E731
     out = []
     if p.r:
@@ -179,9 +157,11 @@ def largest_violation_of(problem, pt) -> tuple[float, Violation | None]:
     """``largest_violation(violation_arrays(problem, pt))`` -- the same value and Violation --
     with the kind computed for the largest entry only (olado's certificate of a success asks for
     nothing else); the dynamics, x0 and the bounds in one compiled pass."""
-    best, where = 0.0, None
     candidates = _largest_compiled(problem, pt)
-    for entry in candidates if candidates is not None else _largest_values(problem, pt):
+    if candidates is None:              # arrays not of the problem's shapes: the numpy form
+        return largest_violation(violation_arrays(problem, pt))
+    best, where = 0.0, None
+    for entry in candidates:
         if len(entry) == 6:                     # from the compiled pass: the largest entry found
             name, top, k, i, staged, kind = entry
             if top > best:

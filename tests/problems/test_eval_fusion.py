@@ -14,21 +14,7 @@ from olado.errors import NonFiniteEvaluationError
 from olado.problems import DOCP
 from olado.problems.zambezi import Zambezi, zambezi_problem
 from olado.solvers.sqp.state import Clock, Point
-
-
-def _point(p, seed=0):
-    rng = np.random.default_rng(seed)
-    U = p.initial_guess() * (1.0 + 0.1 * rng.uniform(-1, 1, (p.N, p.m)))
-    X = p.simulate(U) * (1.0 + 0.01 * rng.uniform(-1, 1, (p.N + 1, p.n)))
-    return X, U
-
-
-def _same(a, b):
-    assert len(a) == len(b)
-    for x, y in zip(a, b):
-        x, y = np.asarray(x), np.asarray(y)
-        assert x.shape == y.shape and x.dtype == y.dtype
-        np.testing.assert_array_equal(x, y)
+from test_eval_point import _point, _same
 
 
 def _all(p, X, U, sigma, P):

@@ -12,7 +12,7 @@ import pytest
 
 from olado.solvers import certificate as C
 from olado.solvers import certificate_kernels as K
-from olado.solvers.common import stage_gradient_terms
+from olado.solvers.common import stage_gradient_terms, stage_gradient_terms_reference
 from olado.solvers.diagnosis import largest_violation, largest_violation_of, violation_arrays
 from olado.solvers.sqp.residuals import stage_kkt, stage_kkt_reference
 from olado.solvers.sqp.state import BoundMultipliers, Multipliers
@@ -23,21 +23,6 @@ pytestmark = pytest.mark.filterwarnings("ignore::RuntimeWarning")       # the nu
 
 SHAPES = [(1, 2, 2, 0, 0), (3, 2, 3, 1, 0), (5, 6, 7, 0, 0), (4, 3, 2, 2, 1), (6, 9, 8, 3, 2), (2, 12, 10, 1, 3),
           (7, 4, 5, 4, 1)]
-
-
-def _gradient_reference(p, pt, lam, Lg, LgN):
-    """stage_gradient_terms' numpy form (sigma = 1)."""
-    rx = np.empty((p.N + 1, p.n))
-    rx[:-1] = pt.lx + np.einsum("kij,ki->kj", pt.A, lam)
-    rx[1:-1] -= lam[:-1]
-    rx[-1] = pt.lN - lam[-1]
-    ru = pt.lu + np.einsum("kij,ki->kj", pt.B, lam)
-    if p.r:
-        rx[:-1] += np.einsum("kij,ki->kj", pt.Cx, Lg)
-        ru += np.einsum("kij,ki->kj", pt.Cu, Lg)
-    if p.rN:
-        rx[-1] += pt.CN.T @ LgN
-    return rx, ru
 
 
 def _same(a, b):
@@ -88,7 +73,7 @@ def _case(seed, N, n, m, r, rN, awkward=False):
 def test_stage_gradient_terms_equal_numpy_s_einsum(shape, awkward):
     for seed in range(5):
         p, pt, lam, Lg, LgN, _ = _case(seed, *shape, awkward=awkward)
-        for a, b in zip(stage_gradient_terms(p, pt, lam, Lg, LgN), _gradient_reference(p, pt, lam, Lg, LgN)):
+        for a, b in zip(stage_gradient_terms(p, pt, lam, Lg, LgN), stage_gradient_terms_reference(p, pt, lam, Lg, LgN)):
             assert _same(a, b)
 
 

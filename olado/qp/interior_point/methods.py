@@ -168,19 +168,20 @@ class FrankeQP(InteriorPointQP):
         opts = self.options
         t0 = time.perf_counter()
         try:
-            res = self._solve(qp, warm_start, min(opts.max_warm_iter, opts.max_iter), limits=limits)
-            if res.status is Status.SUCCESS:
-                self._release()
-                return res
-            spent, why = res.iterations, f"ended {res.status.value}: {res.message}"
-        except _HotStartFailed as exc:
-            spent, why = exc.iterations, str(exc)
-        cold = self._solve(qp, None, max(opts.max_iter - spent, 0), limits=limits)
-        cold.iterations += spent
-        cold.time_s = time.perf_counter() - t0
-        cold.message = f"{cold.message} (cold start after {spent} iterations of a hot start that {why})"
-        self._release()
-        return cold
+            try:
+                res = self._solve(qp, warm_start, min(opts.max_warm_iter, opts.max_iter), limits=limits)
+                if res.status is Status.SUCCESS:
+                    return res
+                spent, why = res.iterations, f"ended {res.status.value}: {res.message}"
+            except _HotStartFailed as exc:
+                spent, why = exc.iterations, str(exc)
+            cold = self._solve(qp, None, max(opts.max_iter - spent, 0), limits=limits)
+            cold.iterations += spent
+            cold.time_s = time.perf_counter() - t0
+            cold.message = f"{cold.message} (cold start after {spent} iterations of a hot start that {why})"
+            return cold
+        finally:
+            self._release()     # also when a time limit or an interrupt ends the QP (as solve does)
 
     def _initial_point(self, P, mu0=None):
         opts = self.options

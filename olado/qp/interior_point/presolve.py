@@ -241,10 +241,7 @@ class _Prepared:
         np.isfinite(lo, out=fl); np.isfinite(hi, out=fu)
         np.copyto(self.lo, lo); np.copyto(self.lo, 0.0, where=~fl)
         np.copyto(self.hi, hi); np.copyto(self.hi, 0.0, where=~fu)
-        # equal bounds (_equal_bounds of lo, hi: finite sides only, where lo, hi are these)
-        work = self.work_w
-        np.subtract(self.hi, self.lo, out=work)
-        if (fl & fu & (work <= _FIX_RTOL * (1 + np.abs(self.lo)))).any():
+        if _equal_bounds(lo, hi).any():
             return False
         self.qp, self.bad_box = qp, None
         Q = self.Q

@@ -12,7 +12,7 @@ without fastmath):
 * ``np.einsum("kij,ki->kj", M, v)`` accumulates each output entry over i from 0 in order when
   the output dimension j has more than one entry (numpy's contiguous sum-of-products loop runs
   over j); with one entry numpy reduces over i with unrolled partial sums, so the callers use
-  :func:`einsum_sequential` to take these kernels only where the order is the sequential one;
+  olado.solvers.common.einsum_sequential to take these kernels only where the order is the sequential one;
 * ``(w * v).sum()`` of a C-contiguous array is numpy's pairwise summation over the flattened
   array (olado.linalg.numpy_sums.pairwise_sum is numpy's algorithm);
 * maxima are exact in any order; Python's ``max`` of floats keeps the first of a NaN and a
@@ -33,12 +33,6 @@ import numpy as np
 from ...linalg.numpy_sums import pairwise_sum
 
 _JIT = {"cache": True, "error_model": "numpy"}   # x / 0 is inf or NaN, as in numpy
-
-
-def einsum_sequential(*sizes):
-    """True when ``np.einsum("kij,ki->kj", ...)`` with these output dimensions j sums in the
-    sequential order of :func:`_contract` (every output dimension > 1)."""
-    return all(s > 1 for s in sizes)
 
 
 # ---------------------------------------------------------------------------- reductions

@@ -27,7 +27,8 @@ import numpy as np
 
 from ...problems.nlp import nlp_counts
 from ...result import Result
-from ..common import EVALUATION_KINDS, MULTIPLIER_CONVENTION, bound_complementarity, stage_gradient_terms
+from ..common import (EVALUATION_KINDS, MULTIPLIER_CONVENTION, bound_complementarity, einsum_sequential,
+                      stage_gradient_terms)
 from .state import BoundMultipliers
 
 
@@ -38,7 +39,7 @@ def kkt_residual(p, pt, mult, bounds):
     einsum sums in the kernel's order; the numpy form otherwise."""
     from . import kernels
 
-    if p.n > 1 and p.m > 1:     # kernels.einsum_sequential (the Point's arrays are float64: olado.problems.docp)
+    if einsum_sequential(p.n, p.m):     # (the Point's arrays are float64: olado.problems.docp)
         gN0 = pt.lN + pt.CN.T @ mult.LgN if p.rN else pt.lN
         return kernels.kkt_residual(pt.lx, pt.lu, gN0, pt.A, pt.B, pt.Cx, pt.Cu, mult.lam, mult.Lg, *bounds, pt.lN)
     return kkt_residual_reference(p, pt, mult, bounds)

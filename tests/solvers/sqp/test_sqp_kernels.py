@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from olado.config import load_config, make_solver
+from olado.solvers.common import einsum_sequential
 from olado.problems.suites import load_suite
 from olado.problems.zambezi import zambezi_problem
 from olado.solvers.sqp import kernels, merit as merit_mod, phases, residuals, step as step_mod
@@ -94,7 +95,7 @@ def points():
 def test_kkt_residual_is_the_numpy_form(points):
     rng = np.random.default_rng(5)
     for p, pt in points:
-        assert kernels.einsum_sequential(p.n, p.m)
+        assert einsum_sequential(p.n, p.m)
         for _ in range(3):
             mult, bounds = _multipliers(rng, p)
             assert residuals.kkt_residual(p, pt, mult, bounds) == residuals.kkt_residual_reference(p, pt, mult, bounds)
