@@ -24,16 +24,10 @@ NO_POINT = (np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0, dtype=bool), np.z
 
 
 def dot(a, b):
-    """a.b of two long flat vectors without BLAS: numpy's threaded ddot spins its threads on a
-    busy machine (zambezi N = 12 000, vectors of 156 000: 8-16 ms of process time per product
-    with two cores shared, against 0.05-0.1 ms single-threaded or by einsum's own loop)."""
-    return float(_c_einsum("i,i->", a, b))
-
-
-try:        # np.einsum without optimize calls the compiled einsum at once; called directly, its Python
-    from numpy._core.multiarray import c_einsum as _c_einsum    # wrapper (~1 us at small N) is left out
-except ImportError:         # pragma: no cover - another numpy layout: the public function
-    _c_einsum = np.einsum
+    """a.b of two flat vectors in a fixed order (kernels.dot: the same float on every CPU, and the
+    one a compiled iteration computes; not BLAS, whose threaded ddot spins its threads on a busy
+    machine)."""
+    return float(_kernels().dot(a, b))
 
 
 class Layout:

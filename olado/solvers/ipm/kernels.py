@@ -192,6 +192,33 @@ def _abs_max_into(a, mx, seen):
     return mx, seen
 
 
+@nb.njit("float64(float64[::1], float64[::1])", **_JIT)
+def dot(a, b):
+    """a.b in a fixed order, whatever the CPU: eight running partial sums over the entries i = j
+    (mod 8), combined ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7)), then the remaining
+    entries in order (numpy's einsum sums in SIMD lanes whose number depends on the CPU; a compiled
+    iteration computing the same product must get the same float)."""
+    n = a.size
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res += a[i] * b[i]
+        return res
+    r0, r1, r2, r3 = a[0] * b[0], a[1] * b[1], a[2] * b[2], a[3] * b[3]
+    r4, r5, r6, r7 = a[4] * b[4], a[5] * b[5], a[6] * b[6], a[7] * b[7]
+    i = 8
+    end = n - (n % 8)
+    while i < end:
+        r0 += a[i] * b[i]; r1 += a[i + 1] * b[i + 1]; r2 += a[i + 2] * b[i + 2]; r3 += a[i + 3] * b[i + 3]
+        r4 += a[i + 4] * b[i + 4]; r5 += a[i + 5] * b[i + 5]; r6 += a[i + 6] * b[i + 6]; r7 += a[i + 7] * b[i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[i] * b[i]
+        i += 1
+    return res
+
+
 @nb.njit(**_JIT)
 def residual_norms(h2, e2, eN, d2, dN):
     """(l1, max) of the residual arrays (flat views) as newton.Residuals.l1 and .max compute them:

@@ -1,7 +1,7 @@
 """The short paths of the ipm Newton matrix without constraint rows (KKTMatrix.plain: the shifted
 diagonals written into the taken-over back-end and ``refactor_in_place``; the solve with shared
 empty row parts) against the general Riccati path they replace, bit for bit; riccati.set_blocks'
-keep-or-copy rule; barrier.dot against np.einsum."""
+keep-or-copy rule; barrier.dot's fixed order."""
 
 import numpy as np
 import pytest
@@ -99,11 +99,34 @@ def test_set_blocks_keeps_contiguous_float64_blocks_and_copies_the_others():
         f.set_blocks(Q[:-1], S, R, A, B)
 
 
-def test_dot_is_einsums_product():
+def _dot_reference(a, b):
+    """barrier.dot's order in Python floats: eight partial sums of the products i = j (mod 8),
+    combined pairwise, then the tail in order (a plain loop below eight entries)."""
+    p = [float(x) * float(y) for x, y in zip(a, b)]
+    if len(p) < 8:
+        res = 0.0
+        for t in p:
+            res += t
+        return res
+    r = p[:8]
+    end = len(p) - len(p) % 8
+    for i in range(8, end, 8):
+        for j in range(8):
+            r[j] += p[i + j]
+    res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+    for t in p[end:]:
+        res += t
+    return res
+
+
+def test_dot_has_a_fixed_order():
+    """barrier.dot sums in one order on every CPU (the compiled iteration's): bit for bit the
+    Python reference, and within rounding of numpy's product."""
     rng = np.random.default_rng(4)
-    for size in (0, 1, 7, 312, 5001):
+    for size in (0, 1, 7, 8, 9, 312, 5001):
         a, b = rng.standard_normal(size), rng.standard_normal(size)
-        assert dot(a, b) == float(np.einsum("i,i->", a, b))
+        assert dot(a, b) == _dot_reference(a, b)
+        assert dot(a, b) == pytest.approx(float(np.einsum("i,i->", a, b)), rel=1e-12, abs=1e-12)
         assert type(dot(a, b)) is float
 
 
