@@ -636,6 +636,15 @@ class DOCP:
         Cx, Cu = self.eval_stage_constraint_jacobians(X, U)
         return FirstDerivatives(lx, lu, lN, A, B, Cx, Cu, self.eval_final_constraint_jacobian(X[-1]))
 
+    def compiled_evaluations(self):
+        """The problem's evaluations as compiled functions, for a solver loop compiled as a whole
+        (:class:`olado.problems.compiled.CompiledEvaluations`: :meth:`eval_values`,
+        :meth:`eval_first_derivatives`, :meth:`eval_stage_hessians`, :meth:`eval_final_hessian`
+        as numba first-class functions with the same numbers), or None: the default, and what a
+        problem returns that has no compiled stage functions. Only problems without stage and
+        final constraint rows (r = rN = 0) return them for now (Zambezi does)."""
+        return None
+
     def simulate(self, U):
         """States X (N+1, n) from x^0 and the state equation (2) under controls U (N, m)."""
         U = self.check_array(U, (self.N, self.m), "simulate", "u")

@@ -41,6 +41,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from types import MappingProxyType
 
 import numba as nb
 import numpy as np
@@ -334,6 +335,89 @@ def _simulate_kernel(drive, evap, fa, u, X):
         X[k + 1, 0], X[k + 1, 1], X[k + 1, 2], X[k + 1, 3], X[k + 1, 4], X[k + 1, 5] = v1, v2, v3, v4, d1, d2
 
 
+# ============================================================================ compiled evaluations
+# Zambezi.compiled_evaluations: the kernels above behind the signatures of olado.problems.compiled,
+# with the instance's numbers packed into one float64 array (_pack; offsets _D_*) and the stage
+# indices as the int64 array. The four entries are compiled (or loaded from numba's cache) on
+# first use, not when this module is imported.
+
+#: offsets in the packed data: alpha, psi, nu_E, then u_ref, V_ref, phi (4 each), fa, fe (3x4),
+#: fh (3x3), then inflow and evaporation (N x 4 each)
+_D_UREF, _D_VREF, _D_PHI, _D_FA, _D_FE, _D_FH, _D_STAGES = 3, 7, 11, 15, 27, 39, 48
+
+#: numpy's pairwise sum, compiled (olado.linalg.numpy_sums.pairwise_sum), bound by
+#: _compiled_entries before it compiles: olado.problems does not import olado.linalg at module level
+_pairwise_sum = None
+
+
+@nb.njit(cache=True)
+def _unpack(data, N):
+    """The arrays and weights of the packed data (views of it): inflow, evaporation, fa, fh,
+    alpha, psi, u_ref, V_ref, phi, fe, nu_E -- the kernels' arguments in their order."""
+    inflow = data[_D_STAGES:_D_STAGES + 4 * N].reshape((N, 4))
+    evap = data[_D_STAGES + 4 * N:_D_STAGES + 8 * N].reshape((N, 4))
+    return (inflow, evap, data[_D_FA:_D_FE].reshape((3, 4)), data[_D_FH:_D_STAGES].reshape((3, 3)), data[0],
+            data[1], data[_D_UREF:_D_VREF], data[_D_VREF:_D_PHI], data[_D_PHI:_D_FA],
+            data[_D_FE:_D_FH].reshape((3, 4)), data[2])
+
+
+def _values_entry(data, idata, X, U, f, cost):
+    """VALUES: Zambezi.eval_values' f, stage costs and J (NaN when a value is not finite)."""
+    N = U.shape[0]
+    inflow, evap, fa, fh, alpha, psi, uref, V_ref, phi, fe, nu_E = _unpack(data, N)
+    F, finite = _values_kernel(idata, X[:N], U, X[N], inflow, evap, fa, fh, alpha, psi, uref, V_ref, phi, fe,
+                               nu_E, f, cost)
+    if not finite:
+        return np.nan
+    return _pairwise_sum(cost, 0, N, False) + F        # float(cost.sum() + F)
+
+
+def _derivatives_entry(data, idata, X, U, lx, lu, lN, A, B):
+    """DERIVATIVES: Zambezi.eval_first_derivatives' lx, lu, lN, A, B."""
+    N = U.shape[0]
+    inflow, evap, fa, fh, alpha, psi, uref, V_ref, phi, fe, nu_E = _unpack(data, N)
+    lN[:] = 0.0
+    return _derivatives_kernel(idata, X[:N], U, X[N], inflow, evap, fa, fh, alpha, psi, uref, V_ref, phi, fe,
+                               nu_E, _LX, _LU, lx, lu, A, B, lN)
+
+
+def _hessians_entry(data, idata, X, U, sigma, P, hxx, hxu, huu):
+    """HESSIANS: Zambezi.eval_stage_hessians(X, U, sigma, P)."""
+    N = U.shape[0]
+    inflow, evap, fa, fh, alpha, psi, _, _, _, _, _ = _unpack(data, N)
+    return _stage_hessian_kernel(idata, X[:N], U, inflow, evap, fa, fh, alpha, psi, np.full(N, sigma), P, _LX,
+                                 _LU, _JCOLS, hxx, hxu, huu)
+
+
+def _final_hessian_entry(data, idata, xN, sigma, H):
+    """FINAL_HESSIAN: Zambezi.eval_final_hessian(xN, sigma)."""
+    H[:, :] = 0.0
+    _final_hessian_kernel(sigma, data[_D_PHI:_D_FA], data[_D_FE:_D_FH].reshape((3, 4)), data[2], H)
+    return math.isfinite(H[0, 0] + H[1, 1] + H[2, 2] + H[3, 3])
+
+
+#: the compiled entries (CompiledFunction each, in compiled.KINDS' order), made once per process
+_ENTRIES = []
+#: the problem.counters keys one call of each entry adds 1 to (those of the Python entry points)
+_COUNTS = MappingProxyType({"values": ("stage_cost", "final_cost", "dynamics"),
+           "derivatives": ("stage_cost_gradient", "final_cost_gradient", "dynamics_jacobian"),
+           "hessians": ("stage_hessian",), "final_hessian": ("final_hessian",)})
+
+
+def _compiled_entries():
+    """The four entries as :class:`olado.problems.compiled.CompiledFunction` (compiled, or loaded
+    from numba's cache, on the first call in a process)."""
+    global _pairwise_sum
+    if not _ENTRIES:
+        from ..linalg.numpy_sums import pairwise_sum
+        from .compiled import DERIVATIVES, FINAL_HESSIAN, HESSIANS, VALUES, CompiledFunction
+        _pairwise_sum = pairwise_sum
+        _ENTRIES[:] = [CompiledFunction(nb.njit(sig, cache=True)(fn), sig)
+                       for fn, sig in ((_values_entry, VALUES), (_derivatives_entry, DERIVATIVES),
+                                       (_hessians_entry, HESSIANS), (_final_hessian_entry, FINAL_HESSIAN))]
+    return _ENTRIES
+
+
 #: an empty array: no final point for the fused kernels (the stage functions alone)
 _NONE = np.empty(0)
 #: the functions the fused kernels compute or bypass (Zambezi.eval_values,
@@ -360,11 +444,11 @@ class _Fusion:
     again after any attribute of it is set or deleted, :meth:`Zambezi.__setattr__`) instead of
     on every call: which kinds of :data:`_FUSED` are Zambezi's own functions, the shapes and
     strides of a C-ordered point (X, U) that goes to the kernels as it is, the empty
-    constraint arrays (r = rN = 0) the entry points return, and the last weight vector of the
-    stage Hessians (sigma on every stage)."""
+    constraint arrays (r = rN = 0) the entry points return, the last weight vector of the
+    stage Hessians (sigma on every stage) and the instance's compiled evaluations."""
 
     __slots__ = ("values", "derivatives", "hessian", "X", "U", "P", "no_g", "no_gN", "no_Cx", "no_Cu", "no_CN",
-                 "sigma")
+                 "sigma", "compiled")
 
     def __init__(self, problem):
         cls, names = type(problem), problem.__dict__.keys()
@@ -385,6 +469,7 @@ class _Fusion:
         self.no_g, self.no_gN = np.zeros((N, 0)), np.zeros(0)
         self.no_Cx, self.no_Cu, self.no_CN = np.zeros((N, 0, 6)), np.zeros((N, 0, 7)), np.zeros((0, 6))
         self.sigma = (None, None)
+        self.compiled = None                    # Zambezi.compiled_evaluations (made on first use)
 
     def point(self, X, U):
         """True when (X, U) are C-ordered float64 arrays of the problem's shapes (nothing to
@@ -757,6 +842,31 @@ class Zambezi(DOCP):
             return super().eval_final_hessian(xN, sigma, lN, source)
         self.counters["final_hessian"] += 1
         return H
+
+    def compiled_evaluations(self):
+        """:meth:`DOCP.compiled_evaluations`: the one-pass kernels of :meth:`eval_values`,
+        :meth:`eval_first_derivatives`, :meth:`eval_stage_hessians` and :meth:`eval_final_hessian`
+        as compiled functions (:mod:`olado.problems.compiled`; the same numbers bit for bit), when
+        those entry points use them (Zambezi's own functions, analytic derivatives); None otherwise.
+        Made once per instance (again after an attribute is set or deleted); its data holds the
+        instance's numbers as they are at this call (packed again at every call)."""
+        fusion = self._fusion or self._fuse()
+        if not (fusion.values and fusion.derivatives and fusion.hessian):
+            return None
+        evaluations = fusion.compiled
+        if evaluations is None:
+            from .compiled import CompiledEvaluations
+            evaluations = fusion.compiled = CompiledEvaluations(
+                *_compiled_entries(), np.empty(_D_STAGES + 8 * self.N), np.ascontiguousarray(self._K, dtype=np.int64),
+                _COUNTS)
+        self._pack(evaluations.data)
+        return evaluations
+
+    def _pack(self, data):
+        """The numbers the compiled evaluations read, into ``data`` (the layout of ``_D_*``)."""
+        data[:3] = self.alpha, self.psi, self.nu_E
+        parts = (self.u_ref, self.V_ref, self.phi, self.fa, self.fe, self.fh, self.inflow, self.evaporation)
+        np.concatenate([np.ravel(a, order="C") for a in parts], out=data[3:])
 
     def final_cost(self, x):
         """F^N = sum_i phi_i (V_i - V_i,ref)^2 - nu_E sum_i fe_i(V_i), eq. (44)."""
