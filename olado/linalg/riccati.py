@@ -260,6 +260,17 @@ class RiccatiFactorization:
         res = self.solve_into(rhs, Solution(X, U, lam, nu))
         return LQSolution(X, U, lam, nu, res)
 
+    def fixed_factor_operands(self):
+        """(size tags, interior-point terms, regularization, factors) of the plain recursion of
+        small blocks straight-line kernels (n <= riccati_fixed._STRAIGHT_N_MAX), for a kernel that
+        factors and solves itself with its own cost and dynamics blocks (the interior-point NLP's
+        compiled iteration, olado.solvers.ipm.iteration_kernels): it writes the diagonal terms
+        into the first two arrays of the interior-point terms (``data.Dx``, ``data.Du``); None for
+        the other recursions."""
+        if not self.unconstrained or self._size_tags is None or self.n > _STRAIGHT_N_MAX:
+            return None
+        return self._size_tags, self._ip_terms(), self.data.regularization, self._factors
+
     def fixed_solve_operands(self):
         """The operands of the plain Riccati recursion of small blocks (size tags, dynamics,
         interior-point terms, factors) in the order its compiled solve takes them, for a kernel that

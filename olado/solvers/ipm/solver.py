@@ -51,6 +51,8 @@ from .adaptive import (FILTER_MARGIN_FACT, FILTER_MAX_MARGIN, MONOTONE_INIT_FACT
 from .barrier import KAPPA_D, Bounds, Layout, _kernels
 from .evaluation import (barrier_value, evaluate, full_multipliers, iterate_errors, lagrangian_gradient,
                          objective_gradient, optimality_errors, residuals, store_errors, theta)
+from . import iteration_kernels as _IK
+from .compiled import plain_path
 from .filter import Filter
 from .linesearch import line_search, step_vector
 from .newton import Constraints, Direction, KKTMatrix, stage_blocks
@@ -163,6 +165,8 @@ class Setup:
         self.last_kkt = None
         #: the arrays the common iteration writes, allocated once (at small N)
         self.ws = Workspace(self.layout)
+        #: the compiled iteration (None where it does not apply)
+        self.plain = plain_path(self)
 
 
 class Workspace:
@@ -425,16 +429,30 @@ def converged(setup, st):
     o = setup.options
     e0, inf_du, inf_pr, compl = st.errors = optimality_errors(setup, st, 0.0)
     if e0 <= o.tol and inf_du <= o.dual_inf_tol and inf_pr <= o.constr_viol_tol and compl <= o.compl_inf_tol:
-        return st.stop(Status.SUCCESS, f"optimal: scaled optimality error {e0:.2e} <= tol = {o.tol:g} "
-                       f"after {st.it} iterations")
+        return _stop_optimal(setup, st)
     if e0 <= o.acceptable_tol and inf_pr <= max(o.constr_viol_tol, 1e-2 * o.acceptable_tol ** 0.5):
         st.acceptable += 1
         if o.acceptable_iter and st.acceptable >= o.acceptable_iter:
-            return st.stop(Status.ACCEPTABLE, f"acceptable: {st.acceptable} iterates in a row with scaled optimality "
-                           f"error <= acceptable_tol = {o.acceptable_tol:g} (last {e0:.2e}), tol = {o.tol:g} not met")
+            return _stop_acceptable(setup, st)
     else:
         st.acceptable = 0
     return False
+
+
+def _stop_optimal(setup, st):
+    return st.stop(Status.SUCCESS, f"optimal: scaled optimality error {st.errors[0]:.2e} <= tol = "
+                   f"{setup.options.tol:g} after {st.it} iterations")
+
+
+def _stop_acceptable(setup, st):
+    o = setup.options
+    return st.stop(Status.ACCEPTABLE, f"acceptable: {st.acceptable} iterates in a row with scaled optimality "
+                   f"error <= acceptable_tol = {o.acceptable_tol:g} (last {st.errors[0]:.2e}), tol = {o.tol:g} not met")
+
+
+def _stop_iterations(setup, st):
+    return st.stop(Status.MAX_ITERATIONS, f"iteration limit {setup.options.max_iter} reached; scaled optimality "
+                   f"error {st.errors[0]:.2e}, constraint violation {st.errors[2]:.2e}")
 
 
 def barrier_gradient(setup, st, mu=None) -> Direction:
@@ -490,21 +508,52 @@ def take_step(setup, st, accepted):
 
 
 def iterate(setup, st):
-    """One iteration of Algorithm A; True when the solve ends."""
+    """One iteration of Algorithm A; True when the solve ends. Where it applies, the compiled
+    iteration (.compiled.PlainPath) takes it, and hands the uncommon ones back after the
+    stopping test and the barrier update (:func:`_body`)."""
     o = setup.options
     setup.limits.check()
+    plain = setup.plain
+    if plain is not None and st.watch is None and setup.on_mu_change is None:
+        code = plain.iterate(st)
+        if code is not None:
+            return _after_compiled(setup, st, code)
     if converged(setup, st):
         return True
     if st.it >= o.max_iter:
-        return st.stop(Status.MAX_ITERATIONS, f"iteration limit {o.max_iter} reached; scaled optimality error "
-                       f"{st.errors[0]:.2e}, constraint violation {st.errors[2]:.2e}")
+        return _stop_iterations(setup, st)
+    if o.mu_strategy == "monotone":
+        update_barrier(setup, st)
+    return _body(setup, st)
+
+
+def _after_compiled(setup, st, code):
+    """The solver's part of a compiled iteration that returned ``code`` (iteration_kernels)."""
+    if code == _IK.STEP:
+        sc = setup.plain.sc
+        return _record(setup, st, {"iter": st.it, "inf_pr": st.errors[2], "inf_du": st.errors[1], "mu": st.mu,
+                                   "delta_w": 0.0, "watchdog": False, "alpha": float(sc[_IK.ALPHA]),
+                                   "alpha_z": float(sc[_IK.ALPHA_Z]), "soc": 0, "restoration": False,
+                                   "objective": float(sc[_IK.J])})
+    if code == _IK.SUCCESS:
+        return _stop_optimal(setup, st)
+    if code == _IK.ACCEPTABLE_END:
+        return _stop_acceptable(setup, st)
+    if code == _IK.MAX_ITERATIONS:
+        return _stop_iterations(setup, st)
+    return _body(setup, st)         # handed back after the stopping test and the barrier update
+
+
+def _body(setup, st):
+    """Algorithm A after the stopping test and the monotone barrier update: the Newton system,
+    the line search, the step (or the restoration phase)."""
+    o = setup.options
     if o.mu_strategy == "adaptive":
         kkt = newton_system(setup, st)      # the matrix does not depend on mu: the oracle uses it
         if kkt is not None:
             adaptive_barrier(setup, st, kkt)
         g = None if kkt is None else barrier_gradient(setup, st)
     else:
-        update_barrier(setup, st)
         kkt, g = newton_system(setup, st, gradient=True)
     factored = kkt is not None
     accepted = None if kkt is None else line_search(setup, st, kkt, g)
@@ -540,6 +589,18 @@ def iterate(setup, st):
         alpha, alpha_z, soc = take_step(setup, st, accepted)
         entry.update(alpha=alpha, alpha_z=alpha_z, soc=soc, restoration=False, objective=float(st.pt.J))
         st.history.append(entry)
+    return _report(setup, st, entry)
+
+
+def _record(setup, st, entry):
+    """A step's history entry, then :func:`_report`."""
+    st.history.append(entry)
+    return _report(setup, st, entry)
+
+
+def _report(setup, st, entry):
+    """The iteration's log line (verbose >= 2) and the callback; True when the callback stops."""
+    o = setup.options
     if o.verbose >= 2:
         print(f"{st.it:4d} {st.pt.J: .10e} {st.errors[2]:.2e} {st.errors[1]:.2e} mu={st.mu:.1e} "
               f"dw={st.delta:.1e} a={entry['alpha']:.2e}{' soc' if entry['soc'] else ''}"
@@ -554,6 +615,8 @@ def iterate(setup, st):
 def finish(setup, st) -> Result:
     """The Result at the last accepted iterate: multipliers of the unscaled problem, KKT
     quantities stage by stage (olado.solvers.sqp.residuals.stage_kkt)."""
+    if setup.plain is not None and setup.plain.active:
+        setup.plain.leave(st)       # the iterate of the compiled iterations
     p, pt, L = setup.problem, st.pt, setup.layout
     solve_time = time.perf_counter() - setup.t_start
     setup.last_kkt = None       # the last matrix's factors and blocks go before stage_kkt's arrays

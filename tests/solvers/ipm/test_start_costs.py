@@ -152,6 +152,7 @@ def test_barrier_updates_take_no_further_error_pass(monkeypatch):
     complementarity is the numpy form at every mu."""
     problem = lambda: zambezi_problem("zambezi12", N=24, start="balance")  # noqa: E731
     solver = make_solver(load_config("configs/ipm.ini"))
+    monkeypatch.setattr(S, "plain_path", lambda setup: None)   # the Python path's iterations
     calls = [0]
     passes = E.iterate_errors
 

@@ -78,6 +78,7 @@ def test_the_common_iteration_reuses_the_workspace_arrays(monkeypatch):
     from olado.config import load_config, make_solver
 
     seen, iterates = [], []
+    monkeypatch.setattr(S, "plain_path", lambda setup: None)   # the Python path's iterations
     direction, take_step = linesearch.direction, S.take_step
 
     def spy(setup, st, kkt, g):

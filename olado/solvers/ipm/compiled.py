@@ -1,0 +1,234 @@
+"""The interior-point solver's common iteration as one compiled call (:mod:`.iteration_kernels`)
+for problems that hand their evaluations over as compiled functions
+(:meth:`olado.problems.docp.DOCP.compiled_evaluations`): at small N an iteration of the Python
+path is mostly the Python between its fifteen compiled passes, not their arithmetic.
+
+:class:`PlainPath` holds the iterate in its own arrays while the compiled iterations run (two
+sets: the iterate and the trial point, swapped when a step is taken) and keeps the solver's
+state (:class:`.solver.IPMState`) current in its counters, barrier parameter, errors and history;
+the iterate's arrays, point and filter go back into the state (:meth:`PlainPath.leave`, copies)
+whenever the Python path takes over -- an iteration the compiled one hands back (inertia
+correction, second-order correction, watchdog, tiny step, a trial point that is not finite,
+restoration), the end of the solve, an interrupt -- and are read from it again (copies) when the
+compiled iterations resume. The numbers are the Python path's, bit for bit (tests/solvers/ipm/
+test_compiled_iteration.py).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...errors import NonFiniteEvaluationError
+from ..sqp.state import Point
+from . import iteration_kernels as IK
+from .barrier import EPS, KAPPA_D
+from .evaluation import residual_norms
+from .filter import Filter
+from .linesearch import TINY_STEP
+
+#: the Clock's evaluation kinds of one call of each compiled function (sqp.state.Point)
+_CLOCK_KINDS = {"values": ("objective", "constraints"), "derivatives": ("gradient", "jacobian"),
+                "hessians": ("hessian",)}
+
+
+def plain_path(setup):
+    """The :class:`PlainPath` of a solve, or None where the compiled iteration does not apply:
+    the adaptive barrier update, stage or final constraint rows, a problem without compiled
+    evaluations, blocks beyond the fixed-size Riccati kernels, n or m below 2 (the error pass's
+    products then follow numpy's einsum in SIMD lanes), or a flat iterate above the workspace
+    limit (at large N the Python path lets blocks go between iterations: less memory at its peak)."""
+    from .solver import REUSE_MAX  # noqa: PLC0415 - solver imports this module
+
+    o, L, p = setup.options, setup.layout, setup.problem
+    if o.mu_strategy != "monotone" or L.rows or L.size > REUSE_MAX or L.n < 2 or L.m < 2:
+        return None
+    get = getattr(p, "compiled_evaluations", None)
+    evals = get() if get is not None else None
+    if evals is None:
+        return None
+    from ...problems.compiled import DERIVATIVES, FINAL_HESSIAN, HESSIANS, VALUES  # noqa: PLC0415
+
+    for f, signature in zip((evals.values, evals.derivatives, evals.hessians, evals.final_hessian),
+                            (VALUES, DERIVATIVES, HESSIANS, FINAL_HESSIAN)):
+        if f.signature() != signature:      # the kernel calls the address with this signature
+            raise TypeError(f"{type(p).__name__}.compiled_evaluations: {f!r} has the signature {f.signature()}, "
+                            f"not {signature}")
+    from ...linalg.riccati import RiccatiFactorization  # noqa: PLC0415
+
+    N, n, m = L.N, L.n, L.m
+    eye = np.broadcast_to(np.eye(n), (N + 1, n, n)).copy()
+    fact = RiccatiFactorization(eye, np.zeros((N, n, m)), np.broadcast_to(np.eye(m), (N, m, m)).copy(),
+                                np.zeros((N, n, n)), np.zeros((N, n, m)), Dx=np.ones((N + 1, n)), Du=np.ones((N, m)))
+    operands = fact.fixed_factor_operands()
+    if operands is None:
+        return None
+    return PlainPath(setup, evals, fact, operands)
+
+
+class PlainPath:
+    """The compiled iterations of one solve (module docstring)."""
+
+    def __init__(self, setup, evals, fact, operands):
+        o, L, b = setup.options, setup.layout, setup.bounds
+        self.setup, self.evals, self.fact = setup, evals, fact
+        self.tags, self.ipt, self.reg, self.fac = operands
+        #: the functions' wrapper addresses (iteration_kernels calls them there; the CompiledFunctions
+        #: in ``evals`` keep the code alive)
+        self.addresses = np.array([f.__wrapper_address__() for f in (evals.values, evals.derivatives,
+                                                                      evals.hessians, evals.final_hessian)],
+                                  dtype=np.int64)
+        N, n, m, size = L.N, L.n, L.m, L.size
+        self.cur, self.trial = self._point_set(N, n, m, size, False), self._point_set(N, n, m, size, True)
+        lam_shape = (N + 1, n)
+        self.mult = (np.empty(lam_shape), np.empty(size), np.empty(size))
+        self.mult_new = (np.empty(lam_shape), np.empty(size), np.empty(size))
+        Q = np.empty((N + 1, n, n))
+        none2, none1 = np.zeros((N, 0)), np.zeros(0)
+        self.work = (Q, np.empty((N, n, m)), np.empty((N, m, m)), np.empty((N + 1, n)), np.empty((N, m)), none2,
+                     none1, np.empty((N + 1, n)), np.empty((N, m)), none2, none1, np.empty(size),
+                     np.empty((N + 1, n)), np.empty((N, m)), np.empty(lam_shape), np.empty((N + 1, 0)), np.empty(size),
+                     np.empty((N, n)), np.empty((N, m)), np.zeros(n), none2, none1, np.empty(size), np.empty(size),
+                     np.empty(size))
+        self.bounds = (b.lo, b.hi, b.has_lo, b.has_hi, b.one_lo_f, b.one_hi_f)
+        self.x0 = L.x0
+        self.F = np.empty((o.max_iter + 8, 2))
+        self.sc, self.ic = np.zeros(IK.N_SC), np.zeros(IK.N_IC, dtype=np.int64)
+        self.opt = self._options(o, L, b)
+        self.active = False
+
+    @staticmethod
+    def _point_set(N, n, m, size, trial):
+        """(v, X, U, h, lx, lu, lN, A, B, s_L, s_U); the trial set has f and the stage costs after h."""
+        head = (np.empty(size), np.empty((N + 1, n)), np.empty((N, m)))
+        values = (np.empty((N, n)), np.empty((N, n)), np.empty(N)) if trial else (np.empty((N, n)),)
+        return head + values + (np.empty((N, n)), np.empty((N, m)), np.empty(n), np.empty((N, n, n)),
+                                np.empty((N, n, m)), np.empty(size), np.empty(size))
+
+    @staticmethod
+    def _options(o, L, b):
+        f = Filter.start(1.0).const
+        opt = np.zeros(IK.N_OPT)
+        for slot, value in ((IK.TOL, o.tol), (IK.DUAL_INF_TOL, o.dual_inf_tol), (IK.CONSTR_VIOL_TOL, o.constr_viol_tol),
+                            (IK.COMPL_INF_TOL, o.compl_inf_tol), (IK.ACC_TOL, o.acceptable_tol),
+                            (IK.ACC_VIOL, max(o.constr_viol_tol, 1e-2 * o.acceptable_tol ** 0.5)),
+                            (IK.ACC_ITER, o.acceptable_iter), (IK.KAPPA_EPS, o.barrier_tol_factor),
+                            (IK.KAPPA_MU, o.mu_linear_decrease_factor), (IK.THETA_MU, o.mu_superlinear_decrease_power),
+                            (IK.TAU_MIN, o.tau_min), (IK.MAX_SOC, o.max_soc),
+                            (IK.WD_TRIGGER, o.watchdog_shortened_iter_trigger), (IK.MAX_ITER, o.max_iter),
+                            (IK.GAMMA_THETA, f.gamma_theta), (IK.GAMMA_PHI, f.gamma_phi), (IK.DELTA, f.delta),
+                            (IK.S_THETA, f.s_theta), (IK.S_PHI, f.s_phi), (IK.ETA_PHI, f.eta_phi),
+                            (IK.GAMMA_ALPHA, f.gamma_alpha), (IK.OBJ_MAX_INC, f.obj_max_inc),
+                            (IK.RESET_TRIGGER, f.filter_reset_trigger), (IK.MAX_RESETS, f.max_filter_resets),
+                            (IK.KAPPA_D, KAPPA_D), (IK.NZ, max(b.count, 1)), (IK.NY, L.N * L.n),
+                            (IK.ONE_SIDED, float(b.one_sided)), (IK.EPS, EPS), (IK.EPS_MOVE, EPS ** 0.75),
+                            (IK.TINY, TINY_STEP)):
+            opt[slot] = value
+        return opt
+
+    # ------------------------------------------------------------------------ the state in and out
+    def enter(self, st):
+        """Copy the iterate of ``st`` into the arrays (False, nothing copied, when its barrier terms
+        are not finite: the Python path then goes on)."""
+        setup = self.setup
+        b, pt, v = setup.bounds, st.pt, st.v
+        terms = b.barrier_terms(v)
+        if terms is None or st.filt.const != Filter.start(1.0).const or len(st.filt.entries) > self.F.shape[0]:
+            return False
+        pt.add_derivatives(setup.problem)
+        sl, su = b.slacks(v)
+        for dst, src in zip(self.cur, (v, pt.X, pt.U, pt.h, pt.lx, pt.lu, pt.lN, pt.A, pt.B, sl, su)):
+            np.copyto(dst, src)
+        for dst, src in zip(self.mult, (st.lam, st.zl, st.zu)):
+            np.copyto(dst, src)
+        theta, mx = residual_norms(setup, pt, v)
+        sc, ic, f = self.sc, self.ic, st.filt
+        sc[[IK.MU, IK.TAU, IK.S_OBJ, IK.J, IK.LOGS, IK.DAMPED, IK.THETA, IK.MX, IK.THETA_MAX, IK.THETA_MIN]] = (
+            st.mu, st.tau, st.s_obj, pt.J, terms[0], terms[1], theta, mx, f.theta_max, f.theta_min)
+        ic[:] = 0
+        ic[[IK.IT, IK.ACCEPTABLE, IK.SHORTENED, IK.NF, IK.RESETS, IK.REJECTED, IK.FILTER_REJECTIONS]] = (
+            st.it, st.acceptable, st.shortened, len(f.entries), f.resets, f.rejected_by_filter, f.filter_rejections)
+        self.F[:len(f.entries)] = f.entries
+        self.active = True
+        return True
+
+    def leave(self, st):
+        """The iterate back into ``st`` (copies: the state never holds these arrays)."""
+        setup, L = self.setup, self.setup.layout
+        v, X, U, h, lx, lu, lN, A, B, _, _ = self.cur
+        sc, ic = self.sc, self.ic
+        pt = Point.__new__(Point)
+        pt.clock, pt.X, pt.U, pt.J, pt.h = st.clock, X.copy(), U.copy(), float(sc[IK.J]), h.copy()
+        pt.g, pt.gN = np.zeros((L.N, 0)), np.zeros(0)
+        pt.lx, pt.lu, pt.lN, pt.A, pt.B = lx.copy(), lu.copy(), lN.copy(), A.copy(), B.copy()
+        pt.Cx, pt.Cu, pt.CN = np.zeros((L.N, 0, L.n)), np.zeros((L.N, 0, L.m)), np.zeros((0, L.n))
+        pt.derivs = True
+        st.v, st.pt = v.copy(), pt
+        st.lam, st.zl, st.zu = (a.copy() for a in self.mult)
+        self._state_scalars(st)
+        f = st.filt
+        f.entries = [(float(t), float(p)) for t, p in self.F[:ic[IK.NF]]]
+        f.resets, f.rejected_by_filter, f.filter_rejections = (int(ic[IK.RESETS]), bool(ic[IK.REJECTED]),
+                                                               int(ic[IK.FILTER_REJECTIONS]))
+        st.error_cache = st.compl_cache = None
+        setup.bounds._points = []       # (its lo, hi are the arrays the compiled steps moved)
+        setup.last_kkt = None
+        self.active = False
+
+    def _state_scalars(self, st):
+        """The counters, barrier parameter, errors of the compiled iterations into ``st``."""
+        sc, ic = self.sc, self.ic
+        st.mu, st.tau = float(sc[IK.MU]), float(sc[IK.TAU])
+        st.errors = (float(sc[IK.E0]), float(sc[IK.INF_DU]), float(sc[IK.INF_PR]), float(sc[IK.COMPL]))
+        st.it, st.acceptable, st.shortened = int(ic[IK.IT]), int(ic[IK.ACCEPTABLE]), int(ic[IK.SHORTENED])
+
+    # ------------------------------------------------------------------------ one iteration
+    def iterate(self, st):
+        """One compiled iteration: the kernel's return code (iteration_kernels: STEP, SUCCESS,
+        ACCEPTABLE_END, MAX_ITERATIONS, or >= BAIL, the iteration left to the Python path with the
+        state back in ``st``); None when the iterate cannot enter (the Python path goes on)."""
+        if not self.active and not self.enter(st):
+            return None
+        ev, ic = self.evals, self.ic
+        ic[IK.FACTORIZATIONS] = ic[IK.N_VALUES] = ic[IK.N_DERIVS] = ic[IK.N_HESS] = 0
+        code = IK.plain_iteration(self.addresses, ev.data, ev.idata, self.tags, self.ipt, self.reg, self.fac, self.F,
+                                  self.cur, self.trial, self.mult, self.mult_new, self.bounds, self.work, self.x0,
+                                  self.sc, ic, self.opt)
+        if code == IK.STEP:
+            self._count(st)
+            self._swap()
+            self._state_scalars(st)
+            st.delta = 0.0
+        elif code == IK.DERIVATIVES_NOT_FINITE:
+            self._raise_not_finite()
+        else:
+            self._state_scalars(st)
+            if code >= IK.BAIL:
+                self.leave(st)
+        return code
+
+    def _count(self, st):
+        """The evaluations of the step into the solve's clock and the problem's counters."""
+        ic, counts, counters = self.ic, st.clock.counts, self.setup.problem.counters
+        st.factorizations += int(ic[IK.FACTORIZATIONS])
+        for name, calls in (("values", ic[IK.N_VALUES]), ("derivatives", ic[IK.N_DERIVS]),
+                            ("hessians", ic[IK.N_HESS]), ("final_hessian", ic[IK.N_HESS])):
+            calls = int(calls)
+            for key in _CLOCK_KINDS.get(name, ()):
+                counts[key] += calls
+            for key in self.evals.counters[name]:
+                counters[key] += calls
+
+    def _swap(self):
+        """The trial point becomes the iterate (its f and stage costs stay with the trial set), the
+        new multipliers the iterate's."""
+        c, t = self.cur, self.trial
+        self.cur = t[:3] + (t[4],) + t[6:]
+        self.trial = c[:3] + (t[3], c[3], t[5]) + c[4:]
+        self.mult, self.mult_new = self.mult_new, self.mult
+
+    def _raise_not_finite(self):
+        """The derivatives at an accepted trial point are not finite: the problem's own entry point
+        names the function, stage and array (as the Python path's evaluation does)."""
+        X, U = self.trial[1], self.trial[2]
+        self.setup.problem.eval_first_derivatives(X.copy(), U.copy())
+        raise NonFiniteEvaluationError("the first derivatives are not finite at the accepted trial point")

@@ -1,0 +1,367 @@
+"""One common iteration of the interior-point solver as one compiled call
+(:mod:`olado.solvers.ipm.compiled`; Waechter and Biegler 2006, Math. Program. 106, 25-57,
+Algorithm A; docs/interior-point-nlp.md): the stopping test and the monotone barrier update
+(rule (7)), the Newton matrix with delta_w = 0 on the fixed-size Riccati kernels (eqs. (11)-(13)),
+the direction, the fraction-to-boundary rule (15), the filter line search (sec. 2.3, eqs.
+(18)-(23)) and the step of the multipliers (eqs. (14)-(16)), calling the problem's compiled
+evaluations through first-class function pointers (olado.problems.compiled).
+
+It is the Python path's iteration (solver.iterate) operation by operation: the same kernels
+(kernels.py, the Riccati kernels of olado.linalg.riccati_fixed) and the same float expressions in
+the same order, so the iterates are the same bit for bit. What it does not do it hands back
+before it changes the iterate (a return code >= BAIL): the inertia correction with delta_w > 0,
+the tiny step, the watchdog, second-order corrections, a trial point that is not finite, the
+restoration phase; the Python path then does that iteration.
+
+numba caches a kernel keyed on its own source file: this one calls kernels.py, riccati_fixed.py
+and numpy_sums.py, so a change of one of those must come with a change here (or the cache
+cleared; docs/architecture.md "Caches").
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from numba.core import cgutils, types
+from numba.extending import intrinsic
+
+from ...linalg.riccati_fixed import _factor_unconstrained_fixed, _solve_unconstrained_fixed
+from ...problems.compiled import DERIVATIVES, FINAL_HESSIAN, HESSIANS, VALUES
+from . import kernels as K
+
+_JIT = {"cache": True, "error_model": "numpy"}
+
+# ---------------------------------------------------------------------------- the slots
+# sc: the iterate's floats (in and out)
+MU, TAU, S_OBJ, J, LOGS, DAMPED, THETA, MX, THETA_MAX, THETA_MIN = range(10)
+E0, INF_DU, INF_PR, COMPL, ALPHA, ALPHA_Z = range(10, 16)
+N_SC = 16
+# ic: the counters (in and out)
+IT, ACCEPTABLE, SHORTENED, FACTORIZATIONS, NF, RESETS, REJECTED, FILTER_REJECTIONS = range(8)
+N_VALUES, N_DERIVS, N_HESS, MOVED = range(8, 12)
+N_IC = 12
+# opt: the options and constants (in)
+(TOL, DUAL_INF_TOL, CONSTR_VIOL_TOL, COMPL_INF_TOL, ACC_TOL, ACC_VIOL, ACC_ITER, KAPPA_EPS, KAPPA_MU, THETA_MU,
+ TAU_MIN, MAX_SOC, WD_TRIGGER, MAX_ITER, GAMMA_THETA, GAMMA_PHI, DELTA, S_THETA, S_PHI, ETA_PHI, GAMMA_ALPHA,
+ OBJ_MAX_INC, RESET_TRIGGER, MAX_RESETS, KAPPA_D, NZ, NY, ONE_SIDED, EPS, EPS_MOVE, TINY) = range(31)
+N_OPT = 31
+
+# the return codes: the iteration was taken; the solve ends; the Python path takes the iteration
+STEP, SUCCESS, ACCEPTABLE_END, MAX_ITERATIONS = 0, 1, 2, 3
+BAIL = 10
+HESSIAN_NOT_FINITE, INERTIA, TINY_STEP, WATCHDOG, TRIAL_NOT_FINITE, SOC, RESTORATION, DERIVATIVES_NOT_FINITE = range(
+    10, 18)
+
+S_MAX = 100.0
+
+
+def _function_at(signature):
+    """An intrinsic that makes the first-class function of ``signature`` at an address (an int64:
+    problems.compiled.CompiledFunction's wrapper address), called through it as numba calls a
+    compiled function passed as an argument -- without the per-call unboxing of one (a Python
+    look-up of about 7 us per function and call)."""
+    fn_type = types.FunctionType(signature)
+
+    @intrinsic
+    def at(typingctx, address):
+        def codegen(context, builder, sig, args):
+            f = cgutils.create_struct_proxy(fn_type)(context, builder)
+            ptr = context.get_value_type(types.voidptr)
+            f.c_addr = builder.inttoptr(args[0], ptr)
+            f.py_addr = cgutils.get_null_value(ptr)
+            f.jit_addr = cgutils.get_null_value(ptr)
+            return f._getvalue()
+
+        return fn_type(types.int64), codegen
+
+    return at
+
+
+_values_at, _derivatives_at, _hessians_at, _final_hessian_at = (_function_at(s)
+                                                                 for s in (VALUES, DERIVATIVES, HESSIANS, FINAL_HESSIAN))
+
+
+@nb.njit(inline="always")
+def _py_max(a, b):
+    """Python's max(a, b) of floats: b only when b > a."""
+    return b if b > a else a
+
+
+@nb.njit(inline="always")
+def _py_min(a, b):
+    """Python's min(a, b) of floats: b only when b < a."""
+    return b if b < a else a
+
+
+@nb.njit(inline="always")
+def _sides_max(n_lo, m_lo, n_hi, m_hi):
+    """barrier._sides_max."""
+    if not n_lo:
+        return m_hi if n_hi else 0.0
+    return m_hi if n_hi and m_hi > m_lo else m_lo
+
+
+@nb.njit(inline="always")
+def _products_complementarity(n_lo, lo_min, lo_max, n_hi, hi_min, hi_max, mu):
+    """evaluation.products_complementarity."""
+    if lo_max != lo_max:
+        s_lo = math.nan
+    else:
+        s_lo = abs(mu - lo_min if mu - lo_min > lo_max - mu else lo_max - mu)
+    if hi_max != hi_max:
+        s_hi = math.nan
+    else:
+        s_hi = abs(mu - hi_min if mu - hi_min > hi_max - mu else hi_max - mu)
+    return _sides_max(n_lo, s_lo, n_hi, s_hi)
+
+
+# ---------------------------------------------------------------------------- the filter (filter.Filter)
+@nb.njit(inline="always")
+def _filter_reset(F, sc, ic):
+    """Filter.reset."""
+    F[0, 0], F[0, 1] = sc[THETA_MAX], -np.inf
+    ic[NF] = 1
+    ic[REJECTED] = 0
+    ic[FILTER_REJECTIONS] = 0
+
+
+@nb.njit(inline="always")
+def _filter_add(F, ic, opt, theta, phi):
+    """Filter.add: the corner (22), the entries it dominates dropped (the others keep their order)."""
+    t, p = (1.0 - opt[GAMMA_THETA]) * theta, phi - opt[GAMMA_PHI] * theta
+    k = 0
+    for j in range(ic[NF]):
+        if not (F[j, 0] >= t and F[j, 1] >= p):
+            F[k, 0], F[k, 1] = F[j, 0], F[j, 1]
+            k += 1
+    F[k, 0], F[k, 1] = t, p
+    ic[NF] = k + 1
+
+
+@nb.njit(inline="always")
+def _decrease(opt, theta, phi, theta_t, phi_t):
+    """Filter._decrease."""
+    if phi_t > phi:
+        base = math.log10(abs(phi)) if abs(phi) > 10.0 else 1.0
+        if math.log10(phi_t - phi) > opt[OBJ_MAX_INC] + base:
+            return False
+    return theta_t <= (1.0 - opt[GAMMA_THETA]) * theta or phi_t <= phi - opt[GAMMA_PHI] * theta
+
+
+@nb.njit
+def _filter_accept(F, sc, ic, opt, alpha, theta, phi, gphi, theta_t, phi_t):
+    """Filter.accept: (accepted, f_type), the reset heuristic included."""
+    if not math.isfinite(phi_t) or theta_t > sc[THETA_MAX]:
+        return False, False
+    switching = gphi < 0 and alpha * (-gphi) ** opt[S_PHI] > opt[DELTA] * theta ** opt[S_THETA]
+    armijo = phi_t <= phi + opt[ETA_PHI] * alpha * gphi
+    if theta <= sc[THETA_MIN] and switching:
+        ok = armijo
+    elif phi_t > phi:
+        ok = _decrease(opt, theta, phi, theta_t, phi_t)
+    else:
+        ok = theta_t <= (1.0 - opt[GAMMA_THETA]) * theta or phi_t <= phi - opt[GAMMA_PHI] * theta
+    if not ok:
+        ic[REJECTED] = 0
+        return False, False
+    for j in range(ic[NF]):
+        if not (theta_t < F[j, 0] or phi_t < F[j, 1]):
+            ic[REJECTED] = 1
+            return False, False
+    if ic[RESETS] < opt[MAX_RESETS]:            # Filter._reset_heuristic
+        if ic[REJECTED]:
+            ic[FILTER_REJECTIONS] += 1
+            if ic[FILTER_REJECTIONS] >= opt[RESET_TRIGGER]:
+                ic[RESETS] += 1
+                _filter_reset(F, sc, ic)
+        else:
+            ic[FILTER_REJECTIONS] = 0
+    ic[REJECTED] = 0
+    return True, switching and armijo
+
+
+@nb.njit(inline="always")
+def _alpha_min(sc, opt, theta, gphi):
+    """Filter.alpha_min (23)."""
+    gt = opt[GAMMA_THETA]
+    if gphi < 0:
+        a = _py_min(_py_min(gt, -opt[GAMMA_PHI] * theta / gphi), opt[DELTA] * theta ** opt[S_THETA] / (-gphi) ** opt[S_PHI])
+        if theta > sc[THETA_MIN]:
+            a = _py_min(gt, -opt[GAMMA_PHI] * theta / gphi)
+    else:
+        a = gt
+    return opt[GAMMA_ALPHA] * a
+
+
+# ---------------------------------------------------------------------------- the iteration
+@nb.njit
+def _errors(cur, mult, bounds, work, sc, ic, opt):
+    """The stopping test's figures at the iterate (evaluation.iterate_errors, store_errors,
+    optimality_errors at mu = 0): sets E0, INF_DU, INF_PR, COMPL; returns (inf_du, s_d, s_c, the
+    products' ranges and the iterate's-mu complementarity) for the barrier update."""
+    v, X, U, h, lx, lu, lN, A, B, sl, su = cur
+    lam, zl, zu = mult
+    lo, hi, has_lo, has_hi, one_lo_f, one_hi_f = bounds
+    EA, EB, none2, none1 = work[17], work[18], work[20], work[21]
+    s_obj = sc[S_OBJ]
+    mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1, lo_min, lo_max, hi_min, hi_max = K.error_pass(
+        s_obj, lx, lu, lN, A, B, EA, EB, True, lam[1:], EA, EB, lN, False, False, none2, none1, zl, zu, none2,
+        none1, sl, su, has_lo, has_hi, 0.0, sc[MU])
+    nz, ny = opt[NZ], opt[NY]
+    s_d = _py_max(S_MAX, (ysum + zsum) / (ny + nz)) / S_MAX
+    s_c = _py_max(S_MAX, zsum / nz) / S_MAX
+    inf_pr = sc[MX]
+    compl = _sides_max(n_lo, m_lo, n_hi, m_hi)
+    sc[E0] = _py_max(_py_max(mx / s_d, inf_pr), compl / s_c)
+    sc[INF_DU], sc[INF_PR], sc[COMPL] = mx / s_obj, inf_pr, compl / s_obj
+    return mx, s_d, s_c, (n_lo, lo_min, lo_max, n_hi, hi_min, hi_max), _sides_max(n_lo, m_lo1, n_hi, m_hi1)
+
+
+@nb.njit
+def _prefix(F, cur, mult, bounds, work, sc, ic, opt):
+    """solver.converged, the iteration limit and solver.update_barrier; a return code or -1 (go on)."""
+    inf_du, s_d, s_c, ranges, c_mu = _errors(cur, mult, bounds, work, sc, ic, opt)
+    e0, inf_pr = sc[E0], sc[INF_PR]
+    if (e0 <= opt[TOL] and sc[INF_DU] <= opt[DUAL_INF_TOL] and inf_pr <= opt[CONSTR_VIOL_TOL]
+            and sc[COMPL] <= opt[COMPL_INF_TOL]):
+        return SUCCESS
+    if e0 <= opt[ACC_TOL] and inf_pr <= opt[ACC_VIOL]:
+        ic[ACCEPTABLE] += 1
+        if opt[ACC_ITER] and ic[ACCEPTABLE] >= opt[ACC_ITER]:
+            return ACCEPTABLE_END
+    else:
+        ic[ACCEPTABLE] = 0
+    if ic[IT] >= opt[MAX_ITER]:
+        return MAX_ITERATIONS
+    mu_err = sc[MU]
+    n_lo, lo_min, lo_max, n_hi, hi_min, hi_max = ranges
+    while True:         # update_barrier: the monotone rule (7)
+        mu = sc[MU]
+        compl = c_mu if mu == mu_err else _products_complementarity(n_lo, lo_min, lo_max, n_hi, hi_min, hi_max, mu)
+        if not (_py_max(_py_max(inf_du / s_d, inf_pr), compl / s_c) <= opt[KAPPA_EPS] * mu):
+            break
+        new = _py_max(opt[TOL] / 10.0, _py_min(opt[KAPPA_MU] * mu, mu ** opt[THETA_MU]))
+        if new >= mu:
+            break
+        sc[MU], sc[TAU] = new, _py_max(opt[TAU_MIN], 1.0 - new)
+        _filter_reset(F, sc, ic)
+    return -1
+
+
+@nb.njit
+def _trial(values, data, idata, cur, trial, bounds, work, sc, opt, dv, alpha, x0):
+    """linesearch._trial: the trial point v + alpha dv, its values, residuals, their norms and phi;
+    (theta, max, phi, J, logs, damped), or J NaN when a value is not finite."""
+    v = cur[0]
+    v_t, X_t, U_t, f_t, h_t, cost_t, lx_t, lu_t, lN_t, A_t, B_t, sl_t, su_t = trial
+    lo, hi, has_lo, has_hi, one_lo_f, one_hi_f = bounds
+    none2, none1, logs_work = work[20], work[21], work[22]
+    K.trial_point(v, dv, alpha, x0, v_t, X_t, U_t)
+    J_t = values(data, idata, X_t, U_t, f_t, cost_t)
+    if J_t != J_t:
+        return math.inf, math.inf, math.inf, J_t, 0.0, 0.0
+    N = h_t.shape[0]
+    for k in range(N):
+        for i in range(h_t.shape[1]):
+            h_t[k, i] = f_t[k, i] - X_t[k + 1, i]
+    l1, mx, inside, logs = K.point_terms(v_t, lo, hi, has_lo, has_hi, sl_t, su_t, logs_work, h_t, none2, none1,
+                                         none2, none1)
+    if not inside:
+        return l1, mx, sc[S_OBJ] * J_t + math.inf, J_t, logs, 0.0
+    damped = K.dot(one_lo_f, sl_t) + K.dot(one_hi_f, su_t) if opt[ONE_SIDED] else 0.0
+    mu = sc[MU]
+    return l1, mx, sc[S_OBJ] * J_t + (-mu * logs + opt[KAPPA_D] * mu * damped), J_t, logs, damped
+
+
+@nb.njit(cache=True, error_model="numpy")
+def plain_iteration(addresses, data, idata, tags, ipt, reg, fac, F, cur, trial, mult, mult_new, bounds, work, x0, sc, ic,
+                    opt):
+    """One iteration (solver.iterate) on the dynamics-only Newton matrix with fixed-size Riccati
+    kernels; returns STEP (the step taken: the new iterate in ``trial``, its multipliers in
+    ``mult_new``, sc and ic updated), SUCCESS / ACCEPTABLE_END / MAX_ITERATIONS (the stopping test,
+    the iterate unchanged), or a code >= BAIL (the stopping test and the barrier update done, the
+    rest of the iteration left to the Python path, nothing else changed)."""
+    code = _prefix(F, cur, mult, bounds, work, sc, ic, opt)
+    if code >= 0:
+        return code
+    values, derivatives = _values_at(addresses[0]), _derivatives_at(addresses[1])
+    hessians, final_hessian = _hessians_at(addresses[2]), _final_hessian_at(addresses[3])
+    v, X, U, h, lx, lu, lN, A, B, sl, su = cur
+    lam, zl, zu = mult
+    lo, hi, has_lo, has_hi, one_lo_f, one_hi_f = bounds
+    (Q, S, R, Sx, Su, Ss, SsN, q, r, gs, gsN, grad, dX, dU, lam_s, nu0, dv, EA, EB, x0z, none2, none1, logs_work,
+     sl_new, su_new) = work
+    N = X.shape[0] - 1
+    mu, tau, s_obj = sc[MU], sc[TAU], sc[S_OBJ]
+    # newton_system: the Hessian blocks, Sigma and the barrier gradient, the factorization at delta_w = 0
+    if not hessians(data, idata, X, U, s_obj, lam[1:], Q[:N], S, R):
+        return HESSIAN_NOT_FINITE
+    Q[N, :, :] = 0.0
+    if not final_hessian(data, idata, X[N], s_obj, Q[N]):
+        return HESSIAN_NOT_FINITE
+    K.newton_terms(s_obj, lx, lN, lu, sl, su, zl, zu, has_lo, has_hi, mu, opt[KAPPA_D] * mu, Sx, Su, Ss, SsN, q, r,
+                   gs, gsN, grad)
+    K.shifted_diagonals(Sx, Su, 0.0, ipt[0], ipt[1])
+    if _factor_unconstrained_fixed(tags, (Q, S, R), (A, B), ipt, reg, fac) >= 0:
+        return INERTIA
+    # linesearch.direction
+    _solve_unconstrained_fixed(tags, (A, B), ipt, fac, (q, r, h, x0z, none2, none1, none2), (dX, dU, lam_s, nu0))
+    alpha_max, tiny = K.step_terms(dX, dU, none2, none1, v, sl, su, has_lo, has_hi, -tau, tau, dv)
+    phi = s_obj * sc[J] + (-mu * sc[LOGS] + opt[KAPPA_D] * mu * sc[DAMPED])
+    gphi = K.dot(grad, dv)
+    th = sc[THETA]
+    if tiny < opt[TINY]:
+        return TINY_STEP
+    if opt[WD_TRIGGER] and ic[SHORTENED] >= opt[WD_TRIGGER]:
+        return WATCHDOG
+    # linesearch.backtrack
+    alpha_min = _alpha_min(sc, opt, th, gphi)
+    alpha, trials = alpha_max, 0
+    n_values = 0
+    accepted = False
+    th_t = mx_t = J_t = logs_t = damped_t = 0.0
+    while alpha > alpha_min or trials == 0:
+        trials += 1
+        th_t, mx_t, phi_t, J_t, logs_t, damped_t = _trial(values, data, idata, cur, trial, bounds, work, sc, opt, dv,
+                                                          alpha, x0)
+        if J_t != J_t:
+            return TRIAL_NOT_FINITE
+        n_values += 1
+        ok, f_type = _filter_accept(F, sc, ic, opt, alpha, th, phi, gphi, th_t, phi_t)
+        if ok:
+            if not f_type:
+                _filter_add(F, ic, opt, th, phi)
+            ic[SHORTENED] = ic[SHORTENED] + 1 if trials > 1 else 0
+            accepted = True
+            break
+        if trials == 1 and th_t >= th and opt[MAX_SOC]:
+            return SOC
+        alpha *= 0.5
+    if not accepted:
+        return RESTORATION
+    # solver.take_step: the new point's derivatives, the multipliers' step
+    v_t, X_t, U_t, f_t, h_t, cost_t, lx_t, lu_t, lN_t, A_t, B_t, sl_t, su_t = trial
+    if not derivatives(data, idata, X_t, U_t, lx_t, lu_t, lN_t, A_t, B_t):
+        return DERIVATIVES_NOT_FINITE
+    lam_n, zl_n, zu_n = mult_new
+    alpha_z, moved = K.step_bound_multipliers(sl, su, v_t, dv, lo, hi, has_lo, has_hi, zl, zu, mu, -tau, opt[EPS],
+                                              opt[EPS_MOVE], 1e10, 1e10 * mu, sl_new, su_new, zl_n, zu_n, lam, lam_s,
+                                              alpha, lam_n)
+    if moved:       # the bounds moved: the new point's slacks (sl_new's numbers) and barrier terms after it
+        inside, logs_t = K.barrier_logs(v_t, lo, hi, has_lo, has_hi, sl_t, su_t, logs_work)
+        if inside:
+            damped_t = K.dot(one_lo_f, sl_t) + K.dot(one_hi_f, su_t) if opt[ONE_SIDED] else 0.0
+        else:           # outside (barrier.Bounds.barrier_value: +inf): phi's -mu logs is +inf
+            logs_t, damped_t = -math.inf, 0.0
+    ic[IT] += 1
+    ic[FACTORIZATIONS] += 1
+    ic[N_VALUES] += n_values
+    ic[N_DERIVS] += 1
+    ic[N_HESS] += 1
+    ic[MOVED] = moved
+    sc[J], sc[LOGS], sc[DAMPED], sc[THETA], sc[MX] = J_t, logs_t, damped_t, th_t, mx_t
+    sc[ALPHA], sc[ALPHA_Z] = alpha, alpha_z
+    return STEP

@@ -1,0 +1,86 @@
+"""The compiled iteration (olado.solvers.ipm.compiled, iteration_kernels) takes the Python
+path's iterates bit for bit: the same Result (x, u, multipliers, history, evaluation counts,
+the problem's counters) with and without it, also where it hands iterations back (second-order
+corrections, the watchdog, a time limit), and it applies only where its conditions hold."""
+
+import numpy as np
+import pytest
+
+import olado.solvers.ipm.solver as ipm_solver
+from olado.problems import PROBLEMS
+from olado.problems.zambezi import zambezi_problem
+from olado.solvers.ipm import iteration_kernels as IK
+from olado.solvers.ipm.compiled import PlainPath, plain_path
+from olado.solvers.ipm.solver import IPMSolver, Setup
+from olado.interrupts import Limits
+
+
+def _solve(problem_factory, plain, **options):
+    p = problem_factory()
+    solver = IPMSolver(**options)
+    if plain:
+        return solver.solve(p), dict(p.counters)
+    original = ipm_solver.plain_path
+    ipm_solver.plain_path = lambda setup: None
+    try:
+        return solver.solve(p), dict(p.counters)
+    finally:
+        ipm_solver.plain_path = original
+
+
+def _same(a, b):
+    (ra, ca), (rb, cb) = a, b
+    assert ra.status == rb.status and ra.message == rb.message
+    assert ra.iterations == rb.iterations and ra.objective == rb.objective
+    assert np.array_equal(ra.x, rb.x) and np.array_equal(ra.u, rb.u)
+    for k in ra.multipliers:
+        assert np.array_equal(ra.multipliers[k], rb.multipliers[k]), k
+    assert ra.history == rb.history
+    assert ra.evaluations == rb.evaluations and ca == cb
+    for k in ("factorizations", "restorations", "mu", "scaled_optimality_error"):
+        assert ra.info[k] == rb.info[k], k
+
+
+@pytest.mark.parametrize("family,N", [("zambezi12", 24), ("zambezi", 48), ("zambezi12", 120)])
+def test_compiled_iteration_takes_the_python_paths_iterates(family, N):
+    def make():
+        return zambezi_problem(family, N=N, start="balance")
+
+    setup = Setup(IPMSolver().options, make(), Limits(), lambda entry: False)
+    assert setup.plain is not None          # it applies here
+    _same(_solve(make, False), _solve(make, True))
+
+
+@pytest.mark.parametrize("start,options,codes", [
+    ("balance", {"mu_init": 10.0, "max_soc": 1}, {IK.STEP}),
+    ("sif", {}, {IK.INERTIA, IK.SOC}),
+    ("sif", {"mu_init": 1e-4, "watchdog_shortened_iter_trigger": 1}, {IK.INERTIA, IK.WATCHDOG}),
+    ("balance", {"tol": 1e-12, "acceptable_iter": 2}, {IK.SOC, IK.ACCEPTABLE_END}),
+    ("balance", {"max_iter": 5}, {IK.MAX_ITERATIONS})])
+def test_handed_back_iterations_and_ends_give_the_same_result(monkeypatch, start, options, codes):
+    """Cases where the compiled iteration hands iterations back (the inertia correction, second-order
+    corrections, the watchdog; ``codes`` says which occur) or the solve ends on another test."""
+    def make():
+        return zambezi_problem("zambezi" if start == "sif" else "zambezi12", N=24, start=start)
+
+    seen = set()
+    iterate = PlainPath.iterate
+
+    def counted(self, st):
+        code = iterate(self, st)
+        seen.add(code)
+        return code
+
+    reference = _solve(make, False, **options)
+    monkeypatch.setattr(PlainPath, "iterate", counted)
+    _same(reference, _solve(make, True, **options))
+    assert codes <= seen
+
+
+def test_where_the_compiled_iteration_does_not_apply():
+    limits = Limits()
+    p = zambezi_problem("zambezi12", N=24, start="balance")
+    assert plain_path(Setup(IPMSolver(mu_strategy="adaptive").options, p, limits, None)) is None
+    assert Setup(IPMSolver().options, PROBLEMS["lq-box"](N=7), limits, None).plain is None   # no compiled evaluations
+    big = zambezi_problem("zambezi", N=3000, start="balance")       # above the workspace limit
+    assert Setup(IPMSolver().options, big, limits, None).plain is None
