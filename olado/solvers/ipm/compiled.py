@@ -16,6 +16,9 @@ test_compiled_iteration.py).
 
 from __future__ import annotations
 
+import threading
+from typing import NamedTuple
+
 import numpy as np
 
 from ...errors import NonFiniteEvaluationError
@@ -53,56 +56,103 @@ def plain_path(setup):
         if f.signature() != signature:      # the kernel calls the address with this signature
             raise TypeError(f"{type(p).__name__}.compiled_evaluations: {f!r} has the signature {f.signature()}, "
                             f"not {signature}")
-    from ...linalg.riccati import RiccatiFactorization  # noqa: PLC0415
+    arrays = _take((L.N, L.n, L.m, L.size, o.max_iter))
+    return None if arrays is None else PlainPath(setup, evals, arrays)
 
-    N, n, m = L.N, L.n, L.m
-    eye = np.broadcast_to(np.eye(n), (N + 1, n, n)).copy()
-    fact = RiccatiFactorization(eye, np.zeros((N, n, m)), np.broadcast_to(np.eye(m), (N, m, m)).copy(),
-                                np.zeros((N, n, n)), np.zeros((N, n, m)), Dx=np.ones((N + 1, n)), Du=np.ones((N, m)))
-    operands = fact.fixed_factor_operands()
-    if operands is None:
-        return None
-    return PlainPath(setup, evals, fact, operands)
+
+class _Arrays(NamedTuple):
+    """What a :class:`PlainPath` works on that depends on the shapes only: the Riccati back-end's
+    operands (fixed_factor_operands; the back-end object keeps them), the two point sets, the two
+    multiplier sets, the work arrays of iteration_kernels.plain_iteration and the filter's."""
+
+    fact: object
+    operands: tuple
+    cur: tuple
+    trial: tuple
+    mult: tuple
+    mult_new: tuple
+    work: tuple
+    F: np.ndarray
+
+    @classmethod
+    def make(cls, N, n, m, size, max_iter):
+        """New arrays, or None where the fixed-size straight-line Riccati kernels do not apply."""
+        from ...linalg.riccati import RiccatiFactorization  # noqa: PLC0415
+
+        eye = np.broadcast_to(np.eye(n), (N + 1, n, n)).copy()
+        fact = RiccatiFactorization(eye, np.zeros((N, n, m)), np.broadcast_to(np.eye(m), (N, m, m)).copy(),
+                                    np.zeros((N, n, n)), np.zeros((N, n, m)), Dx=np.ones((N + 1, n)),
+                                    Du=np.ones((N, m)))
+        operands = fact.fixed_factor_operands()
+        if operands is None:
+            return None
+        lam_shape = (N + 1, n)
+        none2, none1 = np.zeros((N, 0)), np.zeros(0)
+        work = (np.empty((N + 1, n, n)), np.empty((N, n, m)), np.empty((N, m, m)), np.empty((N + 1, n)),
+                np.empty((N, m)), none2, none1, np.empty((N + 1, n)), np.empty((N, m)), none2, none1, np.empty(size),
+                np.empty((N + 1, n)), np.empty((N, m)), np.empty(lam_shape), np.empty((N + 1, 0)), np.empty(size),
+                np.empty((N, n)), np.empty((N, m)), np.zeros(n), none2, none1, np.empty(size), np.empty(size),
+                np.empty(size))
+        return cls(fact, operands, _point_set(N, n, m, size, False), _point_set(N, n, m, size, True),
+                   (np.empty(lam_shape), np.empty(size), np.empty(size)),
+                   (np.empty(lam_shape), np.empty(size), np.empty(size)), work, np.empty((max_iter + 8, 2)))
+
+
+def _point_set(N, n, m, size, trial):
+    """(v, X, U, h, lx, lu, lN, A, B, s_L, s_U); the trial set has f and the stage costs after h."""
+    head = (np.empty(size), np.empty((N + 1, n)), np.empty((N, m)))
+    values = (np.empty((N, n)), np.empty((N, n)), np.empty(N)) if trial else (np.empty((N, n)),)
+    return head + values + (np.empty((N, n)), np.empty((N, m)), np.empty(n), np.empty((N, n, n)),
+                            np.empty((N, n, m)), np.empty(size), np.empty(size))
+
+
+#: the arrays of finished solves, one set per key (N, n, m, size, max_iter), the POOL_MAX latest keys:
+#: a solve takes a set (or makes one) and gives it back when it ends; each is written before it is
+#: read, and nothing a Result holds is one of them (PlainPath.leave copies)
+_POOL: dict = {}
+_POOL_LOCK = threading.Lock()
+POOL_MAX = 4
+
+
+def _take(key):
+    with _POOL_LOCK:
+        arrays = _POOL.pop(key, None)
+    return arrays if arrays is not None else _Arrays.make(*key)
+
+
+def _give(key, arrays):
+    with _POOL_LOCK:
+        _POOL[key] = arrays
+        while len(_POOL) > POOL_MAX:
+            del _POOL[next(iter(_POOL))]
 
 
 class PlainPath:
     """The compiled iterations of one solve (module docstring)."""
 
-    def __init__(self, setup, evals, fact, operands):
+    def __init__(self, setup, evals, arrays):
         o, L, b = setup.options, setup.layout, setup.bounds
-        self.setup, self.evals, self.fact = setup, evals, fact
-        self.tags, self.ipt, self.reg, self.fac = operands
+        self.setup, self.evals, self.arrays = setup, evals, arrays
+        self.key = (L.N, L.n, L.m, L.size, o.max_iter)
+        self.tags, self.ipt, self.reg, self.fac = arrays.operands
         #: the functions' wrapper addresses (iteration_kernels calls them there; the CompiledFunctions
         #: in ``evals`` keep the code alive)
         self.addresses = np.array([f.__wrapper_address__() for f in (evals.values, evals.derivatives,
                                                                       evals.hessians, evals.final_hessian)],
                                   dtype=np.int64)
-        N, n, m, size = L.N, L.n, L.m, L.size
-        self.cur, self.trial = self._point_set(N, n, m, size, False), self._point_set(N, n, m, size, True)
-        lam_shape = (N + 1, n)
-        self.mult = (np.empty(lam_shape), np.empty(size), np.empty(size))
-        self.mult_new = (np.empty(lam_shape), np.empty(size), np.empty(size))
-        Q = np.empty((N + 1, n, n))
-        none2, none1 = np.zeros((N, 0)), np.zeros(0)
-        self.work = (Q, np.empty((N, n, m)), np.empty((N, m, m)), np.empty((N + 1, n)), np.empty((N, m)), none2,
-                     none1, np.empty((N + 1, n)), np.empty((N, m)), none2, none1, np.empty(size),
-                     np.empty((N + 1, n)), np.empty((N, m)), np.empty(lam_shape), np.empty((N + 1, 0)), np.empty(size),
-                     np.empty((N, n)), np.empty((N, m)), np.zeros(n), none2, none1, np.empty(size), np.empty(size),
-                     np.empty(size))
+        self.cur, self.trial, self.mult, self.mult_new = arrays.cur, arrays.trial, arrays.mult, arrays.mult_new
+        self.work, self.F = arrays.work, arrays.F
         self.bounds = (b.lo, b.hi, b.has_lo, b.has_hi, b.one_lo_f, b.one_hi_f)
         self.x0 = L.x0
-        self.F = np.empty((o.max_iter + 8, 2))
         self.sc, self.ic = np.zeros(IK.N_SC), np.zeros(IK.N_IC, dtype=np.int64)
         self.opt = self._options(o, L, b)
         self.active = False
 
-    @staticmethod
-    def _point_set(N, n, m, size, trial):
-        """(v, X, U, h, lx, lu, lN, A, B, s_L, s_U); the trial set has f and the stage costs after h."""
-        head = (np.empty(size), np.empty((N + 1, n)), np.empty((N, m)))
-        values = (np.empty((N, n)), np.empty((N, n)), np.empty(N)) if trial else (np.empty((N, n)),)
-        return head + values + (np.empty((N, n)), np.empty((N, m)), np.empty(n), np.empty((N, n, n)),
-                                np.empty((N, n, m)), np.empty(size), np.empty(size))
+    def release(self):
+        """The arrays back to the pool (the solve has ended; the state holds copies)."""
+        self.active = False
+        _give(self.key, _Arrays(self.arrays.fact, self.arrays.operands, self.cur, self.trial, self.mult,
+                                self.mult_new, self.work, self.F))
 
     @staticmethod
     def _options(o, L, b):
@@ -165,6 +215,7 @@ class PlainPath:
         st.v, st.pt = v.copy(), pt
         st.lam, st.zl, st.zu = (a.copy() for a in self.mult)
         self._state_scalars(st)
+        self._count(st)
         f = st.filt
         f.entries = [(float(t), float(p)) for t, p in self.F[:ic[IK.NF]]]
         f.resets, f.rejected_by_filter, f.filter_rejections = (int(ic[IK.RESETS]), bool(ic[IK.REJECTED]),
@@ -189,12 +240,10 @@ class PlainPath:
         if not self.active and not self.enter(st):
             return None
         ev, ic = self.evals, self.ic
-        ic[IK.FACTORIZATIONS] = ic[IK.N_VALUES] = ic[IK.N_DERIVS] = ic[IK.N_HESS] = 0
         code = IK.plain_iteration(self.addresses, ev.data, ev.idata, self.tags, self.ipt, self.reg, self.fac, self.F,
                                   self.cur, self.trial, self.mult, self.mult_new, self.bounds, self.work, self.x0,
                                   self.sc, ic, self.opt)
         if code == IK.STEP:
-            self._count(st)
             self._swap()
             self._state_scalars(st)
             st.delta = 0.0
@@ -207,7 +256,8 @@ class PlainPath:
         return code
 
     def _count(self, st):
-        """The evaluations of the step into the solve's clock and the problem's counters."""
+        """The evaluations and factorizations of the steps taken since :meth:`enter` into the
+        solve's clock, the problem's counters and ``st`` (once, when the state goes back)."""
         ic, counts, counters = self.ic, st.clock.counts, self.setup.problem.counters
         st.factorizations += int(ic[IK.FACTORIZATIONS])
         for name, calls in (("values", ic[IK.N_VALUES]), ("derivatives", ic[IK.N_DERIVS]),

@@ -615,8 +615,12 @@ def _report(setup, st, entry):
 def finish(setup, st) -> Result:
     """The Result at the last accepted iterate: multipliers of the unscaled problem, KKT
     quantities stage by stage (olado.solvers.sqp.residuals.stage_kkt)."""
-    if setup.plain is not None and setup.plain.active:
-        setup.plain.leave(st)       # the iterate of the compiled iterations
+    plain = setup.plain
+    if plain is not None:
+        if plain.active:
+            plain.leave(st)         # the iterate of the compiled iterations
+        plain.release()
+        setup.plain = None
     p, pt, L = setup.problem, st.pt, setup.layout
     solve_time = time.perf_counter() - setup.t_start
     setup.last_kkt = None       # the last matrix's factors and blocks go before stage_kkt's arrays
