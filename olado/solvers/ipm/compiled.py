@@ -171,7 +171,9 @@ class PlainPath:
                             (IK.RESET_TRIGGER, f.filter_reset_trigger), (IK.MAX_RESETS, f.max_filter_resets),
                             (IK.KAPPA_D, KAPPA_D), (IK.NZ, max(b.count, 1)), (IK.NY, L.N * L.n),
                             (IK.ONE_SIDED, float(b.one_sided)), (IK.EPS, EPS), (IK.EPS_MOVE, EPS ** 0.75),
-                            (IK.TINY, TINY_STEP)):
+                            (IK.TINY, TINY_STEP), (IK.PRODUCTS, 1.0), (IK.ROWS, 0.0)):
+            # (the error pass's flags as data, not constants: the pass then has the Python path's
+            # argument types, and its compiled version is shared, not compiled again)
             opt[slot] = value
         return opt
 

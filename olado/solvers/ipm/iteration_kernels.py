@@ -46,8 +46,8 @@ N_IC = 12
 # opt: the options and constants (in)
 (TOL, DUAL_INF_TOL, CONSTR_VIOL_TOL, COMPL_INF_TOL, ACC_TOL, ACC_VIOL, ACC_ITER, KAPPA_EPS, KAPPA_MU, THETA_MU,
  TAU_MIN, MAX_SOC, WD_TRIGGER, MAX_ITER, GAMMA_THETA, GAMMA_PHI, DELTA, S_THETA, S_PHI, ETA_PHI, GAMMA_ALPHA,
- OBJ_MAX_INC, RESET_TRIGGER, MAX_RESETS, KAPPA_D, NZ, NY, ONE_SIDED, EPS, EPS_MOVE, TINY) = range(31)
-N_OPT = 31
+ OBJ_MAX_INC, RESET_TRIGGER, MAX_RESETS, KAPPA_D, NZ, NY, ONE_SIDED, EPS, EPS_MOVE, TINY, PRODUCTS, ROWS) = range(33)
+N_OPT = 33
 
 # the return codes: the iteration was taken; the solve ends; the Python path takes the iteration
 STEP, SUCCESS, ACCEPTABLE_END, MAX_ITERATIONS = 0, 1, 2, 3
@@ -84,19 +84,19 @@ _values_at, _derivatives_at, _hessians_at, _final_hessian_at = (_function_at(s)
                                                                  for s in (VALUES, DERIVATIVES, HESSIANS, FINAL_HESSIAN))
 
 
-@nb.njit(inline="always")
+@nb.njit
 def _py_max(a, b):
     """Python's max(a, b) of floats: b only when b > a."""
     return b if b > a else a
 
 
-@nb.njit(inline="always")
+@nb.njit
 def _py_min(a, b):
     """Python's min(a, b) of floats: b only when b < a."""
     return b if b < a else a
 
 
-@nb.njit(inline="always")
+@nb.njit
 def _sides_max(n_lo, m_lo, n_hi, m_hi):
     """barrier._sides_max."""
     if not n_lo:
@@ -104,7 +104,7 @@ def _sides_max(n_lo, m_lo, n_hi, m_hi):
     return m_hi if n_hi and m_hi > m_lo else m_lo
 
 
-@nb.njit(inline="always")
+@nb.njit
 def _products_complementarity(n_lo, lo_min, lo_max, n_hi, hi_min, hi_max, mu):
     """evaluation.products_complementarity."""
     if lo_max != lo_max:
@@ -119,7 +119,7 @@ def _products_complementarity(n_lo, lo_min, lo_max, n_hi, hi_min, hi_max, mu):
 
 
 # ---------------------------------------------------------------------------- the filter (filter.Filter)
-@nb.njit(inline="always")
+@nb.njit
 def _filter_reset(F, sc, ic):
     """Filter.reset."""
     F[0, 0], F[0, 1] = sc[THETA_MAX], -np.inf
@@ -128,7 +128,7 @@ def _filter_reset(F, sc, ic):
     ic[FILTER_REJECTIONS] = 0
 
 
-@nb.njit(inline="always")
+@nb.njit
 def _filter_add(F, ic, opt, theta, phi):
     """Filter.add: the corner (22), the entries it dominates dropped (the others keep their order)."""
     t, p = (1.0 - opt[GAMMA_THETA]) * theta, phi - opt[GAMMA_PHI] * theta
@@ -141,7 +141,7 @@ def _filter_add(F, ic, opt, theta, phi):
     ic[NF] = k + 1
 
 
-@nb.njit(inline="always")
+@nb.njit
 def _decrease(opt, theta, phi, theta_t, phi_t):
     """Filter._decrease."""
     if phi_t > phi:
@@ -183,7 +183,7 @@ def _filter_accept(F, sc, ic, opt, alpha, theta, phi, gphi, theta_t, phi_t):
     return True, switching and armijo
 
 
-@nb.njit(inline="always")
+@nb.njit
 def _alpha_min(sc, opt, theta, gphi):
     """Filter.alpha_min (23)."""
     gt = opt[GAMMA_THETA]
@@ -198,18 +198,14 @@ def _alpha_min(sc, opt, theta, gphi):
 
 # ---------------------------------------------------------------------------- the iteration
 @nb.njit
-def _errors(cur, mult, bounds, work, sc, ic, opt):
+def _errors(lx, lu, lN, A, B, lam, zl, zu, sl, su, has_lo, has_hi, EA, EB, none2, none1, sc, opt):
     """The stopping test's figures at the iterate (evaluation.iterate_errors, store_errors,
     optimality_errors at mu = 0): sets E0, INF_DU, INF_PR, COMPL; returns (inf_du, s_d, s_c, the
     products' ranges and the iterate's-mu complementarity) for the barrier update."""
-    v, X, U, h, lx, lu, lN, A, B, sl, su = cur
-    lam, zl, zu = mult
-    lo, hi, has_lo, has_hi, one_lo_f, one_hi_f = bounds
-    EA, EB, none2, none1 = work[17], work[18], work[20], work[21]
     s_obj = sc[S_OBJ]
     mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1, lo_min, lo_max, hi_min, hi_max = K.error_pass(
-        s_obj, lx, lu, lN, A, B, EA, EB, True, lam[1:], EA, EB, lN, False, False, none2, none1, zl, zu, none2,
-        none1, sl, su, has_lo, has_hi, 0.0, sc[MU])
+        s_obj, lx, lu, lN, A, B, EA, EB, opt[PRODUCTS] != 0.0, lam[1:], EA, EB, lN, opt[ROWS] != 0.0,
+        opt[ROWS] != 0.0, none2, none1, zl, zu, none2, none1, sl, su, has_lo, has_hi, 0.0, sc[MU])
     nz, ny = opt[NZ], opt[NY]
     s_d = _py_max(S_MAX, (ysum + zsum) / (ny + nz)) / S_MAX
     s_c = _py_max(S_MAX, zsum / nz) / S_MAX
@@ -221,9 +217,9 @@ def _errors(cur, mult, bounds, work, sc, ic, opt):
 
 
 @nb.njit
-def _prefix(F, cur, mult, bounds, work, sc, ic, opt):
-    """solver.converged, the iteration limit and solver.update_barrier; a return code or -1 (go on)."""
-    inf_du, s_d, s_c, ranges, c_mu = _errors(cur, mult, bounds, work, sc, ic, opt)
+def _prefix(F, inf_du, s_d, s_c, ranges, c_mu, sc, ic, opt):
+    """solver.converged, the iteration limit and solver.update_barrier from :func:`_errors`'
+    figures; a return code or -1 (go on)."""
     e0, inf_pr = sc[E0], sc[INF_PR]
     if (e0 <= opt[TOL] and sc[INF_DU] <= opt[DUAL_INF_TOL] and inf_pr <= opt[CONSTR_VIOL_TOL]
             and sc[COMPL] <= opt[COMPL_INF_TOL]):
@@ -252,17 +248,10 @@ def _prefix(F, cur, mult, bounds, work, sc, ic, opt):
 
 
 @nb.njit
-def _trial(values, data, idata, cur, trial, bounds, work, sc, opt, dv, alpha, x0):
-    """linesearch._trial: the trial point v + alpha dv, its values, residuals, their norms and phi;
-    (theta, max, phi, J, logs, damped), or J NaN when a value is not finite."""
-    v = cur[0]
-    v_t, X_t, U_t, f_t, h_t, cost_t, lx_t, lu_t, lN_t, A_t, B_t, sl_t, su_t = trial
-    lo, hi, has_lo, has_hi, one_lo_f, one_hi_f = bounds
-    none2, none1, logs_work = work[20], work[21], work[22]
-    K.trial_point(v, dv, alpha, x0, v_t, X_t, U_t)
-    J_t = values(data, idata, X_t, U_t, f_t, cost_t)
-    if J_t != J_t:
-        return math.inf, math.inf, math.inf, J_t, 0.0, 0.0
+def _trial_terms(v_t, X_t, f_t, h_t, sl_t, su_t, lo, hi, has_lo, has_hi, one_lo_f, one_hi_f, none2, none1, logs_work,
+                 J_t, sc, opt):
+    """linesearch._trial after the values J_t, f_t at the trial point (finite): the residuals,
+    their norms and phi; (theta, max, phi, logs, damped)."""
     N = h_t.shape[0]
     for k in range(N):
         for i in range(h_t.shape[1]):
@@ -270,10 +259,10 @@ def _trial(values, data, idata, cur, trial, bounds, work, sc, opt, dv, alpha, x0
     l1, mx, inside, logs = K.point_terms(v_t, lo, hi, has_lo, has_hi, sl_t, su_t, logs_work, h_t, none2, none1,
                                          none2, none1)
     if not inside:
-        return l1, mx, sc[S_OBJ] * J_t + math.inf, J_t, logs, 0.0
+        return l1, mx, sc[S_OBJ] * J_t + math.inf, logs, 0.0
     damped = K.dot(one_lo_f, sl_t) + K.dot(one_hi_f, su_t) if opt[ONE_SIDED] else 0.0
     mu = sc[MU]
-    return l1, mx, sc[S_OBJ] * J_t + (-mu * logs + opt[KAPPA_D] * mu * damped), J_t, logs, damped
+    return l1, mx, sc[S_OBJ] * J_t + (-mu * logs + opt[KAPPA_D] * mu * damped), logs, damped
 
 
 @nb.njit(cache=True, error_model="numpy")
@@ -284,16 +273,19 @@ def plain_iteration(addresses, data, idata, tags, ipt, reg, fac, F, cur, trial, 
     ``mult_new``, sc and ic updated), SUCCESS / ACCEPTABLE_END / MAX_ITERATIONS (the stopping test,
     the iterate unchanged), or a code >= BAIL (the stopping test and the barrier update done, the
     rest of the iteration left to the Python path, nothing else changed)."""
-    code = _prefix(F, cur, mult, bounds, work, sc, ic, opt)
-    if code >= 0:
-        return code
-    values, derivatives = _values_at(addresses[0]), _derivatives_at(addresses[1])
-    hessians, final_hessian = _hessians_at(addresses[2]), _final_hessian_at(addresses[3])
     v, X, U, h, lx, lu, lN, A, B, sl, su = cur
     lam, zl, zu = mult
     lo, hi, has_lo, has_hi, one_lo_f, one_hi_f = bounds
     (Q, S, R, Sx, Su, Ss, SsN, q, r, gs, gsN, grad, dX, dU, lam_s, nu0, dv, EA, EB, x0z, none2, none1, logs_work,
      sl_new, su_new) = work
+    v_t, X_t, U_t, f_t, h_t, cost_t, lx_t, lu_t, lN_t, A_t, B_t, sl_t, su_t = trial
+    inf_du, s_d, s_c, ranges, c_mu = _errors(lx, lu, lN, A, B, lam, zl, zu, sl, su, has_lo, has_hi, EA, EB, none2,
+                                             none1, sc, opt)
+    code = _prefix(F, inf_du, s_d, s_c, ranges, c_mu, sc, ic, opt)
+    if code >= 0:
+        return code
+    values, derivatives = _values_at(addresses[0]), _derivatives_at(addresses[1])
+    hessians, final_hessian = _hessians_at(addresses[2]), _final_hessian_at(addresses[3])
     N = X.shape[0] - 1
     mu, tau, s_obj = sc[MU], sc[TAU], sc[S_OBJ]
     # newton_system: the Hessian blocks, Sigma and the barrier gradient, the factorization at delta_w = 0
@@ -325,10 +317,12 @@ def plain_iteration(addresses, data, idata, tags, ipt, reg, fac, F, cur, trial, 
     th_t = mx_t = J_t = logs_t = damped_t = 0.0
     while alpha > alpha_min or trials == 0:
         trials += 1
-        th_t, mx_t, phi_t, J_t, logs_t, damped_t = _trial(values, data, idata, cur, trial, bounds, work, sc, opt, dv,
-                                                          alpha, x0)
+        K.trial_point(v, dv, alpha, x0, v_t, X_t, U_t)       # linesearch._trial
+        J_t = values(data, idata, X_t, U_t, f_t, cost_t)
         if J_t != J_t:
             return TRIAL_NOT_FINITE
+        th_t, mx_t, phi_t, logs_t, damped_t = _trial_terms(v_t, X_t, f_t, h_t, sl_t, su_t, lo, hi, has_lo, has_hi,
+                                                           one_lo_f, one_hi_f, none2, none1, logs_work, J_t, sc, opt)
         n_values += 1
         ok, f_type = _filter_accept(F, sc, ic, opt, alpha, th, phi, gphi, th_t, phi_t)
         if ok:
@@ -343,7 +337,6 @@ def plain_iteration(addresses, data, idata, tags, ipt, reg, fac, F, cur, trial, 
     if not accepted:
         return RESTORATION
     # solver.take_step: the new point's derivatives, the multipliers' step
-    v_t, X_t, U_t, f_t, h_t, cost_t, lx_t, lu_t, lN_t, A_t, B_t, sl_t, su_t = trial
     if not derivatives(data, idata, X_t, U_t, lx_t, lu_t, lN_t, A_t, B_t):
         return DERIVATIVES_NOT_FINITE
     lam_n, zl_n, zu_n = mult_new
