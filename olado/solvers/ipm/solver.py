@@ -602,7 +602,9 @@ def _report(setup, st, entry):
     """The iteration's log line (verbose >= 2) and the callback; True when the callback stops."""
     o = setup.options
     if o.verbose >= 2:
-        print(f"{st.it:4d} {st.pt.J: .10e} {st.errors[2]:.2e} {st.errors[1]:.2e} mu={st.mu:.1e} "
+        plain = setup.plain     # (while compiled iterations run, the iterate is theirs)
+        J = float(plain.sc[_IK.J]) if plain is not None and plain.active else st.pt.J
+        print(f"{st.it:4d} {J: .10e} {st.errors[2]:.2e} {st.errors[1]:.2e} mu={st.mu:.1e} "
               f"dw={st.delta:.1e} a={entry['alpha']:.2e}{' soc' if entry['soc'] else ''}"
               f"{' resto' if entry['restoration'] else ''}")
     # (without a callback option the solver's callback says False: no copy of the entry for it)

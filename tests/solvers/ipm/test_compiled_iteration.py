@@ -84,3 +84,41 @@ def test_where_the_compiled_iteration_does_not_apply():
     assert Setup(IPMSolver().options, PROBLEMS["lq-box"](N=7), limits, None).plain is None   # no compiled evaluations
     big = zambezi_problem("zambezi", N=3000, start="balance")       # above the workspace limit
     assert Setup(IPMSolver().options, big, limits, None).plain is None
+
+
+def test_callback_stop_and_log_lines_are_the_python_paths(capsys):
+    """A callback that stops the solve and the verbose log see the same iterations."""
+    def make():
+        return zambezi_problem("zambezi12", N=24, start="balance")
+
+    results, logs = [], []
+    for plain in (False, True):
+        seen = []
+        result = _solve(make, plain, verbose=2, callback=lambda entry: seen.append(entry) or entry["iter"] >= 7)
+        results.append(result)
+        out = capsys.readouterr().out          # the iteration lines (the summary after them has timings)
+        logs.append((out[:out.index("olado result")], seen))
+    _same(*results)
+    assert results[0][0].status.name == "USER_STOP" and results[0][0].iterations == 7
+    assert logs[0] == logs[1] and logs[0][0].count("\n") >= 7
+
+
+def test_interrupt_during_compiled_iterations_keeps_the_iterate_reached():
+    """A stop from outside between compiled iterations (here the time limit, checked at every
+    iteration) ends with the iterate reached, as the Python path's: the state goes back first."""
+    def make():
+        return zambezi_problem("zambezi12", N=24, start="balance")
+
+    calls = []
+
+    def slow(entry):
+        calls.append(entry["iter"])
+        if entry["iter"] == 4:
+            import time
+            time.sleep(0.3)
+        return False
+
+    result, _ = _solve(make, True, callback=slow, max_time=0.25)
+    assert result.status.name == "MAX_TIME" and result.iterations == 4
+    reference, _ = _solve(make, True, max_iter=4)
+    assert np.array_equal(result.x, reference.x) and result.objective == reference.objective
