@@ -45,6 +45,8 @@ from types import MappingProxyType
 
 import numba as nb
 import numpy as np
+from numba.core.imputils import impl_ret_borrowed
+from numba.extending import intrinsic
 
 from ..errors import ProblemDefinitionError
 from .docp import DOCP, FirstDerivatives, PointValues, _plain, check_problem_size
@@ -337,13 +339,16 @@ def _simulate_kernel(drive, evap, fa, u, X):
 
 # ============================================================================ compiled evaluations
 # Zambezi.compiled_evaluations: the kernels above behind the signatures of olado.problems.compiled,
-# with the instance's numbers packed into one float64 array (_pack; offsets _D_*) and the stage
-# indices as the int64 array. The four entries are compiled (or loaded from numba's cache) on
-# first use, not when this module is imported.
+# with the instance's numbers packed into one float64 array (Zambezi._pack, offsets _D_*) and the
+# stage indices and _JCOLS into one int64 array. The entries hand the kernels views of the same
+# types as the Python entry points do (fa, fe, fh Fortran-ordered, _LX, _LU, _JCOLS writable
+# arrays rather than numba's read-only constants): the kernels' compiled versions are shared
+# (or loaded from numba's cache) instead of being compiled a second time. The four entries are
+# compiled (or loaded) on first use, not when this module is imported.
 
-#: offsets in the packed data: alpha, psi, nu_E, then u_ref, V_ref, phi (4 each), fa, fe (3x4),
-#: fh (3x3), then inflow and evaporation (N x 4 each)
-_D_UREF, _D_VREF, _D_PHI, _D_FA, _D_FE, _D_FH, _D_STAGES = 3, 7, 11, 15, 27, 39, 48
+#: offsets in the packed data: alpha, psi, nu_E, then u_ref, V_ref, phi (4 each), fa, fe (3x4) and
+#: fh (3x3) in Fortran order, _LX (6x6), _LU (6x7), then inflow and evaporation (N x 4 each)
+_D_UREF, _D_VREF, _D_PHI, _D_FA, _D_FE, _D_FH, _D_LX, _D_LU, _D_STAGES = 3, 7, 11, 15, 27, 39, 48, 84, 126
 
 #: numpy's pairwise sum, compiled (olado.linalg.numpy_sums.pairwise_sum), bound by
 #: _compiled_entries before it compiles: olado.problems does not import olado.linalg at module level
@@ -356,16 +361,31 @@ def _unpack(data, N):
     alpha, psi, u_ref, V_ref, phi, fe, nu_E -- the kernels' arguments in their order."""
     inflow = data[_D_STAGES:_D_STAGES + 4 * N].reshape((N, 4))
     evap = data[_D_STAGES + 4 * N:_D_STAGES + 8 * N].reshape((N, 4))
-    return (inflow, evap, data[_D_FA:_D_FE].reshape((3, 4)), data[_D_FH:_D_STAGES].reshape((3, 3)), data[0],
+    return (inflow, evap, data[_D_FA:_D_FE].reshape((4, 3)).T, data[_D_FH:_D_LX].reshape((3, 3)).T, data[0],
             data[1], data[_D_UREF:_D_VREF], data[_D_VREF:_D_PHI], data[_D_PHI:_D_FA],
-            data[_D_FE:_D_FH].reshape((3, 4)), data[2])
+            data[_D_FE:_D_FH].reshape((4, 3)).T, data[2])
+
+
+@intrinsic
+def _read_only(typingctx, a):
+    """``a`` typed as a read-only array (the same data): the stage Hessian kernel's weights as
+    :meth:`_Fusion.weights` gives them to it (one compiled version of the kernel, not two)."""
+    def codegen(context, builder, signature, args):
+        return impl_ret_borrowed(context, builder, signature.return_type, args[0])
+    return a.copy(readonly=True)(a), codegen
+
+
+@nb.njit(cache=True)
+def _linear_parts(data):
+    """_LX and _LU (views of the packed data)."""
+    return data[_D_LX:_D_LU].reshape((6, 6)), data[_D_LU:_D_STAGES].reshape((6, 7))
 
 
 def _values_entry(data, idata, X, U, f, cost):
     """VALUES: Zambezi.eval_values' f, stage costs and J (NaN when a value is not finite)."""
     N = U.shape[0]
     inflow, evap, fa, fh, alpha, psi, uref, V_ref, phi, fe, nu_E = _unpack(data, N)
-    F, finite = _values_kernel(idata, X[:N], U, X[N], inflow, evap, fa, fh, alpha, psi, uref, V_ref, phi, fe,
+    F, finite = _values_kernel(idata[:N], X[:N], U, X[N], inflow, evap, fa, fh, alpha, psi, uref, V_ref, phi, fe,
                                nu_E, f, cost)
     if not finite:
         return np.nan
@@ -376,23 +396,26 @@ def _derivatives_entry(data, idata, X, U, lx, lu, lN, A, B):
     """DERIVATIVES: Zambezi.eval_first_derivatives' lx, lu, lN, A, B."""
     N = U.shape[0]
     inflow, evap, fa, fh, alpha, psi, uref, V_ref, phi, fe, nu_E = _unpack(data, N)
+    LX, LU = _linear_parts(data)
     lN[:] = 0.0
-    return _derivatives_kernel(idata, X[:N], U, X[N], inflow, evap, fa, fh, alpha, psi, uref, V_ref, phi, fe,
-                               nu_E, _LX, _LU, lx, lu, A, B, lN)
+    return _derivatives_kernel(idata[:N], X[:N], U, X[N], inflow, evap, fa, fh, alpha, psi, uref, V_ref, phi, fe,
+                               nu_E, LX, LU, lx, lu, A, B, lN)
 
 
 def _hessians_entry(data, idata, X, U, sigma, P, hxx, hxu, huu):
     """HESSIANS: Zambezi.eval_stage_hessians(X, U, sigma, P)."""
     N = U.shape[0]
     inflow, evap, fa, fh, alpha, psi, _, _, _, _, _ = _unpack(data, N)
-    return _stage_hessian_kernel(idata, X[:N], U, inflow, evap, fa, fh, alpha, psi, np.full(N, sigma), P, _LX,
-                                 _LU, _JCOLS, hxx, hxu, huu)
+    LX, LU = _linear_parts(data)
+    jcols = idata[N:].reshape((3, 7))
+    return _stage_hessian_kernel(idata[:N], X[:N], U, inflow, evap, fa, fh, alpha, psi, _read_only(np.full(N, sigma)), P, LX,
+                                 LU, jcols, hxx, hxu, huu)
 
 
 def _final_hessian_entry(data, idata, xN, sigma, H):
     """FINAL_HESSIAN: Zambezi.eval_final_hessian(xN, sigma)."""
     H[:, :] = 0.0
-    _final_hessian_kernel(sigma, data[_D_PHI:_D_FA], data[_D_FE:_D_FH].reshape((3, 4)), data[2], H)
+    _final_hessian_kernel(sigma, data[_D_PHI:_D_FA], data[_D_FE:_D_FH].reshape((4, 3)).T, data[2], H)
     return math.isfinite(H[0, 0] + H[1, 1] + H[2, 2] + H[3, 3])
 
 
@@ -857,16 +880,20 @@ class Zambezi(DOCP):
         if evaluations is None:
             from .compiled import CompiledEvaluations
             evaluations = fusion.compiled = CompiledEvaluations(
-                *_compiled_entries(), np.empty(_D_STAGES + 8 * self.N), np.ascontiguousarray(self._K, dtype=np.int64),
+                *_compiled_entries(), np.empty(_D_STAGES + 8 * self.N), np.empty(self.N + _JCOLS.size, dtype=np.int64),
                 _COUNTS)
-        self._pack(evaluations.data)
+        self._pack(evaluations)
         return evaluations
 
-    def _pack(self, data):
-        """The numbers the compiled evaluations read, into ``data`` (the layout of ``_D_*``)."""
+    def _pack(self, evaluations):
+        """The numbers the compiled evaluations read, into their data (the layout of ``_D_*``) and
+        idata (the stage indices, then :data:`_JCOLS`)."""
+        data = evaluations.data
         data[:3] = self.alpha, self.psi, self.nu_E
-        parts = (self.u_ref, self.V_ref, self.phi, self.fa, self.fe, self.fh, self.inflow, self.evaporation)
-        np.concatenate([np.ravel(a, order="C") for a in parts], out=data[3:])
+        parts = ((self.u_ref, "C"), (self.V_ref, "C"), (self.phi, "C"), (self.fa, "F"), (self.fe, "F"), (self.fh, "F"),
+                 (_LX, "C"), (_LU, "C"), (self.inflow, "C"), (self.evaporation, "C"))
+        np.concatenate([np.ravel(a, order=order) for a, order in parts], out=data[3:])
+        np.concatenate([self._K, _JCOLS.ravel()], out=evaluations.idata)
 
     def final_cost(self, x):
         """F^N = sum_i phi_i (V_i - V_i,ref)^2 - nu_E sum_i fe_i(V_i), eq. (44)."""

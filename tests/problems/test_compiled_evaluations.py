@@ -19,6 +19,7 @@ import pytest
 from olado.problems import DOCP
 from olado.problems.compiled import DERIVATIVES, FINAL_HESSIAN, HESSIANS, VALUES, CompiledEvaluations
 from olado.problems.testproblems import PROBLEMS
+from olado.problems import zambezi
 from olado.problems.zambezi import Zambezi, zambezi_problem
 from test_eval_point import _point
 
@@ -113,6 +114,24 @@ def test_the_signatures_and_the_objects():
     got = _compiled(p.compiled_evaluations(), X, U, 1.0, P)
     assert got[0] == p.eval_values(X, U).J
     _equal(got[14], p.eval_final_hessian(X[-1], 1.0))
+
+
+def test_the_entries_call_the_kernels_with_the_python_paths_types():
+    """The entries hand the kernels Fortran-ordered fa, fe, fh and writable _LX, _LU, _JCOLS, as
+    the Python entry points do: one compiled version of each kernel serves both (a second one
+    would add seconds to a cold start)."""
+    p = zambezi_problem("zambezi12", N=12)
+    X, U = _point(p)
+    P = np.ones((12, 6))
+    p.eval_values(X, U), p.eval_first_derivatives(X, U), p.eval_stage_hessians(X, U, 1.0, P)
+    _compiled(p.compiled_evaluations(), X, U, 1.0, P)
+    checks = {zambezi._values_kernel: ((6, 7, 13), ()), zambezi._derivatives_kernel: ((6, 7, 13), (15, 16)),
+              zambezi._stage_hessian_kernel: ((5, 6), (11, 12, 13))}
+    for kernel, (fortran, writable) in checks.items():
+        for sig in kernel.signatures:
+            assert all(sig[i].layout == "F" for i in fortran), kernel
+            assert all(sig[i].mutable for i in writable), kernel
+    assert len(zambezi._values_kernel.signatures) == len(zambezi._derivatives_kernel.signatures) == 1
 
 
 def test_a_value_not_finite_gives_nan_or_false():
