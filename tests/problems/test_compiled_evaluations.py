@@ -19,7 +19,7 @@ import pytest
 from olado.problems import DOCP
 from olado.problems.compiled import DERIVATIVES, FINAL_HESSIAN, HESSIANS, VALUES, CompiledEvaluations
 from olado.problems.testproblems import PROBLEMS
-from olado.problems import zambezi
+from olado.problems import zambezi_kernels as kernels
 from olado.problems.zambezi import Zambezi, zambezi_problem
 from test_eval_point import _point
 
@@ -125,13 +125,13 @@ def test_the_entries_call_the_kernels_with_the_python_paths_types():
     P = np.ones((12, 6))
     p.eval_values(X, U), p.eval_first_derivatives(X, U), p.eval_stage_hessians(X, U, 1.0, P)
     _compiled(p.compiled_evaluations(), X, U, 1.0, P)
-    checks = {zambezi._values_kernel: ((6, 7, 13), ()), zambezi._derivatives_kernel: ((6, 7, 13), (15, 16)),
-              zambezi._stage_hessian_kernel: ((5, 6), (11, 12, 13))}
+    checks = {kernels._values_kernel: ((6, 7, 13), ()), kernels._derivatives_kernel: ((6, 7, 13), (15, 16)),
+              kernels._stage_hessian_kernel: ((5, 6), (11, 12, 13))}
     for kernel, (fortran, writable) in checks.items():
         for sig in kernel.signatures:
             assert all(sig[i].layout == "F" for i in fortran), kernel
             assert all(sig[i].mutable for i in writable), kernel
-    assert len(zambezi._values_kernel.signatures) == len(zambezi._derivatives_kernel.signatures) == 1
+    assert len(kernels._values_kernel.signatures) == len(kernels._derivatives_kernel.signatures) == 1
 
 
 def test_a_value_not_finite_gives_nan_or_false():
@@ -186,7 +186,8 @@ def test_docp_default_is_none():
 _SCRIPT = """
 import numba as nb
 import numpy as np
-from olado.problems.zambezi import zambezi_problem, _compiled_entries
+from olado.problems.zambezi import zambezi_problem
+from olado.problems.zambezi_kernels import _compiled_entries
 
 
 @nb.njit(cache=True)
