@@ -321,6 +321,28 @@ def _linear_parts(data):
     return data[_D_LX:_D_LU].reshape((6, 6)), data[_D_LU:_D_STAGES].reshape((6, 7))
 
 
+@nb.njit(cache=True)
+def _pack(data, idata, k, inflow, evap, fa, fh, alpha, psi, uref, V_ref, phi, fe, nu_E):
+    """Write a problem's numbers (the kernels' arguments) into the packed data through the views
+    of :func:`_unpack` and :func:`_linear_parts`, and the stage indices k and _JCOLS into idata."""
+    N = k.shape[0]
+    d_inflow, d_evap, d_fa, d_fh, _, _, d_uref, d_V_ref, d_phi, d_fe, _ = _unpack(data, N)
+    data[0], data[1], data[2] = alpha, psi, nu_E
+    d_inflow[:, :] = inflow
+    d_evap[:, :] = evap
+    d_fa[:, :] = fa
+    d_fh[:, :] = fh
+    d_fe[:, :] = fe
+    d_uref[:] = uref
+    d_V_ref[:] = V_ref
+    d_phi[:] = phi
+    LX, LU = _linear_parts(data)
+    LX[:, :] = _LX
+    LU[:, :] = _LU
+    idata[:N] = k
+    idata[N:].reshape((3, 7))[:, :] = _JCOLS
+
+
 def _values_entry(data, idata, X, U, f, cost):
     """VALUES: Zambezi.eval_values' f, stage costs and J (NaN when a value is not finite)."""
     N = U.shape[0]
@@ -348,8 +370,9 @@ def _hessians_entry(data, idata, X, U, sigma, P, hxx, hxu, huu):
     inflow, evap, fa, fh, alpha, psi, _, _, _, _, _ = _unpack(data, N)
     LX, LU = _linear_parts(data)
     jcols = idata[N:].reshape((3, 7))
-    return _stage_hessian_kernel(idata[:N], X[:N], U, inflow, evap, fa, fh, alpha, psi, _read_only(np.full(N, sigma)), P, LX,
-                                 LU, jcols, hxx, hxu, huu)
+    sig = _read_only(np.full(N, sigma))
+    return _stage_hessian_kernel(idata[:N], X[:N], U, inflow, evap, fa, fh, alpha, psi, sig, P, LX, LU, jcols,
+                                 hxx, hxu, huu)
 
 
 def _final_hessian_entry(data, idata, xN, sigma, H):
