@@ -321,26 +321,22 @@ def _linear_parts(data):
     return data[_D_LX:_D_LU].reshape((6, 6)), data[_D_LU:_D_STAGES].reshape((6, 7))
 
 
-@nb.njit(cache=True)
 def _pack(data, idata, k, inflow, evap, fa, fh, alpha, psi, uref, V_ref, phi, fe, nu_E):
-    """Write a problem's numbers (the kernels' arguments) into the packed data through the views
-    of :func:`_unpack` and :func:`_linear_parts`, and the stage indices k and _JCOLS into idata."""
+    """Write a problem's numbers (the kernels' arguments) into the packed data in the layout
+    :func:`_unpack` and :func:`_linear_parts` read, the stage indices k and _JCOLS into idata.
+    (numpy, ~5 us at N = 24: a compiled copy would add more than a second to a cold start.)"""
     N = k.shape[0]
-    d_inflow, d_evap, d_fa, d_fh, _, _, d_uref, d_V_ref, d_phi, d_fe, _ = _unpack(data, N)
-    data[0], data[1], data[2] = alpha, psi, nu_E
-    d_inflow[:, :] = inflow
-    d_evap[:, :] = evap
-    d_fa[:, :] = fa
-    d_fh[:, :] = fh
-    d_fe[:, :] = fe
-    d_uref[:] = uref
-    d_V_ref[:] = V_ref
-    d_phi[:] = phi
-    LX, LU = _linear_parts(data)
-    LX[:, :] = _LX
-    LU[:, :] = _LU
+    data[:3] = alpha, psi, nu_E
+    data[_D_UREF:_D_VREF], data[_D_VREF:_D_PHI], data[_D_PHI:_D_FA] = uref, V_ref, phi
+    data[_D_FA:_D_FE].reshape(4, 3).T[...] = fa
+    data[_D_FE:_D_FH].reshape(4, 3).T[...] = fe
+    data[_D_FH:_D_LX].reshape(3, 3).T[...] = fh
+    data[_D_LX:_D_LU] = _LX.ravel()
+    data[_D_LU:_D_STAGES] = _LU.ravel()
+    data[_D_STAGES:_D_STAGES + 4 * N].reshape(N, 4)[...] = inflow
+    data[_D_STAGES + 4 * N:_D_STAGES + 8 * N].reshape(N, 4)[...] = evap
     idata[:N] = k
-    idata[N:].reshape((3, 7))[:, :] = _JCOLS
+    idata[N:] = _JCOLS.ravel()
 
 
 def _values_entry(data, idata, X, U, f, cost):
@@ -359,7 +355,8 @@ def _derivatives_entry(data, idata, X, U, lx, lu, lN, A, B):
     N = U.shape[0]
     inflow, evap, fa, fh, alpha, psi, uref, V_ref, phi, fe, nu_E = _unpack(data, N)
     LX, LU = _linear_parts(data)
-    lN[:] = 0.0
+    for j in range(lN.shape[0]):
+        lN[j] = 0.0
     return _derivatives_kernel(idata[:N], X[:N], U, X[N], inflow, evap, fa, fh, alpha, psi, uref, V_ref, phi, fe,
                                nu_E, LX, LU, lx, lu, A, B, lN)
 
@@ -377,7 +374,9 @@ def _hessians_entry(data, idata, X, U, sigma, P, hxx, hxu, huu):
 
 def _final_hessian_entry(data, idata, xN, sigma, H):
     """FINAL_HESSIAN: Zambezi.eval_final_hessian(xN, sigma)."""
-    H[:, :] = 0.0
+    for i in range(H.shape[0]):
+        for j in range(H.shape[1]):
+            H[i, j] = 0.0
     _final_hessian_kernel(sigma, data[_D_PHI:_D_FA], data[_D_FE:_D_FH].reshape((4, 3)).T, data[2], H)
     return math.isfinite(H[0, 0] + H[1, 1] + H[2, 2] + H[3, 3])
 
