@@ -47,8 +47,8 @@ import numpy as np
 from ..errors import ProblemDefinitionError
 from .docp import DOCP, FirstDerivatives, PointValues, _plain, check_problem_size
 from .zambezi_kernels import (_COUNTS, _D_STAGES, _JCOLS, _LU, _LX, _compiled_entries, _derivatives_kernel,
-                              _final_cost_kernel, _pack, _final_gradient_kernel, _final_hessian_kernel, _simulate_kernel,
-                              _stage_hessian_kernel, _values_kernel)
+                              _final_cost_kernel, _final_gradient_kernel, _final_hessian_kernel, _pack,
+                              _simulate_kernel, _stage_hessian_kernel, _values_kernel)
 
 DATA_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "zambezi.json")
 
@@ -100,11 +100,11 @@ class _Fusion:
     again after any attribute of it is set or deleted, :meth:`Zambezi.__setattr__`) instead of
     on every call: which kinds of :data:`_FUSED` are Zambezi's own functions, the shapes and
     strides of a C-ordered point (X, U) that goes to the kernels as it is, the empty
-    constraint arrays (r = rN = 0) the entry points return, the last weight vector of the
-    stage Hessians (sigma on every stage) and the instance's compiled evaluations."""
+    constraint arrays (r = rN = 0) the entry points return, and the last weight vector of the
+    stage Hessians (sigma on every stage)."""
 
     __slots__ = ("values", "derivatives", "hessian", "X", "U", "P", "no_g", "no_gN", "no_Cx", "no_Cu", "no_CN",
-                 "sigma", "compiled")
+                 "sigma")
 
     def __init__(self, problem):
         cls, names = type(problem), problem.__dict__.keys()
@@ -125,7 +125,6 @@ class _Fusion:
         self.no_g, self.no_gN = np.zeros((N, 0)), np.zeros(0)
         self.no_Cx, self.no_Cu, self.no_CN = np.zeros((N, 0, 6)), np.zeros((N, 0, 7)), np.zeros((0, 6))
         self.sigma = (None, None)
-        self.compiled = None                    # Zambezi.compiled_evaluations (made on first use)
 
     def point(self, X, U):
         """True when (X, U) are C-ordered float64 arrays of the problem's shapes (nothing to
@@ -296,8 +295,9 @@ class Zambezi(DOCP):
 
     def _next_volumes(self, k, x, u):
         """V^{k+1} (K, 4) of eq. (40), its derivative dV+/dV_i (diagonal, (K, 4)) and the
-        diagonal second derivative (K, 4). (Reference numpy form; the stage functions below
-        use the compiled kernels of this module, which compute the same quantities.)"""
+        diagonal second derivative (K, 4). (Reference numpy form; the stage functions below use
+        the compiled kernels of :mod:`olado.problems.zambezi_kernels`, which compute the same
+        quantities.)"""
         V = x[:, :4]
         fa, dfa, d2fa = self._quad(self.fa, V)
         e = self.evaporation[k]
@@ -503,21 +503,18 @@ class Zambezi(DOCP):
         """:meth:`DOCP.compiled_evaluations`: the one-pass kernels of :meth:`eval_values`,
         :meth:`eval_first_derivatives`, :meth:`eval_stage_hessians` and :meth:`eval_final_hessian`
         as compiled functions (:mod:`olado.problems.compiled`; the same numbers bit for bit), when
-        those entry points use them (Zambezi's own functions, analytic derivatives); None otherwise.
-        Made once per instance (again after an attribute is set or deleted); its data holds the
-        instance's numbers as they are at this call (packed again at every call, ~2 us)."""
+        those entry points use them (Zambezi's own functions, analytic derivatives: the instance's
+        :class:`_Fusion`); None otherwise. The functions are made once per process; the data are
+        the instance's numbers as they are at this call, in arrays of this call's own (~6 us): a
+        copy or a pickle of the problem shares nothing compiled or packed with it."""
         fusion = self._fusion or self._fuse()
         if not (fusion.values and fusion.derivatives and fusion.hessian):
             return None
-        evaluations = fusion.compiled
-        if evaluations is None:
-            from .compiled import CompiledEvaluations
-            evaluations = fusion.compiled = CompiledEvaluations(
-                *_compiled_entries(), np.empty(_D_STAGES + 8 * self.N), np.empty(self.N + _JCOLS.size, dtype=np.int64),
-                _COUNTS)
-        _pack(evaluations.data, evaluations.idata, self._K, self.inflow, self.evaporation, self.fa, self.fh,
-              self.alpha, self.psi, self.u_ref, self.V_ref, self.phi, self.fe, self.nu_E)
-        return evaluations
+        from .compiled import CompiledEvaluations
+        data, idata = np.empty(_D_STAGES + 8 * self.N), np.empty(self.N + _JCOLS.size, dtype=np.int64)
+        _pack(data, idata, self._K, self.inflow, self.evaporation, self.fa, self.fh, self.alpha, self.psi, self.u_ref,
+              self.V_ref, self.phi, self.fe, self.nu_E)
+        return CompiledEvaluations(*_compiled_entries(), data, idata, _COUNTS)
 
     def final_cost(self, x):
         """F^N = sum_i phi_i (V_i - V_i,ref)^2 - nu_E sum_i fe_i(V_i), eq. (44)."""

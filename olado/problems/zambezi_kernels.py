@@ -279,7 +279,7 @@ def _simulate_kernel(drive, evap, fa, u, X):
 
 # ============================================================================ compiled evaluations
 # Zambezi.compiled_evaluations: the kernels above behind the signatures of olado.problems.compiled,
-# with the instance's numbers packed into one float64 array (Zambezi._pack, offsets _D_*) and the
+# with the instance's numbers packed into one float64 array (_pack, offsets _D_*) and the
 # stage indices and _JCOLS into one int64 array. The entries hand the kernels views of the same
 # types as the Python entry points do (fa, fe, fh Fortran-ordered, _LX, _LU, _JCOLS writable
 # arrays rather than numba's read-only constants): the kernels' compiled versions are shared
