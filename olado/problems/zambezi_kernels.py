@@ -290,6 +290,9 @@ def _simulate_kernel(drive, evap, fa, u, X):
 #: fh (3x3) in Fortran order, _LX (6x6), _LU (6x7), then inflow and evaporation (N x 4 each)
 _D_UREF, _D_VREF, _D_PHI, _D_FA, _D_FE, _D_FH, _D_LX, _D_LU, _D_STAGES = 3, 7, 11, 15, 27, 39, 48, 84, 126
 
+#: _LX and _LU, packed
+_LINEAR = np.concatenate((_LX.ravel(), _LU.ravel()))
+
 #: numpy's pairwise sum, compiled (olado.linalg.numpy_sums.pairwise_sum), bound by
 #: _compiled_entries before it compiles: olado.problems does not import olado.linalg at module level
 _pairwise_sum = None
@@ -324,19 +327,11 @@ def _linear_parts(data):
 def _pack(data, idata, k, inflow, evap, fa, fh, alpha, psi, uref, V_ref, phi, fe, nu_E):
     """Write a problem's numbers (the kernels' arguments) into the packed data in the layout
     :func:`_unpack` and :func:`_linear_parts` read, the stage indices k and _JCOLS into idata.
-    (numpy, ~5 us at N = 24: a compiled copy would add more than a second to a cold start.)"""
-    N = k.shape[0]
+    (numpy, ~4 us at N = 24: a compiled copy would add more than a second to a cold start.)"""
     data[:3] = alpha, psi, nu_E
-    data[_D_UREF:_D_VREF], data[_D_VREF:_D_PHI], data[_D_PHI:_D_FA] = uref, V_ref, phi
-    data[_D_FA:_D_FE].reshape(4, 3).T[...] = fa
-    data[_D_FE:_D_FH].reshape(4, 3).T[...] = fe
-    data[_D_FH:_D_LX].reshape(3, 3).T[...] = fh
-    data[_D_LX:_D_LU] = _LX.ravel()
-    data[_D_LU:_D_STAGES] = _LU.ravel()
-    data[_D_STAGES:_D_STAGES + 4 * N].reshape(N, 4)[...] = inflow
-    data[_D_STAGES + 4 * N:_D_STAGES + 8 * N].reshape(N, 4)[...] = evap
-    idata[:N] = k
-    idata[N:] = _JCOLS.ravel()
+    np.concatenate((uref, V_ref, phi, fa.ravel("F"), fe.ravel("F"), fh.ravel("F"), _LINEAR, inflow.ravel(),
+                    evap.ravel()), out=data[_D_UREF:])
+    np.concatenate((k, _JCOLS.ravel()), out=idata)
 
 
 def _values_entry(data, idata, X, U, f, cost):
