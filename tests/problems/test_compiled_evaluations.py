@@ -227,3 +227,13 @@ def test_a_receiving_kernel_is_loaded_from_the_cache_in_a_second_process(tmp_pat
     first, second = ([int(v) for v in run.stdout.split()] for run in runs)
     assert first[:2] == [0, 1]                  # compiled in the first process
     assert second == [1, 0, 4]                  # loaded in the second, with the four entries
+
+
+def test_the_problem_interface_does_not_import_numba():
+    """DOCP.compiled_evaluations' default and olado.problems load without numba (compiled.py is
+    imported by a problem that has compiled evaluations)."""
+    code = "import sys, olado, olado.problems; from olado.problems import docp; print('numba' in sys.modules)"
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                         env=dict(os.environ, PYTHONPATH=os.pathsep.join([str(p) for p in sys.path if p])))
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip() == "False"
