@@ -70,6 +70,11 @@ class CompiledFunction(types.WrapperAddressProtocol):
         self._address = _get_wrapper_address(dispatcher, signature)
         self._numba_type_ = types.FunctionType(signature)
 
+    def __reduce__(self):
+        """Pickled as its dispatcher and signature: the address is looked up again where it is
+        loaded (an address is valid in its own process only)."""
+        return CompiledFunction, (self.dispatcher, self._signature)
+
     def __wrapper_address__(self):
         return self._address
 

@@ -8,6 +8,7 @@ a second process."""
 from __future__ import annotations
 
 import os
+import pickle
 import subprocess
 import sys
 import textwrap
@@ -19,6 +20,7 @@ import pytest
 from olado.problems import DOCP
 from olado.problems.compiled import DERIVATIVES, FINAL_HESSIAN, HESSIANS, VALUES, CompiledEvaluations
 from olado.problems.testproblems import PROBLEMS
+from olado.problems import zambezi_kernels as kernels
 from olado.problems.zambezi import Zambezi, zambezi_problem
 from test_eval_point import _point
 
@@ -95,8 +97,9 @@ def test_compiled_functions_give_the_entry_points_bits(family, N, where):
 
 
 def test_the_signatures_and_the_objects():
-    """The functions carry their signatures and numba types; the object is kept per instance,
-    its data packed again at each call (an array changed in place is seen)."""
+    """The functions carry their signatures and numba types and are shared by every call and
+    instance (a pickled one finds its address again); the data are packed at each call (an array
+    changed in place is seen)."""
     p = zambezi_problem("zambezi12", N=24)
     ev = p.compiled_evaluations()
     for fn, sig in zip(ev[:4], (VALUES, DERIVATIVES, HESSIANS, FINAL_HESSIAN)):
@@ -104,8 +107,12 @@ def test_the_signatures_and_the_objects():
         assert isinstance(fn.__wrapper_address__(), int) and fn.__wrapper_address__() != 0
     assert ev.data.flags.c_contiguous and ev.data.dtype == np.float64
     assert ev.idata.flags.c_contiguous and ev.idata.dtype == np.int64
-    assert p.compiled_evaluations() is ev
-    assert zambezi_problem("zambezi12", N=24).compiled_evaluations().values is ev.values  # shared code
+    again = p.compiled_evaluations()
+    assert again.values is ev.values and again.data is not ev.data     # the code shared, the data not
+    assert np.array_equal(again.data, ev.data) and np.array_equal(again.idata, ev.idata)
+    assert zambezi_problem("zambezi12", N=24).compiled_evaluations().values is ev.values
+    copied = pickle.loads(pickle.dumps(ev.values))
+    assert copied.__wrapper_address__() == ev.values.__wrapper_address__()
     X, U = _point(p)
     P = np.zeros((24, 6))
     p.inflow[3, 1] += 0.25
@@ -113,6 +120,24 @@ def test_the_signatures_and_the_objects():
     got = _compiled(p.compiled_evaluations(), X, U, 1.0, P)
     assert got[0] == p.eval_values(X, U).J
     _equal(got[14], p.eval_final_hessian(X[-1], 1.0))
+
+
+def test_the_entries_call_the_kernels_with_the_python_paths_types():
+    """The entries hand the kernels Fortran-ordered fa, fe, fh and writable _LX, _LU, _JCOLS, as
+    the Python entry points do: one compiled version of each kernel serves both (a second one
+    would add seconds to a cold start)."""
+    p = zambezi_problem("zambezi12", N=12)
+    X, U = _point(p)
+    P = np.ones((12, 6))
+    p.eval_values(X, U), p.eval_first_derivatives(X, U), p.eval_stage_hessians(X, U, 1.0, P)
+    _compiled(p.compiled_evaluations(), X, U, 1.0, P)
+    checks = {kernels._values_kernel: ((6, 7, 13), ()), kernels._derivatives_kernel: ((6, 7, 13), (15, 16)),
+              kernels._stage_hessian_kernel: ((5, 6), (11, 12, 13))}
+    for kernel, (fortran, writable) in checks.items():
+        for sig in kernel.signatures:
+            assert all(sig[i].layout == "F" for i in fortran), kernel
+            assert all(sig[i].mutable for i in writable), kernel
+    assert len(kernels._values_kernel.signatures) == len(kernels._derivatives_kernel.signatures) == 1
 
 
 def test_a_value_not_finite_gives_nan_or_false():
@@ -154,8 +179,7 @@ def test_no_compiled_evaluations_when_the_entry_points_do_not_fuse():
     assert p.compiled_evaluations() is None
     del p.dynamics
     again = p.compiled_evaluations()
-    assert again is not None and again is not ev
-    assert again.values is ev.values
+    assert again is not None and again.values is ev.values
 
 
 def test_docp_default_is_none():
@@ -167,7 +191,8 @@ def test_docp_default_is_none():
 _SCRIPT = """
 import numba as nb
 import numpy as np
-from olado.problems.zambezi import zambezi_problem, _compiled_entries
+from olado.problems.zambezi import zambezi_problem
+from olado.problems.zambezi_kernels import _compiled_entries
 
 
 @nb.njit(cache=True)
@@ -202,3 +227,13 @@ def test_a_receiving_kernel_is_loaded_from_the_cache_in_a_second_process(tmp_pat
     first, second = ([int(v) for v in run.stdout.split()] for run in runs)
     assert first[:2] == [0, 1]                  # compiled in the first process
     assert second == [1, 0, 4]                  # loaded in the second, with the four entries
+
+
+def test_the_problem_interface_does_not_import_numba():
+    """DOCP.compiled_evaluations' default and olado.problems load without numba (compiled.py is
+    imported by a problem that has compiled evaluations)."""
+    code = "import sys, olado, olado.problems; from olado.problems import docp; print('numba' in sys.modules)"
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                         env=dict(os.environ, PYTHONPATH=os.pathsep.join([str(p) for p in sys.path if p])))
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip() == "False"
