@@ -27,17 +27,12 @@ import time
 import numba as nb
 import numpy as np
 
+from _timing import best_per_call
+
 
 def _best(fn, reps):
-    for _ in range(min(reps, 50)):
-        fn()
-    best = float("inf")
-    for _ in range(7):
-        t = time.process_time()
-        for _ in range(reps):
-            fn()
-        best = min(best, (time.process_time() - t) / reps)
-    return best * 1e6
+    """Microseconds per call (_timing.best_per_call)."""
+    return best_per_call(fn, reps) * 1e6
 
 
 @nb.njit(cache=True)

@@ -22,20 +22,9 @@ import json
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
-
-def _best(fn, reps):
-    for _ in range(min(reps, 50)):
-        fn()
-    best = float("inf")
-    for _ in range(7):
-        t = time.process_time()
-        for _ in range(reps):
-            fn()
-        best = min(best, (time.process_time() - t) / reps)
-    return best
+from _timing import best_per_call
 
 
 def worker(N, reps):
@@ -71,7 +60,7 @@ def worker(N, reps):
         "Point (values)": lambda: Point(p, X, U, derivatives=False, clock=clock),
         "Point (values, derivatives)": lambda: Point(p, X, U, derivatives=True, clock=clock),
     }
-    json.dump({name: _best(fn, reps) * 1e6 for name, fn in calls.items()}, sys.stdout)
+    json.dump({name: best_per_call(fn, reps) * 1e6 for name, fn in calls.items()}, sys.stdout)
 
 
 def compare(old, new, rounds, N, reps):
