@@ -9,13 +9,15 @@ evaluations through first-class function pointers (olado.problems.compiled).
 It is the Python path's iteration (solver.iterate) operation by operation: the same kernels
 (kernels.py, the Riccati kernels of olado.linalg.riccati_fixed) and the same float expressions in
 the same order, so the iterates are the same bit for bit. What it does not do it hands back
-before it changes the iterate (a return code >= BAIL): the inertia correction with delta_w > 0,
-the tiny step, the watchdog, second-order corrections, a trial point that is not finite, the
-restoration phase; the Python path then does that iteration.
+after the stopping test and the barrier update, before anything else changes (a return code >=
+BAIL): the inertia correction with delta_w > 0, the tiny step, the watchdog, second-order
+corrections, a trial point that is not finite, Hessians that are not, the restoration phase; the
+Python path then does the rest of that iteration.
 
 numba caches a kernel keyed on its own source file: this one calls kernels.py, riccati_fixed.py
 and numpy_sums.py, so a change of one of those must come with a change here (or the cache
-cleared; docs/architecture.md "Caches").
+cleared; docs/architecture.md "Caches"). The problem's functions are not compiled into it: it
+calls them at their addresses (:func:`_function_at`).
 """
 
 from __future__ import annotations
@@ -24,13 +26,13 @@ import math
 
 import numba as nb
 import numpy as np
-
 from numba.core import cgutils, types
 from numba.extending import intrinsic
 
 from ...linalg.riccati_fixed import _factor_unconstrained_fixed, _solve_unconstrained_fixed
 from ...problems.compiled import DERIVATIVES, FINAL_HESSIAN, HESSIANS, VALUES
 from . import kernels as K
+from .evaluation import S_MAX
 
 _JIT = {"cache": True, "error_model": "numpy"}
 
@@ -41,8 +43,8 @@ E0, INF_DU, INF_PR, COMPL, ALPHA, ALPHA_Z = range(10, 16)
 N_SC = 16
 # ic: the counters (in and out)
 IT, ACCEPTABLE, SHORTENED, FACTORIZATIONS, NF, RESETS, REJECTED, FILTER_REJECTIONS = range(8)
-N_VALUES, N_DERIVS, N_HESS, MOVED = range(8, 12)
-N_IC = 12
+N_VALUES, N_DERIVS, N_HESS = range(8, 11)
+N_IC = 11
 # opt: the options and constants (in)
 (TOL, DUAL_INF_TOL, CONSTR_VIOL_TOL, COMPL_INF_TOL, ACC_TOL, ACC_VIOL, ACC_ITER, KAPPA_EPS, KAPPA_MU, THETA_MU,
  TAU_MIN, MAX_SOC, WD_TRIGGER, MAX_ITER, GAMMA_THETA, GAMMA_PHI, DELTA, S_THETA, S_PHI, ETA_PHI, GAMMA_ALPHA,
@@ -54,8 +56,6 @@ STEP, SUCCESS, ACCEPTABLE_END, MAX_ITERATIONS = 0, 1, 2, 3
 BAIL = 10
 HESSIAN_NOT_FINITE, INERTIA, TINY_STEP, WATCHDOG, TRIAL_NOT_FINITE, SOC, RESTORATION, DERIVATIVES_NOT_FINITE = range(
     10, 18)
-
-S_MAX = 100.0
 
 
 def _function_at(signature):
@@ -265,7 +265,7 @@ def _trial_terms(v_t, X_t, f_t, h_t, sl_t, su_t, lo, hi, has_lo, has_hi, one_lo_
     return l1, mx, sc[S_OBJ] * J_t + (-mu * logs + opt[KAPPA_D] * mu * damped), logs, damped
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(**_JIT)
 def plain_iteration(addresses, data, idata, tags, ipt, reg, fac, F, cur, trial, mult, mult_new, bounds, work, x0, sc, ic,
                     opt):
     """One iteration (solver.iterate) on the dynamics-only Newton matrix with fixed-size Riccati
@@ -354,7 +354,6 @@ def plain_iteration(addresses, data, idata, tags, ipt, reg, fac, F, cur, trial, 
     ic[N_VALUES] += n_values
     ic[N_DERIVS] += 1
     ic[N_HESS] += 1
-    ic[MOVED] = moved
     sc[J], sc[LOGS], sc[DAMPED], sc[THETA], sc[MX] = J_t, logs_t, damped_t, th_t, mx_t
     sc[ALPHA], sc[ALPHA_Z] = alpha, alpha_z
     return STEP
