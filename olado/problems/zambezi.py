@@ -508,13 +508,20 @@ class Zambezi(DOCP):
         the instance's numbers as they are at this call, in arrays of this call's own (~6 us): a
         copy or a pickle of the problem shares nothing compiled or packed with it."""
         fusion = self._fusion or self._fuse()
-        if not (fusion.values and fusion.derivatives and fusion.hessian):
+        if not (fusion.values and fusion.derivatives and fusion.hessian) or not self._own_entries():
             return None
         from .compiled import CompiledEvaluations
         data, idata = np.empty(_D_STAGES + 8 * self.N), np.empty(self.N + _JCOLS.size, dtype=np.int64)
         _pack(data, idata, self._K, self.inflow, self.evaporation, self.fa, self.fh, self.alpha, self.psi, self.u_ref,
               self.V_ref, self.phi, self.fe, self.nu_E)
         return CompiledEvaluations(*_compiled_entries(), data, idata, _COUNTS)
+
+    def _own_entries(self):
+        """Whether the entry points the compiled evaluations stand for (:data:`_ENTRIES`) are
+        Zambezi's own: a subclass or instance replacing one (a penalty added to eval_values, say)
+        must be evaluated through it."""
+        cls = type(self)
+        return all(getattr(cls, nm) is getattr(Zambezi, nm) for nm in _ENTRIES) and not (self.__dict__.keys() & _ENTRIES)
 
     def final_cost(self, x):
         """F^N = sum_i phi_i (V_i - V_i,ref)^2 - nu_E sum_i fe_i(V_i), eq. (44)."""
@@ -646,6 +653,8 @@ _FUSED["hessian"] = tuple((nm, getattr(Zambezi, nm)) for nm in _HESSIAN_FUNCTION
 _NAMES = {"values": _VALUE_FUNCTIONS, "derivatives": _DERIVATIVE_FUNCTIONS, "hessian": _HESSIAN_FUNCTIONS}
 #: (class, functions) -> the class keeps Zambezi's functions (checked once per class)
 _PLAIN = {}
+#: the entry points Zambezi.compiled_evaluations stands for
+_ENTRIES = frozenset(("eval_values", "eval_first_derivatives", "eval_stage_hessians", "eval_final_hessian"))
 
 def zambezi_problem(family="zambezi12", N=24, start="balance", year=None, extend="cyclic", **options):
     """Build a Zambezi DOCP (paper 001 sec. 5). See :class:`Zambezi` for the arguments."""

@@ -182,6 +182,29 @@ def test_no_compiled_evaluations_when_the_entry_points_do_not_fuse():
     assert again is not None and again.values is ev.values
 
 
+class _Penalized(Zambezi):
+    """A subclass that changes an entry point itself (not a stage function)."""
+
+    def eval_values(self, X, U):
+        J, f, g, gN = super().eval_values(X, U)
+        return type(super().eval_values(X, U))(J + 1.0, f, g, gN)
+
+
+def test_no_compiled_evaluations_when_an_entry_point_is_replaced():
+    """The compiled evaluations stand for Zambezi's own eval_values, eval_first_derivatives,
+    eval_stage_hessians and eval_final_hessian: a subclass or an instance replacing one gets None,
+    and ipm then solves through the replacement (its objective shifted by exactly 1)."""
+    from olado.solvers.ipm.solver import IPMSolver
+
+    assert _Penalized("zambezi12", N=12).compiled_evaluations() is None
+    p = zambezi_problem("zambezi12", N=12)
+    p.eval_final_hessian = p.eval_final_hessian
+    assert p.compiled_evaluations() is None
+    shifted = IPMSolver().solve(_Penalized("zambezi12", N=12))
+    plain = IPMSolver().solve(zambezi_problem("zambezi12", N=12))
+    assert shifted.objective == pytest.approx(plain.objective + 1.0, rel=1e-12, abs=1e-12)
+
+
 def test_docp_default_is_none():
     p = PROBLEMS["vanderpol"](N=5)
     assert type(p).compiled_evaluations is DOCP.compiled_evaluations
