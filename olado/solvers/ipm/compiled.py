@@ -249,6 +249,7 @@ class PlainPath:
             self._swap()
             self._state_scalars(st)
             st.delta = 0.0
+            st.compiled_steps += 1
         elif code == IK.DERIVATIVES_NOT_FINITE:
             self._raise_not_finite()
         else:

@@ -146,6 +146,7 @@ class IPMState(Stoppable):
     adaptive: AdaptiveMu = None  # the adaptive mu update's memory (mu_strategy = adaptive)
     error_cache: tuple = None   # (inputs, s_obj, ErrorTerms) of the last error_terms call
     compl_cache: tuple = None   # (slacks, zl, zu, product ranges, {mu: value}) of the iterate (complementarity)
+    compiled_steps: int = 0     # iterations taken by the compiled iteration (.compiled.PlainPath)
 
 
 class Setup:
@@ -641,7 +642,9 @@ def finish(setup, st) -> Result:
             "stationarity_residual": kkt.stationarity, "complementarity_residual": kkt.complementarity,
             "multiplier_convention": MULTIPLIER_CONVENTION, "mu": st.mu, "objective_scaling": st.s_obj,
             "factorizations": st.factorizations, "restorations": st.restorations,
-            "scaled_optimality_error": st.errors[0], "kkt": "riccati"}
+            "scaled_optimality_error": st.errors[0], "kkt": "riccati",
+            # the evaluations inside them are counted, not timed (callback_time_s leaves them out)
+            "compiled_iterations": st.compiled_steps}
     if st.infeasibility_certificate is not None:
         info["infeasibility_certificate"] = dict(st.infeasibility_certificate)
     multipliers = {"dynamics": mult.lam[1:].copy(), "stage_constraints": mult.Lg, "final_constraints": mult.LgN,

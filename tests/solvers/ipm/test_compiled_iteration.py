@@ -39,6 +39,7 @@ def _same(a, b):
     assert ra.evaluations == rb.evaluations and ca == cb
     for k in ("factorizations", "restorations", "mu", "scaled_optimality_error"):
         assert ra.info[k] == rb.info[k], k
+    assert ra.info["compiled_iterations"] == 0 < rb.info["compiled_iterations"] <= rb.iterations
 
 
 @pytest.mark.parametrize("family,N", [("zambezi12", 24), ("zambezi", 48), ("zambezi12", 120)])
