@@ -62,11 +62,14 @@ def plain_path(setup):
 
 class _Arrays(NamedTuple):
     """What a :class:`PlainPath` works on that depends on the shapes only: the Riccati back-end's
-    operands (fixed_factor_operands; the back-end object keeps them), the two point sets, the two
-    multiplier sets, the work arrays of iteration_kernels.plain_iteration and the filter's."""
+    operands (fixed_factor_operands; the back-end object keeps them), the addresses of the kernels
+    plain_iteration calls (iteration_kernels.kernel_addresses: they depend on the sizes), the two
+    point sets, the two multiplier sets, the work arrays of iteration_kernels.plain_iteration and
+    the filter's."""
 
     fact: object
     operands: tuple
+    kernels: np.ndarray
     cur: tuple
     trial: tuple
     mult: tuple
@@ -93,7 +96,9 @@ class _Arrays(NamedTuple):
                 np.empty((N + 1, n)), np.empty((N, m)), np.empty(lam_shape), np.empty((N + 1, 0)), np.empty(size),
                 np.empty((N, n)), np.empty((N, m)), np.zeros(n), none2, none1, np.empty(size), np.empty(size),
                 np.empty(size))
-        return cls(fact, operands, _point_set(N, n, m, size, False), _point_set(N, n, m, size, True),
+        tags, ipt, _, fac = operands
+        kernels = np.array(IK.kernel_addresses(tags, ipt, fac), dtype=np.int64)
+        return cls(fact, operands, kernels, _point_set(N, n, m, size, False), _point_set(N, n, m, size, True),
                    (np.empty(lam_shape), np.empty(size), np.empty(size)),
                    (np.empty(lam_shape), np.empty(size), np.empty(size)), work, np.empty((max_iter + 8, 2)))
 
@@ -136,10 +141,10 @@ class PlainPath:
         self.key = (L.N, L.n, L.m, L.size, o.max_iter)
         self.tags, self.ipt, self.reg, self.fac = arrays.operands
         #: the functions' wrapper addresses (iteration_kernels calls them there; the CompiledFunctions
-        #: in ``evals`` keep the code alive)
-        self.addresses = np.array([f.__wrapper_address__() for f in (evals.values, evals.derivatives,
-                                                                      evals.hessians, evals.final_hessian)],
-                                  dtype=np.int64)
+        #: in ``evals`` keep the code alive), then the kernels' (iteration_kernels.KERNELS)
+        functions = (evals.values, evals.derivatives, evals.hessians, evals.final_hessian)
+        self.addresses = np.concatenate((np.array([f.__wrapper_address__() for f in functions], dtype=np.int64),
+                                         arrays.kernels))
         self.cur, self.trial, self.mult, self.mult_new = arrays.cur, arrays.trial, arrays.mult, arrays.mult_new
         self.work, self.F = arrays.work, arrays.F
         self.bounds = (b.lo, b.hi, b.has_lo, b.has_hi, b.one_lo_f, b.one_hi_f)
@@ -151,7 +156,7 @@ class PlainPath:
     def release(self):
         """The arrays back to the pool (the solve has ended; the state holds copies)."""
         self.active = False
-        _give(self.key, _Arrays(self.arrays.fact, self.arrays.operands, self.cur, self.trial, self.mult,
+        _give(self.key, _Arrays(self.arrays.fact, self.arrays.operands, self.arrays.kernels, self.cur, self.trial, self.mult,
                                 self.mult_new, self.work, self.F))
 
     @staticmethod

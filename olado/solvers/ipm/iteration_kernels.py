@@ -14,10 +14,15 @@ BAIL): the inertia correction with delta_w > 0, the tiny step, the watchdog, sec
 corrections, a trial point that is not finite, Hessians that are not, the restoration phase; the
 Python path then does the rest of that iteration.
 
-numba caches a kernel keyed on its own source file: this one calls kernels.py, riccati_fixed.py
-and numpy_sums.py, so a change of one of those must come with a change here (or the cache
-cleared; docs/architecture.md "Caches"). The problem's functions are not compiled into it: it
-calls them at their addresses (:func:`_function_at`).
+The problem's functions are not compiled into it: it calls them at their addresses
+(:func:`_function_at`). Nor are the kernels of kernels.py and riccati_fixed.py (:data:`KERNELS`):
+it calls their compiled versions -- the ones the Python path compiles and caches, for the same
+argument types -- at their addresses (:func:`_native_at`, :func:`kernel_addresses`), so that its
+own compilation does not link their code in and optimize it all once more (that took most of its
+cold compilation). numba caches a kernel keyed on its own source file; a change of those kernels
+needs none here (the addresses are looked up in each process) unless their types change:
+:data:`KERNELS` declares them (kernel_addresses checks the return types; a call with other
+argument types does not compile).
 """
 
 from __future__ import annotations
@@ -27,6 +32,8 @@ import math
 import numba as nb
 import numpy as np
 from numba.core import cgutils, types
+from numba.core.errors import TypingError
+from numba.experimental.function_type import _get_jit_address
 from numba.extending import intrinsic
 
 from ...linalg.riccati_fixed import _factor_unconstrained_fixed, _solve_unconstrained_fixed
@@ -82,6 +89,100 @@ def _function_at(signature):
 
 _values_at, _derivatives_at, _hessians_at, _final_hessian_at = (_function_at(s)
                                                                  for s in (VALUES, DERIVATIVES, HESSIANS, FINAL_HESSIAN))
+
+
+# ---------------------------------------------------------------------------- the kernels at their addresses
+def _native_at(signature):
+    """An intrinsic ``call(address, *args)`` that calls the compiled version of a numba function
+    at ``address`` (its native entry, numba's own calling convention: tuples returned as they
+    are, an error status passed on) with the argument types of ``signature`` -- a Signature, or a
+    function of the argument types giving it (a kernel whose types depend on the sizes). The
+    call's argument types must be those exactly (a typing error otherwise): the address is that
+    of the version compiled for them (:func:`kernel_addresses`)."""
+    def expected(args):
+        return signature(args) if callable(signature) else signature
+
+    @intrinsic
+    def call(typingctx, address, *args):
+        sig = expected(args)
+        if tuple(args) != tuple(sig.args):
+            raise TypingError(f"a native call with {args}: its compiled version takes {sig.args}")
+
+        def codegen(context, builder, _, llargs):
+            fnty = context.call_conv.get_function_type(sig.return_type, sig.args)
+            ptr = builder.inttoptr(llargs[0], fnty.as_pointer())
+            vals = [builder.extract_value(llargs[1], i) for i in range(len(sig.args))]
+            status, res = context.call_conv.call_function(builder, ptr, sig.return_type, sig.args, vals)
+            with cgutils.if_unlikely(builder, status.is_error):
+                context.call_conv.return_status_propagate(builder, status)
+            return res
+
+        return sig.return_type(types.int64, types.StarArgTuple.from_types(tuple(args))), codegen
+
+    return call
+
+
+_F8, _I8, _B = types.float64, types.int64, types.boolean
+_F1, _F2, _F3, _B1 = types.float64[::1], types.float64[:, ::1], types.float64[:, :, ::1], types.boolean[::1]
+
+
+def _factor_signature(args):
+    """_factor_unconstrained_fixed's: (tags, (Q, S, R), (A, B), ipt, reg, fac) -> int64; the size
+    tags', interior-point terms' and factors' types are those of plain_iteration's arguments."""
+    tags, _, _, ipt, _, fac = args
+    return _I8(tags, types.UniTuple(_F3, 3), types.UniTuple(_F3, 2), ipt, _F8, fac)
+
+
+def _solve_signature(args):
+    """_solve_unconstrained_fixed's: (tags, (A, B), ipt, fac, (q, r, h, x0, none2, none1, none2),
+    (dX, dU, lam, nu0)) -> none."""
+    tags, _, ipt, fac, _, _ = args
+    return types.none(tags, types.UniTuple(_F3, 2), ipt, fac, types.Tuple((_F2, _F2, _F2, _F1, _F2, _F1, _F2)),
+                      types.UniTuple(_F2, 4))
+
+
+#: the kernels plain_iteration calls at their addresses (slots 4, 5, ... of its ``addresses``):
+#: (name, dispatcher, signature) with the argument types of the Python path's calls
+KERNELS = (
+    ("error_pass", K.error_pass, types.Tuple((_F8, _F8, _F8, _I8, _F8, _F8, _I8, _F8, _F8, _F8, _F8, _F8, _F8))(
+        _F8, _F2, _F2, _F1, _F3, _F3, _F2, _F2, _B, _F2, _F2, _F2, _F1, _B, _B, _F2, _F1, _F1, _F1, _F2, _F1, _F1, _F1,
+        _B1, _B1, _F8, _F8)),
+    ("newton_terms", K.newton_terms, types.none(_F8, _F2, _F1, _F2, _F1, _F1, _F1, _F1, _B1, _B1, _F8, _F8, _F2, _F2,
+                                                _F2, _F1, _F2, _F2, _F2, _F1, _F1)),
+    ("shifted_diagonals", K.shifted_diagonals, types.none(_F2, _F2, _F8, _F2, _F2)),
+    ("step_terms", K.step_terms, types.UniTuple(_F8, 2)(_F2, _F2, _F2, _F1, _F1, _F1, _F1, _B1, _B1, _F8, _F8, _F1)),
+    ("trial_point", K.trial_point, types.none(_F1, _F1, _F8, _F1, _F1, _F2, _F2)),
+    ("point_terms", K.point_terms, types.Tuple((_F8, _F8, _B, _F8))(_F1, _F1, _F1, _B1, _B1, _F1, _F1, _F1, _F2, _F2,
+                                                                     _F1, _F2, _F1)),
+    ("step_bound_multipliers", K.step_bound_multipliers, types.Tuple((_F8, _I8))(
+        _F1, _F1, _F1, _F1, _F1, _F1, _B1, _B1, _F1, _F1, _F8, _F8, _F8, _F8, _F8, _F8, _F1, _F1, _F1, _F1, _F2, _F2,
+        _F8, _F2)),
+    ("barrier_logs", K.barrier_logs, types.Tuple((_B, _F8))(_F1, _F1, _F1, _B1, _B1, _F1, _F1, _F1)),
+    ("dot", K.dot, _F8(_F1, _F1)),
+    ("factor", _factor_unconstrained_fixed, _factor_signature),
+    ("solve", _solve_unconstrained_fixed, _solve_signature),
+)
+(ERROR_PASS, NEWTON_TERMS, SHIFTED_DIAGONALS, STEP_TERMS, TRIAL_POINT, POINT_TERMS, STEP_BOUND_MULTIPLIERS,
+ BARRIER_LOGS, DOT, FACTOR, SOLVE) = range(4, 4 + len(KERNELS))
+(_error_pass, _newton_terms, _shifted_diagonals, _step_terms, _trial_point, _point_terms, _step_bound_multipliers,
+ _barrier_logs, _dot, _factor, _solve) = (_native_at(sig) for _, _, sig in KERNELS)
+
+
+def kernel_addresses(tags, ipt, fac):
+    """The addresses of :data:`KERNELS`' compiled versions for plain_iteration's ``tags``,
+    ``ipt``, ``fac`` (each compiled, or loaded from the cache, if it is not yet: the version the
+    Python path uses, for the same types). TypeError when a kernel returns another type than
+    :data:`KERNELS` says (plain_iteration would read its result wrongly)."""
+    t = tuple(nb.typeof(a) for a in (tags, ipt, fac))
+    args = {"factor": (t[0], None, None, t[1], None, t[2]), "solve": (t[0], None, t[1], t[2], None, None)}
+    out = []
+    for name, dispatcher, sig in KERNELS:
+        sig = sig(args[name]) if callable(sig) else sig
+        returns = dispatcher.get_compile_result(sig).signature.return_type
+        if returns != sig.return_type:
+            raise TypeError(f"iteration_kernels.KERNELS: {name} returns {returns}, not {sig.return_type}")
+        out.append(_get_jit_address(dispatcher, sig))
+    return out
 
 
 @nb.njit
@@ -198,14 +299,14 @@ def _alpha_min(sc, opt, theta, gphi):
 
 # ---------------------------------------------------------------------------- the iteration
 @nb.njit
-def _errors(lx, lu, lN, A, B, lam, zl, zu, sl, su, has_lo, has_hi, EA, EB, none2, none1, sc, opt):
+def _errors(addresses, lx, lu, lN, A, B, lam, zl, zu, sl, su, has_lo, has_hi, EA, EB, none2, none1, sc, opt):
     """The stopping test's figures at the iterate (evaluation.iterate_errors, store_errors,
     optimality_errors at mu = 0): sets E0, INF_DU, INF_PR, COMPL; returns (inf_du, s_d, s_c, the
     products' ranges and the iterate's-mu complementarity) for the barrier update."""
     s_obj = sc[S_OBJ]
-    mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1, lo_min, lo_max, hi_min, hi_max = K.error_pass(
-        s_obj, lx, lu, lN, A, B, EA, EB, opt[PRODUCTS] != 0.0, lam[1:], EA, EB, lN, opt[ROWS] != 0.0,
-        opt[ROWS] != 0.0, none2, none1, zl, zu, none2, none1, sl, su, has_lo, has_hi, 0.0, sc[MU])
+    mx, zsum, ysum, n_lo, m_lo, m_lo1, n_hi, m_hi, m_hi1, lo_min, lo_max, hi_min, hi_max = _error_pass(
+        addresses[ERROR_PASS], s_obj, lx, lu, lN, A, B, EA, EB, opt[PRODUCTS] != 0.0, lam[1:], EA, EB, lN,
+        opt[ROWS] != 0.0, opt[ROWS] != 0.0, none2, none1, zl, zu, none2, none1, sl, su, has_lo, has_hi, 0.0, sc[MU])
     nz, ny = opt[NZ], opt[NY]
     s_d = _py_max(S_MAX, (ysum + zsum) / (ny + nz)) / S_MAX
     s_c = _py_max(S_MAX, zsum / nz) / S_MAX
@@ -248,19 +349,20 @@ def _prefix(F, inf_du, s_d, s_c, ranges, c_mu, sc, ic, opt):
 
 
 @nb.njit
-def _trial_terms(v_t, X_t, f_t, h_t, sl_t, su_t, lo, hi, has_lo, has_hi, one_lo_f, one_hi_f, none2, none1, logs_work,
-                 J_t, sc, opt):
+def _trial_terms(addresses, v_t, X_t, f_t, h_t, sl_t, su_t, lo, hi, has_lo, has_hi, one_lo_f, one_hi_f, none2, none1,
+                 logs_work, J_t, sc, opt):
     """linesearch._trial after the values J_t, f_t at the trial point (finite): the residuals,
     their norms and phi; (theta, max, phi, logs, damped)."""
     N = h_t.shape[0]
     for k in range(N):
         for i in range(h_t.shape[1]):
             h_t[k, i] = f_t[k, i] - X_t[k + 1, i]
-    l1, mx, inside, logs = K.point_terms(v_t, lo, hi, has_lo, has_hi, sl_t, su_t, logs_work, h_t, none2, none1,
-                                         none2, none1)
+    l1, mx, inside, logs = _point_terms(addresses[POINT_TERMS], v_t, lo, hi, has_lo, has_hi, sl_t, su_t, logs_work,
+                                        h_t, none2, none1, none2, none1)
     if not inside:
         return l1, mx, sc[S_OBJ] * J_t + math.inf, logs, 0.0
-    damped = K.dot(one_lo_f, sl_t) + K.dot(one_hi_f, su_t) if opt[ONE_SIDED] else 0.0
+    dot = addresses[DOT]
+    damped = _dot(dot, one_lo_f, sl_t) + _dot(dot, one_hi_f, su_t) if opt[ONE_SIDED] else 0.0
     mu = sc[MU]
     return l1, mx, sc[S_OBJ] * J_t + (-mu * logs + opt[KAPPA_D] * mu * damped), logs, damped
 
@@ -279,8 +381,8 @@ def plain_iteration(addresses, data, idata, tags, ipt, reg, fac, F, cur, trial, 
     (Q, S, R, Sx, Su, Ss, SsN, q, r, gs, gsN, grad, dX, dU, lam_s, nu0, dv, EA, EB, x0z, none2, none1, logs_work,
      sl_new, su_new) = work
     v_t, X_t, U_t, f_t, h_t, cost_t, lx_t, lu_t, lN_t, A_t, B_t, sl_t, su_t = trial
-    inf_du, s_d, s_c, ranges, c_mu = _errors(lx, lu, lN, A, B, lam, zl, zu, sl, su, has_lo, has_hi, EA, EB, none2,
-                                             none1, sc, opt)
+    inf_du, s_d, s_c, ranges, c_mu = _errors(addresses, lx, lu, lN, A, B, lam, zl, zu, sl, su, has_lo, has_hi, EA, EB,
+                                             none2, none1, sc, opt)
     code = _prefix(F, inf_du, s_d, s_c, ranges, c_mu, sc, ic, opt)
     if code >= 0:
         return code
@@ -294,16 +396,16 @@ def plain_iteration(addresses, data, idata, tags, ipt, reg, fac, F, cur, trial, 
     Q[N, :, :] = 0.0
     if not final_hessian(data, idata, X[N], s_obj, Q[N]):
         return HESSIAN_NOT_FINITE
-    K.newton_terms(s_obj, lx, lN, lu, sl, su, zl, zu, has_lo, has_hi, mu, opt[KAPPA_D] * mu, Sx, Su, Ss, SsN, q, r,
-                   gs, gsN, grad)
-    K.shifted_diagonals(Sx, Su, 0.0, ipt[0], ipt[1])
-    if _factor_unconstrained_fixed(tags, (Q, S, R), (A, B), ipt, reg, fac) >= 0:
+    _newton_terms(addresses[NEWTON_TERMS], s_obj, lx, lN, lu, sl, su, zl, zu, has_lo, has_hi, mu, opt[KAPPA_D] * mu, Sx,
+                  Su, Ss, SsN, q, r, gs, gsN, grad)
+    _shifted_diagonals(addresses[SHIFTED_DIAGONALS], Sx, Su, 0.0, ipt[0], ipt[1])
+    if _factor(addresses[FACTOR], tags, (Q, S, R), (A, B), ipt, reg, fac) >= 0:
         return INERTIA
     # linesearch.direction
-    _solve_unconstrained_fixed(tags, (A, B), ipt, fac, (q, r, h, x0z, none2, none1, none2), (dX, dU, lam_s, nu0))
-    alpha_max, tiny = K.step_terms(dX, dU, none2, none1, v, sl, su, has_lo, has_hi, -tau, tau, dv)
+    _solve(addresses[SOLVE], tags, (A, B), ipt, fac, (q, r, h, x0z, none2, none1, none2), (dX, dU, lam_s, nu0))
+    alpha_max, tiny = _step_terms(addresses[STEP_TERMS], dX, dU, none2, none1, v, sl, su, has_lo, has_hi, -tau, tau, dv)
     phi = s_obj * sc[J] + (-mu * sc[LOGS] + opt[KAPPA_D] * mu * sc[DAMPED])
-    gphi = K.dot(grad, dv)
+    gphi = _dot(addresses[DOT], grad, dv)
     th = sc[THETA]
     if tiny < opt[TINY]:
         return TINY_STEP
@@ -317,12 +419,13 @@ def plain_iteration(addresses, data, idata, tags, ipt, reg, fac, F, cur, trial, 
     th_t = mx_t = J_t = logs_t = damped_t = 0.0
     while alpha > alpha_min or trials == 0:
         trials += 1
-        K.trial_point(v, dv, alpha, x0, v_t, X_t, U_t)       # linesearch._trial
+        _trial_point(addresses[TRIAL_POINT], v, dv, alpha, x0, v_t, X_t, U_t)       # linesearch._trial
         J_t = values(data, idata, X_t, U_t, f_t, cost_t)
         if J_t != J_t:
             return TRIAL_NOT_FINITE
-        th_t, mx_t, phi_t, logs_t, damped_t = _trial_terms(v_t, X_t, f_t, h_t, sl_t, su_t, lo, hi, has_lo, has_hi,
-                                                           one_lo_f, one_hi_f, none2, none1, logs_work, J_t, sc, opt)
+        th_t, mx_t, phi_t, logs_t, damped_t = _trial_terms(addresses, v_t, X_t, f_t, h_t, sl_t, su_t, lo, hi, has_lo,
+                                                           has_hi, one_lo_f, one_hi_f, none2, none1, logs_work, J_t, sc,
+                                                           opt)
         n_values += 1
         ok, f_type = _filter_accept(F, sc, ic, opt, alpha, th, phi, gphi, th_t, phi_t)
         if ok:
@@ -340,13 +443,14 @@ def plain_iteration(addresses, data, idata, tags, ipt, reg, fac, F, cur, trial, 
     if not derivatives(data, idata, X_t, U_t, lx_t, lu_t, lN_t, A_t, B_t):
         return DERIVATIVES_NOT_FINITE
     lam_n, zl_n, zu_n = mult_new
-    alpha_z, moved = K.step_bound_multipliers(sl, su, v_t, dv, lo, hi, has_lo, has_hi, zl, zu, mu, -tau, opt[EPS],
-                                              opt[EPS_MOVE], 1e10, 1e10 * mu, sl_new, su_new, zl_n, zu_n, lam, lam_s,
-                                              alpha, lam_n)
+    alpha_z, moved = _step_bound_multipliers(addresses[STEP_BOUND_MULTIPLIERS], sl, su, v_t, dv, lo, hi, has_lo, has_hi,
+                                             zl, zu, mu, -tau, opt[EPS], opt[EPS_MOVE], 1e10, 1e10 * mu, sl_new, su_new,
+                                             zl_n, zu_n, lam, lam_s, alpha, lam_n)
     if moved:       # the bounds moved: the new point's slacks (sl_new's numbers) and barrier terms after it
-        inside, logs_t = K.barrier_logs(v_t, lo, hi, has_lo, has_hi, sl_t, su_t, logs_work)
+        inside, logs_t = _barrier_logs(addresses[BARRIER_LOGS], v_t, lo, hi, has_lo, has_hi, sl_t, su_t, logs_work)
         if inside:
-            damped_t = K.dot(one_lo_f, sl_t) + K.dot(one_hi_f, su_t) if opt[ONE_SIDED] else 0.0
+            dot = addresses[DOT]
+            damped_t = _dot(dot, one_lo_f, sl_t) + _dot(dot, one_hi_f, su_t) if opt[ONE_SIDED] else 0.0
         else:           # outside (barrier.Bounds.barrier_value: +inf): phi's -mu logs is +inf
             logs_t, damped_t = -math.inf, 0.0
     ic[IT] += 1
