@@ -42,6 +42,9 @@ from . import kernels as K
 from .evaluation import S_MAX
 
 _JIT = {"cache": True, "error_model": "numpy"}
+#: plain_iteration's helpers: called from it only, so without the wrappers for calls from Python
+#: and from C that numba makes otherwise (less to compile)
+_INNER = {"no_cpython_wrapper": True, "no_cfunc_wrapper": True}
 
 # ---------------------------------------------------------------------------- the slots
 # sc: the iterate's floats (in and out)
@@ -185,19 +188,19 @@ def kernel_addresses(tags, ipt, fac):
     return out
 
 
-@nb.njit
+@nb.njit(**_INNER)
 def _py_max(a, b):
     """Python's max(a, b) of floats: b only when b > a."""
     return b if b > a else a
 
 
-@nb.njit
+@nb.njit(**_INNER)
 def _py_min(a, b):
     """Python's min(a, b) of floats: b only when b < a."""
     return b if b < a else a
 
 
-@nb.njit
+@nb.njit(**_INNER)
 def _sides_max(n_lo, m_lo, n_hi, m_hi):
     """barrier._sides_max."""
     if not n_lo:
@@ -205,7 +208,7 @@ def _sides_max(n_lo, m_lo, n_hi, m_hi):
     return m_hi if n_hi and m_hi > m_lo else m_lo
 
 
-@nb.njit
+@nb.njit(**_INNER)
 def _products_complementarity(n_lo, lo_min, lo_max, n_hi, hi_min, hi_max, mu):
     """evaluation.products_complementarity."""
     if lo_max != lo_max:
@@ -220,7 +223,7 @@ def _products_complementarity(n_lo, lo_min, lo_max, n_hi, hi_min, hi_max, mu):
 
 
 # ---------------------------------------------------------------------------- the filter (filter.Filter)
-@nb.njit
+@nb.njit(**_INNER)
 def _filter_reset(F, sc, ic):
     """Filter.reset."""
     F[0, 0], F[0, 1] = sc[THETA_MAX], -np.inf
@@ -229,7 +232,7 @@ def _filter_reset(F, sc, ic):
     ic[FILTER_REJECTIONS] = 0
 
 
-@nb.njit
+@nb.njit(**_INNER)
 def _filter_add(F, ic, opt, theta, phi):
     """Filter.add: the corner (22), the entries it dominates dropped (the others keep their order)."""
     t, p = (1.0 - opt[GAMMA_THETA]) * theta, phi - opt[GAMMA_PHI] * theta
@@ -242,7 +245,7 @@ def _filter_add(F, ic, opt, theta, phi):
     ic[NF] = k + 1
 
 
-@nb.njit
+@nb.njit(**_INNER)
 def _decrease(opt, theta, phi, theta_t, phi_t):
     """Filter._decrease."""
     if phi_t > phi:
@@ -252,7 +255,7 @@ def _decrease(opt, theta, phi, theta_t, phi_t):
     return theta_t <= (1.0 - opt[GAMMA_THETA]) * theta or phi_t <= phi - opt[GAMMA_PHI] * theta
 
 
-@nb.njit
+@nb.njit(**_INNER)
 def _filter_accept(F, sc, ic, opt, alpha, theta, phi, gphi, theta_t, phi_t):
     """Filter.accept: (accepted, f_type), the reset heuristic included."""
     if not math.isfinite(phi_t) or theta_t > sc[THETA_MAX]:
@@ -284,7 +287,7 @@ def _filter_accept(F, sc, ic, opt, alpha, theta, phi, gphi, theta_t, phi_t):
     return True, switching and armijo
 
 
-@nb.njit
+@nb.njit(**_INNER)
 def _alpha_min(sc, opt, theta, gphi):
     """Filter.alpha_min (23)."""
     gt = opt[GAMMA_THETA]
@@ -298,7 +301,7 @@ def _alpha_min(sc, opt, theta, gphi):
 
 
 # ---------------------------------------------------------------------------- the iteration
-@nb.njit
+@nb.njit(**_INNER)
 def _errors(addresses, lx, lu, lN, A, B, lam, zl, zu, sl, su, has_lo, has_hi, EA, EB, none2, none1, sc, opt):
     """The stopping test's figures at the iterate (evaluation.iterate_errors, store_errors,
     optimality_errors at mu = 0): sets E0, INF_DU, INF_PR, COMPL; returns (inf_du, s_d, s_c, the
@@ -317,7 +320,7 @@ def _errors(addresses, lx, lu, lN, A, B, lam, zl, zu, sl, su, has_lo, has_hi, EA
     return mx, s_d, s_c, (n_lo, lo_min, lo_max, n_hi, hi_min, hi_max), _sides_max(n_lo, m_lo1, n_hi, m_hi1)
 
 
-@nb.njit
+@nb.njit(**_INNER)
 def _prefix(F, inf_du, s_d, s_c, ranges, c_mu, sc, ic, opt):
     """solver.converged, the iteration limit and solver.update_barrier from :func:`_errors`'
     figures; a return code or -1 (go on)."""
@@ -348,7 +351,7 @@ def _prefix(F, inf_du, s_d, s_c, ranges, c_mu, sc, ic, opt):
     return -1
 
 
-@nb.njit
+@nb.njit(**_INNER)
 def _trial_terms(addresses, v_t, X_t, f_t, h_t, sl_t, su_t, lo, hi, has_lo, has_hi, one_lo_f, one_hi_f, none2, none1,
                  logs_work, J_t, sc, opt):
     """linesearch._trial after the values J_t, f_t at the trial point (finite): the residuals,
