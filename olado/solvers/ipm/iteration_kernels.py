@@ -370,7 +370,7 @@ def _trial_terms(addresses, v_t, X_t, f_t, h_t, sl_t, su_t, lo, hi, has_lo, has_
     return l1, mx, sc[S_OBJ] * J_t + (-mu * logs + opt[KAPPA_D] * mu * damped), logs, damped
 
 
-@nb.njit(**_JIT)
+@nb.njit(no_cfunc_wrapper=True, **_JIT)
 def plain_iteration(addresses, data, idata, tags, ipt, reg, fac, F, cur, trial, mult, mult_new, bounds, work, x0, sc, ic,
                     opt):
     """One iteration (solver.iterate) on the dynamics-only Newton matrix with fixed-size Riccati
