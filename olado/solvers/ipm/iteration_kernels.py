@@ -181,7 +181,9 @@ def kernel_addresses(tags, ipt, fac):
     out = []
     for name, dispatcher, sig in KERNELS:
         sig = sig(args[name]) if callable(sig) else sig
-        returns = dispatcher.get_compile_result(sig).signature.return_type
+        if tuple(sig.args) not in dispatcher.overloads:       # as a call from Python compiles it
+            dispatcher.compile(tuple(sig.args))
+        returns = dispatcher.overloads[tuple(sig.args)].signature.return_type
         if returns != sig.return_type:
             raise TypeError(f"iteration_kernels.KERNELS: {name} returns {returns}, not {sig.return_type}")
         out.append(_get_jit_address(dispatcher, sig))

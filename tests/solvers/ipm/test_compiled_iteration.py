@@ -123,3 +123,55 @@ def test_interrupt_during_compiled_iterations_keeps_the_iterate_reached():
     assert result.status.name == "MAX_TIME" and result.iterations == 4
     reference, _ = _solve(make, True, max_iter=4)
     assert np.array_equal(result.x, reference.x) and result.objective == reference.objective
+
+
+def test_the_kernels_called_at_addresses_are_the_python_paths_versions(monkeypatch):
+    """The kernels plain_iteration calls at their addresses (iteration_kernels.KERNELS) are
+    declared with the argument types the Python path calls them with: their compiled versions are
+    shared, not compiled twice (the Riccati kernels' types follow the arguments themselves)."""
+    import numba
+    from olado.solvers.ipm import kernels as K
+
+    seen = {}
+    for name, dispatcher, sig in IK.KERNELS:
+        if not callable(sig):
+            def spy(*args, _d=dispatcher, _n=name):
+                seen.setdefault(_n, set()).add(tuple(numba.typeof(a) for a in args))
+                return _d(*args)
+            monkeypatch.setattr(K, name, spy)
+    _solve(lambda: zambezi_problem("zambezi12", N=24, start="balance"), False)
+    for name, dispatcher, sig in IK.KERNELS:
+        if name == "barrier_logs":      # the Python path calls it inside point_terms
+            assert tuple(sig.args) in dispatcher.signatures
+        elif not callable(sig):
+            assert tuple(sig.args) in seen[name], name
+
+
+def test_a_kernel_of_other_types_is_refused():
+    """kernel_addresses refuses a kernel whose return type is not the declared one (the compiled
+    iteration would read it wrongly), and a call at an address with other argument types than
+    the declared ones does not compile."""
+    import numba
+    from numba.core import types
+
+    setup = Setup(IPMSolver().options, zambezi_problem("zambezi12", N=24, start="balance"), Limits(), None)
+    plain = setup.plain
+    assert np.array_equal(IK.kernel_addresses(plain.tags, plain.ipt, plain.fac), plain.addresses[4:])
+    kernels = list(IK.KERNELS)
+    i = [name for name, _, _ in kernels].index("shifted_diagonals")
+    name, dispatcher, sig = kernels[i]
+    kernels[i] = (name, dispatcher, types.float64(*sig.args))
+    original = IK.KERNELS
+    IK.KERNELS = tuple(kernels)
+    try:
+        with pytest.raises(TypeError, match="shifted_diagonals returns none, not float64"):
+            IK.kernel_addresses(plain.tags, plain.ipt, plain.fac)
+    finally:
+        IK.KERNELS = original
+
+    @numba.njit
+    def call(address, a):
+        return IK._dot(address, a, a)
+
+    with pytest.raises(numba.core.errors.TypingError, match="its compiled version takes"):
+        call(plain.addresses[IK.DOT], np.zeros(3, dtype=np.float32))
