@@ -64,8 +64,8 @@ class _Arrays(NamedTuple):
     """What a :class:`PlainPath` works on that depends on the shapes only: the Riccati back-end's
     operands (fixed_factor_operands; the back-end object keeps them), the addresses of the kernels
     plain_iteration calls (iteration_kernels.kernel_addresses: they depend on the sizes), the two
-    point sets, the two multiplier sets, the work arrays of iteration_kernels.plain_iteration and
-    the filter's."""
+    point sets, the two multiplier sets and the filter's (plain_iteration makes its scratch arrays
+    itself)."""
 
     fact: object
     operands: tuple
@@ -74,7 +74,6 @@ class _Arrays(NamedTuple):
     trial: tuple
     mult: tuple
     mult_new: tuple
-    work: tuple
     F: np.ndarray
 
     @classmethod
@@ -90,17 +89,11 @@ class _Arrays(NamedTuple):
         if operands is None:
             return None
         lam_shape = (N + 1, n)
-        none2, none1 = np.zeros((N, 0)), np.zeros(0)
-        work = (np.empty((N + 1, n, n)), np.empty((N, n, m)), np.empty((N, m, m)), np.empty((N + 1, n)),
-                np.empty((N, m)), none2, none1, np.empty((N + 1, n)), np.empty((N, m)), none2, none1, np.empty(size),
-                np.empty((N + 1, n)), np.empty((N, m)), np.empty(lam_shape), np.empty((N + 1, 0)), np.empty(size),
-                np.empty((N, n)), np.empty((N, m)), np.zeros(n), none2, none1, np.empty(size), np.empty(size),
-                np.empty(size))
         tags, ipt, _, fac = operands
         kernels = np.array(IK.kernel_addresses(tags, ipt, fac), dtype=np.int64)
         return cls(fact, operands, kernels, _point_set(N, n, m, size, False), _point_set(N, n, m, size, True),
                    (np.empty(lam_shape), np.empty(size), np.empty(size)),
-                   (np.empty(lam_shape), np.empty(size), np.empty(size)), work, np.empty((max_iter + 8, 2)))
+                   (np.empty(lam_shape), np.empty(size), np.empty(size)), np.empty((max_iter + 8, 2)))
 
 
 def _point_set(N, n, m, size, trial):
@@ -146,7 +139,7 @@ class PlainPath:
         self.addresses = np.concatenate((np.array([f.__wrapper_address__() for f in functions], dtype=np.int64),
                                          arrays.kernels))
         self.cur, self.trial, self.mult, self.mult_new = arrays.cur, arrays.trial, arrays.mult, arrays.mult_new
-        self.work, self.F = arrays.work, arrays.F
+        self.F = arrays.F
         self.bounds = (b.lo, b.hi, b.has_lo, b.has_hi, b.one_lo_f, b.one_hi_f)
         self.x0 = L.x0
         self.sc, self.ic = np.zeros(IK.N_SC), np.zeros(IK.N_IC, dtype=np.int64)
@@ -156,8 +149,8 @@ class PlainPath:
     def release(self):
         """The arrays back to the pool (the solve has ended; the state holds copies)."""
         self.active = False
-        _give(self.key, _Arrays(self.arrays.fact, self.arrays.operands, self.arrays.kernels, self.cur, self.trial, self.mult,
-                                self.mult_new, self.work, self.F))
+        a = self.arrays
+        _give(self.key, _Arrays(a.fact, a.operands, a.kernels, self.cur, self.trial, self.mult, self.mult_new, self.F))
 
     @staticmethod
     def _options(o, L, b):
@@ -248,7 +241,7 @@ class PlainPath:
             return None
         ev, ic = self.evals, self.ic
         code = IK.plain_iteration(self.addresses, ev.data, ev.idata, self.tags, self.ipt, self.reg, self.fac, self.F,
-                                  self.cur, self.trial, self.mult, self.mult_new, self.bounds, self.work, self.x0,
+                                  self.cur, self.trial, self.mult, self.mult_new, self.bounds, self.x0,
                                   self.sc, ic, self.opt)
         if code == IK.STEP:
             self._swap()

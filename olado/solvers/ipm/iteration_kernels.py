@@ -373,19 +373,20 @@ def _trial_terms(addresses, v_t, X_t, f_t, h_t, sl_t, su_t, lo, hi, has_lo, has_
 
 
 @nb.njit(no_cfunc_wrapper=True, **_JIT)
-def plain_iteration(addresses, data, idata, tags, ipt, reg, fac, F, cur, trial, mult, mult_new, bounds, work, x0, sc, ic,
-                    opt):
+def plain_iteration(addresses, data, idata, tags, ipt, reg, fac, F, cur, trial, mult, mult_new, bounds, x0, sc, ic, opt):
     """One iteration (solver.iterate) on the dynamics-only Newton matrix with fixed-size Riccati
     kernels; returns STEP (the step taken: the new iterate in ``trial``, its multipliers in
     ``mult_new``, sc and ic updated), SUCCESS / ACCEPTABLE_END / MAX_ITERATIONS (the stopping test,
     the iterate unchanged), or a code >= BAIL (the stopping test and the barrier update done, the
-    rest of the iteration left to the Python path, nothing else changed)."""
+    rest of the iteration left to the Python path, nothing else changed). The iteration's scratch
+    arrays are made here (fewer arrays for the call to unbox: each costs about as much as making
+    one)."""
     v, X, U, h, lx, lu, lN, A, B, sl, su = cur
     lam, zl, zu = mult
     lo, hi, has_lo, has_hi, one_lo_f, one_hi_f = bounds
-    (Q, S, R, Sx, Su, Ss, SsN, q, r, gs, gsN, grad, dX, dU, lam_s, nu0, dv, EA, EB, x0z, none2, none1, logs_work,
-     sl_new, su_new) = work
     v_t, X_t, U_t, f_t, h_t, cost_t, lx_t, lu_t, lN_t, A_t, B_t, sl_t, su_t = trial
+    N, n, m, size = X.shape[0] - 1, X.shape[1], U.shape[1], v.size
+    EA, EB, none2, none1 = np.empty((N, n)), np.empty((N, m)), np.zeros((N, 0)), np.zeros(0)
     inf_du, s_d, s_c, ranges, c_mu = _errors(addresses, lx, lu, lN, A, B, lam, zl, zu, sl, su, has_lo, has_hi, EA, EB,
                                              none2, none1, sc, opt)
     code = _prefix(F, inf_du, s_d, s_c, ranges, c_mu, sc, ic, opt)
@@ -393,7 +394,11 @@ def plain_iteration(addresses, data, idata, tags, ipt, reg, fac, F, cur, trial, 
         return code
     values, derivatives = _values_at(addresses[0]), _derivatives_at(addresses[1])
     hessians, final_hessian = _hessians_at(addresses[2]), _final_hessian_at(addresses[3])
-    N = X.shape[0] - 1
+    Q, S, R = np.empty((N + 1, n, n)), np.empty((N, n, m)), np.empty((N, m, m))
+    Sx, Su, q, r = np.empty((N + 1, n)), np.empty((N, m)), np.empty((N + 1, n)), np.empty((N, m))
+    dX, dU, lam_s, nu0 = np.empty((N + 1, n)), np.empty((N, m)), np.empty((N + 1, n)), np.empty((N + 1, 0))
+    grad, dv, logs_work, sl_new, su_new = np.empty(size), np.empty(size), np.empty(size), np.empty(size), np.empty(size)
+    Ss, SsN, gs, gsN, x0z = none2, none1, none2, none1, np.zeros(n)
     mu, tau, s_obj = sc[MU], sc[TAU], sc[S_OBJ]
     # newton_system: the Hessian blocks, Sigma and the barrier gradient, the factorization at delta_w = 0
     if not hessians(data, idata, X, U, s_obj, lam[1:], Q[:N], S, R):
