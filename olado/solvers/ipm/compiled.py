@@ -33,17 +33,21 @@ from .linesearch import TINY_STEP
 _CLOCK_KINDS = {"values": ("objective", "constraints"), "derivatives": ("gradient", "jacobian"),
                 "hessians": ("hessian",)}
 
+#: the largest flat iterate (entries) the compiled iteration takes (zambezi N <= 315): where it
+#: pays. Measured on zambezi12 against the Python path in one process (RESULTS.md, "ipm's common
+#: iteration compiled"): 0.45 of its time at N = 24, 0.65 at 120, 0.75 at 252, but about 1.1 at
+#: N = 1 200 (not understood yet; the arithmetic is the same); above it the Python path also lets
+#: blocks go between iterations (less memory at its peak)
+PLAIN_MAX = 4096
+
 
 def plain_path(setup):
     """The :class:`PlainPath` of a solve, or None where the compiled iteration does not apply:
     the adaptive barrier update, stage or final constraint rows, a problem without compiled
     evaluations, blocks beyond the fixed-size Riccati kernels, n or m below 2 (the error pass's
-    products then follow numpy's einsum in SIMD lanes), or a flat iterate above the workspace
-    limit (at large N the Python path lets blocks go between iterations: less memory at its peak)."""
-    from .solver import REUSE_MAX  # noqa: PLC0415 - solver imports this module
-
+    products then follow numpy's einsum in SIMD lanes), or a flat iterate above PLAIN_MAX entries."""
     o, L, p = setup.options, setup.layout, setup.problem
-    if o.mu_strategy != "monotone" or L.rows or L.size > REUSE_MAX or L.n < 2 or L.m < 2:
+    if o.mu_strategy != "monotone" or L.rows or L.size > PLAIN_MAX or L.n < 2 or L.m < 2:
         return None
     get = getattr(p, "compiled_evaluations", None)
     evals = get() if get is not None else None

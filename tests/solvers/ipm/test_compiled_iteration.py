@@ -83,7 +83,7 @@ def test_where_the_compiled_iteration_does_not_apply():
     p = zambezi_problem("zambezi12", N=24, start="balance")
     assert plain_path(Setup(IPMSolver(mu_strategy="adaptive").options, p, limits, None)) is None
     assert Setup(IPMSolver().options, PROBLEMS["lq-box"](N=7), limits, None).plain is None   # no compiled evaluations
-    big = zambezi_problem("zambezi", N=3000, start="balance")       # above the workspace limit
+    big = zambezi_problem("zambezi", N=324, start="balance")        # above PLAIN_MAX
     assert Setup(IPMSolver().options, big, limits, None).plain is None
 
 
