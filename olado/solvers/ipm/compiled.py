@@ -33,6 +33,10 @@ from .linesearch import TINY_STEP
 _CLOCK_KINDS = {"values": ("objective", "constraints"), "derivatives": ("gradient", "jacobian"),
                 "hessians": ("hessian",)}
 
+#: the iterations one compiled call takes at most (the time limit and interrupts are checked
+#: between calls: at PLAIN_MAX entries an iteration is about 0.5 ms)
+BATCH = 8
+
 #: the largest flat iterate (entries) the compiled iteration takes (zambezi N <= 315): where it
 #: pays. Measured on zambezi12 against the Python path in one process (RESULTS.md, "ipm's common
 #: iteration compiled"): 0.45 of its time at N = 24, 0.65 at 120, 0.75 at 252, but about 1.1 at
@@ -147,6 +151,10 @@ class PlainPath:
         self.bounds = (b.lo, b.hi, b.has_lo, b.has_hi, b.one_lo_f, b.one_hi_f)
         self.x0 = L.x0
         self.sc, self.ic = np.zeros(IK.N_SC), np.zeros(IK.N_IC, dtype=np.int64)
+        #: the history rows of the steps one call takes (iteration_kernels.plain_iteration): one
+        #: with a callback or a log line per iteration, else up to BATCH
+        steps = 1 if o.callback is not None or o.verbose >= 2 else BATCH
+        self.H = np.empty((steps, IK.N_H))
         self.opt = self._options(o, L, b)
         self.active = False
 
@@ -238,27 +246,27 @@ class PlainPath:
 
     # ------------------------------------------------------------------------ one iteration
     def iterate(self, st):
-        """One compiled iteration: the kernel's return code (iteration_kernels: STEP, SUCCESS,
-        ACCEPTABLE_END, MAX_ITERATIONS, or >= BAIL, the iteration left to the Python path with the
-        state back in ``st``); None when the iterate cannot enter (the Python path goes on)."""
+        """Compiled iterations (iteration_kernels.plain_iteration): (the last one's return code --
+        STEP, SUCCESS, ACCEPTABLE_END, MAX_ITERATIONS, or >= BAIL, that iteration left to the
+        Python path with the state back in ``st`` --, the history rows of the steps taken); None
+        when the iterate cannot enter (the Python path goes on)."""
         if not self.active and not self.enter(st):
             return None
-        ev, ic = self.evals, self.ic
-        code = IK.plain_iteration(self.addresses, ev.data, ev.idata, self.tags, self.ipt, self.reg, self.fac, self.F,
-                                  self.cur, self.trial, self.mult, self.mult_new, self.bounds, self.x0,
-                                  self.sc, ic, self.opt)
-        if code == IK.STEP:
+        ev, H = self.evals, self.H
+        code, steps = IK.plain_iteration(self.addresses, ev.data, ev.idata, self.tags, self.ipt, self.reg, self.fac,
+                                         self.F, self.cur, self.trial, self.mult, self.mult_new, self.bounds, self.x0,
+                                         self.sc, self.ic, self.opt, H)
+        if steps % 2:
             self._swap()
-            self._state_scalars(st)
+        if steps:
             st.delta = 0.0
-            st.compiled_steps += 1
-        elif code == IK.DERIVATIVES_NOT_FINITE:
+            st.compiled_steps += steps
+        if code == IK.DERIVATIVES_NOT_FINITE:
             self._raise_not_finite()
-        else:
-            self._state_scalars(st)
-            if code >= IK.BAIL:
-                self.leave(st)
-        return code
+        self._state_scalars(st)
+        if code >= IK.BAIL:
+            self.leave(st)
+        return code, H[:steps].tolist()
 
     def _count(self, st):
         """The evaluations and factorizations of the steps taken since :meth:`enter` into the

@@ -372,8 +372,41 @@ def _trial_terms(addresses, v_t, X_t, f_t, h_t, sl_t, su_t, lo, hi, has_lo, has_
     return l1, mx, sc[S_OBJ] * J_t + (-mu * logs + opt[KAPPA_D] * mu * damped), logs, damped
 
 
+#: the columns of plain_iteration's history rows (one per step taken): the iteration, the
+#: constraint violation and dual infeasibility at its start, mu, alpha, alpha_z, the objective after it
+H_IT, H_INF_PR, H_INF_DU, H_MU, H_ALPHA, H_ALPHA_Z, H_J = range(7)
+N_H = 7
+
+
 @nb.njit(no_cfunc_wrapper=True, **_JIT)
-def plain_iteration(addresses, data, idata, tags, ipt, reg, fac, F, cur, trial, mult, mult_new, bounds, x0, sc, ic, opt):
+def plain_iteration(addresses, data, idata, tags, ipt, reg, fac, F, cur, trial, mult, mult_new, bounds, x0, sc, ic, opt,
+                    H):
+    """Up to ``H.shape[0]`` iterations (solver.iterate) of :func:`_iteration`, one after another;
+    returns (the last one's code, the steps taken). After each step the new iterate's arrays and
+    multipliers become the iterate's (the sets swapped, as compiled.PlainPath._swap does: after an
+    odd number of steps the caller swaps its sets once) and the step's history row is written into
+    ``H``. Several iterations per call save the call's unboxing of about fifty arrays and the Python
+    around it; a solve with a callback or a log line per iteration asks for one."""
+    steps = 0
+    while True:
+        code = _iteration(addresses, data, idata, tags, ipt, reg, fac, F, cur, trial, mult, mult_new, bounds, x0, sc, ic,
+                          opt)
+        if code != STEP:
+            return code, steps
+        H[steps, H_IT], H[steps, H_INF_PR], H[steps, H_INF_DU], H[steps, H_MU] = ic[IT], sc[INF_PR], sc[INF_DU], sc[MU]
+        H[steps, H_ALPHA], H[steps, H_ALPHA_Z], H[steps, H_J] = sc[ALPHA], sc[ALPHA_Z], sc[J]
+        steps += 1
+        cur, trial = ((trial[0], trial[1], trial[2], trial[4], trial[6], trial[7], trial[8], trial[9], trial[10],
+                       trial[11], trial[12]),
+                      (cur[0], cur[1], cur[2], trial[3], cur[3], trial[5], cur[4], cur[5], cur[6], cur[7], cur[8], cur[9],
+                       cur[10]))
+        mult, mult_new = mult_new, mult
+        if steps == H.shape[0]:
+            return STEP, steps
+
+
+@nb.njit(error_model="numpy", **_INNER)
+def _iteration(addresses, data, idata, tags, ipt, reg, fac, F, cur, trial, mult, mult_new, bounds, x0, sc, ic, opt):
     """One iteration (solver.iterate) on the dynamics-only Newton matrix with fixed-size Riccati
     kernels; returns STEP (the step taken: the new iterate in ``trial``, its multipliers in
     ``mult_new``, sc and ic updated), SUCCESS / ACCEPTABLE_END / MAX_ITERATIONS (the stopping test,

@@ -516,9 +516,9 @@ def iterate(setup, st):
     setup.limits.check()
     plain = setup.plain
     if plain is not None and st.watch is None and setup.on_mu_change is None:
-        code = plain.iterate(st)
-        if code is not None:
-            return _after_compiled(setup, st, code)
+        done = plain.iterate(st)
+        if done is not None:
+            return _after_compiled(setup, st, *done)
     if converged(setup, st):
         return True
     if st.it >= o.max_iter:
@@ -528,14 +528,16 @@ def iterate(setup, st):
     return _body(setup, st)
 
 
-def _after_compiled(setup, st, code):
-    """The solver's part of a compiled iteration that returned ``code`` (iteration_kernels)."""
+def _after_compiled(setup, st, code, rows):
+    """The solver's part of compiled iterations: the history entries of the steps taken (``rows``,
+    iteration_kernels.plain_iteration's), then what the last one's ``code`` says."""
+    for it, inf_pr, inf_du, mu, alpha, alpha_z, J in rows:
+        if _record(setup, st, {"iter": int(it), "inf_pr": inf_pr, "inf_du": inf_du, "mu": mu, "delta_w": 0.0,
+                               "watchdog": False, "alpha": alpha, "alpha_z": alpha_z, "soc": 0,
+                               "restoration": False, "objective": J}):
+            return True         # (the callback stopped the solve: one step per call then)
     if code == _IK.STEP:
-        sc = setup.plain.sc
-        return _record(setup, st, {"iter": st.it, "inf_pr": st.errors[2], "inf_du": st.errors[1], "mu": st.mu,
-                                   "delta_w": 0.0, "watchdog": False, "alpha": float(sc[_IK.ALPHA]),
-                                   "alpha_z": float(sc[_IK.ALPHA_Z]), "soc": 0, "restoration": False,
-                                   "objective": float(sc[_IK.J])})
+        return False
     if code == _IK.SUCCESS:
         return _stop_optimal(setup, st)
     if code == _IK.ACCEPTABLE_END:
