@@ -1,7 +1,7 @@
-"""The interior-point solver's common iteration as one compiled call (:mod:`.iteration_kernels`)
-for problems that hand their evaluations over as compiled functions
-(:meth:`olado.problems.docp.DOCP.compiled_evaluations`): at small N an iteration of the Python
-path is mostly the Python between its fifteen compiled passes, not their arithmetic.
+"""The interior-point solver's common iteration compiled (:mod:`.iteration_kernels`; up to
+:data:`BATCH` iterations per call) for small problems that hand their evaluations over as compiled
+functions (:meth:`olado.problems.docp.DOCP.compiled_evaluations`): at small N an iteration of the
+Python path is mostly the Python between its fifteen compiled passes, not their arithmetic.
 
 :class:`PlainPath` holds the iterate in its own arrays while the compiled iterations run (two
 sets: the iterate and the trial point, swapped when a step is taken) and keeps the solver's
