@@ -517,11 +517,12 @@ class Zambezi(DOCP):
         return CompiledEvaluations(*_compiled_entries(), data, idata, _COUNTS)
 
     def _own_entries(self):
-        """Whether the entry points the compiled evaluations stand for (:data:`_ENTRIES`) are
+        """Whether the entry points the compiled evaluations stand for (:data:`_ENTRY_POINTS`) are
         Zambezi's own: a subclass or instance replacing one (a penalty added to eval_values, say)
         must be evaluated through it."""
         cls = type(self)
-        return all(getattr(cls, nm) is getattr(Zambezi, nm) for nm in _ENTRIES) and not (self.__dict__.keys() & _ENTRIES)
+        return (all(getattr(cls, nm) is getattr(Zambezi, nm) for nm in _ENTRY_POINTS)
+                and not self.__dict__.keys() & _ENTRY_POINTS)
 
     def final_cost(self, x):
         """F^N = sum_i phi_i (V_i - V_i,ref)^2 - nu_E sum_i fe_i(V_i), eq. (44)."""
@@ -654,7 +655,7 @@ _NAMES = {"values": _VALUE_FUNCTIONS, "derivatives": _DERIVATIVE_FUNCTIONS, "hes
 #: (class, functions) -> the class keeps Zambezi's functions (checked once per class)
 _PLAIN = {}
 #: the entry points Zambezi.compiled_evaluations stands for
-_ENTRIES = frozenset(("eval_values", "eval_first_derivatives", "eval_stage_hessians", "eval_final_hessian"))
+_ENTRY_POINTS = frozenset(("eval_values", "eval_first_derivatives", "eval_stage_hessians", "eval_final_hessian"))
 
 def zambezi_problem(family="zambezi12", N=24, start="balance", year=None, extend="cyclic", **options):
     """Build a Zambezi DOCP (paper 001 sec. 5). See :class:`Zambezi` for the arguments."""

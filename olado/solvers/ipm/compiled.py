@@ -22,16 +22,16 @@ from typing import NamedTuple
 import numpy as np
 
 from ...errors import NonFiniteEvaluationError
-from ..sqp.state import Point
+from ..sqp.state import _DERIVATIVE_KINDS, _VALUE_KINDS, Point
 from . import iteration_kernels as IK
 from .barrier import EPS, KAPPA_D
 from .evaluation import residual_norms
-from .filter import Filter
+from .filter import FilterConstants
 from .linesearch import TINY_STEP
 
-#: the Clock's evaluation kinds of one call of each compiled function (sqp.state.Point)
-_CLOCK_KINDS = {"values": ("objective", "constraints"), "derivatives": ("gradient", "jacobian"),
-                "hessians": ("hessian",)}
+#: the Clock's evaluation kinds of one call of each compiled function (those sqp.state.Point and
+#: solver.newton_system count)
+_CLOCK_KINDS = {"values": _VALUE_KINDS, "derivatives": _DERIVATIVE_KINDS, "hessians": ("hessian",)}
 
 #: the iterations one compiled call takes at most (the time limit and interrupts are checked
 #: between calls: at PLAIN_MAX entries an iteration is about 0.5 ms)
@@ -166,7 +166,7 @@ class PlainPath:
 
     @staticmethod
     def _options(o, L, b):
-        f = Filter.start(1.0).const
+        f = FilterConstants()
         opt = np.zeros(IK.N_OPT)
         for slot, value in ((IK.TOL, o.tol), (IK.DUAL_INF_TOL, o.dual_inf_tol), (IK.CONSTR_VIOL_TOL, o.constr_viol_tol),
                             (IK.COMPL_INF_TOL, o.compl_inf_tol), (IK.ACC_TOL, o.acceptable_tol),
@@ -194,7 +194,7 @@ class PlainPath:
         setup = self.setup
         b, pt, v = setup.bounds, st.pt, st.v
         terms = b.barrier_terms(v)
-        if terms is None or st.filt.const != Filter.start(1.0).const or len(st.filt.entries) > self.F.shape[0]:
+        if terms is None or st.filt.const != FilterConstants() or len(st.filt.entries) > self.F.shape[0]:
             return False
         pt.add_derivatives(setup.problem)
         sl, su = b.slacks(v)
@@ -218,12 +218,10 @@ class PlainPath:
         setup, L = self.setup, self.setup.layout
         v, X, U, h, lx, lu, lN, A, B, _, _ = self.cur
         sc, ic = self.sc, self.ic
-        pt = Point.__new__(Point)
-        pt.clock, pt.X, pt.U, pt.J, pt.h = st.clock, X.copy(), U.copy(), float(sc[IK.J]), h.copy()
-        pt.g, pt.gN = np.zeros((L.N, 0)), np.zeros(0)
-        pt.lx, pt.lu, pt.lN, pt.A, pt.B = lx.copy(), lu.copy(), lN.copy(), A.copy(), B.copy()
-        pt.Cx, pt.Cu, pt.CN = np.zeros((L.N, 0, L.n)), np.zeros((L.N, 0, L.m)), np.zeros((0, L.n))
-        pt.derivs = True
+        no_g, no_gN = L.no_rows[:2]                     # (no constraint rows: the Layout's empty arrays)
+        no_Cx, no_Cu, no_CN = L.no_constraint_rows[:3]
+        pt = Point.evaluated(st.clock, X.copy(), U.copy(), (float(sc[IK.J]), h.copy(), no_g, no_gN),
+                             (lx.copy(), lu.copy(), lN.copy(), A.copy(), B.copy(), no_Cx, no_Cu, no_CN))
         st.v, st.pt = v.copy(), pt
         st.lam, st.zl, st.zu = (a.copy() for a in self.mult)
         self._state_scalars(st)

@@ -67,6 +67,17 @@ class Point:
         if derivatives:
             self.add_derivatives(problem)
 
+    @classmethod
+    def evaluated(cls, clock, X, U, values, derivatives):
+        """The Point of numbers evaluated elsewhere (a compiled solver loop): ``values`` (J, h, g,
+        gN) and ``derivatives`` (lx, lu, lN, A, B, Cx, Cu, CN), nothing evaluated or counted."""
+        pt = cls.__new__(cls)
+        pt.clock, pt.X, pt.U = clock, X, U
+        pt.J, pt.h, pt.g, pt.gN = values
+        pt.lx, pt.lu, pt.lN, pt.A, pt.B, pt.Cx, pt.Cu, pt.CN = derivatives
+        pt.derivs = True
+        return pt
+
     def add_derivatives(self, p):
         """Cost gradients lx, lu, lN and Jacobians A, B (dynamics), Cx, Cu (stage), CN (final)."""
         if self.derivs:
